@@ -1,0 +1,157 @@
+//! `lightpath bench`: throughput of the estimators on the reference scene of issue #2 (box 10×10×10 λ,
+//! mfp 5 λ, isotropic, 4 plane-wave lights, 72 far-field views, reversed paths) and the machine's
+//! matrix-multiply rates for comparison. Timings are measured, never asserted.
+
+use crate::math::{C64, Rng, rotate, stream_rng};
+use crate::mc::{self, Plan};
+use crate::medium::{Geometry, Medium, PhaseFunction, Scattering};
+use crate::speckle::paths::{EventSink, SubpathSampler};
+use crate::speckle::{Covariance, FieldSampler, Light, Scene, View};
+use glam::DVec3;
+use rayon::prelude::*;
+use std::time::Instant;
+
+/// The benchmark scene.
+pub fn reference_scene() -> Scene {
+    let medium = Medium {
+        geometry: Geometry::boxed([10.0; 3]),
+        sigma_s: 0.2,
+        sigma_a: 0.0,
+        scattering: Scattering::single(PhaseFunction::Isotropic),
+    };
+    let lights = [0.0f64, 2.0, 5.0, 20.0]
+        .iter()
+        .map(|a| Light::PlaneWave {
+            direction: rotate(DVec3::Z, DVec3::Y, a.to_radians()),
+        })
+        .collect();
+    let views = (0..72)
+        .map(|i| View::FarField {
+            direction: rotate(DVec3::Z, DVec3::Y, (5.0 * i as f64).to_radians()),
+        })
+        .collect();
+    Scene::new(1.0, medium, lights, views)
+}
+
+struct Count(u64);
+impl EventSink for Count {
+    fn event(&mut self, _: bool, _: &[C64], _: &mut Rng) {
+        self.0 += 1;
+    }
+}
+
+/// Mean number of events (rank-1 updates) per path.
+fn events_per_path(scene: &Scene) -> f64 {
+    let s = SubpathSampler::new(scene, SubpathSampler::all_pairs(scene), true);
+    let mut sc = s.scratch();
+    let mut rng = stream_rng(99, 0);
+    let mut c = Count(0);
+    let n = 100_000;
+    for _ in 0..n {
+        s.trace(&mut rng, &mut sc, &mut c);
+    }
+    c.0 as f64 / n as f64
+}
+
+/// GFLOP/s of square real and complex GEMMs of size `n`, one per thread on every thread at once.
+fn gemm_rates(n: usize, reps: usize) -> (f64, f64) {
+    let threads = rayon::current_num_threads();
+    let a = vec![1.0e-3f64; 2 * n * n];
+    let time = |complex: bool| {
+        let t0 = Instant::now();
+        (0..threads).into_par_iter().for_each(|_| {
+            let mut c = vec![0.0f64; 2 * n * n];
+            for _ in 0..reps {
+                // SAFETY: a and c hold n×n (complex: 2n×n f64) matrices in row-major order.
+                unsafe {
+                    if complex {
+                        matrixmultiply::zgemm(
+                            matrixmultiply::CGemmOption::Standard,
+                            matrixmultiply::CGemmOption::Standard,
+                            n,
+                            n,
+                            n,
+                            [1.0, 0.0],
+                            a.as_ptr() as *const [f64; 2],
+                            n as isize,
+                            1,
+                            a.as_ptr() as *const [f64; 2],
+                            n as isize,
+                            1,
+                            [1.0, 0.0],
+                            c.as_mut_ptr() as *mut [f64; 2],
+                            n as isize,
+                            1,
+                        );
+                    } else {
+                        matrixmultiply::dgemm(
+                            n,
+                            n,
+                            n,
+                            1.0,
+                            a.as_ptr(),
+                            n as isize,
+                            1,
+                            a.as_ptr(),
+                            n as isize,
+                            1,
+                            1.0,
+                            c.as_mut_ptr(),
+                            n as isize,
+                            1,
+                        );
+                    }
+                }
+            }
+            std::hint::black_box(&c);
+        });
+        t0.elapsed().as_secs_f64()
+    };
+    let flops = (threads * reps) as f64 * 2.0 * (n * n * n) as f64;
+    let d = flops / time(false) / 1e9;
+    let z = 4.0 * flops / time(true) / 1e9;
+    (d, z)
+}
+
+/// Run the benchmark and describe the figures.
+pub fn run(quick: bool) -> Result<String, String> {
+    let scene = reference_scene();
+    let threads = rayon::current_num_threads();
+    let j = scene.lights.len() * scene.views.len();
+    let events = events_per_path(&scene);
+    let paths = if quick { 4_000 } else { 60_000 };
+
+    let cov = Covariance::all_pairs(&scene, true);
+    let plan = Plan::new(1, paths, 500);
+    let t0 = Instant::now();
+    std::hint::black_box(mc::run(&cov, &plan, 0..plan.chunks, &[], &|_| {}));
+    let t_cov = t0.elapsed().as_secs_f64();
+    let cov_paths = plan.samples() as f64 / t_cov;
+    let cov_updates = cov_paths * events * (j * j) as f64;
+
+    let field = FieldSampler::new(&scene, SubpathSampler::all_pairs(&scene), true);
+    let plan_f = Plan::new(1, paths * 10, 5000);
+    let t0 = Instant::now();
+    std::hint::black_box(mc::run(&field, &plan_f, 0..plan_f.chunks, &[], &|_| {}));
+    let t_field = t0.elapsed().as_secs_f64();
+    let field_paths = plan_f.samples() as f64 / t_field;
+    let field_updates = field_paths * events * j as f64;
+
+    let (dgemm, zgemm) = gemm_rates(2 * j, if quick { 2 } else { 8 });
+    let cov_flops = cov_updates * 8.0 / 1e9;
+    Ok(format!(
+        "reference scene: box 10×10×10 λ, mfp 5 λ, isotropic, 4 plane-wave lights × 72 far-field views (J = {j}), reversed paths; {threads} thread(s)\n\
+         events (rank-1 updates) per path: {events:.3}\n\
+         covariance: {cov_paths:.0} paths/s ({:.0} per thread), {:.3e} entry-updates/s = {cov_flops:.2} GFLOP/s\n\
+         fields:     {field_paths:.0} paths/s ({:.0} per thread), {:.3e} pixel-updates/s\n\
+         GEMM ({}², all threads): real dgemm {dgemm:.2} GFLOP/s, complex zgemm {zgemm:.2} GFLOP/s\n\
+         covariance update at {:.0} % of the complex GEMM rate ({:.0} % of dgemm)",
+        cov_paths / threads as f64,
+        cov_updates,
+        field_paths / threads as f64,
+        field_updates,
+        2 * j,
+        100.0 * cov_flops / zgemm,
+        100.0 * cov_flops / dgemm,
+    ))
+}

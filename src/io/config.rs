@@ -1,0 +1,648 @@
+//! Scene configs: the TOML schema, its validation, and conversion to a [`Scene`].
+//!
+//! Unknown keys and unphysical values are errors naming the key, the value and what is allowed,
+//! e.g. `medium.albedo = 1.3: must be within [0, 1]`. Nothing here panics on user input.
+
+use crate::math::rotate;
+use crate::medium::{Geometry, Medium, PhaseFunction, Scattering, Table};
+use crate::speckle::{Light, Scene, View};
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// A config error: a message naming the key, the value and the allowed range.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ConfigError(pub String);
+
+impl std::fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for ConfigError {}
+
+fn err<T>(msg: impl Into<String>) -> Result<T, ConfigError> {
+    Err(ConfigError(msg.into()))
+}
+
+/// The config file as written (see `configs/` for examples).
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Config {
+    /// Wavelength, in the scene's length unit.
+    pub wavelength: f64,
+    pub medium: MediumConfig,
+    #[serde(default)]
+    pub light: Vec<LightConfig>,
+    #[serde(default)]
+    pub view: Vec<ViewConfig>,
+    #[serde(default)]
+    pub render: RenderConfig,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub memory_effect: Option<MemoryEffectConfig>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub speckle: Option<SpeckleConfig>,
+}
+
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq, Default)]
+#[serde(deny_unknown_fields)]
+pub struct MediumConfig {
+    /// Full side lengths of a box centred at the origin.
+    #[serde(rename = "box", default, skip_serializing_if = "Option::is_none")]
+    pub box_size: Option<[f64; 3]>,
+    /// Thickness of a slab `|z| ≤ slab/2`, unbounded in x and y (results per unit area).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub slab: Option<f64>,
+    /// Lateral side of the patch over which a slab's first vertices are drawn (default: 4 × thickness).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub slab_window: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mfp: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub albedo: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sigma_s: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sigma_a: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub phase: Option<PhaseConfig>,
+}
+
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum PhaseConfig {
+    Isotropic,
+    Hg {
+        g: f64,
+    },
+    /// `ρ(cos θ)` values (`values`) or a complex amplitude (`amplitude_re`, `amplitude_im`) on the
+    /// grid `cos` (default: uniform over [-1, 1]), inline or from a CSV `file` with columns
+    /// `cos,value` or `cos,re,im`. Normalised here.
+    Tabulated {
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        cos: Option<Vec<f64>>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        values: Option<Vec<f64>>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        amplitude_re: Option<Vec<f64>>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        amplitude_im: Option<Vec<f64>>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        file: Option<PathBuf>,
+    },
+    /// Several particle types; `weight` is each type's share of `σ_s` (paper 001, App. 9.1).
+    Mixture {
+        components: Vec<ComponentConfig>,
+    },
+}
+
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ComponentConfig {
+    pub weight: f64,
+    pub phase: PhaseConfig,
+}
+
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum LightConfig {
+    PlaneWave { direction: [f64; 3] },
+    Point { position: [f64; 3] },
+}
+
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum ViewConfig {
+    FarField {
+        direction: [f64; 3],
+    },
+    Point {
+        position: [f64; 3],
+    },
+    /// `count` far-field directions: `start` rotated about `axis` by `i · span_deg / count` degrees.
+    FarFieldRing {
+        start: [f64; 3],
+        axis: [f64; 3],
+        count: u64,
+        #[serde(default = "full_turn")]
+        span_deg: f64,
+    },
+    /// A `pixels[0] × pixels[1]` image of far-field directions about `center`, spanning
+    /// `width_deg` degrees across (row-major, x along the frame's first axis).
+    FarFieldGrid {
+        center: [f64; 3],
+        width_deg: f64,
+        pixels: [u64; 2],
+    },
+}
+
+fn full_turn() -> f64 {
+    360.0
+}
+
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RenderConfig {
+    #[serde(default = "default_samples")]
+    pub samples: u64,
+    #[serde(default = "default_seed")]
+    pub seed: u64,
+    /// Paths per chunk (the unit of parallel work and of batch-means errors).
+    #[serde(default = "default_chunk")]
+    pub chunk: u64,
+    /// Include reversed paths (coherent backscattering); `false` is the forward-only (CTE) variant.
+    #[serde(default = "yes")]
+    pub reversed: bool,
+}
+
+fn default_samples() -> u64 {
+    100_000
+}
+fn default_seed() -> u64 {
+    1
+}
+fn default_chunk() -> u64 {
+    1000
+}
+fn yes() -> bool {
+    true
+}
+
+impl Default for RenderConfig {
+    fn default() -> Self {
+        RenderConfig {
+            samples: default_samples(),
+            seed: default_seed(),
+            chunk: default_chunk(),
+            reversed: true,
+        }
+    }
+}
+
+/// Memory-effect scan: light 0 and view 0 tilted together about `axis` by each angle.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct MemoryEffectConfig {
+    pub angles_deg: Vec<f64>,
+    #[serde(default = "y_axis")]
+    pub axis: [f64; 3],
+}
+
+fn y_axis() -> [f64; 3] {
+    [0.0, 1.0, 0.0]
+}
+
+/// Speckle images: `realisations` independent images, each from `paths` subpaths (Algorithm 2).
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SpeckleConfig {
+    #[serde(default = "one")]
+    pub realisations: u64,
+    #[serde(default = "default_paths")]
+    pub paths: u64,
+}
+
+fn one() -> u64 {
+    1
+}
+fn default_paths() -> u64 {
+    100_000
+}
+
+/// Keys that hold whole numbers; everything else numeric is read as a float.
+const INTEGER_KEYS: [&str; 7] = [
+    "samples",
+    "seed",
+    "chunk",
+    "count",
+    "pixels",
+    "realisations",
+    "paths",
+];
+
+/// Let `1` stand for `1.0` in float keys and `1e6` for `1000000` in integer keys.
+fn normalise_numbers(v: &mut toml::Value, key: &str) {
+    match v {
+        toml::Value::Integer(i) if !INTEGER_KEYS.contains(&key) => {
+            *v = toml::Value::Float(*i as f64)
+        }
+        toml::Value::Float(f)
+            if INTEGER_KEYS.contains(&key) && f.fract() == 0.0 && *f >= 0.0 && *f < 9.0e15 =>
+        {
+            *v = toml::Value::Integer(*f as i64)
+        }
+        toml::Value::Array(a) => a.iter_mut().for_each(|x| normalise_numbers(x, key)),
+        toml::Value::Table(t) => t.iter_mut().for_each(|(k, x)| normalise_numbers(x, k)),
+        _ => {}
+    }
+}
+
+impl Config {
+    /// Parse TOML text; `base` resolves relative file paths (tabulated phase functions).
+    pub fn from_toml(text: &str, base: Option<&Path>) -> Result<Config, ConfigError> {
+        let mut value: toml::Value =
+            toml::from_str(text).map_err(|e| ConfigError(format!("invalid TOML: {e}")))?;
+        normalise_numbers(&mut value, "");
+        let mut cfg: Config = serde_path_to_error::deserialize(value).map_err(|e| {
+            let path = e.path().to_string();
+            let inner = e.into_inner().to_string();
+            ConfigError(if path == "." {
+                inner
+            } else {
+                format!("{path}: {inner}")
+            })
+        })?;
+        if let Some(base) = base {
+            cfg.resolve_paths(base);
+        }
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    /// Read and parse a config file.
+    pub fn from_file(path: &Path) -> Result<Config, ConfigError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| ConfigError(format!("cannot read config file {}: {e}", path.display())))?;
+        Config::from_toml(&text, path.parent())
+            .map_err(|e| ConfigError(format!("{}: {}", path.display(), e.0)))
+    }
+
+    fn resolve_paths(&mut self, base: &Path) {
+        fn fix(p: &mut PhaseConfig, base: &Path) {
+            match p {
+                PhaseConfig::Tabulated { file: Some(f), .. } if f.is_relative() => {
+                    *f = base.join(&*f)
+                }
+                PhaseConfig::Mixture { components } => {
+                    components.iter_mut().for_each(|c| fix(&mut c.phase, base))
+                }
+                _ => {}
+            }
+        }
+        if let Some(p) = &mut self.medium.phase {
+            fix(p, base);
+        }
+    }
+
+    /// Check every value (the whole scene is built once to find all errors of substance).
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        self.scene().map(|_| ())?;
+        let r = &self.render;
+        if r.samples == 0 {
+            return err("render.samples = 0: must be at least 1");
+        }
+        if r.chunk == 0 {
+            return err("render.chunk = 0: must be at least 1");
+        }
+        if let Some(me) = &self.memory_effect {
+            if me.angles_deg.is_empty() {
+                return err("memory_effect.angles_deg = []: give at least one angle");
+            }
+            for (i, a) in me.angles_deg.iter().enumerate() {
+                if !a.is_finite() || a.abs() > 180.0 {
+                    return err(format!(
+                        "memory_effect.angles_deg[{i}] = {a}: must be a finite angle within [-180, 180]"
+                    ));
+                }
+            }
+            unit("memory_effect.axis", me.axis)?;
+        }
+        if let Some(s) = &self.speckle {
+            if s.realisations == 0 {
+                return err("speckle.realisations = 0: must be at least 1");
+            }
+            if s.paths == 0 {
+                return err("speckle.paths = 0: must be at least 1");
+            }
+        }
+        Ok(())
+    }
+
+    /// Build the physical scene (lights and views expanded).
+    pub fn scene(&self) -> Result<Scene, ConfigError> {
+        positive("wavelength", self.wavelength)?;
+        let medium = self.medium.build()?;
+        if self.light.is_empty() {
+            return err("light: the list is empty; give at least one [[light]]");
+        }
+        if self.view.is_empty() {
+            return err("view: the list is empty; give at least one [[view]]");
+        }
+        let mut lights = Vec::new();
+        for (i, l) in self.light.iter().enumerate() {
+            lights.push(match l {
+                LightConfig::PlaneWave { direction } => Light::PlaneWave {
+                    direction: unit(&format!("light[{i}].direction"), *direction)?,
+                },
+                LightConfig::Point { position } => Light::Point {
+                    position: point(&format!("light[{i}].position"), *position, &medium.geometry)?,
+                },
+            });
+        }
+        let mut views = Vec::new();
+        for (i, v) in self.view.iter().enumerate() {
+            expand_view(i, v, &medium.geometry, &mut views)?;
+        }
+        Ok(Scene::new(self.wavelength, medium, lights, views))
+    }
+}
+
+fn positive(key: &str, v: f64) -> Result<f64, ConfigError> {
+    if v.is_finite() && v > 0.0 {
+        Ok(v)
+    } else {
+        err(format!("{key} = {v}: must be a positive finite number"))
+    }
+}
+
+fn unit(key: &str, v: [f64; 3]) -> Result<DVec3, ConfigError> {
+    let d = DVec3::from_array(v);
+    if d.is_finite() && d.length() > 0.0 {
+        Ok(d.normalize())
+    } else {
+        err(format!("{key} = {v:?}: must be a non-zero finite vector"))
+    }
+}
+
+fn point(key: &str, v: [f64; 3], g: &Geometry) -> Result<DVec3, ConfigError> {
+    let p = DVec3::from_array(v);
+    if !p.is_finite() {
+        return err(format!("{key} = {v:?}: must be finite"));
+    }
+    if let Geometry::Slab { .. } = g {
+        return err(format!(
+            "{key}: point lights and views need a bounded medium; use medium.box instead of medium.slab"
+        ));
+    }
+    if g.contains(p) {
+        return err(format!(
+            "{key} = {v:?}: must lie outside the medium (points inside are not supported)"
+        ));
+    }
+    Ok(p)
+}
+
+fn expand_view(
+    i: usize,
+    v: &ViewConfig,
+    g: &Geometry,
+    out: &mut Vec<View>,
+) -> Result<(), ConfigError> {
+    match v {
+        ViewConfig::FarField { direction } => out.push(View::FarField {
+            direction: unit(&format!("view[{i}].direction"), *direction)?,
+        }),
+        ViewConfig::Point { position } => out.push(View::Point {
+            position: point(&format!("view[{i}].position"), *position, g)?,
+        }),
+        ViewConfig::FarFieldRing {
+            start,
+            axis,
+            count,
+            span_deg,
+        } => {
+            let s = unit(&format!("view[{i}].start"), *start)?;
+            let a = unit(&format!("view[{i}].axis"), *axis)?;
+            if *count == 0 || *count > 100_000 {
+                return err(format!(
+                    "view[{i}].count = {count}: must be within [1, 100000]"
+                ));
+            }
+            if !span_deg.is_finite() || *span_deg <= 0.0 || *span_deg > 360.0 {
+                return err(format!(
+                    "view[{i}].span_deg = {span_deg}: must be within (0, 360]"
+                ));
+            }
+            for n in 0..*count {
+                let ang = (span_deg * n as f64 / *count as f64).to_radians();
+                out.push(View::FarField {
+                    direction: rotate(s, a, ang).normalize(),
+                });
+            }
+        }
+        ViewConfig::FarFieldGrid {
+            center,
+            width_deg,
+            pixels,
+        } => {
+            let c = unit(&format!("view[{i}].center"), *center)?;
+            if !width_deg.is_finite() || *width_deg <= 0.0 || *width_deg >= 180.0 {
+                return err(format!(
+                    "view[{i}].width_deg = {width_deg}: must be within (0, 180)"
+                ));
+            }
+            let [nx, ny] = *pixels;
+            if nx == 0 || ny == 0 || nx * ny > 1_000_000 {
+                return err(format!(
+                    "view[{i}].pixels = {pixels:?}: each must be at least 1 and nx·ny at most 1000000"
+                ));
+            }
+            let (ex, ey) = crate::math::orthonormal_basis(c);
+            let step = width_deg.to_radians() / nx as f64;
+            for iy in 0..ny {
+                for ix in 0..nx {
+                    let ax = (ix as f64 - 0.5 * (nx as f64 - 1.0)) * step;
+                    let ay = (iy as f64 - 0.5 * (ny as f64 - 1.0)) * step;
+                    out.push(View::FarField {
+                        direction: (c + ex * ax.tan() + ey * ay.tan()).normalize(),
+                    });
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+impl MediumConfig {
+    fn build(&self) -> Result<Medium, ConfigError> {
+        let geometry = match (self.box_size, self.slab) {
+            (Some(b), None) => {
+                for (a, v) in b.iter().enumerate() {
+                    positive(&format!("medium.box[{a}]"), *v)?;
+                }
+                if self.slab_window.is_some() {
+                    return err("medium.slab_window: only allowed with medium.slab");
+                }
+                Geometry::boxed(b)
+            }
+            (None, Some(l)) => {
+                positive("medium.slab", l)?;
+                let w = match self.slab_window {
+                    Some(w) => positive("medium.slab_window", w)?,
+                    None => 4.0 * l,
+                };
+                Geometry::slab(l, w)
+            }
+            (Some(_), Some(_)) => return err("medium: give either box or slab, not both"),
+            (None, None) => {
+                return err("medium: missing geometry; give box = [x, y, z] or slab = thickness");
+            }
+        };
+        let (sigma_s, sigma_a) = match (self.mfp, self.albedo, self.sigma_s, self.sigma_a) {
+            (Some(mfp), albedo, None, None) => {
+                positive("medium.mfp", mfp)?;
+                let a = albedo.unwrap_or(1.0);
+                if !(0.0..=1.0).contains(&a) {
+                    return err(format!("medium.albedo = {a}: must be within [0, 1]"));
+                }
+                if a == 0.0 {
+                    return err("medium.albedo = 0: must be positive (nothing would scatter)");
+                }
+                (a / mfp, (1.0 - a) / mfp)
+            }
+            (None, None, Some(s), a) => {
+                positive("medium.sigma_s", s)?;
+                let a = a.unwrap_or(0.0);
+                if !a.is_finite() || a < 0.0 {
+                    return err(format!(
+                        "medium.sigma_a = {a}: must be a finite number >= 0"
+                    ));
+                }
+                (s, a)
+            }
+            (None, Some(_), None, None) => return err("medium.albedo needs medium.mfp"),
+            (None, None, None, Some(_)) => return err("medium.sigma_a needs medium.sigma_s"),
+            (None, None, None, None) => {
+                return err("medium: give mfp (+ albedo) or sigma_s (+ sigma_a)");
+            }
+            _ => return err("medium: give either mfp + albedo or sigma_s + sigma_a, not both"),
+        };
+        let scattering = match &self.phase {
+            None => Scattering::single(PhaseFunction::Isotropic),
+            Some(PhaseConfig::Mixture { components }) => {
+                if components.is_empty() {
+                    return err("medium.phase.components = []: give at least one component");
+                }
+                let mut parts = Vec::new();
+                for (i, c) in components.iter().enumerate() {
+                    let key = format!("medium.phase.components[{i}]");
+                    positive(&format!("{key}.weight"), c.weight)?;
+                    if let PhaseConfig::Mixture { .. } = c.phase {
+                        return err(format!("{key}.phase: mixtures cannot be nested"));
+                    }
+                    parts.push((c.weight, c.phase.build(&format!("{key}.phase"))?));
+                }
+                Scattering::mixture(parts)
+            }
+            Some(p) => Scattering::single(p.build("medium.phase")?),
+        };
+        Ok(Medium {
+            geometry,
+            sigma_s,
+            sigma_a,
+            scattering,
+        })
+    }
+}
+
+impl PhaseConfig {
+    fn build(&self, key: &str) -> Result<PhaseFunction, ConfigError> {
+        match self {
+            PhaseConfig::Isotropic => Ok(PhaseFunction::Isotropic),
+            PhaseConfig::Hg { g } => {
+                if !g.is_finite() || g.abs() >= 1.0 {
+                    return err(format!("{key}.g = {g}: must be within (-1, 1)"));
+                }
+                Ok(PhaseFunction::HenyeyGreenstein { g: *g })
+            }
+            PhaseConfig::Tabulated {
+                cos,
+                values,
+                amplitude_re,
+                amplitude_im,
+                file,
+            } => {
+                let table = match (values, amplitude_re, amplitude_im, file) {
+                    (Some(v), None, None, None) => Table::from_rho(cos.clone(), v.clone()),
+                    (None, Some(re), im, None) => {
+                        let im = im.clone().unwrap_or_else(|| vec![0.0; re.len()]);
+                        if im.len() != re.len() {
+                            return err(format!(
+                                "{key}.amplitude_im has {} entries but amplitude_re has {}; they must match",
+                                im.len(),
+                                re.len()
+                            ));
+                        }
+                        let s = re
+                            .iter()
+                            .zip(&im)
+                            .map(|(&a, &b)| crate::math::C64::new(a, b))
+                            .collect();
+                        Table::from_amplitude(cos.clone(), s)
+                    }
+                    (None, None, None, Some(f)) => {
+                        if cos.is_some() {
+                            return err(format!(
+                                "{key}.cos: not allowed with {key}.file (the file has the cos column)"
+                            ));
+                        }
+                        read_table_file(key, f)?
+                    }
+                    _ => {
+                        return err(format!(
+                            "{key}: give exactly one of values, amplitude_re (+ amplitude_im) or file"
+                        ));
+                    }
+                };
+                table
+                    .map(PhaseFunction::Tabulated)
+                    .map_err(|e| ConfigError(format!("{key}: {e}")))
+            }
+            PhaseConfig::Mixture { .. } => err(format!("{key}: mixtures cannot be nested")),
+        }
+    }
+}
+
+/// Read a CSV table: `cos,value` or `cos,re,im` per line; `#` comments and a header line are skipped.
+fn read_table_file(
+    key: &str,
+    path: &Path,
+) -> Result<Result<Table, crate::medium::TableError>, ConfigError> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| ConfigError(format!("{key}.file = {}: cannot read: {e}", path.display())))?;
+    let (mut cos, mut a, mut b) = (Vec::new(), Vec::new(), Vec::new());
+    let mut columns = None;
+    for (n, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let fields: Vec<&str> = line
+            .split([',', ' ', '\t', ';'])
+            .filter(|s| !s.is_empty())
+            .collect();
+        let parsed: Result<Vec<f64>, _> = fields.iter().map(|s| s.parse::<f64>()).collect();
+        let Ok(vals) = parsed else {
+            if cos.is_empty() && columns.is_none() {
+                continue; // header
+            }
+            return err(format!(
+                "{key}.file = {}: line {}: not numbers: {line}",
+                path.display(),
+                n + 1
+            ));
+        };
+        if *columns.get_or_insert(vals.len()) != vals.len() || !(2..=3).contains(&vals.len()) {
+            return err(format!(
+                "{key}.file = {}: line {}: expected 2 columns (cos,value) or 3 (cos,re,im) throughout",
+                path.display(),
+                n + 1
+            ));
+        }
+        cos.push(vals[0]);
+        a.push(vals[1]);
+        b.push(vals.get(2).copied().unwrap_or(0.0));
+    }
+    Ok(if columns == Some(3) {
+        Table::from_amplitude(
+            Some(cos),
+            a.iter()
+                .zip(&b)
+                .map(|(&x, &y)| crate::math::C64::new(x, y))
+                .collect(),
+        )
+    } else {
+        Table::from_rho(Some(cos), a)
+    })
+}

@@ -1,0 +1,41 @@
+//! EXR output of speckle fields: one file per realisation and light, channels `re`, `im` and the
+//! intensity `I = |u|²`, as 32-bit floats.
+
+use crate::math::C64;
+use std::path::Path;
+
+/// Write the fields `u[l·V + v]` of every light as `width × height` images (views row-major).
+/// File names: `<stem>_l<light>.exr` next to `path`.
+pub fn write_fields(
+    path: &Path,
+    u: &[C64],
+    lights: usize,
+    width: usize,
+    height: usize,
+) -> Result<Vec<std::path::PathBuf>, String> {
+    use exr::prelude::*;
+    let views = width * height;
+    let mut files = Vec::new();
+    let stem = path
+        .file_stem()
+        .and_then(|s| s.to_str())
+        .unwrap_or("speckle");
+    for l in 0..lights {
+        let file = path.with_file_name(format!("{stem}_l{l}.exr"));
+        let field = &u[l * views..(l + 1) * views];
+        let pixels = SpecificChannels::build()
+            .with_channel("I")
+            .with_channel("im")
+            .with_channel("re")
+            .with_pixel_fn(|p: Vec2<usize>| {
+                let z = field[p.y() * width + p.x()];
+                (z.norm_sqr() as f32, z.im as f32, z.re as f32)
+            });
+        Image::from_channels((width, height), pixels)
+            .write()
+            .to_file(&file)
+            .map_err(|e| e.to_string())?;
+        files.push(file);
+    }
+    Ok(files)
+}

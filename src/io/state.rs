@@ -1,0 +1,175 @@
+//! Shard state files (`state.bin`): the header of the run and the engine blocks of one shard, so
+//! that `lightpath merge` reproduces the single run bit for bit.
+//!
+//! Layout (little endian): `LPSTATE1`, `u64` header length, header JSON, `u64` block count, then per
+//! block `start, len, n_sum, n_sq, n_kept` (`u64`) and the `f64` data of `sum` (re, im), `sq`,
+//! `kept` (re, im).
+
+use crate::math::C64;
+use crate::mc::Block;
+use serde::{Deserialize, Serialize};
+use std::io::{Read, Write};
+use std::path::Path;
+
+const MAGIC: &[u8; 8] = b"LPSTATE1";
+
+/// What a shard computed and for which run.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct StateHeader {
+    /// `covariance`, `memory-effect` or `speckle`.
+    pub kind: String,
+    /// The config the run used (after command-line overrides).
+    pub config: crate::io::Config,
+    pub seed: u64,
+    pub chunk_paths: u64,
+    pub chunks: u64,
+    pub shard: [u64; 2],
+    pub version: String,
+}
+
+impl StateHeader {
+    /// Whether two shards belong to the same run (everything but the shard index agrees).
+    pub fn same_run(&self, other: &StateHeader) -> bool {
+        (
+            &self.kind,
+            &self.config,
+            self.seed,
+            self.chunk_paths,
+            self.chunks,
+            self.shard[1],
+            &self.version,
+        ) == (
+            &other.kind,
+            &other.config,
+            other.seed,
+            other.chunk_paths,
+            other.chunks,
+            other.shard[1],
+            &other.version,
+        )
+    }
+}
+
+pub fn write_state(path: &Path, header: &StateHeader, blocks: &[Block]) -> std::io::Result<()> {
+    let mut buf = Vec::new();
+    buf.extend_from_slice(MAGIC);
+    let h = serde_json::to_vec(header).map_err(std::io::Error::other)?;
+    buf.extend_from_slice(&(h.len() as u64).to_le_bytes());
+    buf.extend_from_slice(&h);
+    buf.extend_from_slice(&(blocks.len() as u64).to_le_bytes());
+    for b in blocks {
+        for v in [
+            b.start,
+            b.len,
+            b.sum.len() as u64,
+            b.sq.len() as u64,
+            b.kept.len() as u64,
+        ] {
+            buf.extend_from_slice(&v.to_le_bytes());
+        }
+        for z in &b.sum {
+            buf.extend_from_slice(&z.re.to_le_bytes());
+            buf.extend_from_slice(&z.im.to_le_bytes());
+        }
+        for v in &b.sq {
+            buf.extend_from_slice(&v.to_le_bytes());
+        }
+        for z in &b.kept {
+            buf.extend_from_slice(&z.re.to_le_bytes());
+            buf.extend_from_slice(&z.im.to_le_bytes());
+        }
+    }
+    crate::io::write_atomic(path, &buf)
+}
+
+struct Cursor<'a> {
+    data: &'a [u8],
+    pos: usize,
+}
+
+impl Cursor<'_> {
+    fn take(&mut self, n: usize) -> Result<&[u8], String> {
+        let end = self
+            .pos
+            .checked_add(n)
+            .filter(|&e| e <= self.data.len())
+            .ok_or("file is truncated")?;
+        let s = &self.data[self.pos..end];
+        self.pos = end;
+        Ok(s)
+    }
+    fn u64(&mut self) -> Result<u64, String> {
+        Ok(u64::from_le_bytes(
+            self.take(8)?.try_into().expect("8 bytes"),
+        ))
+    }
+    fn f64(&mut self) -> Result<f64, String> {
+        Ok(f64::from_le_bytes(
+            self.take(8)?.try_into().expect("8 bytes"),
+        ))
+    }
+    fn len(&mut self) -> Result<usize, String> {
+        let n = self.u64()?;
+        if n as usize > self.data.len() {
+            return Err("file is corrupt (length field too large)".into());
+        }
+        Ok(n as usize)
+    }
+}
+
+pub fn read_state(path: &Path) -> Result<(StateHeader, Vec<Block>), String> {
+    let mut data = Vec::new();
+    std::fs::File::open(path)
+        .and_then(|mut f| f.read_to_end(&mut data))
+        .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+    let parse = || -> Result<(StateHeader, Vec<Block>), String> {
+        let mut c = Cursor {
+            data: &data,
+            pos: 0,
+        };
+        if c.take(8)? != MAGIC {
+            return Err("not a lightpath state file".into());
+        }
+        let hl = c.len()?;
+        let header: StateHeader =
+            serde_json::from_slice(c.take(hl)?).map_err(|e| format!("bad header: {e}"))?;
+        let n = c.len()?;
+        let mut blocks = Vec::with_capacity(n.min(1024));
+        for _ in 0..n {
+            let (start, len) = (c.u64()?, c.u64()?);
+            let (ns, nq, nk) = (c.len()?, c.len()?, c.len()?);
+            let mut sum = Vec::with_capacity(ns);
+            for _ in 0..ns {
+                sum.push(C64::new(c.f64()?, c.f64()?));
+            }
+            let mut sq = Vec::with_capacity(nq);
+            for _ in 0..nq {
+                sq.push(c.f64()?);
+            }
+            let mut kept = Vec::with_capacity(nk);
+            for _ in 0..nk {
+                kept.push(C64::new(c.f64()?, c.f64()?));
+            }
+            blocks.push(Block {
+                start,
+                len,
+                sum,
+                sq,
+                kept,
+            });
+        }
+        Ok((header, blocks))
+    };
+    parse().map_err(|e| format!("{}: {e}", path.display()))
+}
+
+/// Write `bytes` to `path` through a temporary file, so a reader never sees half a file.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let tmp = path.with_extension("partial");
+    {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all().ok();
+    }
+    std::fs::rename(&tmp, path)
+}

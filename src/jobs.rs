@@ -1,0 +1,689 @@
+//! Jobs behind the command line: run an estimator on a config with the engine, write results, run
+//! shards, merge shards. (The "executor" of the design: estimators never do I/O themselves.)
+
+use crate::io::state::{StateHeader, read_state, write_state};
+use crate::io::{Config, write_json};
+use crate::math::{C64, rotate, splitmix64};
+use crate::mc::{Block, Estimate, Plan, merge, run};
+use crate::speckle::mean::mean_field;
+use crate::speckle::{Covariance, FieldSampler, Light, Scene, View};
+use glam::DVec3;
+use serde_json::{Value, json};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// What to compute.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Kind {
+    Covariance,
+    MemoryEffect,
+    Speckle,
+}
+
+impl Kind {
+    pub fn name(self) -> &'static str {
+        match self {
+            Kind::Covariance => "covariance",
+            Kind::MemoryEffect => "memory-effect",
+            Kind::Speckle => "speckle",
+        }
+    }
+
+    fn from_name(s: &str) -> Option<Kind> {
+        [Kind::Covariance, Kind::MemoryEffect, Kind::Speckle]
+            .into_iter()
+            .find(|k| k.name() == s)
+    }
+}
+
+/// Command-line overrides and run options.
+#[derive(Clone, Debug, Default)]
+pub struct Options {
+    pub samples: Option<u64>,
+    pub seed: Option<u64>,
+    /// `(i, n)`: run shard `i` of `n` and write `state.bin` instead of results.
+    pub shard: Option<(u64, u64)>,
+    /// Show a progress bar (only when stderr is a terminal).
+    pub progress: bool,
+}
+
+/// What a finished job reports to the user.
+#[derive(Clone, Debug)]
+pub struct Outcome {
+    pub files: Vec<PathBuf>,
+    pub summary: String,
+}
+
+type JobResult = Result<Outcome, String>;
+
+/// Run `kind` on `cfg` and write into `out`.
+pub fn run_job(kind: Kind, mut cfg: Config, opts: &Options, out: &Path) -> JobResult {
+    if let Some(s) = opts.samples {
+        if s == 0 {
+            return Err("--samples 0: must be at least 1".into());
+        }
+        match kind {
+            Kind::Speckle => cfg.speckle.get_or_insert_with(default_speckle).paths = s,
+            _ => cfg.render.samples = s,
+        }
+    }
+    if let Some(s) = opts.seed {
+        cfg.render.seed = s;
+    }
+    if kind == Kind::MemoryEffect && cfg.memory_effect.is_none() {
+        return Err("memory-effect needs a [memory_effect] table with angles_deg = [...]".into());
+    }
+    cfg.validate().map_err(|e| e.0)?;
+    std::fs::create_dir_all(out)
+        .map_err(|e| format!("cannot create output folder {}: {e}", out.display()))?;
+    let plan = plan_of(kind, &cfg);
+    let units = match kind {
+        Kind::Speckle => plan.chunks * cfg.speckle.as_ref().map_or(1, |s| s.realisations),
+        _ => plan.chunks,
+    };
+    let (range, shard) = match opts.shard {
+        Some((i, n)) => {
+            if n == 0 || i >= n {
+                return Err(format!("--shard {i}/{n}: need 0 <= i < n"));
+            }
+            let whole = match kind {
+                Kind::Speckle => cfg.speckle.as_ref().map_or(1, |s| s.realisations),
+                _ => plan.chunks,
+            };
+            if n > whole {
+                return Err(format!(
+                    "--shard {i}/{n}: the run has only {whole} units of work; use at most {whole} shards"
+                ));
+            }
+            ((whole * i / n)..(whole * (i + 1) / n), [i, n])
+        }
+        None => (0..u64::MAX, [0, 1]),
+    };
+    let t0 = Instant::now();
+    let bar = Progress::new(opts.progress, units, kind.name());
+    let blocks = compute(kind, &cfg, &plan, range, &bar)?;
+    bar.finish();
+    if shard[1] > 1 {
+        let header = StateHeader {
+            kind: kind.name().into(),
+            config: cfg,
+            seed: plan.seed,
+            chunk_paths: plan.chunk_paths,
+            chunks: plan.chunks,
+            shard,
+            version: env!("CARGO_PKG_VERSION").into(),
+        };
+        let path = out.join("state.bin");
+        write_state(&path, &header, &blocks)
+            .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+        return Ok(Outcome {
+            summary: format!(
+                "shard {}/{} of {} done in {:.1} s; combine all shards with `lightpath merge`",
+                shard[0],
+                shard[1],
+                kind.name(),
+                t0.elapsed().as_secs_f64()
+            ),
+            files: vec![path],
+        });
+    }
+    finish(kind, &cfg, &plan, blocks, t0.elapsed().as_secs_f64(), out)
+}
+
+/// Merge shard folders (each with `state.bin`) into the results of the single run.
+pub fn merge_job(inputs: &[PathBuf], out: &Path) -> JobResult {
+    if inputs.is_empty() {
+        return Err("merge: give at least one shard folder".into());
+    }
+    let mut first: Option<StateHeader> = None;
+    let mut blocks = Vec::new();
+    let mut seen = Vec::new();
+    for dir in inputs {
+        let path = if dir.is_dir() {
+            dir.join("state.bin")
+        } else {
+            dir.clone()
+        };
+        let (h, b) = read_state(&path)?;
+        if first.as_ref().is_some_and(|f| !f.same_run(&h)) {
+            return Err(format!(
+                "{}: this shard belongs to a different run than {} (config, seed, samples, shard count or version differ)",
+                path.display(),
+                inputs[0].display()
+            ));
+        }
+        if seen.contains(&h.shard[0]) {
+            return Err(format!(
+                "{}: shard {}/{} is given twice",
+                path.display(),
+                h.shard[0],
+                h.shard[1]
+            ));
+        }
+        seen.push(h.shard[0]);
+        blocks.extend(b);
+        first.get_or_insert(h);
+    }
+    let h = first.expect("one input");
+    if seen.len() as u64 != h.shard[1] {
+        let missing: Vec<u64> = (0..h.shard[1]).filter(|i| !seen.contains(i)).collect();
+        return Err(format!(
+            "merge: shards {missing:?} of {} are missing",
+            h.shard[1]
+        ));
+    }
+    let kind = Kind::from_name(&h.kind).ok_or_else(|| format!("unknown run kind {:?}", h.kind))?;
+    let plan = Plan {
+        seed: h.seed,
+        chunk_paths: h.chunk_paths,
+        chunks: h.chunks,
+    };
+    std::fs::create_dir_all(out)
+        .map_err(|e| format!("cannot create output folder {}: {e}", out.display()))?;
+    finish(kind, &h.config, &plan, blocks, f64::NAN, out)
+}
+
+fn default_speckle() -> crate::io::config::SpeckleConfig {
+    crate::io::config::SpeckleConfig {
+        realisations: 1,
+        paths: 100_000,
+    }
+}
+
+fn plan_of(kind: Kind, cfg: &Config) -> Plan {
+    match kind {
+        Kind::Speckle => {
+            let paths = cfg.speckle.as_ref().map_or(100_000, |s| s.paths);
+            Plan::new(cfg.render.seed, paths, cfg.render.chunk)
+        }
+        _ => Plan::new(cfg.render.seed, cfg.render.samples, cfg.render.chunk),
+    }
+}
+
+/// The seed of speckle realisation `r` (independent streams per image).
+fn realisation_seed(seed: u64, r: u64) -> u64 {
+    splitmix64(seed ^ splitmix64(r.wrapping_add(0xF1E1D)))
+}
+
+/// The scene and pairs a memory-effect scan uses: light 0 and view 0 rotated together.
+fn memory_scene(cfg: &Config) -> Result<(Scene, Vec<f64>), String> {
+    let scene = cfg.scene().map_err(|e| e.0)?;
+    let me = cfg
+        .memory_effect
+        .as_ref()
+        .ok_or("missing [memory_effect]")?;
+    let Light::PlaneWave { direction: d } = scene.lights[0] else {
+        return Err("memory-effect: light[0] must be a plane_wave".into());
+    };
+    let View::FarField { direction: v } = scene.views[0] else {
+        return Err("memory-effect: view[0] must be far_field".into());
+    };
+    let axis = DVec3::from_array(me.axis).normalize();
+    let mut angles = vec![0.0];
+    angles.extend(&me.angles_deg);
+    let lights = angles
+        .iter()
+        .map(|a| Light::PlaneWave {
+            direction: rotate(d, axis, a.to_radians()),
+        })
+        .collect();
+    let views = angles
+        .iter()
+        .map(|a| View::FarField {
+            direction: rotate(v, axis, a.to_radians()),
+        })
+        .collect();
+    Ok((
+        Scene::new(scene.wavelength, scene.medium, lights, views),
+        angles,
+    ))
+}
+
+fn compute(
+    kind: Kind,
+    cfg: &Config,
+    plan: &Plan,
+    range: std::ops::Range<u64>,
+    bar: &Progress,
+) -> Result<Vec<Block>, String> {
+    let reversed = cfg.render.reversed;
+    match kind {
+        Kind::Covariance => {
+            let scene = cfg.scene().map_err(|e| e.0)?;
+            let est = Covariance::all_pairs(&scene, reversed);
+            let range = range.start..range.end.min(plan.chunks);
+            Ok(run(&est, plan, range, &[], &|n| bar.set(n)))
+        }
+        Kind::MemoryEffect => {
+            let (scene, angles) = memory_scene(cfg)?;
+            let n = angles.len();
+            let est = Covariance::with_pairs(&scene, (0..n).map(|j| (j, j)).collect(), reversed);
+            let range = range.start..range.end.min(plan.chunks);
+            Ok(run(&est, plan, range, &memory_keep(n), &|c| bar.set(c)))
+        }
+        Kind::Speckle => {
+            let scene = cfg.scene().map_err(|e| e.0)?;
+            let est = FieldSampler::new(
+                &scene,
+                crate::speckle::paths::SubpathSampler::all_pairs(&scene),
+                reversed,
+            );
+            let reals = cfg.speckle.as_ref().map_or(1, |s| s.realisations);
+            let mut out = Vec::new();
+            for r in range.start..range.end.min(reals) {
+                let p = Plan {
+                    seed: realisation_seed(plan.seed, r),
+                    ..*plan
+                };
+                let done = (r - range.start) * plan.chunks;
+                let root = merge(
+                    run(&est, &p, 0..p.chunks, &[], &|c| bar.set(done + c)),
+                    p.chunks,
+                )?;
+                out.push(Block {
+                    start: r,
+                    len: 1,
+                    sum: root.sum,
+                    sq: vec![],
+                    kept: vec![],
+                });
+            }
+            Ok(out)
+        }
+    }
+}
+
+/// Kept outputs of a memory-effect run (indices into the total block): `C00`, `Ctt`, `C0t`.
+fn memory_keep(n: usize) -> Vec<usize> {
+    let base = 2 * n * n;
+    let mut keep: Vec<usize> = (0..n).map(|t| base + t * n + t).collect();
+    keep.extend((1..n).map(|t| base + t));
+    keep
+}
+
+fn finish(
+    kind: Kind,
+    cfg: &Config,
+    plan: &Plan,
+    blocks: Vec<Block>,
+    seconds: f64,
+    out: &Path,
+) -> JobResult {
+    match kind {
+        Kind::Covariance => finish_covariance(cfg, plan, blocks, seconds, out),
+        Kind::MemoryEffect => finish_memory(cfg, plan, blocks, seconds, out),
+        Kind::Speckle => finish_speckle(cfg, plan, blocks, seconds, out),
+    }
+}
+
+fn vec3(v: DVec3) -> Value {
+    json!([v.x, v.y, v.z])
+}
+
+fn light_json(l: &Light) -> Value {
+    match l {
+        Light::PlaneWave { direction } => {
+            json!({"kind": "plane_wave", "direction": vec3(*direction)})
+        }
+        Light::Point { position } => json!({"kind": "point", "position": vec3(*position)}),
+    }
+}
+
+fn view_json(v: &View) -> Value {
+    match v {
+        View::FarField { direction } => json!({"kind": "far_field", "direction": vec3(*direction)}),
+        View::Point { position } => json!({"kind": "point", "position": vec3(*position)}),
+    }
+}
+
+fn common(
+    cfg: &Config,
+    scene: &Scene,
+    plan: &Plan,
+    seconds: f64,
+) -> serde_json::Map<String, Value> {
+    let mut m = serde_json::Map::new();
+    m.insert("wavelength".into(), json!(cfg.wavelength));
+    m.insert(
+        "lights".into(),
+        Value::Array(scene.lights.iter().map(light_json).collect()),
+    );
+    m.insert(
+        "views".into(),
+        Value::Array(scene.views.iter().map(view_json).collect()),
+    );
+    m.insert("samples".into(), json!(plan.samples()));
+    m.insert("seed".into(), json!(plan.seed));
+    m.insert("chunk".into(), json!(plan.chunk_paths));
+    m.insert("reversed".into(), json!(cfg.render.reversed));
+    m.insert(
+        "seconds".into(),
+        if seconds.is_finite() {
+            json!(seconds)
+        } else {
+            Value::Null
+        },
+    );
+    m.insert("version".into(), json!(env!("CARGO_PKG_VERSION")));
+    m.insert(
+        "config".into(),
+        serde_json::to_value(cfg).unwrap_or(Value::Null),
+    );
+    m
+}
+
+/// `[l1][l2][v1][v2]` nested arrays of `f(block index)` for a `J×J` block with `j = l·V + v`.
+fn nested4(nl: usize, nv: usize, f: impl Fn(usize) -> f64) -> Value {
+    let j = nl * nv;
+    Value::Array(
+        (0..nl)
+            .map(|l1| {
+                Value::Array(
+                    (0..nl)
+                        .map(|l2| {
+                            Value::Array(
+                                (0..nv)
+                                    .map(|v1| {
+                                        Value::Array(
+                                            (0..nv)
+                                                .map(|v2| {
+                                                    json!(f((l1 * nv + v1) * j + l2 * nv + v2))
+                                                })
+                                                .collect(),
+                                        )
+                                    })
+                                    .collect(),
+                            )
+                        })
+                        .collect(),
+                )
+            })
+            .collect(),
+    )
+}
+
+fn finish_covariance(
+    cfg: &Config,
+    plan: &Plan,
+    blocks: Vec<Block>,
+    seconds: f64,
+    out: &Path,
+) -> JobResult {
+    let scene = cfg.scene().map_err(|e| e.0)?;
+    let root = merge(blocks, plan.chunks)?;
+    let e = Estimate::from_block(&root, plan);
+    let (nl, nv) = (scene.lights.len(), scene.views.len());
+    let jj = (nl * nv) * (nl * nv);
+    let mut m = common(cfg, &scene, plan, seconds);
+    for (prefix, off) in [("", 2 * jj), ("single_", 0), ("multiple_", jj)] {
+        m.insert(
+            format!("{prefix}re"),
+            nested4(nl, nv, |i| e.mean[off + i].re),
+        );
+        m.insert(
+            format!("{prefix}im"),
+            nested4(nl, nv, |i| e.mean[off + i].im),
+        );
+        m.insert(
+            format!("{prefix}stderr"),
+            nested4(nl, nv, |i| e.stderr[off + i]),
+        );
+    }
+    let means: Vec<Vec<C64>> = scene
+        .lights
+        .iter()
+        .map(|l| {
+            scene
+                .views
+                .iter()
+                .map(|v| mean_field(&scene, l, v))
+                .collect()
+        })
+        .collect();
+    m.insert(
+        "mean_re".into(),
+        json!(
+            means
+                .iter()
+                .map(|r| r.iter().map(|z| z.re).collect::<Vec<_>>())
+                .collect::<Vec<_>>()
+        ),
+    );
+    m.insert(
+        "mean_im".into(),
+        json!(
+            means
+                .iter()
+                .map(|r| r.iter().map(|z| z.im).collect::<Vec<_>>())
+                .collect::<Vec<_>>()
+        ),
+    );
+    let path = out.join("covariance.json");
+    write_json(&path, &Value::Object(m))
+        .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+    let diag: Vec<f64> = (0..nl * nv)
+        .map(|j| e.mean[2 * jj + j * nl * nv + j].re)
+        .collect();
+    let summary = format!(
+        "covariance of {nl} light(s) × {nv} view(s) from {} paths; intensity range {:.4e} … {:.4e}",
+        plan.samples(),
+        diag.iter().cloned().fold(f64::INFINITY, f64::min),
+        diag.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
+    );
+    Ok(Outcome {
+        files: vec![path],
+        summary,
+    })
+}
+
+/// Memory-effect curve: intensity correlation `|C0t|² / (C00 Ctt)` with delta-method errors.
+pub struct MemoryCurve {
+    pub angles_deg: Vec<f64>,
+    pub correlation: Vec<f64>,
+    pub stderr: Vec<f64>,
+    pub field_correlation: Vec<f64>,
+    /// `((kθL)/sinh(kθL))²` (paper 001, Eq. 39).
+    pub diffusion: Vec<f64>,
+    /// `k L` of Eq. 39.
+    pub kl: f64,
+}
+
+/// The diffusion prediction `((kθL)/sinh(kθL))²` of paper 001, Eq. 39 (`θ` in radians).
+pub fn diffusion_correlation(kl: f64, theta: f64) -> f64 {
+    let x = kl * theta.abs();
+    if x < 1e-8 {
+        1.0
+    } else {
+        (x / x.sinh()).powi(2)
+    }
+}
+
+/// Thickness used in Eq. 39: slab thickness, or the chord of a box along light 0.
+fn thickness(scene: &Scene) -> f64 {
+    match (&scene.medium.geometry, scene.lights.first()) {
+        (crate::medium::Geometry::Slab { half_thickness, .. }, _) => 2.0 * half_thickness,
+        (g, Some(Light::PlaneWave { direction })) => 2.0 * g.exit_distance(DVec3::ZERO, *direction),
+        _ => f64::NAN,
+    }
+}
+
+/// Compute the curve from a memory-effect run's root block.
+pub fn memory_curve(scene: &Scene, angles: &[f64], root: &Block, plan: &Plan) -> MemoryCurve {
+    let n = angles.len();
+    let e = Estimate::from_block(root, plan);
+    let keep = memory_keep(n);
+    let chunks = root.len as usize;
+    let nk = keep.len();
+    let l = thickness(scene);
+    let mut curve = MemoryCurve {
+        angles_deg: vec![],
+        correlation: vec![],
+        stderr: vec![],
+        field_correlation: vec![],
+        diffusion: vec![],
+        kl: scene.k * l,
+    };
+    for (t, angle) in angles.iter().enumerate().skip(1) {
+        let (ia, ib, ic) = (0, t, n - 1 + t);
+        let a = e.mean[keep[ia]].re;
+        let b = e.mean[keep[ib]].re;
+        let c = e.mean[keep[ic]];
+        let r = c.norm_sqr() / (a * b);
+        // delta method over chunk means
+        let (ga, gb, gc) = (-r / a, -r / b, c * (2.0 / (a * b)));
+        let mut var = 0.0;
+        for k in 0..chunks {
+            let row = &root.kept[k * nk..(k + 1) * nk];
+            let dc = row[ic] - c;
+            let lin = ga * (row[ia].re - a) + gb * (row[ib].re - b) + gc.re * dc.re + gc.im * dc.im;
+            var += lin * lin;
+        }
+        var /= (chunks as f64 - 1.0) * chunks as f64;
+        curve.angles_deg.push(*angle);
+        curve.correlation.push(r);
+        curve.stderr.push(var.sqrt());
+        curve.field_correlation.push(r.sqrt());
+        curve
+            .diffusion
+            .push(diffusion_correlation(curve.kl, angle.to_radians()));
+    }
+    curve
+}
+
+fn finish_memory(
+    cfg: &Config,
+    plan: &Plan,
+    blocks: Vec<Block>,
+    seconds: f64,
+    out: &Path,
+) -> JobResult {
+    let (scene, angles) = memory_scene(cfg)?;
+    let root = merge(blocks, plan.chunks)?;
+    let curve = memory_curve(&scene, &angles, &root, plan);
+    let mut m = common(cfg, &scene, plan, seconds);
+    m.insert("angles_deg".into(), json!(curve.angles_deg));
+    m.insert("correlation".into(), json!(curve.correlation));
+    m.insert("correlation_stderr".into(), json!(curve.stderr));
+    m.insert("field_correlation".into(), json!(curve.field_correlation));
+    m.insert("diffusion_eq39".into(), json!(curve.diffusion));
+    m.insert("thickness".into(), json!(thickness(&scene)));
+    let path = out.join("memory_effect.json");
+    write_json(&path, &Value::Object(m))
+        .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+    let mut files = vec![path];
+    let png = out.join("memory_effect.png");
+    crate::io::plot::memory_effect(&png, &curve)
+        .map_err(|e| format!("cannot write {}: {e}", png.display()))?;
+    files.push(png);
+    let mut summary = String::from("angle [deg]   correlation ± stderr   Eq. 39\n");
+    for i in 0..curve.angles_deg.len() {
+        summary += &format!(
+            "{:>10.5}   {:.4} ± {:.4}      {:.4}\n",
+            curve.angles_deg[i], curve.correlation[i], curve.stderr[i], curve.diffusion[i]
+        );
+    }
+    Ok(Outcome { files, summary })
+}
+
+fn finish_speckle(
+    cfg: &Config,
+    plan: &Plan,
+    mut blocks: Vec<Block>,
+    seconds: f64,
+    out: &Path,
+) -> JobResult {
+    let scene = cfg.scene().map_err(|e| e.0)?;
+    let reals = cfg.speckle.as_ref().map_or(1, |s| s.realisations);
+    blocks.sort_by_key(|b| b.start);
+    let got: Vec<u64> = blocks.iter().map(|b| b.start).collect();
+    if got != (0..reals).collect::<Vec<_>>() {
+        return Err(format!(
+            "speckle: realisations {got:?} do not cover 0..{reals} exactly (a shard is missing)"
+        ));
+    }
+    let (nl, nv) = (scene.lights.len(), scene.views.len());
+    let means: Vec<C64> = scene
+        .lights
+        .iter()
+        .flat_map(|l| scene.views.iter().map(|v| mean_field(&scene, l, v)))
+        .collect();
+    let norm = 1.0 / (plan.samples() as f64).sqrt();
+    let fields: Vec<Vec<C64>> = blocks
+        .iter()
+        .map(|b| {
+            b.sum
+                .iter()
+                .zip(&means)
+                .map(|(s, m)| m + s * norm)
+                .collect()
+        })
+        .collect();
+    let part = |f: fn(&C64) -> f64| -> Value {
+        json!(
+            fields
+                .iter()
+                .map(|u| (0..nl)
+                    .map(|l| (0..nv).map(|v| f(&u[l * nv + v])).collect::<Vec<_>>())
+                    .collect::<Vec<_>>())
+                .collect::<Vec<_>>()
+        )
+    };
+    let mut m = common(cfg, &scene, plan, seconds);
+    m.insert("re".into(), part(|z| z.re));
+    m.insert("im".into(), part(|z| z.im));
+    m.insert("realisations".into(), json!(reals));
+    m.insert("paths_per_image".into(), json!(plan.samples()));
+    let path = out.join("speckle.json");
+    write_json(&path, &Value::Object(m))
+        .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+    let mut files = vec![path];
+    let (w, h) = crate::io::image_shape(cfg, nv);
+    for (r, u) in fields.iter().enumerate() {
+        let p = out.join(format!("speckle_{r:04}.exr"));
+        files.extend(
+            crate::io::exr::write_fields(&p, u, nl, w, h)
+                .map_err(|e| format!("cannot write {}: {e}", p.display()))?,
+        );
+    }
+    Ok(Outcome {
+        summary: format!(
+            "{reals} speckle image(s) of {nl} light(s) × {nv} view(s), {} paths each",
+            plan.samples()
+        ),
+        files,
+    })
+}
+
+/// A progress bar on a terminal; silent otherwise.
+struct Progress {
+    bar: Option<indicatif::ProgressBar>,
+}
+
+impl Progress {
+    fn new(enabled: bool, total: u64, what: &str) -> Self {
+        use std::io::IsTerminal;
+        let bar = (enabled && std::io::stderr().is_terminal()).then(|| {
+            let b = indicatif::ProgressBar::new(total);
+            b.set_style(
+                indicatif::ProgressStyle::with_template(
+                    "{msg} [{bar:40}] {pos}/{len} chunks, {elapsed} (eta {eta})",
+                )
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
+                .progress_chars("=> "),
+            );
+            b.set_message(what.to_string());
+            b
+        });
+        Progress { bar }
+    }
+    fn set(&self, n: u64) {
+        if let Some(b) = &self.bar {
+            b.set_position(n);
+        }
+    }
+    fn finish(&self) {
+        if let Some(b) = &self.bar {
+            b.finish_and_clear();
+        }
+    }
+}

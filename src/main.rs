@@ -1,0 +1,183 @@
+//! The `lightpath` command line: parse, call the library, print.
+
+use clap::{Args, Parser, Subcommand};
+use lightpath::io::Config;
+use lightpath::jobs::{self, Kind, Options};
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+/// The quick-start scene run by `lightpath` with no arguments.
+const QUICKSTART: &str = include_str!("../configs/quickstart.toml");
+
+#[derive(Parser)]
+#[command(
+    name = "lightpath",
+    version,
+    about = "Speckle statistics of light in scattering media (paper: Bar et al. 2019).\n\nWith no command, runs the embedded quick start (a memory-effect curve) into ./lightpath-out/."
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Option<Command>,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Speckle covariance C[l1][l2][v1][v2] with standard errors (Algorithm 1) → covariance.json
+    Covariance(RunArgs),
+    /// Jointly correlated speckle images for all lights (Algorithm 2) → speckle.json + EXR
+    Speckle(RunArgs),
+    /// Intensity correlation vs tilt angle, against Eq. 39 → memory_effect.json + PNG
+    MemoryEffect(RunArgs),
+    /// Merge the shards of one run (folders holding state.bin) into the single run's results
+    Merge {
+        /// Shard folders (or state.bin files)
+        #[arg(required = true)]
+        shards: Vec<PathBuf>,
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Check a config and print the scene it describes, without running anything
+    Check { config: PathBuf },
+    /// Measure paths/s, covariance entry-updates/s, field pixel-updates/s and the GEMM rate
+    Bench {
+        /// Shorter measurement (for a smoke test)
+        #[arg(long)]
+        quick: bool,
+    },
+}
+
+#[derive(Args)]
+struct RunArgs {
+    /// Scene config (TOML)
+    config: PathBuf,
+    /// Output folder
+    #[arg(long)]
+    out: PathBuf,
+    /// Override render.samples (speckle: subpaths per image)
+    #[arg(long)]
+    samples: Option<u64>,
+    /// Override render.seed
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Worker threads (default: all cores); results do not depend on it
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Run shard i of n (e.g. 2/8) and write state.bin for `lightpath merge`
+    #[arg(long, value_parser = parse_shard)]
+    shard: Option<(u64, u64)>,
+    /// No progress bar
+    #[arg(long)]
+    quiet: bool,
+}
+
+fn parse_shard(s: &str) -> Result<(u64, u64), String> {
+    let (i, n) = s
+        .split_once('/')
+        .ok_or_else(|| format!("--shard {s}: expected i/n, e.g. 0/4"))?;
+    let i: u64 = i
+        .trim()
+        .parse()
+        .map_err(|_| format!("--shard {s}: i must be a whole number"))?;
+    let n: u64 = n
+        .trim()
+        .parse()
+        .map_err(|_| format!("--shard {s}: n must be a whole number"))?;
+    if n == 0 || i >= n {
+        return Err(format!("--shard {s}: need 0 <= i < n"));
+    }
+    Ok((i, n))
+}
+
+fn with_threads<T: Send>(
+    threads: Option<usize>,
+    f: impl FnOnce() -> T + Send,
+) -> Result<T, String> {
+    match threads {
+        None => Ok(f()),
+        Some(0) => Err("--threads 0: must be at least 1".into()),
+        Some(n) => {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(n)
+                .build()
+                .map_err(|e| e.to_string())?;
+            Ok(pool.install(f))
+        }
+    }
+}
+
+fn run(kind: Kind, a: RunArgs) -> Result<jobs::Outcome, String> {
+    let cfg = Config::from_file(&a.config).map_err(|e| e.0)?;
+    let opts = Options {
+        samples: a.samples,
+        seed: a.seed,
+        shard: a.shard,
+        progress: !a.quiet,
+    };
+    with_threads(a.threads, || jobs::run_job(kind, cfg, &opts, &a.out))?
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        None => {
+            let cfg = Config::from_toml(QUICKSTART, None)
+                .map_err(|e| format!("embedded quick start: {e}"));
+            let out = PathBuf::from("lightpath-out");
+            eprintln!(
+                "lightpath quick start: memory effect of a slab (L = 200 λ, optical depth 10) → {}/",
+                out.display()
+            );
+            cfg.and_then(|cfg| {
+                jobs::run_job(
+                    Kind::MemoryEffect,
+                    cfg,
+                    &Options {
+                        progress: true,
+                        ..Default::default()
+                    },
+                    &out,
+                )
+            })
+        }
+        Some(Command::Covariance(a)) => run(Kind::Covariance, a),
+        Some(Command::Speckle(a)) => run(Kind::Speckle, a),
+        Some(Command::MemoryEffect(a)) => run(Kind::MemoryEffect, a),
+        Some(Command::Merge { shards, out }) => jobs::merge_job(&shards, &out),
+        Some(Command::Check { config }) => {
+            Config::from_file(&config).map_err(|e| e.0).and_then(|c| {
+                let s = c.scene().map_err(|e| e.0)?;
+                Ok(jobs::Outcome {
+                    files: vec![],
+                    summary: format!(
+                        "{}: ok — {} light(s), {} view(s), σ_s = {}, σ_a = {}, k = {:.6}",
+                        config.display(),
+                        s.lights.len(),
+                        s.views.len(),
+                        s.medium.sigma_s,
+                        s.medium.sigma_a,
+                        s.k
+                    ),
+                })
+            })
+        }
+        Some(Command::Bench { quick }) => {
+            lightpath::bench::run(quick).map(|summary| jobs::Outcome {
+                files: vec![],
+                summary,
+            })
+        }
+    };
+    match result {
+        Ok(o) => {
+            println!("{}", o.summary.trim_end());
+            for f in o.files {
+                println!("wrote {}", f.display());
+            }
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::from(2)
+        }
+    }
+}

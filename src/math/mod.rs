@@ -1,0 +1,115 @@
+//! Small numerical helpers shared by the physics modules: complex numbers, frames, sphere sampling,
+//! rotations and the deterministic per-chunk random streams of the Monte Carlo engine.
+
+use glam::DVec3;
+use rand::SeedableRng;
+
+/// Complex field values (`f64` real and imaginary parts).
+pub type C64 = num_complex::Complex64;
+
+/// The random-number generator used everywhere: xoshiro256++ (fast, 256-bit state, splittable by seed).
+pub type Rng = rand_xoshiro::Xoshiro256PlusPlus;
+
+/// `1 / (4π)`, the isotropic phase function value.
+pub const INV_4PI: f64 = 1.0 / (4.0 * std::f64::consts::PI);
+
+/// SplitMix64 finaliser: a bijective mixer used to derive independent stream seeds.
+pub fn splitmix64(mut z: u64) -> u64 {
+    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// The random stream of chunk `chunk` of a run with seed `seed` (design: "chunk `c` of a run with seed
+/// `s` draws from its own RNG stream derived from `(s, c)`"), so results do not depend on scheduling.
+pub fn stream_rng(seed: u64, stream: u64) -> Rng {
+    Rng::seed_from_u64(splitmix64(
+        splitmix64(seed) ^ splitmix64(stream.wrapping_add(0x5EED)),
+    ))
+}
+
+/// Uniform `f64` in `[0, 1)` with 53 random bits.
+#[inline]
+pub fn uniform(rng: &mut Rng) -> f64 {
+    use rand::Rng as _;
+    (rng.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+}
+
+/// Two unit vectors completing `n` (unit) to a right-handed orthonormal frame (Duff et al. 2017).
+pub fn orthonormal_basis(n: DVec3) -> (DVec3, DVec3) {
+    let sign = 1.0_f64.copysign(n.z);
+    let a = -1.0 / (sign + n.z);
+    let b = n.x * n.y * a;
+    (
+        DVec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x),
+        DVec3::new(b, sign + n.y * n.y * a, -n.y),
+    )
+}
+
+/// Uniform direction on the unit sphere from two uniform numbers.
+#[inline]
+pub fn uniform_sphere(u1: f64, u2: f64) -> DVec3 {
+    let z = 1.0 - 2.0 * u1;
+    let r = (1.0 - z * z).max(0.0).sqrt();
+    let phi = 2.0 * std::f64::consts::PI * u2;
+    DVec3::new(r * phi.cos(), r * phi.sin(), z)
+}
+
+/// The direction at polar cosine `mu` and azimuth `phi` about the unit axis `w`.
+#[inline]
+pub fn direction_about(w: DVec3, mu: f64, phi: f64) -> DVec3 {
+    let (t, b) = orthonormal_basis(w);
+    let s = (1.0 - mu * mu).max(0.0).sqrt();
+    (t * (s * phi.cos()) + b * (s * phi.sin()) + w * mu).normalize()
+}
+
+/// Rotate `v` by `angle` (radians) about the unit `axis` (Rodrigues' formula).
+pub fn rotate(v: DVec3, axis: DVec3, angle: f64) -> DVec3 {
+    let (s, c) = angle.sin_cos();
+    v * c + axis.cross(v) * s + axis * axis.dot(v) * (1.0 - c)
+}
+
+/// `exp(i φ)`.
+#[inline]
+pub fn cis(phi: f64) -> C64 {
+    let (s, c) = phi.sin_cos();
+    C64::new(c, s)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn basis_is_orthonormal() {
+        for n in [
+            DVec3::Z,
+            -DVec3::Z,
+            DVec3::new(0.3, -0.4, 0.2).normalize(),
+            DVec3::X,
+        ] {
+            let (t, b) = orthonormal_basis(n);
+            assert!((t.length() - 1.0).abs() < 1e-12 && (b.length() - 1.0).abs() < 1e-12);
+            assert!(t.dot(n).abs() < 1e-12 && b.dot(n).abs() < 1e-12 && t.dot(b).abs() < 1e-12);
+            assert!((t.cross(b) - n).length() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn rotation_keeps_length_and_angle() {
+        let v = rotate(DVec3::Z, DVec3::Y, 0.3);
+        assert!((v.length() - 1.0).abs() < 1e-12);
+        assert!((v.dot(DVec3::Z) - 0.3f64.cos()).abs() < 1e-12);
+        assert!(v.x > 0.0);
+    }
+
+    #[test]
+    fn streams_differ_and_repeat() {
+        use rand::Rng as _;
+        let a = stream_rng(1, 0).next_u64();
+        assert_eq!(a, stream_rng(1, 0).next_u64());
+        assert_ne!(a, stream_rng(1, 1).next_u64());
+        assert_ne!(a, stream_rng(2, 0).next_u64());
+    }
+}

@@ -1,0 +1,302 @@
+//! The Monte Carlo engine: deterministic chunked sampling, estimates with standard errors, shards.
+//!
+//! Work is cut into `chunks` of `chunk_paths` samples; chunk `c` draws from its own stream
+//! `stream_rng(seed, c)`. Chunk results are combined along a fixed binary tree over chunk indices
+//! (aligned dyadic blocks), so a result is bit-for-bit the same whatever the thread count, and a run
+//! cut into shards and merged equals the single run: each shard reports the aligned blocks of its
+//! range, and the merge combines them along the same tree.
+
+use crate::math::{C64, Rng, stream_rng};
+use rayon::prelude::*;
+use std::ops::Range;
+
+/// A sampler of complex-valued quantities: the estimator ("solver") the engine ("executor") drives.
+/// Estimators never spawn threads, print or write files.
+pub trait Estimator: Sync {
+    /// Per-thread working memory, reused from chunk to chunk.
+    type Scratch: Send;
+    /// Number of complex outputs.
+    fn outputs(&self) -> usize;
+    fn scratch(&self) -> Self::Scratch;
+    /// Trace `paths` samples drawn from `rng` and add their summed contributions to `out`.
+    fn run_chunk(&self, rng: &mut Rng, paths: u64, scratch: &mut Self::Scratch, out: &mut [C64]);
+}
+
+/// How a run is cut into chunks.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Plan {
+    pub seed: u64,
+    pub chunk_paths: u64,
+    pub chunks: u64,
+}
+
+impl Plan {
+    /// At least `samples` samples in chunks of `chunk_paths` (rounded up to whole chunks).
+    pub fn new(seed: u64, samples: u64, chunk_paths: u64) -> Self {
+        let chunk_paths = chunk_paths.max(1);
+        Plan {
+            seed,
+            chunk_paths,
+            chunks: samples.div_ceil(chunk_paths).max(2),
+        }
+    }
+
+    pub fn samples(&self) -> u64 {
+        self.chunks * self.chunk_paths
+    }
+
+    /// Chunk range of shard `i` of `n` (contiguous, as even as possible).
+    pub fn shard_range(&self, i: u64, n: u64) -> Range<u64> {
+        (self.chunks * i / n)..(self.chunks * (i + 1) / n)
+    }
+}
+
+/// Sums over an aligned dyadic block of chunks `[start, start + len)`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Block {
+    pub start: u64,
+    pub len: u64,
+    /// Sum of the chunk sums.
+    pub sum: Vec<C64>,
+    /// Sum over chunks of `|chunk mean|²` (for batch-means standard errors).
+    pub sq: Vec<f64>,
+    /// Per-chunk means of the kept outputs, chunk after chunk (for derived quantities' errors).
+    pub kept: Vec<C64>,
+}
+
+impl Block {
+    fn leaf(chunk: u64, out: &[C64], paths: u64, keep: &[usize]) -> Self {
+        let inv = 1.0 / paths as f64;
+        Block {
+            start: chunk,
+            len: 1,
+            sum: out.to_vec(),
+            sq: out.iter().map(|z| (z * inv).norm_sqr()).collect(),
+            kept: keep.iter().map(|&i| out[i] * inv).collect(),
+        }
+    }
+
+    fn absorb(&mut self, right: Block) {
+        debug_assert_eq!(self.start + self.len, right.start);
+        for (a, b) in self.sum.iter_mut().zip(&right.sum) {
+            *a += b;
+        }
+        for (a, b) in self.sq.iter_mut().zip(&right.sq) {
+            *a += b;
+        }
+        self.kept.extend_from_slice(&right.kept);
+        self.len += right.len;
+    }
+
+    fn is_left_sibling_of(&self, right: &Block) -> bool {
+        self.len == right.len
+            && self.start.is_multiple_of(2 * self.len)
+            && self.start + self.len == right.start
+    }
+}
+
+/// Combines blocks pushed in chunk order along the canonical tree (a binary counter).
+#[derive(Default, Debug)]
+pub struct Reducer {
+    stack: Vec<Block>,
+}
+
+impl Reducer {
+    pub fn push(&mut self, block: Block) {
+        self.stack.push(block);
+        while self.stack.len() >= 2 {
+            let n = self.stack.len();
+            if !self.stack[n - 2].is_left_sibling_of(&self.stack[n - 1]) {
+                break;
+            }
+            let right = self.stack.pop().expect("two blocks");
+            self.stack.last_mut().expect("one block").absorb(right);
+        }
+    }
+
+    /// The maximal aligned blocks pushed so far (what a shard reports).
+    pub fn into_blocks(self) -> Vec<Block> {
+        self.stack
+    }
+
+    /// Fold all blocks left to right into one (they must be contiguous).
+    pub fn finish(self) -> Option<Block> {
+        let mut it = self.stack.into_iter();
+        let mut acc = it.next()?;
+        for b in it {
+            if acc.start + acc.len != b.start {
+                return None;
+            }
+            acc.absorb(b);
+        }
+        Some(acc)
+    }
+}
+
+/// Chunks traced at once between two ordered reductions; fixed so that results do not depend on the
+/// number of threads.
+const WAVE: usize = 8;
+
+/// Run the chunks in `range` of `plan` in parallel (on the current rayon pool) and return the aligned
+/// blocks covering it. `keep` lists outputs whose per-chunk means are retained; `progress` is called
+/// with the number of chunks finished so far.
+pub fn run<E: Estimator>(
+    est: &E,
+    plan: &Plan,
+    range: Range<u64>,
+    keep: &[usize],
+    progress: &(dyn Fn(u64) + Sync),
+) -> Vec<Block> {
+    let n = est.outputs();
+    let mut reducer = Reducer::default();
+    let mut bufs: Vec<(Vec<C64>, Option<E::Scratch>)> =
+        (0..WAVE).map(|_| (vec![C64::default(); n], None)).collect();
+    let mut next = range.start;
+    while next < range.end {
+        let count = ((range.end - next) as usize).min(WAVE);
+        bufs[..count]
+            .par_iter_mut()
+            .enumerate()
+            .for_each(|(i, (out, scratch))| {
+                let chunk = next + i as u64;
+                out.iter_mut().for_each(|z| *z = C64::default());
+                let s = scratch.get_or_insert_with(|| est.scratch());
+                let mut rng = stream_rng(plan.seed, chunk);
+                est.run_chunk(&mut rng, plan.chunk_paths, s, out);
+            });
+        for (i, (out, _)) in bufs[..count].iter().enumerate() {
+            reducer.push(Block::leaf(next + i as u64, out, plan.chunk_paths, keep));
+        }
+        next += count as u64;
+        progress(next - range.start);
+    }
+    reducer.into_blocks()
+}
+
+/// Merge shard blocks (in any order) into the single-run root block; errors if they do not tile
+/// `[0, chunks)` exactly.
+pub fn merge(mut blocks: Vec<Block>, chunks: u64) -> Result<Block, String> {
+    blocks.sort_by_key(|b| b.start);
+    let mut expect = 0;
+    for b in &blocks {
+        if b.start != expect {
+            return Err(if b.start < expect {
+                format!(
+                    "chunks {}..{} are covered twice (overlapping shards)",
+                    b.start,
+                    expect.min(b.start + b.len)
+                )
+            } else {
+                format!(
+                    "chunks {expect}..{} are missing (a shard is missing)",
+                    b.start
+                )
+            });
+        }
+        expect = b.start + b.len;
+    }
+    if expect != chunks {
+        return Err(format!(
+            "chunks {expect}..{chunks} are missing (a shard is missing)"
+        ));
+    }
+    let mut r = Reducer::default();
+    for b in blocks {
+        r.push(b);
+    }
+    r.finish()
+        .ok_or_else(|| "shard blocks are not contiguous".to_string())
+}
+
+/// Mean and standard error (batch means over chunks) of every output.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Estimate {
+    pub mean: Vec<C64>,
+    /// Standard error of the complex mean: `sqrt(Var(re) + Var(im)) / sqrt(chunks)`.
+    pub stderr: Vec<f64>,
+    pub samples: u64,
+    pub chunks: u64,
+}
+
+impl Estimate {
+    pub fn from_block(b: &Block, plan: &Plan) -> Self {
+        let k = b.len as f64;
+        let n = plan.samples() as f64;
+        let mean: Vec<C64> = b.sum.iter().map(|z| z / n).collect();
+        let stderr = mean
+            .iter()
+            .zip(&b.sq)
+            .map(|(m, &sq)| {
+                let var = ((sq / k - m.norm_sqr()) * k / (k - 1.0)).max(0.0);
+                (var / k).sqrt()
+            })
+            .collect();
+        Estimate {
+            mean,
+            stderr,
+            samples: plan.samples(),
+            chunks: b.len,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::math::uniform;
+
+    /// Estimates E[u] = 1/2 and E[u²] = 1/3.
+    struct Moments;
+    impl Estimator for Moments {
+        type Scratch = ();
+        fn outputs(&self) -> usize {
+            2
+        }
+        fn scratch(&self) {}
+        fn run_chunk(&self, rng: &mut Rng, paths: u64, _: &mut (), out: &mut [C64]) {
+            for _ in 0..paths {
+                let u = uniform(rng);
+                out[0] += u;
+                out[1] += C64::new(0.0, u * u);
+            }
+        }
+    }
+
+    #[test]
+    fn estimates_are_unbiased_with_honest_errors() {
+        let plan = Plan::new(7, 200_000, 1000);
+        let b = merge(
+            run(&Moments, &plan, 0..plan.chunks, &[], &|_| {}),
+            plan.chunks,
+        )
+        .unwrap();
+        let e = Estimate::from_block(&b, &plan);
+        let se0 = (1.0f64 / 12.0 / plan.samples() as f64).sqrt();
+        assert!(
+            (e.stderr[0] / se0 - 1.0).abs() < 0.2,
+            "{} vs {se0}",
+            e.stderr[0]
+        );
+        assert!((e.mean[0].re - 0.5).abs() < 4.0 * e.stderr[0]);
+        assert!((e.mean[1].im - 1.0 / 3.0).abs() < 4.0 * e.stderr[1]);
+    }
+
+    #[test]
+    fn shards_merge_bit_for_bit() {
+        let plan = Plan::new(3, 37 * 50, 50);
+        let whole = merge(
+            run(&Moments, &plan, 0..plan.chunks, &[0], &|_| {}),
+            plan.chunks,
+        )
+        .unwrap();
+        for n in [2, 3, 5] {
+            let mut blocks = Vec::new();
+            for i in (0..n).rev() {
+                blocks.extend(run(&Moments, &plan, plan.shard_range(i, n), &[0], &|_| {}));
+            }
+            assert_eq!(merge(blocks, plan.chunks).unwrap(), whole);
+        }
+        let missing = run(&Moments, &plan, plan.shard_range(0, 2), &[], &|_| {});
+        assert!(merge(missing, plan.chunks).unwrap_err().contains("missing"));
+    }
+}

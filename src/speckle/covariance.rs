@@ -1,0 +1,194 @@
+//! Speckle covariance by Monte Carlo path sampling (paper 001, Algorithm 1, Eqs. 31–36).
+//!
+//! Each sampled subpath `x1 → … → xB` adds, for every vertex `xB`, a rank-1 term `w a aᴴ` to the
+//! covariance of all light×view pairs, where `a_j = A_l B'_v + B_l A'_v` joins the subpath's ends to
+//! light `l` and view `v` forwards and (for coherent backscattering) reversed (Eq. 38). The rank-1
+//! terms are gathered into a batch and applied as one matrix product.
+
+use crate::math::{C64, Rng};
+use crate::mc::Estimator;
+use crate::speckle::Scene;
+use crate::speckle::paths::{EventSink, PathScratch, SubpathSampler};
+
+/// Events gathered before one batched update.
+const BATCH: usize = 256;
+
+/// Row blocks of the Hermitian accumulator: only blocks on or above the diagonal are multiplied.
+const TILES: usize = 4;
+
+/// Covariance of the fields `u_j` of the given (light, view) pairs. Outputs three `J×J` row-major
+/// blocks: single scattering (B = 1), multiple scattering (B ≥ 2), and their sum; entry
+/// `[j1·J + j2]` is `E[u_j1 u_j2*]`.
+pub struct Covariance<'a> {
+    sampler: SubpathSampler<'a>,
+}
+
+/// Per-thread working memory of [`Covariance`].
+pub struct CovScratch {
+    path: PathScratch,
+    sink: CovSink,
+}
+
+struct CovSink {
+    single: Batch,
+    multi: Batch,
+}
+
+impl EventSink for CovSink {
+    #[inline]
+    fn event(&mut self, multiple: bool, a: &[C64], _: &mut Rng) {
+        if multiple {
+            &mut self.multi
+        } else {
+            &mut self.single
+        }
+        .push(a);
+    }
+}
+
+/// A batch of event vectors `A` (J × n, column-major) with its conjugate, and the accumulator
+/// `acc += A Aᴴ` (J × J row-major; only tiles on or above the diagonal are computed, as `C` is
+/// Hermitian).
+struct Batch {
+    j: usize,
+    cols: usize,
+    a: Vec<C64>,
+    conj: Vec<C64>,
+    acc: Vec<C64>,
+}
+
+impl Batch {
+    fn new(j: usize) -> Self {
+        Batch {
+            j,
+            cols: 0,
+            a: vec![C64::default(); j * BATCH],
+            conj: vec![C64::default(); j * BATCH],
+            acc: vec![C64::default(); j * j],
+        }
+    }
+
+    #[inline]
+    fn push(&mut self, a: &[C64]) {
+        if self.cols == BATCH {
+            self.flush();
+        }
+        let (j, c) = (self.j, self.cols);
+        self.a[c * j..(c + 1) * j].copy_from_slice(a);
+        for (d, s) in self.conj[c * j..(c + 1) * j].iter_mut().zip(a) {
+            *d = s.conj();
+        }
+        self.cols += 1;
+    }
+
+    fn flush(&mut self) {
+        if self.cols == 0 {
+            return;
+        }
+        let j = self.j;
+        let tile = j.div_ceil(TILES);
+        for r0 in (0..j).step_by(tile) {
+            let m = tile.min(j - r0);
+            for c0 in (r0..j).step_by(tile) {
+                let n = tile.min(j - c0);
+                // SAFETY: A is j × cols column-major (element (r, e) at e·j + r); conj(A)ᵀ is read from
+                // `conj` with row stride j; acc is j × j row-major. Offsets stay in bounds.
+                unsafe {
+                    matrixmultiply::zgemm(
+                        matrixmultiply::CGemmOption::Standard,
+                        matrixmultiply::CGemmOption::Standard,
+                        m,
+                        self.cols,
+                        n,
+                        [1.0, 0.0],
+                        self.a.as_ptr().add(r0) as *const [f64; 2],
+                        1,
+                        j as isize,
+                        self.conj.as_ptr().add(c0) as *const [f64; 2],
+                        j as isize,
+                        1,
+                        [1.0, 0.0],
+                        self.acc.as_mut_ptr().add(r0 * j + c0) as *mut [f64; 2],
+                        j as isize,
+                        1,
+                    );
+                }
+            }
+        }
+        self.cols = 0;
+    }
+
+    /// Add the accumulated matrix (lower tiles filled by Hermitian symmetry) to `out`; clear it.
+    fn drain_into(&mut self, out: &mut [C64]) {
+        self.flush();
+        let j = self.j;
+        let tile = j.div_ceil(TILES);
+        for a in 0..j {
+            for b in 0..j {
+                let z = if b / tile >= a / tile {
+                    self.acc[a * j + b]
+                } else {
+                    self.acc[b * j + a].conj()
+                };
+                out[a * j + b] += z;
+            }
+        }
+        self.acc.iter_mut().for_each(|v| *v = C64::default());
+    }
+}
+
+impl<'a> Covariance<'a> {
+    /// Covariance over all light×view pairs (`j = l·V + v`).
+    pub fn all_pairs(scene: &'a Scene, reversed: bool) -> Self {
+        Self::with_pairs(scene, SubpathSampler::all_pairs(scene), reversed)
+    }
+
+    /// Covariance over the listed (light, view) pairs.
+    pub fn with_pairs(scene: &'a Scene, pairs: Vec<(usize, usize)>, reversed: bool) -> Self {
+        Covariance {
+            sampler: SubpathSampler::new(scene, pairs, reversed),
+        }
+    }
+
+    pub fn pairs(&self) -> &[(usize, usize)] {
+        self.sampler.pairs()
+    }
+
+    /// Number of fields `J`.
+    pub fn fields(&self) -> usize {
+        self.pairs().len()
+    }
+}
+
+impl Estimator for Covariance<'_> {
+    type Scratch = CovScratch;
+
+    fn outputs(&self) -> usize {
+        3 * self.fields() * self.fields()
+    }
+
+    fn scratch(&self) -> CovScratch {
+        let j = self.fields();
+        CovScratch {
+            path: self.sampler.scratch(),
+            sink: CovSink {
+                single: Batch::new(j),
+                multi: Batch::new(j),
+            },
+        }
+    }
+
+    fn run_chunk(&self, rng: &mut Rng, paths: u64, sc: &mut CovScratch, out: &mut [C64]) {
+        for _ in 0..paths {
+            self.sampler.trace(rng, &mut sc.path, &mut sc.sink);
+        }
+        let jj = self.fields() * self.fields();
+        let (single, rest) = out.split_at_mut(jj);
+        let (multi, total) = rest.split_at_mut(jj);
+        sc.sink.single.drain_into(single);
+        sc.sink.multi.drain_into(multi);
+        for ((t, a), b) in total.iter_mut().zip(single.iter()).zip(multi.iter()) {
+            *t = a + b;
+        }
+    }
+}

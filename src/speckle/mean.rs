@@ -1,0 +1,255 @@
+//! The speckle mean `m = E[u]` in closed form (paper 001, Eq. 20 and App. 9.2, Eq. 48).
+//!
+//! With a point at either end the mean is the attenuated direct field `τ(i, v) ξ(i → v)` (Eq. 47).
+//! With a plane-wave light and a far-field view it is the coherent single-scattering integral
+//! `m = ∫ n f(i·v) exp(i k (i − v)·x) τ(x, −i) τ(x, v) dx` (Eq. 48), where the forward amplitude
+//! follows from the optical theorem for non-absorbing particles with purely imaginary forward
+//! amplitude: `n f(μ) = (i k σ_s / 4π) Σ β_ι s_ι(μ) / s_ι(1)` (any absorption is the host's). This
+//! matches resonant point scatterers (`f = i/k`) exactly. For a box the integral is done exactly
+//! along z (piecewise exponential) and by composite Gauss–Legendre over x, y; for a slab the
+//! off-specular mean per unit area vanishes (the specular part is a delta) and 0 is returned.
+
+use crate::math::{C64, INV_4PI, cis};
+use crate::medium::{Geometry, Medium};
+use crate::speckle::Scene;
+use crate::speckle::endpoint::{Light, View};
+use glam::DVec3;
+
+/// Mean field of `light` seen by `view`.
+pub fn mean_field(scene: &Scene, light: &Light, view: &View) -> C64 {
+    let m = &scene.medium;
+    let k = scene.k;
+    match (*light, *view) {
+        (Light::Point { position: p }, View::Point { position: q }) => {
+            let r = (q - p).length();
+            let len = chord(&m.geometry, p, (q - p) / r, r);
+            cis(k * r) * (m.amplitude_attenuation(len) / r)
+        }
+        (Light::Point { position: p }, View::FarField { direction: v }) => {
+            cis(-k * v.dot(p)) * m.amplitude_attenuation(chord(&m.geometry, p, v, f64::INFINITY))
+        }
+        (Light::PlaneWave { direction: d }, View::Point { position: q }) => {
+            cis(k * d.dot(q)) * m.amplitude_attenuation(chord(&m.geometry, q, -d, f64::INFINITY))
+        }
+        (Light::PlaneWave { direction: d }, View::FarField { direction: v }) => far_far(m, k, d, v),
+    }
+}
+
+/// Length inside the medium of the segment `o + t w`, `t ∈ [0, t_max]`.
+fn chord(g: &Geometry, o: DVec3, w: DVec3, t_max: f64) -> f64 {
+    match g.ray_interval(o, w) {
+        Some((t0, t1)) => (t1.min(t_max) - t0.max(0.0)).max(0.0),
+        None => 0.0,
+    }
+}
+
+/// Forward-amplitude density `n f(μ)` from the optical theorem (see module docs).
+fn amplitude_density(m: &Medium, k: f64, mu: f64) -> C64 {
+    let ratio: C64 = m
+        .scattering
+        .components()
+        .iter()
+        .map(|(b, p)| {
+            let s1 = p.amplitude(1.0);
+            if s1.norm() > 0.0 {
+                p.amplitude(mu) / s1 * *b
+            } else {
+                C64::default()
+            }
+        })
+        .sum();
+    C64::new(0.0, k * m.sigma_s * INV_4PI) * ratio
+}
+
+fn far_far(m: &Medium, k: f64, d: DVec3, v: DVec3) -> C64 {
+    let half = match m.geometry {
+        Geometry::Box { half } => half,
+        Geometry::Slab { .. } => return C64::default(),
+    };
+    let nf = amplitude_density(m, k, d.dot(v));
+    let q = (d - v) * k;
+    let st = 0.5 * m.sigma_t();
+    // exit distances along -d (towards the light) and v (towards the view) are
+    // min(lateral constant, linear in z); integrate exp(i q·x − st (D_in + D_out)) exactly in z.
+    let line = |x: f64, y: f64| -> C64 {
+        let (ci, ai, bi) = split(half, DVec3::new(x, y, 0.0), -d);
+        let (co, ao, bo) = split(half, DVec3::new(x, y, 0.0), v);
+        // breakpoints where the linear z part meets the lateral constant
+        let mut cuts = [-half.z, half.z, half.z, half.z];
+        let mut n = 1;
+        for (c, a, b) in [(ci, ai, bi), (co, ao, bo)] {
+            if b != 0.0 && c.is_finite() {
+                let z = (c - a) / b;
+                if z > -half.z && z < half.z {
+                    cuts[n] = z;
+                    n += 1;
+                }
+            }
+        }
+        cuts[n] = half.z;
+        cuts[..=n].sort_by(f64::total_cmp);
+        let mut acc = C64::default();
+        for s in 0..n {
+            let (z0, z1) = (cuts[s], cuts[s + 1]);
+            if z1 <= z0 {
+                continue;
+            }
+            let zm = 0.5 * (z0 + z1);
+            // on this piece D = const or a + b z; exponent = e0 + e1 z
+            let (mut e0, mut e1) = (C64::new(-st * 0.0, q.x * x + q.y * y), C64::new(0.0, q.z));
+            for (c, a, b) in [(ci, ai, bi), (co, ao, bo)] {
+                if a + b * zm < c {
+                    e0 -= st * a;
+                    e1 -= st * b;
+                } else {
+                    e0 -= st * c;
+                }
+            }
+            acc += if (e1 * (z1 - z0)).norm() < 1e-8 {
+                (e0 + e1 * zm).exp() * (z1 - z0)
+            } else {
+                ((e0 + e1 * z1).exp() - (e0 + e1 * z0).exp()) / e1
+            };
+        }
+        acc
+    };
+    let panels = |len: f64, qa: f64| -> usize {
+        let waves = qa.abs() * len / (2.0 * std::f64::consts::PI) + m.sigma_t() * len;
+        (4.0 + 2.0 * waves).ceil().min(200.0) as usize
+    };
+    let (px, py) = (panels(2.0 * half.x, q.x), panels(2.0 * half.y, q.y));
+    let mut total = C64::default();
+    for (x, wx) in composite_gauss(-half.x, half.x, px) {
+        for (y, wy) in composite_gauss(-half.y, half.y, py) {
+            total += line(x, y) * (wx * wy);
+        }
+    }
+    nf * total
+}
+
+/// Exit distance from `(x, y, z)` along `w` as `min(c, a + b z)`: `c` from the lateral faces,
+/// `a + b z` from the z faces (`b = 0`, `a = ∞` when `w.z = 0`).
+fn split(half: DVec3, p: DVec3, w: DVec3) -> (f64, f64, f64) {
+    let lateral = |x: f64, wa: f64, h: f64| {
+        if wa > 0.0 {
+            (h - x) / wa
+        } else if wa < 0.0 {
+            (-h - x) / wa
+        } else {
+            f64::INFINITY
+        }
+    };
+    let c = lateral(p.x, w.x, half.x).min(lateral(p.y, w.y, half.y));
+    if w.z > 0.0 {
+        (c, half.z / w.z, -1.0 / w.z)
+    } else if w.z < 0.0 {
+        (c, -half.z / w.z, -1.0 / w.z)
+    } else {
+        (c, f64::INFINITY, 0.0)
+    }
+}
+
+/// Nodes and weights of `panels` 8-point Gauss–Legendre panels over `[a, b]`.
+fn composite_gauss(a: f64, b: f64, panels: usize) -> impl Iterator<Item = (f64, f64)> {
+    const X: [f64; 4] = [
+        0.183_434_642_495_649_8,
+        0.525_532_409_916_329,
+        0.796_666_477_413_626_7,
+        0.960_289_856_497_536_3,
+    ];
+    const W: [f64; 4] = [
+        0.362_683_783_378_362,
+        0.313_706_645_877_887_3,
+        0.222_381_034_453_374_5,
+        0.101_228_536_290_376_3,
+    ];
+    let h = (b - a) / panels as f64;
+    (0..panels).flat_map(move |p| {
+        let c = a + (p as f64 + 0.5) * h;
+        (0..8).map(move |i| {
+            let (x, w) = (X[i % 4] * if i < 4 { 1.0 } else { -1.0 }, W[i % 4]);
+            (c + 0.5 * h * x, 0.5 * h * w)
+        })
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::medium::{PhaseFunction, Scattering};
+
+    fn scene(size: [f64; 3], sigma_s: f64) -> Scene {
+        Scene::new(
+            1.0,
+            Medium {
+                geometry: Geometry::boxed(size),
+                sigma_s,
+                sigma_a: 0.0,
+                scattering: Scattering::single(PhaseFunction::Isotropic),
+            },
+            vec![],
+            vec![],
+        )
+    }
+
+    #[test]
+    fn forward_mean_is_chord_integral() {
+        // v = d = z: D_in + D_out = L everywhere, so m = (i k σ_s / 4π) A L exp(-σ_t L / 2).
+        let s = scene([3.0, 4.0, 5.0], 0.2);
+        let m = mean_field(
+            &s,
+            &Light::PlaneWave {
+                direction: DVec3::Z,
+            },
+            &View::FarField {
+                direction: DVec3::Z,
+            },
+        );
+        let expect = C64::new(0.0, s.k * 0.2 * INV_4PI) * 12.0 * 5.0 * (-0.5f64).exp();
+        assert!(
+            (m - expect).norm() < 1e-9 * expect.norm(),
+            "{m} vs {expect}"
+        );
+    }
+
+    #[test]
+    fn dilute_mean_is_sinc_product() {
+        // σ_t → 0: the integral is the Fourier transform of the box.
+        let s = scene([2.0, 3.0, 1.5], 1e-9);
+        let d = DVec3::Z;
+        let v = DVec3::new(0.3, 0.2, 0.5).normalize();
+        let m = mean_field(
+            &s,
+            &Light::PlaneWave { direction: d },
+            &View::FarField { direction: v },
+        );
+        let q = (d - v) * s.k;
+        let sinc = |qa: f64, l: f64| {
+            if qa == 0.0 {
+                l
+            } else {
+                2.0 * (qa * l / 2.0).sin() / qa
+            }
+        };
+        let expect =
+            C64::new(0.0, s.k * 1e-9 * INV_4PI) * sinc(q.x, 2.0) * sinc(q.y, 3.0) * sinc(q.z, 1.5);
+        assert!(
+            (m - expect).norm() < 1e-6 * expect.norm(),
+            "{m} vs {expect}"
+        );
+    }
+
+    #[test]
+    fn point_means_are_attenuated_direct_fields() {
+        let s = scene([2.0, 2.0, 2.0], 0.5);
+        let p = DVec3::new(0.0, 0.0, -3.0);
+        let q = DVec3::new(0.0, 0.0, 4.0);
+        let m = mean_field(
+            &s,
+            &Light::Point { position: p },
+            &View::Point { position: q },
+        );
+        let expect = cis(s.k * 7.0) * ((-0.5f64 * 0.5 * 2.0).exp() / 7.0);
+        assert!((m - expect).norm() < 1e-12);
+    }
+}

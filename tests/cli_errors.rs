@@ -1,0 +1,294 @@
+//! Bad input gets a clear error: the key, the value and what is allowed; exit code ≠ 0; no panic;
+//! no result file written.
+
+use std::path::PathBuf;
+use std::process::Command;
+
+const GOOD: &str = r#"
+wavelength = 1.0
+[medium]
+box = [4.0, 4.0, 4.0]
+mfp = 2.0
+albedo = 1.0
+phase = { kind = "hg", g = 0.3 }
+[[light]]
+kind = "plane_wave"
+direction = [0.0, 0.0, 1.0]
+[[view]]
+kind = "far_field"
+direction = [0.0, 0.0, 1.0]
+[render]
+samples = 2000
+seed = 1
+chunk = 500
+"#;
+
+fn tmpdir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("lightpath-cli-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// Run `covariance` on `text`; return (exit success, stderr, whether covariance.json exists).
+fn run_config(name: &str, text: &str) -> (bool, String, bool) {
+    let d = tmpdir(name);
+    let cfg = d.join("scene.toml");
+    std::fs::write(&cfg, text).unwrap();
+    let out = d.join("out");
+    let o = Command::new(env!("CARGO_BIN_EXE_lightpath"))
+        .args([
+            "covariance",
+            cfg.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--quiet",
+        ])
+        .output()
+        .unwrap();
+    (
+        o.status.success(),
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+        out.join("covariance.json").exists(),
+    )
+}
+
+fn expect_error(name: &str, text: &str, needles: &[&str]) {
+    let (ok, err, wrote) = run_config(name, text);
+    assert!(!ok, "{name}: should fail");
+    assert!(!wrote, "{name}: wrote a result despite the error");
+    assert!(!err.contains("panicked"), "{name}: panicked: {err}");
+    for n in needles {
+        assert!(err.contains(n), "{name}: error should mention {n:?}: {err}");
+    }
+}
+
+#[test]
+fn good_config_runs() {
+    let (ok, err, wrote) = run_config("good", GOOD);
+    assert!(ok && wrote, "{err}");
+}
+
+#[test]
+fn negative_or_zero_lengths() {
+    expect_error(
+        "box",
+        &GOOD.replace("box = [4.0, 4.0, 4.0]", "box = [4.0, -1.0, 4.0]"),
+        &["medium.box[1]", "-1", "positive"],
+    );
+    expect_error(
+        "mfp",
+        &GOOD.replace("mfp = 2.0", "mfp = 0.0"),
+        &["medium.mfp", "0", "positive"],
+    );
+    expect_error(
+        "wavelength",
+        &GOOD.replace("wavelength = 1.0", "wavelength = -2.0"),
+        &["wavelength", "-2", "positive"],
+    );
+    expect_error(
+        "slab",
+        &GOOD.replace("box = [4.0, 4.0, 4.0]", "slab = -3.0"),
+        &["medium.slab", "-3", "positive"],
+    );
+}
+
+#[test]
+fn albedo_out_of_range() {
+    expect_error(
+        "albedo",
+        &GOOD.replace("albedo = 1.0", "albedo = 1.3"),
+        &["medium.albedo", "1.3", "[0, 1]"],
+    );
+    expect_error(
+        "albedo-neg",
+        &GOOD.replace("albedo = 1.0", "albedo = -0.1"),
+        &["medium.albedo", "-0.1", "[0, 1]"],
+    );
+}
+
+#[test]
+fn anisotropy_out_of_range() {
+    expect_error(
+        "g",
+        &GOOD.replace("g = 0.3", "g = 1.0"),
+        &["medium.phase.g", "1", "(-1, 1)"],
+    );
+    expect_error(
+        "g-neg",
+        &GOOD.replace("g = 0.3", "g = -1.5"),
+        &["medium.phase.g", "-1.5", "(-1, 1)"],
+    );
+}
+
+#[test]
+fn bad_directions() {
+    expect_error(
+        "zero-dir",
+        &GOOD.replacen(
+            "direction = [0.0, 0.0, 1.0]",
+            "direction = [0.0, 0.0, 0.0]",
+            1,
+        ),
+        &["light[0].direction", "non-zero finite"],
+    );
+    expect_error(
+        "nan-dir",
+        &GOOD.replace(
+            "kind = \"far_field\"\ndirection = [0.0, 0.0, 1.0]",
+            "kind = \"far_field\"\ndirection = [0.0, nan, 1.0]",
+        ),
+        &["view[0].direction", "NaN", "non-zero finite"],
+    );
+}
+
+#[test]
+fn empty_lists() {
+    let no_light = GOOD.replace(
+        "[[light]]\nkind = \"plane_wave\"\ndirection = [0.0, 0.0, 1.0]\n",
+        "",
+    );
+    expect_error("no-light", &no_light, &["light", "empty"]);
+    let no_view = GOOD.replace(
+        "[[view]]\nkind = \"far_field\"\ndirection = [0.0, 0.0, 1.0]\n",
+        "",
+    );
+    expect_error("no-view", &no_view, &["view", "empty"]);
+}
+
+#[test]
+fn unknown_keys() {
+    expect_error(
+        "unknown-top",
+        &format!("colour = 3\n{GOOD}"),
+        &["unknown field", "colour"],
+    );
+    expect_error(
+        "unknown-medium",
+        &GOOD.replace("mfp = 2.0", "mfp = 2.0\nmpf = 3.0"),
+        &["medium", "mpf"],
+    );
+    expect_error(
+        "unknown-kind",
+        &GOOD.replace("kind = \"hg\"", "kind = \"rayleigh\""),
+        &["medium.phase", "rayleigh"],
+    );
+}
+
+#[test]
+fn missing_or_unreadable_files() {
+    let d = tmpdir("missing");
+    let o = Command::new(env!("CARGO_BIN_EXE_lightpath"))
+        .args([
+            "covariance",
+            d.join("nope.toml").to_str().unwrap(),
+            "--out",
+            d.join("o").to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("cannot read config file") && err.contains("nope.toml"),
+        "{err}"
+    );
+    // a folder is unreadable as a file
+    let o = Command::new(env!("CARGO_BIN_EXE_lightpath"))
+        .args([
+            "covariance",
+            d.to_str().unwrap(),
+            "--out",
+            d.join("o").to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        !o.status.success()
+            && String::from_utf8_lossy(&o.stderr).contains("cannot read config file")
+    );
+    // a tabulated phase function file that does not exist
+    expect_error(
+        "table-file",
+        &GOOD.replace(
+            "phase = { kind = \"hg\", g = 0.3 }",
+            "phase = { kind = \"tabulated\", file = \"missing.csv\" }",
+        ),
+        &["medium.phase.file", "missing.csv", "cannot read"],
+    );
+}
+
+#[test]
+fn bad_tabulated_phase_functions() {
+    expect_error(
+        "table-negative",
+        &GOOD.replace(
+            "phase = { kind = \"hg\", g = 0.3 }",
+            "phase = { kind = \"tabulated\", values = [1.0, -0.5, 2.0] }",
+        ),
+        &["medium.phase", "entry 1", "-0.5", ">= 0"],
+    );
+    expect_error(
+        "table-zero",
+        &GOOD.replace(
+            "phase = { kind = \"hg\", g = 0.3 }",
+            "phase = { kind = \"tabulated\", values = [0.0, 0.0, 0.0] }",
+        ),
+        &["medium.phase", "integrates to 0", "positive"],
+    );
+    expect_error(
+        "table-range",
+        &GOOD.replace(
+            "phase = { kind = \"hg\", g = 0.3 }",
+            "phase = { kind = \"tabulated\", cos = [-1.0, 0.0, 0.5], values = [1.0, 1.0, 1.0] }",
+        ),
+        &["medium.phase", "from -1 to 1"],
+    );
+}
+
+#[test]
+fn conflicting_and_missing_coefficients() {
+    expect_error(
+        "both",
+        &GOOD.replace("mfp = 2.0", "mfp = 2.0\nsigma_s = 0.5"),
+        &["medium", "either"],
+    );
+    expect_error(
+        "none",
+        &GOOD.replace("mfp = 2.0\nalbedo = 1.0\n", ""),
+        &["medium", "mfp", "sigma_s"],
+    );
+    expect_error(
+        "sigma-a",
+        &GOOD.replace("mfp = 2.0\nalbedo = 1.0", "sigma_s = 0.5\nsigma_a = -0.1"),
+        &["medium.sigma_a", "-0.1", ">= 0"],
+    );
+}
+
+#[test]
+fn bad_flags() {
+    let d = tmpdir("flags");
+    let cfg = d.join("scene.toml");
+    std::fs::write(&cfg, GOOD).unwrap();
+    for args in [
+        vec!["--shard", "3/2"],
+        vec!["--samples", "0"],
+        vec!["--threads", "0"],
+    ] {
+        let o = Command::new(env!("CARGO_BIN_EXE_lightpath"))
+            .args([
+                "covariance",
+                cfg.to_str().unwrap(),
+                "--out",
+                d.join("o").to_str().unwrap(),
+            ])
+            .args(&args)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            !o.status.success() && !err.contains("panicked"),
+            "{args:?}: {err}"
+        );
+        assert!(err.contains(args[0]), "{args:?}: {err}");
+    }
+}
