@@ -68,17 +68,21 @@ enum Det {
     Point(DVec3),
 }
 
-/// Radiometric intensity estimate (mean, stderr) by analog-direction path tracing with next events.
-fn path_trace(
-    h: DVec3,
+/// Bulk coefficients and HG anisotropy.
+#[derive(Clone, Copy)]
+struct Mat {
     sigma_s: f64,
     sigma_a: f64,
     g: f64,
-    src: Src,
-    det: Det,
-    n: usize,
-    seed: u64,
-) -> (f64, f64) {
+}
+
+/// Radiometric intensity estimate (mean, stderr) by analog-direction path tracing with next events.
+fn path_trace(h: DVec3, mat: Mat, src: Src, det: Det, n: usize, seed: u64) -> (f64, f64) {
+    let Mat {
+        sigma_s,
+        sigma_a,
+        g,
+    } = mat;
     let st = sigma_s + sigma_a;
     let batches = 50;
     let mut means = vec![0.0; batches];
@@ -177,7 +181,18 @@ fn check(size: [f64; 3], sigma_s: f64, sigma_a: f64, g: f64, src: Src, dets: &[D
     for (v, det) in dets.iter().enumerate() {
         let idx = 2 * j * j + v * j + v; // total block, diagonal entry
         let (c, c_se): (C64, f64) = (e.mean[idx], e.stderr[idx]);
-        let (pt, pt_se) = path_trace(h, sigma_s, sigma_a, g, src, *det, 400_000, 5 + v as u64);
+        let (pt, pt_se) = path_trace(
+            h,
+            Mat {
+                sigma_s,
+                sigma_a,
+                g,
+            },
+            src,
+            *det,
+            400_000,
+            5 + v as u64,
+        );
         let z = (c.re - pt) / (c_se * c_se + pt_se * pt_se).sqrt();
         eprintln!(
             "view {v}: covariance {:.6e} ± {:.1e}, path tracer {:.6e} ± {:.1e}, z = {z:.2}",
