@@ -1,0 +1,155 @@
+//! Results do not depend on the thread count, and shards merged equal the single run bit for bit
+//! (engine level and through the command line, for every run kind).
+
+use lightpath::mc::{Plan, merge, run};
+use lightpath::speckle::Covariance;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+const SCENE: &str = r#"
+wavelength = 1.0
+[medium]
+box = [5.0, 5.0, 3.0]
+mfp = 2.0
+albedo = 0.9
+phase = { kind = "hg", g = 0.4 }
+[[light]]
+kind = "plane_wave"
+direction = [0.0, 0.0, 1.0]
+[[light]]
+kind = "point"
+position = [1.0, 0.0, -6.0]
+[[view]]
+kind = "far_field_ring"
+start = [0.0, 0.0, 1.0]
+axis = [0.0, 1.0, 0.0]
+count = 6
+[memory_effect]
+angles_deg = [1.0, 3.0]
+[speckle]
+realisations = 3
+paths = 900
+[render]
+samples = 7000
+chunk = 300
+seed = 4
+"#;
+
+#[test]
+fn one_and_two_threads_agree_bitwise() {
+    let cfg = lightpath::io::Config::from_toml(SCENE, None).unwrap();
+    let scene = cfg.scene().unwrap();
+    let est = Covariance::all_pairs(&scene, true);
+    let plan = Plan::new(4, 7000, 300);
+    let go = |threads| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            merge(
+                run(&est, &plan, 0..plan.chunks, &[0, 5], &|_| {}),
+                plan.chunks,
+            )
+            .unwrap()
+        })
+    };
+    assert_eq!(go(1), go(2));
+}
+
+fn lightpath(args: &[&str]) {
+    let o = Command::new(env!("CARGO_BIN_EXE_lightpath"))
+        .args(args)
+        .arg("--quiet")
+        .output()
+        .unwrap();
+    assert!(
+        o.status.success(),
+        "{args:?}: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+fn numbers(path: &Path, keys: &[&str]) -> Vec<String> {
+    let v: serde_json::Value = serde_json::from_slice(&std::fs::read(path).unwrap()).unwrap();
+    keys.iter().map(|k| v[k].to_string()).collect()
+}
+
+fn shards_equal_single(cmd: &str, file: &str, keys: &[&str]) {
+    let d: PathBuf =
+        std::env::temp_dir().join(format!("lightpath-shards-{}-{cmd}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    let cfg = d.join("scene.toml");
+    std::fs::write(&cfg, SCENE).unwrap();
+    let c = cfg.to_str().unwrap();
+    let single = d.join("single");
+    lightpath(&[cmd, c, "--out", single.to_str().unwrap(), "--threads", "2"]);
+    let mut shards = Vec::new();
+    for i in 0..3 {
+        let s = d.join(format!("shard-{i}"));
+        lightpath(&[
+            cmd,
+            c,
+            "--out",
+            s.to_str().unwrap(),
+            "--shard",
+            &format!("{i}/3"),
+            "--threads",
+            "1",
+        ]);
+        assert!(!s.join(file).exists(), "a shard must not write a result");
+        shards.push(s.to_str().unwrap().to_string());
+    }
+    let merged = d.join("merged");
+    let mut args = vec!["merge"];
+    args.extend(shards.iter().rev().map(|s| s.as_str()));
+    args.extend(["--out", merged.to_str().unwrap()]);
+    let o = Command::new(env!("CARGO_BIN_EXE_lightpath"))
+        .args(&args)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (a, b) = (
+        numbers(&single.join(file), keys),
+        numbers(&merged.join(file), keys),
+    );
+    assert!(a.iter().all(|s| s.len() > 20), "results missing: {a:?}");
+    assert_eq!(a, b);
+    // a missing shard is an error, not a silently partial result
+    let o = Command::new(env!("CARGO_BIN_EXE_lightpath"))
+        .args([
+            "merge",
+            &shards[0],
+            &shards[2],
+            "--out",
+            d.join("partial").to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("missing"));
+    assert!(!d.join("partial").join(file).exists());
+}
+
+#[test]
+fn covariance_shards_merge_bitwise() {
+    shards_equal_single(
+        "covariance",
+        "covariance.json",
+        &["re", "im", "stderr", "single_re", "multiple_im", "mean_re"],
+    );
+}
+
+#[test]
+fn memory_effect_shards_merge_bitwise() {
+    shards_equal_single(
+        "memory-effect",
+        "memory_effect.json",
+        &["correlation", "correlation_stderr"],
+    );
+}
+
+#[test]
+fn speckle_shards_merge_bitwise() {
+    shards_equal_single("speckle", "speckle.json", &["re", "im"]);
+}
