@@ -108,8 +108,10 @@ fn gemm_rates(n: usize, reps: usize) -> (f64, f64) {
         t0.elapsed().as_secs_f64()
     };
     let flops = (threads * reps) as f64 * 2.0 * (n * n * n) as f64;
-    let d = flops / time(false) / 1e9;
-    let z = 4.0 * flops / time(true) / 1e9;
+    // best of three: the rate the machine can reach
+    let best = |complex| (0..3).map(|_| time(complex)).fold(f64::INFINITY, f64::min);
+    let d = flops / best(false) / 1e9;
+    let z = 4.0 * flops / best(true) / 1e9;
     (d, z)
 }
 
@@ -145,7 +147,8 @@ pub fn run(quick: bool) -> Result<String, String> {
          covariance: {cov_paths:.0} paths/s ({:.0} per thread), {:.3e} entry-updates/s = {cov_flops:.2} GFLOP/s\n\
          fields:     {field_paths:.0} paths/s ({:.0} per thread), {:.3e} pixel-updates/s\n\
          GEMM ({}², all threads): real dgemm {dgemm:.2} GFLOP/s, complex zgemm {zgemm:.2} GFLOP/s\n\
-         covariance update at {:.0} % of the complex GEMM rate ({:.0} % of dgemm)",
+         covariance update at {:.0} % of the complex GEMM rate ({:.0} % of dgemm), counting all J² entries \
+         (only tiles on or above the diagonal are multiplied: {:.0} % of them)",
         cov_paths / threads as f64,
         cov_updates,
         field_paths / threads as f64,
@@ -153,5 +156,6 @@ pub fn run(quick: bool) -> Result<String, String> {
         2 * j,
         100.0 * cov_flops / zgemm,
         100.0 * cov_flops / dgemm,
+        100.0 * crate::speckle::covariance::tile_fraction(j),
     ))
 }

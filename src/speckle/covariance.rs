@@ -11,10 +11,24 @@ use crate::speckle::Scene;
 use crate::speckle::paths::{EventSink, PathScratch, SubpathSampler};
 
 /// Events gathered before one batched update.
-const BATCH: usize = 256;
+const BATCH: usize = 64;
 
 /// Row blocks of the Hermitian accumulator: only blocks on or above the diagonal are multiplied.
 const TILES: usize = 4;
+
+/// Fraction of the `J×J` entries the batched update actually multiplies (tiles on or above the
+/// diagonal); the rest follow by Hermitian symmetry.
+pub fn tile_fraction(j: usize) -> f64 {
+    let tile = j.div_ceil(TILES);
+    let n = j.div_ceil(tile);
+    let mut done = 0;
+    for a in 0..n {
+        for b in a..n {
+            done += tile.min(j - a * tile) * tile.min(j - b * tile);
+        }
+    }
+    done as f64 / (j * j) as f64
+}
 
 /// Covariance of the fields `u_j` of the given (light, view) pairs. Outputs three `J×J` row-major
 /// blocks: single scattering (B = 1), multiple scattering (B ≥ 2), and their sum; entry
