@@ -1,6 +1,8 @@
 //! Small numerical helpers shared by the physics modules: complex numbers, frames, sphere sampling,
 //! rotations and the deterministic per-chunk random streams of the Monte Carlo engine.
 
+pub mod polytope;
+
 use glam::DVec3;
 use rand::SeedableRng;
 
