@@ -42,7 +42,8 @@ impl EventSink for Count {
 
 /// Mean number of events (rank-1 updates) per path.
 fn events_per_path(scene: &Scene) -> f64 {
-    let s = SubpathSampler::new(scene, SubpathSampler::all_pairs(scene), true);
+    let s = SubpathSampler::new(scene, SubpathSampler::all_pairs(scene), true)
+        .expect("reference scene");
     let mut sc = s.scratch();
     let mut rng = stream_rng(99, 0);
     let mut c = Count(0);
@@ -123,7 +124,7 @@ pub fn run(quick: bool) -> Result<String, String> {
     let events = events_per_path(&scene);
     let paths = if quick { 4_000 } else { 60_000 };
 
-    let cov = Covariance::all_pairs(&scene, true);
+    let cov = Covariance::all_pairs(&scene, true)?;
     let plan = Plan::new(1, paths, 500);
     let t0 = Instant::now();
     std::hint::black_box(mc::run(&cov, &plan, 0..plan.chunks, &[], &|_| {}));
@@ -131,7 +132,7 @@ pub fn run(quick: bool) -> Result<String, String> {
     let cov_paths = plan.samples() as f64 / t_cov;
     let cov_updates = cov_paths * events * (j * j) as f64;
 
-    let field = FieldSampler::new(&scene, SubpathSampler::all_pairs(&scene), true);
+    let field = FieldSampler::new(&scene, SubpathSampler::all_pairs(&scene), true)?;
     let plan_f = Plan::new(1, paths * 10, 5000);
     let t0 = Instant::now();
     std::hint::black_box(mc::run(&field, &plan_f, 0..plan_f.chunks, &[], &|_| {}));

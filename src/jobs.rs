@@ -5,6 +5,7 @@ use crate::io::state::{StateHeader, read_state, write_state};
 use crate::io::{Config, write_json};
 use crate::math::{C64, rotate, splitmix64};
 use crate::mc::{Block, Estimate, Plan, merge, run};
+use crate::speckle::endpoint::FOCUSED_UNSUPPORTED;
 use crate::speckle::mean::mean_field;
 use crate::speckle::{Covariance, FieldSampler, Light, Scene, View};
 use glam::DVec3;
@@ -250,14 +251,14 @@ fn compute(
     match kind {
         Kind::Covariance => {
             let scene = cfg.scene().map_err(|e| e.0)?;
-            let est = Covariance::all_pairs(&scene, reversed);
+            let est = Covariance::all_pairs(&scene, reversed)?;
             let range = range.start..range.end.min(plan.chunks);
             Ok(run(&est, plan, range, &[], &|n| bar.set(n)))
         }
         Kind::MemoryEffect => {
             let (scene, angles) = memory_scene(cfg)?;
             let n = angles.len();
-            let est = Covariance::with_pairs(&scene, (0..n).map(|j| (j, j)).collect(), reversed);
+            let est = Covariance::with_pairs(&scene, (0..n).map(|j| (j, j)).collect(), reversed)?;
             let range = range.start..range.end.min(plan.chunks);
             Ok(run(&est, plan, range, &memory_keep(n), &|c| bar.set(c)))
         }
@@ -267,7 +268,7 @@ fn compute(
                 &scene,
                 crate::speckle::paths::SubpathSampler::all_pairs(&scene),
                 reversed,
-            );
+            )?;
             let reals = cfg.speckle.as_ref().map_or(1, |s| s.realisations);
             let mut out = Vec::new();
             for r in range.start..range.end.min(reals) {
@@ -326,6 +327,9 @@ fn light_json(l: &Light) -> Value {
             json!({"kind": "plane_wave", "direction": vec3(*direction)})
         }
         Light::Point { position } => json!({"kind": "point", "position": vec3(*position)}),
+        Light::Focused { focus, axis, gamma } => {
+            json!({"kind": "focused", "focus": vec3(*focus), "axis": vec3(*axis), "aperture_sigma": 1.0 / gamma.sqrt()})
+        }
     }
 }
 
@@ -333,6 +337,9 @@ fn view_json(v: &View) -> Value {
     match v {
         View::FarField { direction } => json!({"kind": "far_field", "direction": vec3(*direction)}),
         View::Point { position } => json!({"kind": "point", "position": vec3(*position)}),
+        View::Focused { focus, axis, gamma } => {
+            json!({"kind": "focused", "focus": vec3(*focus), "axis": vec3(*axis), "aperture_sigma": 1.0 / gamma.sqrt()})
+        }
     }
 }
 
@@ -436,10 +443,10 @@ fn finish_covariance(
             scene
                 .views
                 .iter()
-                .map(|v| mean_field(&scene, l, v))
-                .collect()
+                .map(|v| mean_field(&scene, l, v).ok_or(FOCUSED_UNSUPPORTED))
+                .collect::<Result<Vec<_>, _>>()
         })
-        .collect();
+        .collect::<Result<_, _>>()?;
     m.insert(
         "mean_re".into(),
         json!(
@@ -605,8 +612,13 @@ fn finish_speckle(
     let means: Vec<C64> = scene
         .lights
         .iter()
-        .flat_map(|l| scene.views.iter().map(|v| mean_field(&scene, l, v)))
-        .collect();
+        .flat_map(|l| {
+            scene
+                .views
+                .iter()
+                .map(|v| mean_field(&scene, l, v).ok_or(FOCUSED_UNSUPPORTED))
+        })
+        .collect::<Result<_, _>>()?;
     let norm = 1.0 / (plan.samples() as f64).sqrt();
     let fields: Vec<Vec<C64>> = blocks
         .iter()
@@ -686,4 +698,238 @@ impl Progress {
             b.finish_and_clear();
         }
     }
+}
+
+/// Limits of the wave solver's dense solves.
+#[derive(Clone, Copy, Debug)]
+pub struct WaveLimits {
+    pub max_scatterers: f64,
+    pub max_memory_gb: f64,
+}
+
+/// `lightpath wave`: Foldy–Lax solutions over `realizations` scatterer placements, reduced to the
+/// mean, covariance and standard errors in the format of `covariance.json`.
+pub fn wave_job(
+    mut cfg: Config,
+    realizations: u64,
+    seed: Option<u64>,
+    limits: WaveLimits,
+    progress: bool,
+    out: &Path,
+) -> JobResult {
+    use crate::speckle::wave;
+    use rayon::prelude::*;
+    if realizations < 2 {
+        return Err(format!(
+            "--realizations {realizations}: need at least 2 for a covariance"
+        ));
+    }
+    if let Some(s) = seed {
+        cfg.render.seed = s;
+    }
+    let scene = cfg.scene().map_err(|e| e.0)?;
+    wave::check_scene(&scene)?;
+    let n = wave::expected_scatterers(&scene);
+    let n_hi = n + 6.0 * n.sqrt() + 10.0;
+    let threads = rayon::current_num_threads() as f64;
+    let gb = threads * (2.0 * 16.0 * n_hi * n_hi) / 1e9;
+    let secs = realizations as f64 * (32.0 / 3.0 * n * n * n) / 5e9 / threads;
+    let size = format!(
+        "the scene has ~{n:.0} scatterers (σ_s·V/c_s with c_s = λ²/π = {:.4}): dense solves need ~{gb:.2} GB with {threads} threads and roughly {secs:.0} s for {realizations} realizations",
+        wave::cross_section(scene.k)
+    );
+    if n > limits.max_scatterers || gb > limits.max_memory_gb {
+        return Err(format!(
+            "wave: {size}, beyond the limits (--max-scatterers {}, --max-memory-gb {}). The count grows as σ_s·V/λ²: shrink the box, lower σ_s (raise mfp), or raise the limits",
+            limits.max_scatterers, limits.max_memory_gb
+        ));
+    }
+    std::fs::create_dir_all(out)
+        .map_err(|e| format!("cannot create output folder {}: {e}", out.display()))?;
+    let t0 = Instant::now();
+    let bar = Progress::new(progress, realizations, "wave");
+    let done = std::sync::atomic::AtomicU64::new(0);
+    let counts = std::sync::Mutex::new(0usize);
+    let fields: Vec<Vec<C64>> = (0..realizations)
+        .into_par_iter()
+        .map(|r| {
+            let mut rng = crate::math::stream_rng(cfg.render.seed, r);
+            let pos = wave::place_scatterers(&scene, &mut rng);
+            *counts.lock().expect("counter") += pos.len();
+            let u = wave::solve(&scene, &pos);
+            bar.set(done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1);
+            u
+        })
+        .collect();
+    bar.finish();
+    let seconds = t0.elapsed().as_secs_f64();
+    let (nl, nv) = (scene.lights.len(), scene.views.len());
+    let j = nl * nv;
+    let r = realizations as f64;
+    let mean: Vec<C64> = (0..j)
+        .map(|a| fields.iter().map(|u| u[a]).sum::<C64>() / r)
+        .collect();
+    let mut cov = vec![C64::default(); j * j];
+    let mut se = vec![0.0; j * j];
+    for a in 0..j {
+        for b in 0..j {
+            let prods: Vec<C64> = fields
+                .iter()
+                .map(|u| (u[a] - mean[a]) * (u[b] - mean[b]).conj())
+                .collect();
+            let c = prods.iter().sum::<C64>() / (r - 1.0);
+            let var = prods.iter().map(|p| (p - c).norm_sqr()).sum::<f64>() / (r - 1.0);
+            cov[a * j + b] = c;
+            se[a * j + b] = (var / r).sqrt();
+        }
+    }
+    let mean_se: Vec<f64> = (0..j)
+        .map(|a| {
+            (fields
+                .iter()
+                .map(|u| (u[a] - mean[a]).norm_sqr())
+                .sum::<f64>()
+                / (r - 1.0)
+                / r)
+                .sqrt()
+        })
+        .collect();
+    let mut m = serde_json::Map::new();
+    m.insert("wavelength".into(), json!(cfg.wavelength));
+    m.insert(
+        "lights".into(),
+        Value::Array(scene.lights.iter().map(light_json).collect()),
+    );
+    m.insert(
+        "views".into(),
+        Value::Array(scene.views.iter().map(view_json).collect()),
+    );
+    m.insert("samples".into(), json!(realizations));
+    m.insert("realizations".into(), json!(realizations));
+    m.insert("seed".into(), json!(cfg.render.seed));
+    m.insert("solver".into(), json!("foldy-lax"));
+    m.insert(
+        "scatterers_mean".into(),
+        json!(*counts.lock().expect("counter") as f64 / r),
+    );
+    m.insert("scatterers_expected".into(), json!(n));
+    m.insert("seconds".into(), json!(seconds));
+    m.insert("version".into(), json!(env!("CARGO_PKG_VERSION")));
+    m.insert(
+        "config".into(),
+        serde_json::to_value(&cfg).unwrap_or(Value::Null),
+    );
+    m.insert("re".into(), nested4(nl, nv, |i| cov[i].re));
+    m.insert("im".into(), nested4(nl, nv, |i| cov[i].im));
+    m.insert("stderr".into(), nested4(nl, nv, |i| se[i]));
+    let grid = |f: &dyn Fn(usize) -> f64| -> Value {
+        json!(
+            (0..nl)
+                .map(|l| (0..nv).map(|v| f(l * nv + v)).collect::<Vec<_>>())
+                .collect::<Vec<_>>()
+        )
+    };
+    m.insert("mean_re".into(), grid(&|a| mean[a].re));
+    m.insert("mean_im".into(), grid(&|a| mean[a].im));
+    m.insert("mean_stderr".into(), grid(&|a| mean_se[a]));
+    if cov
+        .iter()
+        .chain(&mean)
+        .any(|z| !z.re.is_finite() || !z.im.is_finite())
+    {
+        return Err("wave: the solve produced non-finite fields (a singular Foldy–Lax system); nothing was written".into());
+    }
+    let path = out.join("covariance.json");
+    write_json(&path, &Value::Object(m))
+        .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+    Ok(Outcome {
+        files: vec![path],
+        summary: format!("wave solver: {size}; took {seconds:.1} s"),
+    })
+}
+
+/// Agreement of two `covariance.json` files, light pair by light pair.
+pub fn compare_job(a: &Path, b: &Path, tolerance: f64) -> Result<(String, bool), String> {
+    let read = |p: &Path| -> Result<Value, String> {
+        let bytes = std::fs::read(p).map_err(|e| format!("cannot read {}: {e}", p.display()))?;
+        serde_json::from_slice(&bytes).map_err(|e| format!("{}: not JSON: {e}", p.display()))
+    };
+    let (va, vb) = (read(a)?, read(b)?);
+    let dims = |v: &Value, p: &Path| -> Result<(usize, usize), String> {
+        let re = v["re"]
+            .as_array()
+            .ok_or_else(|| format!("{}: no `re` array (not a covariance.json)", p.display()))?;
+        let nl = re.len();
+        let nv = re
+            .first()
+            .and_then(|x| x[0].as_array())
+            .map_or(0, |x| x.len());
+        if nl == 0 || nv == 0 {
+            return Err(format!("{}: empty covariance", p.display()));
+        }
+        Ok((nl, nv))
+    };
+    let (da, db) = (dims(&va, a)?, dims(&vb, b)?);
+    if da != db {
+        return Err(format!(
+            "shapes differ: {} has {} lights × {} views, {} has {} × {}",
+            a.display(),
+            da.0,
+            da.1,
+            b.display(),
+            db.0,
+            db.1
+        ));
+    }
+    let (nl, nv) = da;
+    let get = |v: &Value, key: &str, i: [usize; 4]| {
+        v[key][i[0]][i[1]][i[2]][i[3]].as_f64().unwrap_or(f64::NAN)
+    };
+    let mut report = String::from("lights   ‖A−B‖/‖B‖   within 3σ   worst entries [v1, v2] (z)\n");
+    let mut ok = true;
+    for l1 in 0..nl {
+        for l2 in 0..nl {
+            let (mut num, mut den, mut inside, mut worst) = (0.0, 0.0, 0usize, Vec::new());
+            for v1 in 0..nv {
+                for v2 in 0..nv {
+                    let i = [l1, l2, v1, v2];
+                    let za = C64::new(get(&va, "re", i), get(&va, "im", i));
+                    let zb = C64::new(get(&vb, "re", i), get(&vb, "im", i));
+                    let s = (get(&va, "stderr", i).powi(2) + get(&vb, "stderr", i).powi(2)).sqrt();
+                    let d = (za - zb).norm();
+                    num += d * d;
+                    den += zb.norm_sqr();
+                    let z = if s > 0.0 {
+                        d / s
+                    } else if d == 0.0 {
+                        0.0
+                    } else {
+                        f64::INFINITY
+                    };
+                    if z <= 3.0 {
+                        inside += 1;
+                    }
+                    worst.push((z, v1, v2));
+                }
+            }
+            worst.sort_by(|x, y| y.0.total_cmp(&x.0));
+            let err = (num / den).sqrt();
+            ok &= err <= tolerance;
+            let w: Vec<String> = worst
+                .iter()
+                .take(3)
+                .map(|(z, v1, v2)| format!("[{v1}, {v2}] ({z:.1})"))
+                .collect();
+            report += &format!(
+                "{l1},{l2}      {err:>9.4}   {:>8.1} %   {}\n",
+                100.0 * inside as f64 / (nv * nv) as f64,
+                w.join(" ")
+            );
+        }
+    }
+    report += &format!(
+        "{} (tolerance on ‖A−B‖/‖B‖: {tolerance})",
+        if ok { "agree" } else { "DISAGREE" }
+    );
+    Ok((report, ok))
 }

@@ -36,6 +36,36 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Wave-optics ground truth: Foldy–Lax solutions averaged over scatterer placements → covariance.json
+    Wave {
+        /// Scene config (TOML), the same as for the Monte Carlo commands
+        config: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+        /// Number of independent scatterer placements
+        #[arg(long, default_value_t = 200)]
+        realizations: u64,
+        #[arg(long)]
+        seed: Option<u64>,
+        #[arg(long)]
+        threads: Option<usize>,
+        /// Refuse scenes with more expected scatterers than this
+        #[arg(long, default_value_t = 6000.0)]
+        max_scatterers: f64,
+        /// Refuse scenes whose dense solves need more memory than this (all threads)
+        #[arg(long, default_value_t = 8.0)]
+        max_memory_gb: f64,
+        #[arg(long)]
+        quiet: bool,
+    },
+    /// Compare two covariance.json files (e.g. Monte Carlo vs wave); exit 1 if they disagree
+    Compare {
+        a: PathBuf,
+        b: PathBuf,
+        /// Largest acceptable ‖A − B‖ / ‖B‖ per light pair
+        #[arg(long, default_value_t = 0.1)]
+        tolerance: f64,
+    },
     /// Check a config and print the scene it describes, without running anything
     Check { config: PathBuf },
     /// Measure paths/s, covariance entry-updates/s, field pixel-updates/s and the GEMM rate
@@ -143,6 +173,40 @@ fn main() -> ExitCode {
         Some(Command::Speckle(a)) => run(Kind::Speckle, a),
         Some(Command::MemoryEffect(a)) => run(Kind::MemoryEffect, a),
         Some(Command::Merge { shards, out }) => jobs::merge_job(&shards, &out),
+        Some(Command::Wave {
+            config,
+            out,
+            realizations,
+            seed,
+            threads,
+            max_scatterers,
+            max_memory_gb,
+            quiet,
+        }) => Config::from_file(&config).map_err(|e| e.0).and_then(|cfg| {
+            let limits = jobs::WaveLimits {
+                max_scatterers,
+                max_memory_gb,
+            };
+            with_threads(threads, || {
+                jobs::wave_job(cfg, realizations, seed, limits, !quiet, &out)
+            })?
+        }),
+        Some(Command::Compare { a, b, tolerance }) => {
+            return match jobs::compare_job(&a, &b, tolerance) {
+                Ok((report, agree)) => {
+                    println!("{report}");
+                    if agree {
+                        ExitCode::SUCCESS
+                    } else {
+                        ExitCode::from(1)
+                    }
+                }
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    ExitCode::from(2)
+                }
+            };
+        }
         Some(Command::Check { config }) => {
             Config::from_file(&config).map_err(|e| e.0).and_then(|c| {
                 let s = c.scene().map_err(|e| e.0)?;

@@ -39,7 +39,7 @@ seed = 4
 fn one_and_two_threads_agree_bitwise() {
     let cfg = lightpath::io::Config::from_toml(SCENE, None).unwrap();
     let scene = cfg.scene().unwrap();
-    let est = Covariance::all_pairs(&scene, true);
+    let est = Covariance::all_pairs(&scene, true).unwrap();
     let plan = Plan::new(4, 7000, 300);
     let go = |threads| {
         let pool = rayon::ThreadPoolBuilder::new()

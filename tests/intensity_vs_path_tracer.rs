@@ -172,7 +172,7 @@ fn check(size: [f64; 3], sigma_s: f64, sigma_a: f64, g: f64, src: Src, dets: &[D
         })
         .collect();
     let scene = Scene::new(1.0, medium, vec![light], views);
-    let est = Covariance::all_pairs(&scene, false);
+    let est = Covariance::all_pairs(&scene, false).unwrap();
     let plan = Plan::new(11, 200_000, 2000);
     let block = merge(run(&est, &plan, 0..plan.chunks, &[], &|_| {}), plan.chunks).unwrap();
     let e = Estimate::from_block(&block, &plan);

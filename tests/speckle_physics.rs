@@ -49,8 +49,18 @@ fn coherent_backscattering_peak() {
         .collect();
     let scene = Scene::new(1.0, m, vec![Light::PlaneWave { direction: d }], views);
     let j = 3;
-    let rev = estimate(&Covariance::all_pairs(&scene, true), 60_000, 1000, 5);
-    let fwd = estimate(&Covariance::all_pairs(&scene, false), 60_000, 1000, 5);
+    let rev = estimate(
+        &Covariance::all_pairs(&scene, true).unwrap(),
+        60_000,
+        1000,
+        5,
+    );
+    let fwd = estimate(
+        &Covariance::all_pairs(&scene, false).unwrap(),
+        60_000,
+        1000,
+        5,
+    );
     let total = |e: &Estimate, v: usize| {
         (
             e.mean[2 * j * j + v * j + v].re,
@@ -163,7 +173,7 @@ fn single_scattering_matches_eq41_with_mixture() {
         },
     ];
     let scene = Scene::new(1.0, m.clone(), lights.clone(), views.clone());
-    let est = Covariance::all_pairs(&scene, true);
+    let est = Covariance::all_pairs(&scene, true).unwrap();
     let e = estimate(&est, 400_000, 4000, 9);
     let k = scene.k;
     let nodes: Vec<Vec<(f64, f64)>> = (0..3).map(|a| gauss(-half[a], half[a], 12)).collect();
@@ -317,8 +327,13 @@ fn field_covariance_matches_algorithm_1() {
         .collect();
     let scene = Scene::new(1.0, m, lights, views);
     let j = 8;
-    let cov = estimate(&Covariance::all_pairs(&scene, true), 200_000, 2000, 21);
-    let fields = FieldSampler::new(&scene, SubpathSampler::all_pairs(&scene), true);
+    let cov = estimate(
+        &Covariance::all_pairs(&scene, true).unwrap(),
+        200_000,
+        2000,
+        21,
+    );
+    let fields = FieldSampler::new(&scene, SubpathSampler::all_pairs(&scene), true).unwrap();
     let reals = 3000u64;
     let paths = 40u64;
     let mut us = Vec::new();
@@ -380,7 +395,7 @@ fn tilted_light_shifts_the_speckle() {
         })
         .collect();
     let scene = Scene::new(1.0, m, lights, views);
-    let fields = FieldSampler::new(&scene, SubpathSampler::all_pairs(&scene), true);
+    let fields = FieldSampler::new(&scene, SubpathSampler::all_pairs(&scene), true).unwrap();
     let plan = Plan::new(77, 40_000, 1000);
     let u = merge(
         run(&fields, &plan, 0..plan.chunks, &[], &|_| {}),
@@ -392,7 +407,7 @@ fn tilted_light_shifts_the_speckle() {
         .lights
         .iter()
         .flat_map(|l| scene.views.iter().map(move |v| (l, v)))
-        .map(|(l, v)| mean_field(&scene, l, v))
+        .map(|(l, v)| mean_field(&scene, l, v).unwrap())
         .collect();
     let u: Vec<C64> = u
         .iter()

@@ -107,8 +107,19 @@ pub struct ComponentConfig {
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum LightConfig {
-    PlaneWave { direction: [f64; 3] },
-    Point { position: [f64; 3] },
+    PlaneWave {
+        direction: [f64; 3],
+    },
+    Point {
+        position: [f64; 3],
+    },
+    /// vMF-apodised beam focused at `focus`, mean propagation direction `axis`, mask
+    /// `exp((w·axis − 1) / aperture_sigma²)` (`lightpath wave` only).
+    Focused {
+        focus: [f64; 3],
+        axis: [f64; 3],
+        aperture_sigma: f64,
+    },
 }
 
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
@@ -119,6 +130,13 @@ pub enum ViewConfig {
     },
     Point {
         position: [f64; 3],
+    },
+    /// vMF-apodised sensor focused at `focus` collecting light propagating along `axis`
+    /// (`lightpath wave` only).
+    Focused {
+        focus: [f64; 3],
+        axis: [f64; 3],
+        aperture_sigma: f64,
     },
     /// `count` far-field directions: `start` rotated about `axis` by `i · span_deg / count` degrees.
     FarFieldRing {
@@ -338,6 +356,15 @@ impl Config {
                 LightConfig::Point { position } => Light::Point {
                     position: point(&format!("light[{i}].position"), *position, &medium.geometry)?,
                 },
+                LightConfig::Focused {
+                    focus,
+                    axis,
+                    aperture_sigma,
+                } => {
+                    let (focus, axis, gamma) =
+                        focused(&format!("light[{i}]"), *focus, *axis, *aperture_sigma)?;
+                    Light::Focused { focus, axis, gamma }
+                }
             });
         }
         let mut views = Vec::new();
@@ -383,6 +410,26 @@ fn point(key: &str, v: [f64; 3], g: &Geometry) -> Result<DVec3, ConfigError> {
     Ok(p)
 }
 
+/// Focus, unit axis and `γ = 1/σ_a²` of a focused endpoint (`aperture_sigma = inf` gives `γ = 0`).
+fn focused(
+    key: &str,
+    focus: [f64; 3],
+    axis: [f64; 3],
+    sigma: f64,
+) -> Result<(DVec3, DVec3, f64), ConfigError> {
+    let f = DVec3::from_array(focus);
+    if !f.is_finite() {
+        return err(format!("{key}.focus = {focus:?}: must be finite"));
+    }
+    let a = unit(&format!("{key}.axis"), axis)?;
+    if sigma.is_nan() || sigma <= 0.0 {
+        return err(format!(
+            "{key}.aperture_sigma = {sigma}: must be positive (inf for an unapodised aperture)"
+        ));
+    }
+    Ok((f, a, 1.0 / (sigma * sigma)))
+}
+
 fn expand_view(
     i: usize,
     v: &ViewConfig,
@@ -396,6 +443,15 @@ fn expand_view(
         ViewConfig::Point { position } => out.push(View::Point {
             position: point(&format!("view[{i}].position"), *position, g)?,
         }),
+        ViewConfig::Focused {
+            focus,
+            axis,
+            aperture_sigma,
+        } => {
+            let (focus, axis, gamma) =
+                focused(&format!("view[{i}]"), *focus, *axis, *aperture_sigma)?;
+            out.push(View::Focused { focus, axis, gamma })
+        }
         ViewConfig::FarFieldRing {
             start,
             axis,

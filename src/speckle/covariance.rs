@@ -153,15 +153,19 @@ impl Batch {
 
 impl<'a> Covariance<'a> {
     /// Covariance over all light×view pairs (`j = l·V + v`).
-    pub fn all_pairs(scene: &'a Scene, reversed: bool) -> Self {
+    pub fn all_pairs(scene: &'a Scene, reversed: bool) -> Result<Self, String> {
         Self::with_pairs(scene, SubpathSampler::all_pairs(scene), reversed)
     }
 
     /// Covariance over the listed (light, view) pairs.
-    pub fn with_pairs(scene: &'a Scene, pairs: Vec<(usize, usize)>, reversed: bool) -> Self {
-        Covariance {
-            sampler: SubpathSampler::new(scene, pairs, reversed),
-        }
+    pub fn with_pairs(
+        scene: &'a Scene,
+        pairs: Vec<(usize, usize)>,
+        reversed: bool,
+    ) -> Result<Self, String> {
+        Ok(Covariance {
+            sampler: SubpathSampler::new(scene, pairs, reversed)?,
+        })
     }
 
     pub fn pairs(&self) -> &[(usize, usize)] {

@@ -12,6 +12,14 @@ pub enum Light {
     PlaneWave { direction: DVec3 },
     /// Isotropic point source `exp(i k r) / r` at `position`.
     Point { position: DVec3 },
+    /// Focused beam: plane waves apodised by the von Mises–Fisher mask `exp(γ (w·axis − 1))`,
+    /// `u(x) = ∫ m(w) exp(i k w·(x − focus)) dw = 4π e^{-γ} sinh(q)/q`, `q² = μ·μ`,
+    /// `μ = γ axis + i k (x − focus)` (paper 000, Eq. 29). Wave solver only.
+    Focused {
+        focus: DVec3,
+        axis: DVec3,
+        gamma: f64,
+    },
 }
 
 /// A view (sensor).
@@ -21,7 +29,18 @@ pub enum View {
     FarField { direction: DVec3 },
     /// Point sensor at `position`: `ξ(x → v) = exp(i k r) / r`.
     Point { position: DVec3 },
+    /// Focused sensor collecting far-field directions `w` with the mask `exp(γ (w·axis − 1))`,
+    /// refocused at `focus`: `ξ(x → v) = 4π e^{-γ} sinh(q)/q`, `μ = γ axis − i k (x − focus)`.
+    /// Wave solver only.
+    Focused {
+        focus: DVec3,
+        axis: DVec3,
+        gamma: f64,
+    },
 }
+
+/// The error for endpoints the Monte Carlo estimators do not support.
+pub const FOCUSED_UNSUPPORTED: &str = "focused lights and views are supported by `lightpath wave` only; the Monte Carlo estimators take plane_wave, point and far_field endpoints";
 
 /// An endpoint seen from a vertex: either "far" (a direction) or "near" (a point). By reciprocity a
 /// plane-wave light propagating along `d` is the far endpoint with outgoing direction `-d`.
@@ -33,20 +52,24 @@ pub enum Endpoint {
     Near { pos: DVec3 },
 }
 
-impl From<Light> for Endpoint {
-    fn from(l: Light) -> Self {
+impl TryFrom<Light> for Endpoint {
+    type Error = &'static str;
+    fn try_from(l: Light) -> Result<Self, Self::Error> {
         match l {
-            Light::PlaneWave { direction } => Endpoint::Far { dir: -direction },
-            Light::Point { position } => Endpoint::Near { pos: position },
+            Light::PlaneWave { direction } => Ok(Endpoint::Far { dir: -direction }),
+            Light::Point { position } => Ok(Endpoint::Near { pos: position }),
+            Light::Focused { .. } => Err(FOCUSED_UNSUPPORTED),
         }
     }
 }
 
-impl From<View> for Endpoint {
-    fn from(v: View) -> Self {
+impl TryFrom<View> for Endpoint {
+    type Error = &'static str;
+    fn try_from(v: View) -> Result<Self, Self::Error> {
         match v {
-            View::FarField { direction } => Endpoint::Far { dir: direction },
-            View::Point { position } => Endpoint::Near { pos: position },
+            View::FarField { direction } => Ok(Endpoint::Far { dir: direction }),
+            View::Point { position } => Ok(Endpoint::Near { pos: position }),
+            View::Focused { .. } => Err(FOCUSED_UNSUPPORTED),
         }
     }
 }

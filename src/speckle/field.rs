@@ -14,10 +14,14 @@ pub struct FieldSampler<'a> {
 }
 
 impl<'a> FieldSampler<'a> {
-    pub fn new(scene: &'a Scene, pairs: Vec<(usize, usize)>, reversed: bool) -> Self {
-        FieldSampler {
-            sampler: SubpathSampler::new(scene, pairs, reversed),
-        }
+    pub fn new(
+        scene: &'a Scene,
+        pairs: Vec<(usize, usize)>,
+        reversed: bool,
+    ) -> Result<Self, String> {
+        Ok(FieldSampler {
+            sampler: SubpathSampler::new(scene, pairs, reversed)?,
+        })
     }
 }
 

@@ -6,6 +6,7 @@ pub mod endpoint;
 pub mod field;
 pub mod mean;
 pub mod paths;
+pub mod wave;
 
 pub use covariance::Covariance;
 pub use endpoint::{Endpoint, Light, View};

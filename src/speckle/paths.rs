@@ -39,14 +39,29 @@ pub struct PathScratch {
 }
 
 impl<'a> SubpathSampler<'a> {
-    pub fn new(scene: &'a Scene, pairs: Vec<(usize, usize)>, reversed: bool) -> Self {
-        SubpathSampler {
+    /// Errors if the scene has endpoints the Monte Carlo estimators do not support (focused).
+    pub fn new(
+        scene: &'a Scene,
+        pairs: Vec<(usize, usize)>,
+        reversed: bool,
+    ) -> Result<Self, String> {
+        let lights = scene
+            .lights
+            .iter()
+            .map(|&l| Endpoint::try_from(l))
+            .collect::<Result<_, _>>()?;
+        let views = scene
+            .views
+            .iter()
+            .map(|&v| Endpoint::try_from(v))
+            .collect::<Result<_, _>>()?;
+        Ok(SubpathSampler {
             scene,
-            lights: scene.lights.iter().map(|&l| l.into()).collect(),
-            views: scene.views.iter().map(|&v| v.into()).collect(),
+            lights,
+            views,
             pairs,
             reversed,
-        }
+        })
     }
 
     /// All light×view pairs, `j = l·V + v`.
