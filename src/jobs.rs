@@ -848,8 +848,14 @@ pub fn wave_job(
     })
 }
 
-/// Agreement of two `covariance.json` files, light pair by light pair.
-pub fn compare_job(a: &Path, b: &Path, tolerance: f64) -> Result<(String, bool), String> {
+/// Agreement of two `covariance.json` files, light pair by light pair; with `plot`, write diagonal and
+/// matrix plots into that folder.
+pub fn compare_job(
+    a: &Path,
+    b: &Path,
+    tolerance: f64,
+    plot: Option<&Path>,
+) -> Result<(String, bool), String> {
     let read = |p: &Path| -> Result<Value, String> {
         let bytes = std::fs::read(p).map_err(|e| format!("cannot read {}: {e}", p.display()))?;
         serde_json::from_slice(&bytes).map_err(|e| format!("{}: not JSON: {e}", p.display()))
@@ -931,5 +937,47 @@ pub fn compare_job(a: &Path, b: &Path, tolerance: f64) -> Result<(String, bool),
         "{} (tolerance on ‖A−B‖/‖B‖: {tolerance})",
         if ok { "agree" } else { "DISAGREE" }
     );
+    if let Some(dir) = plot {
+        std::fs::create_dir_all(dir)
+            .map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
+        let mut pairs = Vec::new();
+        for l1 in 0..nl {
+            for l2 in 0..nl {
+                let at = |v: &Value, i: usize| {
+                    C64::new(
+                        get(v, "re", [l1, l2, i / nv, i % nv]),
+                        get(v, "im", [l1, l2, i / nv, i % nv]),
+                    )
+                };
+                let diag = |v: &Value| -> Vec<(f64, f64)> {
+                    (0..nv)
+                        .map(|d| {
+                            (
+                                get(v, "re", [l1, l2, d, d]),
+                                get(v, "stderr", [l1, l2, d, d]),
+                            )
+                        })
+                        .collect()
+                };
+                pairs.push(crate::io::plot::PairBlock {
+                    label: format!("{l1},{l2}"),
+                    a: (0..nv * nv).map(|i| at(&va, i).norm()).collect(),
+                    b: (0..nv * nv).map(|i| at(&vb, i).norm()).collect(),
+                    diag_a: diag(&va),
+                    diag_b: diag(&vb),
+                });
+            }
+        }
+        let name = |p: &Path| {
+            p.parent()
+                .and_then(|d| d.file_name())
+                .and_then(|s| s.to_str())
+                .unwrap_or("?")
+                .to_string()
+        };
+        for f in crate::io::plot::compare(dir, (&name(a), &name(b)), &pairs, nv)? {
+            report += &format!("\nwrote {}", f.display());
+        }
+    }
     Ok((report, ok))
 }

@@ -65,6 +65,9 @@ enum Command {
         /// Largest acceptable ‖A − B‖ / ‖B‖ per light pair
         #[arg(long, default_value_t = 0.1)]
         tolerance: f64,
+        /// Write diagonal and matrix plots (PNG) into this folder
+        #[arg(long)]
+        plot: Option<PathBuf>,
     },
     /// Check a config and print the scene it describes, without running anything
     Check { config: PathBuf },
@@ -191,8 +194,13 @@ fn main() -> ExitCode {
                 jobs::wave_job(cfg, realizations, seed, limits, !quiet, &out)
             })?
         }),
-        Some(Command::Compare { a, b, tolerance }) => {
-            return match jobs::compare_job(&a, &b, tolerance) {
+        Some(Command::Compare {
+            a,
+            b,
+            tolerance,
+            plot,
+        }) => {
+            return match jobs::compare_job(&a, &b, tolerance, plot.as_deref()) {
                 Ok((report, agree)) => {
                     println!("{report}");
                     if agree {

@@ -83,3 +83,152 @@ pub fn memory_effect(path: &Path, c: &MemoryCurve) -> Result<(), String> {
     root.present().map_err(|x| e(&x))?;
     Ok(())
 }
+
+/// A perceptually ordered colour for `t ∈ [0, 1]` (five viridis anchors, linearly interpolated).
+fn viridis(t: f64) -> RGBColor {
+    const A: [(f64, f64, f64); 5] = [
+        (68.0, 1.0, 84.0),
+        (59.0, 82.0, 139.0),
+        (33.0, 145.0, 140.0),
+        (94.0, 201.0, 98.0),
+        (253.0, 231.0, 37.0),
+    ];
+    let x = t.clamp(0.0, 1.0) * 4.0;
+    let i = (x.floor() as usize).min(3);
+    let f = x - i as f64;
+    let lerp = |a: f64, b: f64| (a + (b - a) * f).round() as u8;
+    RGBColor(
+        lerp(A[i].0, A[i + 1].0),
+        lerp(A[i].1, A[i + 1].1),
+        lerp(A[i].2, A[i + 1].2),
+    )
+}
+
+/// One light pair's `[v1][v2]` covariance block from two runs, for side-by-side plots.
+pub struct PairBlock {
+    pub label: String,
+    /// `|C|` of A and B, row-major `nv × nv`.
+    pub a: Vec<f64>,
+    pub b: Vec<f64>,
+    /// Diagonal (`v1 = v2`) real parts and standard errors of A and B.
+    pub diag_a: Vec<(f64, f64)>,
+    pub diag_b: Vec<(f64, f64)>,
+}
+
+/// `compare --plot`: diagonals with ±2 s.e. bars (one panel per light pair) and `|C|` matrices of
+/// A and B side by side.
+pub fn compare(
+    dir: &Path,
+    names: (&str, &str),
+    pairs: &[PairBlock],
+    nv: usize,
+) -> Result<Vec<std::path::PathBuf>, String> {
+    register_font();
+    let e = |e: &dyn std::fmt::Display| e.to_string();
+    let cols = (pairs.len() as f64).sqrt().ceil() as usize;
+    let rows = pairs.len().div_ceil(cols);
+    let diag_path = dir.join("compare_diagonals.png");
+    {
+        let root = BitMapBackend::new(&diag_path, (520 * cols as u32, 380 * rows as u32))
+            .into_drawing_area();
+        root.fill(&WHITE).map_err(|x| e(&x))?;
+        for (p, area) in pairs.iter().zip(root.split_evenly((rows, cols))) {
+            let lo = p
+                .diag_a
+                .iter()
+                .chain(&p.diag_b)
+                .map(|(v, s)| v - 2.0 * s)
+                .fold(f64::INFINITY, f64::min)
+                .min(0.0);
+            let hi = p
+                .diag_a
+                .iter()
+                .chain(&p.diag_b)
+                .map(|(v, s)| v + 2.0 * s)
+                .fold(f64::NEG_INFINITY, f64::max);
+            let hi = if hi > lo { hi } else { lo + 1.0 };
+            let mut chart = ChartBuilder::on(&area)
+                .caption(
+                    format!("Re C[v][v], lights {}", p.label),
+                    ("sans-serif", 18),
+                )
+                .margin(10)
+                .x_label_area_size(35)
+                .y_label_area_size(55)
+                .build_cartesian_2d(-0.5..(nv as f64 - 0.5), lo..hi * 1.05)
+                .map_err(|x| e(&x))?;
+            chart
+                .configure_mesh()
+                .x_desc("view")
+                .label_style(("sans-serif", 13))
+                .draw()
+                .map_err(|x| e(&x))?;
+            for (data, colour, name, off) in [
+                (&p.diag_a, RED, names.0, -0.12),
+                (&p.diag_b, BLUE, names.1, 0.12),
+            ] {
+                chart
+                    .draw_series(data.iter().enumerate().map(|(v, (m, s))| {
+                        ErrorBar::new_vertical(
+                            v as f64 + off,
+                            m - 2.0 * s,
+                            *m,
+                            m + 2.0 * s,
+                            colour.filled(),
+                            4,
+                        )
+                    }))
+                    .map_err(|x| e(&x))?
+                    .label(name)
+                    .legend(move |(x, y)| Circle::new((x + 10, y), 4, colour.filled()));
+            }
+            chart
+                .configure_series_labels()
+                .background_style(WHITE.mix(0.8))
+                .border_style(BLACK)
+                .label_font(("sans-serif", 13))
+                .draw()
+                .map_err(|x| e(&x))?;
+        }
+        root.present().map_err(|x| e(&x))?;
+    }
+    let mat_path = dir.join("compare_matrices.png");
+    {
+        let cell = (360 / nv.max(1)).max(1) as u32;
+        let side = cell * nv as u32;
+        let root = BitMapBackend::new(&mat_path, (2 * side + 60, (side + 40) * pairs.len() as u32))
+            .into_drawing_area();
+        root.fill(&WHITE).map_err(|x| e(&x))?;
+        for (row, p) in root.split_evenly((pairs.len(), 1)).iter().zip(pairs) {
+            let max =
+                p.a.iter()
+                    .chain(&p.b)
+                    .cloned()
+                    .fold(0.0f64, f64::max)
+                    .max(1e-300);
+            let (left, right) = row.split_horizontally(side + 30);
+            for (area, data, name) in [(left, &p.a, names.0), (right, &p.b, names.1)] {
+                area.draw(&Text::new(
+                    format!("|C| {name}, lights {}", p.label),
+                    (5, 5),
+                    ("sans-serif", 14),
+                ))
+                .map_err(|x| e(&x))?;
+                for v1 in 0..nv {
+                    for v2 in 0..nv {
+                        let t = (data[v1 * nv + v2] / max).clamp(0.0, 1.0);
+                        let c = viridis(t);
+                        let (x, y) = (v2 as i32 * cell as i32 + 5, v1 as i32 * cell as i32 + 25);
+                        area.draw(&Rectangle::new(
+                            [(x, y), (x + cell as i32, y + cell as i32)],
+                            c.filled(),
+                        ))
+                        .map_err(|x| e(&x))?;
+                    }
+                }
+            }
+        }
+        root.present().map_err(|x| e(&x))?;
+    }
+    Ok(vec![diag_path, mat_path])
+}
