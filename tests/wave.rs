@@ -239,12 +239,13 @@ fn dilute_limit_agrees_with_monte_carlo() {
     );
 }
 
-/// Optical depth 1: the memory-effect correlation (shifted diagonal over the diagonal) for tilts of
-/// 2°, 5° and 20°, and the coherent-backscattering enhancement, agree within the combined standard
-/// errors. Absolute intensities differ by a few per cent (see experiments/wave-vs-mc), so they are
+/// Optical depth 2 (box 6 λ, ~230 scatterers): for light pairs tilted by 2°, 5° and 20° the
+/// memory-effect correlation along the shifted diagonal, `|C^{0,t}_{v, R_t v}|² / (C^{00}_{vv} C^{tt})`,
+/// and the coherent-backscattering enhancement agree within the combined standard errors. Absolute
+/// intensities differ by a few per cent per unit optical depth (experiments/wave-vs-mc), so they are
 /// compared with that documented allowance.
 #[test]
-fn optical_depth_one_cross_validation() {
+fn optical_depth_two_cross_validation() {
     let tilts = [0.0f64, 2.0, 5.0, 20.0];
     let lights: Vec<Light> = tilts
         .iter()
@@ -252,9 +253,14 @@ fn optical_depth_one_cross_validation() {
             direction: rotate(DVec3::Z, DVec3::Y, t.to_radians()),
         })
         .collect();
-    let mut views: Vec<View> = (0..6)
-        .map(|i| View::FarField {
-            direction: rotate(DVec3::Z, DVec3::Y, (i as f64 * 30.0 + 15.0).to_radians()),
+    let bases = [40.0f64, 100.0, 160.0];
+    // view (b, t) = base b tilted further by t, at index b·4 + t
+    let mut views: Vec<View> = bases
+        .iter()
+        .flat_map(|b| {
+            tilts.iter().map(move |t| View::FarField {
+                direction: rotate(DVec3::Z, DVec3::Y, (b + t).to_radians()),
+            })
         })
         .collect();
     views.push(View::FarField {
@@ -263,58 +269,68 @@ fn optical_depth_one_cross_validation() {
     views.push(View::FarField {
         direction: rotate(-DVec3::Z, DVec3::Y, 30f64.to_radians()),
     });
-    let s = scene(6.0, 6.0, lights, views);
-    let (nl, nv) = (4usize, 8usize);
+    let s = scene(6.0, 3.0, lights, views);
+    let (nl, nv) = (4usize, 14usize);
     let j = nl * nv;
     let (_, wc, ws) = wave_stats(&s, 2500, 5);
-    let mc = mc_cov(&s, 300_000);
+    let mc = mc_cov(&s, 400_000);
     let idx = |l1: usize, l2: usize, v1: usize, v2: usize| (l1 * nv + v1) * j + l2 * nv + v2;
-    let mcv = |i: usize| (mc.mean[2 * j * j + i], mc.stderr[2 * j * j + i]);
-    // memory effect: |C(0,t; v, v')|² / (C(0,0; v,v) C(t,t; v',v')) with v' the view tilted along
-    // (views are 30° apart, so only the 0°/5°/20° tilts' decorrelation is seen on the same view)
-    for (t, tilt) in tilts.iter().enumerate().skip(1) {
-        for v in 0..6 {
-            let ratio = |c01: C64, c00: f64, c11: f64| c01.norm_sqr() / (c00 * c11);
-            let rw = ratio(
-                wc[idx(0, t, v, v)],
-                wc[idx(0, 0, v, v)].re,
-                wc[idx(t, t, v, v)].re,
+    let mcv = |i: usize| mc.mean[2 * j * j + i];
+    for t in 1..4 {
+        for b in 0..3 {
+            let (v0, vt) = (b * 4, b * 4 + t);
+            let corr = |c: &dyn Fn(usize) -> C64| {
+                c(idx(0, t, v0, vt)).norm_sqr()
+                    / (c(idx(0, 0, v0, v0)).re * c(idx(t, t, vt, vt)).re)
+            };
+            let rw = corr(&|i| wc[i]);
+            let rm = corr(&|i| mcv(i));
+            // error of the wave ratio, dominated by its cross term; plus the MC's (small)
+            let c01 = wc[idx(0, t, v0, vt)];
+            let se = 2.0 * ws[idx(0, t, v0, vt)] * c01.norm().max(ws[idx(0, t, v0, vt)])
+                / (wc[idx(0, 0, v0, v0)].re * wc[idx(t, t, vt, vt)].re);
+            eprintln!(
+                "tilt {}°, base {}°: wave {rw:.3} ± {se:.3}, MC {rm:.3}",
+                tilts[t], bases[b]
             );
-            let rm = ratio(
-                mcv(idx(0, t, v, v)).0,
-                mcv(idx(0, 0, v, v)).0.re,
-                mcv(idx(t, t, v, v)).0.re,
-            );
-            // error of the wave ratio from the error of its cross term (dominant)
-            let se = 2.0 * ws[idx(0, t, v, v)] * wc[idx(0, t, v, v)].norm()
-                / (wc[idx(0, 0, v, v)].re * wc[idx(t, t, v, v)].re)
-                + 0.01;
             assert!(
-                (rw - rm).abs() < 4.0 * se,
-                "tilt {tilt}°, view {v}: wave {rw:.3} vs MC {rm:.3} (se {se:.3})"
+                (rw - rm).abs() < 4.0 * se + 0.01,
+                "tilt {}°, base {}°: wave {rw:.3} vs MC {rm:.3} (se {se:.3})",
+                tilts[t],
+                bases[b]
             );
         }
     }
+    // the memory effect is really seen (the test is not vacuous): 2° keeps a high correlation
+    assert!(corr_mc(&mc, j, idx(0, 1, 0, 1), idx(0, 0, 0, 0), idx(1, 1, 1, 1)) > 0.5);
     // coherent backscattering: I(backscatter)/I(30° away)
-    let (b0, b30) = (idx(0, 0, 6, 6), idx(0, 0, 7, 7));
+    let (b0, b30) = (idx(0, 0, 12, 12), idx(0, 0, 13, 13));
     let ew = wc[b0].re / wc[b30].re;
-    let em = mcv(b0).0.re / mcv(b30).0.re;
+    let em = mcv(b0).re / mcv(b30).re;
     let se = ew * ((ws[b0] / wc[b0].re).powi(2) + (ws[b30] / wc[b30].re).powi(2)).sqrt();
+    eprintln!("backscatter / 30°: wave {ew:.3} ± {se:.3}, MC {em:.3}");
     assert!(
         (ew - em).abs() < 4.0 * se,
         "backscatter enhancement: wave {ew:.3} ± {se:.3} vs MC {em:.3}"
     );
-    // absolute intensity: within the documented allowance (0 to +10 % at optical depth 1)
+    assert!(em > 1.2, "a CBS peak must be present: {em}");
+    // absolute intensity: within the documented allowance (0 to +15 % at optical depth 2)
     let (mut sw, mut sm) = (0.0, 0.0);
     for v in 0..nv {
         sw += wc[idx(0, 0, v, v)].re;
-        sm += mcv(idx(0, 0, v, v)).0.re;
+        sm += mcv(idx(0, 0, v, v)).re;
     }
+    eprintln!("intensity ratio wave/MC {:.3}", sw / sm);
     assert!(
-        sw / sm > 0.97 && sw / sm < 1.10,
+        sw / sm > 0.97 && sw / sm < 1.15,
         "intensity ratio wave/MC {}",
         sw / sm
     );
+}
+
+fn corr_mc(mc: &Estimate, j: usize, c01: usize, c00: usize, c11: usize) -> f64 {
+    let m = |i: usize| mc.mean[2 * j * j + i];
+    m(c01).norm_sqr() / (m(c00).re * m(c11).re)
 }
 
 /// Point source and point sensor: the covariance (intensity) agrees within the allowance, and the
@@ -382,4 +398,85 @@ fn point_to_point_and_guard_rails() {
     )
     .unwrap_err();
     assert!(err.contains("albedo") && err.contains("lossless"), "{err}");
+}
+
+/// `lightpath wave` is deterministic per seed whatever the thread count, and `lightpath compare`
+/// reports agreement through its exit status.
+#[test]
+fn wave_cli_deterministic_and_compare_exit_status() {
+    let d = std::env::temp_dir().join(format!("lightpath-wave-cli-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    let cfg = d.join("s.toml");
+    std::fs::write(
+        &cfg,
+        "wavelength = 1.0\n[medium]\nbox = [3.0, 3.0, 3.0]\nmfp = 3.0\n[[light]]\nkind = \"plane_wave\"\ndirection = [0.0, 0.0, 1.0]\n[[light]]\nkind = \"focused\"\nfocus = [0.0, 0.0, 0.0]\naxis = [0.0, 0.0, 1.0]\naperture_sigma = 0.5\n[[view]]\nkind = \"far_field_ring\"\nstart = [0.0, 0.0, 1.0]\naxis = [0.0, 1.0, 0.0]\ncount = 5\n[render]\nsamples = 20000\n",
+    )
+    .unwrap();
+    let bin = env!("CARGO_BIN_EXE_lightpath");
+    let run = |args: &[&str]| std::process::Command::new(bin).args(args).output().unwrap();
+    let c = cfg.to_str().unwrap();
+    for (t, name) in [("1", "w1"), ("2", "w2")] {
+        let o = run(&[
+            "wave",
+            c,
+            "--out",
+            d.join(name).to_str().unwrap(),
+            "--realizations",
+            "40",
+            "--threads",
+            t,
+            "--quiet",
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    let read = |n: &str| std::fs::read_to_string(d.join(n).join("covariance.json")).unwrap();
+    let strip = |s: String| {
+        let v: serde_json::Value = serde_json::from_str(&s).unwrap();
+        (
+            v["re"].to_string(),
+            v["im"].to_string(),
+            v["stderr"].to_string(),
+            v["mean_re"].to_string(),
+        )
+    };
+    assert_eq!(strip(read("w1")), strip(read("w2")));
+    let (a, b) = (d.join("w1/covariance.json"), d.join("w2/covariance.json"));
+    let o = run(&["compare", a.to_str().unwrap(), b.to_str().unwrap()]);
+    assert!(o.status.success() && String::from_utf8_lossy(&o.stdout).contains("agree"));
+    // the Monte Carlo rejects the focused light with a clear message
+    let o = run(&[
+        "covariance",
+        c,
+        "--out",
+        d.join("mc").to_str().unwrap(),
+        "--quiet",
+    ]);
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("focused"));
+    // a wave run with another seed disagrees at a tight tolerance: exit status 1
+    let o = run(&[
+        "wave",
+        c,
+        "--out",
+        d.join("w3").to_str().unwrap(),
+        "--realizations",
+        "40",
+        "--seed",
+        "9",
+        "--quiet",
+    ]);
+    assert!(o.status.success());
+    let o = run(&[
+        "compare",
+        d.join("w3/covariance.json").to_str().unwrap(),
+        a.to_str().unwrap(),
+        "--tolerance",
+        "1e-6",
+    ]);
+    assert_eq!(
+        o.status.code(),
+        Some(1),
+        "{}",
+        String::from_utf8_lossy(&o.stdout)
+    );
 }
