@@ -277,7 +277,7 @@ fn optical_depth_two_cross_validation() {
     let idx = |l1: usize, l2: usize, v1: usize, v2: usize| (l1 * nv + v1) * j + l2 * nv + v2;
     let mcv = |i: usize| mc.mean[2 * j * j + i];
     for t in 1..4 {
-        for b in 0..3 {
+        for (b, base) in bases.iter().enumerate() {
             let (v0, vt) = (b * 4, b * 4 + t);
             let corr = |c: &dyn Fn(usize) -> C64| {
                 c(idx(0, t, v0, vt)).norm_sqr()
@@ -290,14 +290,13 @@ fn optical_depth_two_cross_validation() {
             let se = 2.0 * ws[idx(0, t, v0, vt)] * c01.norm().max(ws[idx(0, t, v0, vt)])
                 / (wc[idx(0, 0, v0, v0)].re * wc[idx(t, t, vt, vt)].re);
             eprintln!(
-                "tilt {}°, base {}°: wave {rw:.3} ± {se:.3}, MC {rm:.3}",
-                tilts[t], bases[b]
+                "tilt {}°, base {base}°: wave {rw:.3} ± {se:.3}, MC {rm:.3}",
+                tilts[t]
             );
             assert!(
                 (rw - rm).abs() < 4.0 * se + 0.01,
-                "tilt {}°, base {}°: wave {rw:.3} vs MC {rm:.3} (se {se:.3})",
-                tilts[t],
-                bases[b]
+                "tilt {}°, base {base}°: wave {rw:.3} vs MC {rm:.3} (se {se:.3})",
+                tilts[t]
             );
         }
     }
