@@ -3,6 +3,7 @@
 //! See `README.md` for the command line and `../shared/DESIGN.md` for the architecture.
 
 pub mod bench;
+pub mod diff;
 pub mod io;
 pub mod jobs;
 pub mod math;

@@ -211,6 +211,17 @@ impl PhaseFunction {
         }
     }
 
+    /// `∂ log ρ(μ) / ∂g` for Henyey–Greenstein (`None` for other kinds: they have no `g`).
+    #[inline]
+    pub fn dlog_rho_dg(&self, mu: f64) -> Option<f64> {
+        match self {
+            PhaseFunction::HenyeyGreenstein { g } => {
+                Some(-2.0 * g / (1.0 - g * g) - 3.0 * (g - mu) / (1.0 + g * g - 2.0 * g * mu))
+            }
+            _ => None,
+        }
+    }
+
     /// Sample `μ = cos θ` with density `2π ρ(μ)` from one uniform number.
     #[inline]
     pub fn sample_mu(&self, u: f64) -> f64 {

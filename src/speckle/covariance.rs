@@ -63,7 +63,7 @@ impl EventSink for CovSink {
 /// A batch of event vectors `A` (J × n, column-major) with its conjugate, and the accumulator
 /// `acc += A Aᴴ` (J × J row-major; only tiles on or above the diagonal are computed, as `C` is
 /// Hermitian).
-struct Batch {
+pub struct Batch {
     j: usize,
     cols: usize,
     a: Vec<C64>,
@@ -72,7 +72,7 @@ struct Batch {
 }
 
 impl Batch {
-    fn new(j: usize) -> Self {
+    pub fn new(j: usize) -> Self {
         Batch {
             j,
             cols: 0,
@@ -83,7 +83,7 @@ impl Batch {
     }
 
     #[inline]
-    fn push(&mut self, a: &[C64]) {
+    pub fn push(&mut self, a: &[C64]) {
         if self.cols == BATCH {
             self.flush();
         }
@@ -133,7 +133,7 @@ impl Batch {
     }
 
     /// Add the accumulated matrix (lower tiles filled by Hermitian symmetry) to `out`; clear it.
-    fn drain_into(&mut self, out: &mut [C64]) {
+    pub fn drain_into(&mut self, out: &mut [C64]) {
         self.flush();
         let j = self.j;
         let tile = j.div_ceil(TILES);

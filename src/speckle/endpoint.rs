@@ -80,6 +80,8 @@ impl TryFrom<View> for Endpoint {
 pub struct Connection {
     pub prop: C64,
     pub dir: DVec3,
+    /// Length of the connection inside the medium (`τ = exp(-σ_t inside / 2)`).
+    pub inside: f64,
 }
 
 impl Endpoint {
@@ -88,10 +90,11 @@ impl Endpoint {
     pub fn connect(&self, x: DVec3, medium: &Medium, k: f64) -> Connection {
         match *self {
             Endpoint::Far { dir } => {
-                let tau = medium.amplitude_attenuation(medium.geometry.exit_distance(x, dir));
+                let inside = medium.geometry.exit_distance(x, dir);
                 Connection {
-                    prop: cis(-k * dir.dot(x)) * tau,
+                    prop: cis(-k * dir.dot(x)) * medium.amplitude_attenuation(inside),
                     dir,
+                    inside,
                 }
             }
             Endpoint::Near { pos } => {
@@ -103,6 +106,7 @@ impl Endpoint {
                 Connection {
                     prop: cis(k * r) * (tau / r),
                     dir,
+                    inside,
                 }
             }
         }

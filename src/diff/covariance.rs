@@ -1,0 +1,417 @@
+//! Re-weighted covariance (Algorithm 1 with paths from a proposal medium) and its path-space
+//! gradient contracted with a loss adjoint.
+//!
+//! For a subpath `x1 → … → xB` drawn from the proposal (`σ_s⁰, σ_t⁰, ρ⁰`), the target weight is
+//! `w = 4π V σ_s^B e^{-σ_t D} / (σ_t⁰^{B-1} e^{-σ_t⁰ D}) Π ρ/ρ⁰` (`D` the summed hop lengths, the
+//! product over interior vertices; `V = Vol/Area`, halved with reversed paths, times any Russian
+//! roulette factor), and `w = σ_s V` for single scattering (paper 001, Eqs. 31–36). Every endpoint
+//! amplitude `A = ξ e^{-σ_t ℓ/2} s(μ)` has `∂A/∂θ = A λ` with `λ = -ℓ/2` for `σ_s, σ_a` and
+//! `λ = ½ ∂log ρ/∂g` for HG `g`, so `∂a/∂θ` and `∂log w/∂θ` are cheap per event.
+
+use super::Param;
+use crate::math::{C64, INV_4PI, Rng, uniform, uniform_sphere};
+use crate::mc::Estimator;
+use crate::medium::Medium;
+use crate::speckle::Scene;
+use crate::speckle::covariance::Batch;
+use crate::speckle::endpoint::{Connection, Endpoint};
+
+/// Paths from `proposal`, contributions evaluated for the medium `target` with derivatives with
+/// respect to `params`.
+pub struct Reweighted<'a> {
+    proposal: &'a Scene,
+    target: Medium,
+    lights: Vec<Endpoint>,
+    views: Vec<Endpoint>,
+    pairs: Vec<(usize, usize)>,
+    reversed: bool,
+    params: Vec<Param>,
+}
+
+/// Receives weighted events with derivatives: `w`, `∂log w/∂θ_p`, `a` (J) and `∂a/∂θ_p` (P×J).
+trait DiffSink {
+    fn event(&mut self, w: f64, dlogw: &[f64], a: &[C64], da: &[C64]);
+}
+
+/// Per-thread working memory.
+pub struct DiffScratch {
+    first_l: Vec<Connection>,
+    first_v: Vec<Connection>,
+    /// Endpoint amplitudes at the first and current vertex, and their λ factors (P per endpoint).
+    amp1_l: Vec<C64>,
+    amp1_v: Vec<C64>,
+    lam1_l: Vec<f64>,
+    lam1_v: Vec<f64>,
+    ampb_l: Vec<C64>,
+    ampb_v: Vec<C64>,
+    lamb_l: Vec<f64>,
+    lamb_v: Vec<f64>,
+    a: Vec<C64>,
+    da: Vec<C64>,
+    dlogw: Vec<f64>,
+    /// Σ ∂log ρ/∂g over interior vertices, per parameter.
+    interior: Vec<f64>,
+    lam: Vec<f64>,
+}
+
+impl<'a> Reweighted<'a> {
+    /// Errors if an endpoint is unsupported or a parameter does not exist in the medium.
+    pub fn new(
+        proposal: &'a Scene,
+        target: Medium,
+        pairs: Vec<(usize, usize)>,
+        reversed: bool,
+        params: Vec<Param>,
+    ) -> Result<Self, String> {
+        for p in &params {
+            if p.get(&target).is_none() {
+                return Err(format!(
+                    "parameter {} does not exist in this medium (only Henyey–Greenstein components have g)",
+                    p.name()
+                ));
+            }
+        }
+        if target.geometry != proposal.medium.geometry {
+            return Err("the target medium must have the proposal's geometry".into());
+        }
+        let lights = proposal
+            .lights
+            .iter()
+            .map(|&l| Endpoint::try_from(l))
+            .collect::<Result<_, _>>()?;
+        let views = proposal
+            .views
+            .iter()
+            .map(|&v| Endpoint::try_from(v))
+            .collect::<Result<_, _>>()?;
+        Ok(Reweighted {
+            proposal,
+            target,
+            lights,
+            views,
+            pairs,
+            reversed,
+            params,
+        })
+    }
+
+    pub fn fields(&self) -> usize {
+        self.pairs.len()
+    }
+
+    pub fn params(&self) -> &[Param] {
+        &self.params
+    }
+
+    fn scratch(&self) -> DiffScratch {
+        let (nl, nv, j, p) = (
+            self.lights.len(),
+            self.views.len(),
+            self.pairs.len(),
+            self.params.len(),
+        );
+        DiffScratch {
+            first_l: vec![Connection::default(); nl],
+            first_v: vec![Connection::default(); nv],
+            amp1_l: vec![C64::default(); nl],
+            amp1_v: vec![C64::default(); nv],
+            lam1_l: vec![0.0; nl * p],
+            lam1_v: vec![0.0; nv * p],
+            ampb_l: vec![C64::default(); nl],
+            ampb_v: vec![C64::default(); nv],
+            lamb_l: vec![0.0; nl * p],
+            lamb_v: vec![0.0; nv * p],
+            a: vec![C64::default(); j],
+            da: vec![C64::default(); j * p],
+            dlogw: vec![0.0; p],
+            interior: vec![0.0; p],
+            lam: vec![0.0; p],
+        }
+    }
+
+    /// Target amplitude `A = prop e^{-Δσ_t ℓ/2} s_θ(μ)` of a connection at a vertex of type `kind`,
+    /// and its λ factors.
+    #[inline]
+    fn amplitude(&self, c: &Connection, mu: f64, kind: usize, lam: &mut [f64]) -> C64 {
+        let d_sigma_t = self.target.sigma_t() - self.proposal.medium.sigma_t();
+        let phase = self.target.scattering.phase(kind);
+        for (l, p) in lam.iter_mut().zip(&self.params) {
+            *l = match p {
+                Param::SigmaS | Param::SigmaA => -0.5 * c.inside,
+                Param::G(k) if *k == kind => 0.5 * phase.dlog_rho_dg(mu).unwrap_or(0.0),
+                Param::G(_) => 0.0,
+            };
+        }
+        c.prop * (-0.5 * d_sigma_t * c.inside).exp() * phase.amplitude(mu)
+    }
+
+    fn trace<S: DiffSink>(&self, rng: &mut Rng, sc: &mut DiffScratch, sink: &mut S) {
+        let s = self.proposal;
+        let m0 = &s.medium;
+        let m = &self.target;
+        let geo = &m0.geometry;
+        let np = self.params.len();
+        let (sigma_t0, albedo0) = (m0.sigma_t(), m0.albedo());
+        let vol = geo.sampling_volume() / geo.normalising_area();
+
+        let x1 = geo.sample_volume([uniform(rng), uniform(rng), uniform(rng)]);
+        let kind1 = m0.scattering.pick(|| uniform(rng));
+        for (e, c) in self.lights.iter().zip(sc.first_l.iter_mut()) {
+            *c = e.connect(x1, m0, s.k);
+        }
+        for (e, c) in self.views.iter().zip(sc.first_v.iter_mut()) {
+            *c = e.connect(x1, m0, s.k);
+        }
+
+        // single scattering: a_j = υ(i→x1) υ(i→x1→v), w = σ_s V
+        for (n, &(l, v)) in self.pairs.iter().enumerate() {
+            let (cl, cv) = (&sc.first_l[l], &sc.first_v[v]);
+            let mu = -cl.dir.dot(cv.dir);
+            let both = Connection {
+                prop: cl.prop * cv.prop,
+                dir: cv.dir,
+                inside: cl.inside + cv.inside,
+            };
+            sc.a[n] = self.amplitude(&both, mu, kind1, &mut sc.lam);
+            for p in 0..np {
+                sc.da[p * self.pairs.len() + n] = sc.a[n] * sc.lam[p];
+            }
+        }
+        for (p, d) in self.params.iter().zip(sc.dlogw.iter_mut()) {
+            *d = if *p == Param::SigmaS {
+                1.0 / m.sigma_s
+            } else {
+                0.0
+            };
+        }
+        sink.event(m.sigma_s * vol, &sc.dlogw, &sc.a, &sc.da);
+
+        // multiple scattering
+        let w1 = uniform_sphere(uniform(rng), uniform(rng));
+        let d = -(1.0 - uniform(rng)).ln() / sigma_t0;
+        if d >= geo.exit_distance(x1, w1) {
+            return;
+        }
+        for (i, c) in sc.first_l.iter().enumerate() {
+            sc.amp1_l[i] = self.amplitude(
+                c,
+                -w1.dot(c.dir),
+                kind1,
+                &mut sc.lam1_l[i * np..(i + 1) * np],
+            );
+        }
+        for (i, c) in sc.first_v.iter().enumerate() {
+            sc.amp1_v[i] = self.amplitude(
+                c,
+                -w1.dot(c.dir),
+                kind1,
+                &mut sc.lam1_v[i * np..(i + 1) * np],
+            );
+        }
+        let base = vol / INV_4PI * if self.reversed { 0.5 } else { 1.0 };
+        let mut x = x1 + w1 * d;
+        let mut w_in = w1;
+        let mut hops = d;
+        let mut bounces = 2u32; // B of the current vertex
+        let mut log_ratio = 0.0; // Σ log(ρ/ρ⁰) over interior vertices
+        let mut roulette = 1.0;
+        let mut throughput0 = albedo0;
+        sc.interior.iter_mut().for_each(|v| *v = 0.0);
+        loop {
+            let kind = m0.scattering.pick(|| uniform(rng));
+            for (i, e) in self.lights.iter().enumerate() {
+                let c = e.connect(x, m0, s.k);
+                sc.ampb_l[i] = self.amplitude(
+                    &c,
+                    w_in.dot(c.dir),
+                    kind,
+                    &mut sc.lamb_l[i * np..(i + 1) * np],
+                );
+            }
+            for (i, e) in self.views.iter().enumerate() {
+                let c = e.connect(x, m0, s.k);
+                sc.ampb_v[i] = self.amplitude(
+                    &c,
+                    w_in.dot(c.dir),
+                    kind,
+                    &mut sc.lamb_v[i * np..(i + 1) * np],
+                );
+            }
+            let b = bounces as f64;
+            let log_w = b * m.sigma_s.ln() - m.sigma_t() * hops - (b - 1.0) * sigma_t0.ln()
+                + sigma_t0 * hops
+                + log_ratio;
+            let w = base * roulette * log_w.exp();
+            for (i, p) in self.params.iter().enumerate() {
+                sc.dlogw[i] = match p {
+                    Param::SigmaS => b / m.sigma_s - hops,
+                    Param::SigmaA => -hops,
+                    Param::G(_) => sc.interior[i],
+                };
+            }
+            let j = self.pairs.len();
+            for (n, &(l, v)) in self.pairs.iter().enumerate() {
+                let fwd = sc.amp1_l[l] * sc.ampb_v[v];
+                let rev = if self.reversed {
+                    sc.ampb_l[l] * sc.amp1_v[v]
+                } else {
+                    C64::default()
+                };
+                sc.a[n] = fwd + rev;
+                for p in 0..np {
+                    let mut z = fwd * (sc.lam1_l[l * np + p] + sc.lamb_v[v * np + p]);
+                    if self.reversed {
+                        z += rev * (sc.lamb_l[l * np + p] + sc.lam1_v[v * np + p]);
+                    }
+                    sc.da[p * j + n] = z;
+                }
+            }
+            sink.event(w, &sc.dlogw, &sc.a, &sc.da);
+
+            // continue with the proposal's sampling; the vertex becomes interior
+            let phase0 = m0.scattering.phase(kind);
+            let w_out = phase0.sample(w_in, uniform(rng), uniform(rng));
+            let d = -(1.0 - uniform(rng)).ln() / sigma_t0;
+            if d >= geo.exit_distance(x, w_out) {
+                return;
+            }
+            let mu = w_in.dot(w_out);
+            let phase = m.scattering.phase(kind);
+            log_ratio += (phase.eval(mu) / phase0.eval(mu)).ln();
+            for (v, p) in sc.interior.iter_mut().zip(&self.params) {
+                if *p == Param::G(kind) {
+                    *v += phase.dlog_rho_dg(mu).unwrap_or(0.0);
+                }
+            }
+            x += w_out * d;
+            w_in = w_out;
+            hops += d;
+            bounces += 1;
+            throughput0 *= albedo0;
+            if throughput0 < 1e-3 {
+                if uniform(rng) >= 0.1 {
+                    return;
+                }
+                throughput0 *= 10.0;
+                roulette *= 10.0;
+            }
+        }
+    }
+}
+
+/// The re-weighted covariance `C(θ)` (total, `J×J` row-major) from proposal paths.
+pub struct ReweightedCovariance<'a>(pub Reweighted<'a>);
+
+struct Accumulate<'b>(&'b mut Batch, &'b mut Vec<C64>);
+
+impl DiffSink for Accumulate<'_> {
+    fn event(&mut self, w: f64, _: &[f64], a: &[C64], _: &[C64]) {
+        let r = w.sqrt();
+        self.1.iter_mut().zip(a).for_each(|(d, s)| *d = s * r);
+        self.0.push(self.1);
+    }
+}
+
+impl Estimator for ReweightedCovariance<'_> {
+    type Scratch = (DiffScratch, Batch, Vec<C64>);
+
+    fn outputs(&self) -> usize {
+        self.0.fields() * self.0.fields()
+    }
+
+    fn scratch(&self) -> Self::Scratch {
+        (
+            self.0.scratch(),
+            Batch::new(self.0.fields()),
+            vec![C64::default(); self.0.fields()],
+        )
+    }
+
+    fn run_chunk(&self, rng: &mut Rng, paths: u64, sc: &mut Self::Scratch, out: &mut [C64]) {
+        let (d, batch, tmp) = sc;
+        for _ in 0..paths {
+            self.0.trace(rng, d, &mut Accumulate(batch, tmp));
+        }
+        batch.drain_into(out);
+    }
+}
+
+/// `∂L/∂θ_p = Σ_events [∂_p w Re Q(a, a) + 2 w Re Q(∂_p a, a)]` with `Q(x, y) = Σ conj(Ā_ij) x_i conj(y_j)`
+/// for a Hermitian loss adjoint `Ā = ∂L/∂C` (`dL = Re Σ conj(Ā_ij) dC_ij`). Outputs one value per
+/// parameter (real part).
+pub struct CovarianceGradient<'a> {
+    pub inner: Reweighted<'a>,
+    /// `conj(Ā)` made Hermitian, row-major `J×J`.
+    adjoint_conj: Vec<C64>,
+}
+
+impl<'a> CovarianceGradient<'a> {
+    /// `adjoint[i·J + j] = ∂L/∂C_ij`; only its Hermitian part matters (C is Hermitian).
+    pub fn new(inner: Reweighted<'a>, adjoint: &[C64]) -> Self {
+        let j = inner.fields();
+        let mut adjoint_conj = vec![C64::default(); j * j];
+        for a in 0..j {
+            for b in 0..j {
+                adjoint_conj[a * j + b] =
+                    (0.5 * (adjoint[a * j + b] + adjoint[b * j + a].conj())).conj();
+            }
+        }
+        CovarianceGradient {
+            inner,
+            adjoint_conj,
+        }
+    }
+}
+
+struct Contract<'b> {
+    adj: &'b [C64],
+    y: &'b mut Vec<C64>,
+    grad: &'b mut [C64],
+}
+
+impl DiffSink for Contract<'_> {
+    fn event(&mut self, w: f64, dlogw: &[f64], a: &[C64], da: &[C64]) {
+        let j = a.len();
+        // y = conj(Ā) conj(a)
+        for (i, y) in self.y.iter_mut().enumerate() {
+            let row = &self.adj[i * j..(i + 1) * j];
+            *y = row.iter().zip(a).map(|(m, x)| m * x.conj()).sum();
+        }
+        let qa: f64 = a.iter().zip(self.y.iter()).map(|(x, y)| (x * y).re).sum();
+        for (p, g) in self.grad.iter_mut().enumerate() {
+            let qd: f64 = da[p * j..(p + 1) * j]
+                .iter()
+                .zip(self.y.iter())
+                .map(|(x, y)| (x * y).re)
+                .sum();
+            g.re += w * (dlogw[p] * qa + 2.0 * qd);
+        }
+    }
+}
+
+impl Estimator for CovarianceGradient<'_> {
+    type Scratch = (DiffScratch, Vec<C64>);
+
+    fn outputs(&self) -> usize {
+        self.inner.params().len()
+    }
+
+    fn scratch(&self) -> Self::Scratch {
+        (
+            self.inner.scratch(),
+            vec![C64::default(); self.inner.fields()],
+        )
+    }
+
+    fn run_chunk(&self, rng: &mut Rng, paths: u64, sc: &mut Self::Scratch, out: &mut [C64]) {
+        let (d, y) = sc;
+        let mut sink = Contract {
+            adj: &self.adjoint_conj,
+            y,
+            grad: out,
+        };
+        for _ in 0..paths {
+            self.inner.trace(rng, d, &mut sink);
+        }
+    }
+}
