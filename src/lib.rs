@@ -4,6 +4,7 @@
 
 pub mod bench;
 pub mod diff;
+pub mod inverse;
 pub mod io;
 pub mod jobs;
 pub mod math;

@@ -1,0 +1,454 @@
+//! Fitting material parameters to measured speckle statistics (issue #4): losses on rendered vs
+//! target statistics, a deterministic objective from re-weighted proposal paths, L-BFGS (argmin), and
+//! a Gauss–Newton uncertainty estimate.
+//!
+//! The objective at parameters θ re-weights a fixed set of subpaths drawn from a proposal medium θ₀
+//! (common random numbers), so it is smooth in θ and its gradient is exact for it
+//! ([`crate::diff`]). The proposal is re-centred on the current estimate between stages, which keeps
+//! the re-weighting variance small while the parameters move.
+
+pub mod target;
+
+pub use target::Target;
+
+use crate::diff::{CovarianceGradient, Param, Reweighted, ReweightedCovariance};
+use crate::math::C64;
+use crate::mc::{Estimate, Plan, merge, run};
+use crate::medium::{Medium, PhaseFunction};
+use crate::speckle::Scene;
+use argmin::core::{CostFunction, Error as ArgminError, Executor, Gradient, State};
+use argmin::solver::linesearch::MoreThuenteLineSearch;
+use argmin::solver::quasinewton::LBFGS;
+use std::sync::Mutex;
+
+/// A parameter a user fits, in natural units, each mapped to an unconstrained variable `u`
+/// (constraints by reparameterisation: `mfp, σ = e^u`, `albedo = 1/(1+e^{-u})`, `g = tanh u`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FitParam {
+    Mfp,
+    Albedo,
+    G,
+    SigmaS,
+    SigmaA,
+}
+
+impl FitParam {
+    pub fn parse(s: &str) -> Result<FitParam, String> {
+        match s.trim() {
+            "mfp" => Ok(FitParam::Mfp),
+            "albedo" => Ok(FitParam::Albedo),
+            "g" => Ok(FitParam::G),
+            "sigma_s" => Ok(FitParam::SigmaS),
+            "sigma_a" => Ok(FitParam::SigmaA),
+            other => Err(format!(
+                "--fit: unknown parameter {other:?}; allowed: mfp, albedo, g, sigma_s, sigma_a"
+            )),
+        }
+    }
+
+    pub fn name(&self) -> &'static str {
+        match self {
+            FitParam::Mfp => "mfp",
+            FitParam::Albedo => "albedo",
+            FitParam::G => "g",
+            FitParam::SigmaS => "sigma_s",
+            FitParam::SigmaA => "sigma_a",
+        }
+    }
+
+    /// Natural value in medium `m`.
+    pub fn value(&self, m: &Medium) -> f64 {
+        match self {
+            FitParam::Mfp => 1.0 / m.sigma_t(),
+            FitParam::Albedo => m.albedo(),
+            FitParam::G => Param::G(0).get(m).unwrap_or(0.0),
+            FitParam::SigmaS => m.sigma_s,
+            FitParam::SigmaA => m.sigma_a,
+        }
+    }
+
+    fn unconstrained(self, v: f64) -> f64 {
+        match self {
+            FitParam::Albedo => {
+                let a = v.clamp(1e-6, 1.0 - 1e-6);
+                (a / (1.0 - a)).ln()
+            }
+            FitParam::G => v.clamp(-0.999, 0.999).atanh(),
+            FitParam::SigmaA => v.max(1e-12).ln(),
+            _ => v.ln(),
+        }
+    }
+
+    fn natural(self, u: f64) -> f64 {
+        match self {
+            FitParam::Albedo => 1.0 / (1.0 + (-u).exp()),
+            FitParam::G => u.tanh(),
+            _ => u.exp(),
+        }
+    }
+
+    /// `d(natural)/du`.
+    fn dv_du(&self, v: f64) -> f64 {
+        match self {
+            FitParam::Albedo => v * (1.0 - v),
+            FitParam::G => 1.0 - v * v,
+            _ => v,
+        }
+    }
+}
+
+/// Check a parameter set against a medium.
+pub fn check_params(params: &[FitParam], m: &Medium) -> Result<(), String> {
+    let has = |p| params.contains(&p);
+    if (has(FitParam::Mfp) || has(FitParam::Albedo))
+        && (has(FitParam::SigmaS) || has(FitParam::SigmaA))
+    {
+        return Err("--fit: use either mfp/albedo or sigma_s/sigma_a, not both".into());
+    }
+    if has(FitParam::G) {
+        match m.scattering.components() {
+            [(_, PhaseFunction::HenyeyGreenstein { .. })] => {}
+            _ => return Err("--fit g needs medium.phase = { kind = \"hg\", g = ... } (a single Henyey–Greenstein type)".into()),
+        }
+    }
+    if has(FitParam::SigmaA) && m.sigma_a <= 0.0 {
+        return Err(
+            "--fit sigma_a: start from medium.sigma_a > 0 (it is fitted on a log scale)".into(),
+        );
+    }
+    for (i, p) in params.iter().enumerate() {
+        if params[..i].contains(p) {
+            return Err(format!("--fit: {} is given twice", p.name()));
+        }
+    }
+    Ok(())
+}
+
+/// The medium with the fitted parameters set to natural values `v`.
+pub fn medium_with(base: &Medium, params: &[FitParam], v: &[f64]) -> Medium {
+    let get = |p: FitParam| params.iter().position(|q| *q == p).map(|i| v[i]);
+    let mut m = base.clone();
+    if get(FitParam::Mfp).is_some() || get(FitParam::Albedo).is_some() {
+        let mfp = get(FitParam::Mfp).unwrap_or(1.0 / base.sigma_t());
+        let a = get(FitParam::Albedo).unwrap_or(base.albedo());
+        m.sigma_s = a / mfp;
+        m.sigma_a = (1.0 - a) / mfp;
+    }
+    if let Some(s) = get(FitParam::SigmaS) {
+        m.sigma_s = s;
+    }
+    if let Some(s) = get(FitParam::SigmaA) {
+        m.sigma_a = s;
+    }
+    if let Some(g) = get(FitParam::G) {
+        m = Param::G(0).set(&m, g);
+    }
+    m
+}
+
+/// Settings of the Monte Carlo inside the objective.
+#[derive(Clone, Copy, Debug)]
+pub struct FitSettings {
+    pub samples: u64,
+    pub chunk: u64,
+    pub seed: u64,
+    pub reversed: bool,
+    pub stages: usize,
+    pub iterations: usize,
+}
+
+/// One logged evaluation.
+#[derive(Clone, Debug)]
+pub struct LogEntry {
+    pub stage: usize,
+    pub loss: f64,
+    pub params: Vec<f64>,
+    pub grad_norm: f64,
+}
+
+/// The fit problem: a scene (its lights/views and pairs as the target needs), a target and the
+/// parameters to fit.
+pub struct Fit<'a> {
+    pub scene: &'a Scene,
+    pub target: &'a Target,
+    pub params: Vec<FitParam>,
+    pub settings: FitSettings,
+}
+
+/// Result of [`Fit::run`].
+#[derive(Clone, Debug)]
+pub struct FitResult {
+    pub initial: Vec<f64>,
+    pub fitted: Vec<f64>,
+    /// One standard deviation per parameter (Gauss–Newton), and their correlation matrix.
+    pub stddev: Vec<f64>,
+    pub correlation: Vec<Vec<f64>>,
+    pub loss: f64,
+    pub log: Vec<LogEntry>,
+    /// Model statistics (as the target lists them) at the initial and fitted parameters.
+    pub model_initial: Vec<f64>,
+    pub model_fitted: Vec<f64>,
+}
+
+impl Fit<'_> {
+    fn estimate<E: crate::mc::Estimator>(&self, e: &E) -> Estimate {
+        let plan = Plan::new(
+            self.settings.seed,
+            self.settings.samples,
+            self.settings.chunk,
+        );
+        Estimate::from_block(
+            &merge(run(e, &plan, 0..plan.chunks, &[], &|_| {}), plan.chunks).expect("full range"),
+            &plan,
+        )
+    }
+
+    fn diff_params(&self) -> Vec<Param> {
+        let mut p = vec![Param::SigmaS, Param::SigmaA];
+        if self.params.contains(&FitParam::G) {
+            p.push(Param::G(0));
+        }
+        p
+    }
+
+    /// Covariance at natural values `v` from paths of `proposal`.
+    fn covariance(&self, proposal: &Scene, v: &[f64]) -> Result<Vec<C64>, String> {
+        let target = medium_with(&self.scene.medium, &self.params, v);
+        let r = Reweighted::new(
+            proposal,
+            target,
+            self.target.pairs(self.scene),
+            self.settings.reversed,
+            vec![],
+        )?;
+        Ok(self.estimate(&ReweightedCovariance(r)).mean)
+    }
+
+    /// Loss and its gradient with respect to the natural parameters.
+    fn loss_and_gradient(&self, proposal: &Scene, v: &[f64]) -> Result<(f64, Vec<f64>), String> {
+        let c = self.covariance(proposal, v)?;
+        let (loss, adjoint) = self.target.loss(&c);
+        let m = medium_with(&self.scene.medium, &self.params, v);
+        let dp = self.diff_params();
+        let r = Reweighted::new(
+            proposal,
+            m.clone(),
+            self.target.pairs(self.scene),
+            self.settings.reversed,
+            dp.clone(),
+        )?;
+        let g = self.estimate(&CovarianceGradient::new(r, &adjoint)).mean;
+        let (ds, da) = (g[0].re, g[1].re);
+        let mfp = 1.0 / m.sigma_t();
+        let grad = self
+            .params
+            .iter()
+            .map(|p| match p {
+                FitParam::Mfp => -(ds * m.sigma_s + da * m.sigma_a) / mfp,
+                FitParam::Albedo => (ds - da) / mfp,
+                FitParam::SigmaS => ds,
+                FitParam::SigmaA => da,
+                FitParam::G => g[2].re,
+            })
+            .collect();
+        Ok((loss, grad))
+    }
+
+    /// Run the staged L-BFGS fit from the scene's current parameter values.
+    pub fn run(&self, progress: &(dyn Fn(&LogEntry) + Sync)) -> Result<FitResult, String> {
+        let initial: Vec<f64> = self
+            .params
+            .iter()
+            .map(|p| p.value(&self.scene.medium))
+            .collect();
+        let log = Mutex::new(Vec::new());
+        let mut current = initial.clone();
+        for stage in 0..self.settings.stages {
+            let proposal = Scene {
+                medium: medium_with(&self.scene.medium, &self.params, &current),
+                ..self.scene.clone()
+            };
+            let problem = Objective {
+                fit: self,
+                proposal: &proposal,
+                stage,
+                log: &log,
+                progress,
+            };
+            let u0: Vec<f64> = self
+                .params
+                .iter()
+                .zip(&current)
+                .map(|(p, v)| p.unconstrained(*v))
+                .collect();
+            let solver = LBFGS::new(MoreThuenteLineSearch::new(), 7)
+                .with_tolerance_grad(1e-10)
+                .map_err(|e| e.to_string())?
+                .with_tolerance_cost(1e-12)
+                .map_err(|e| e.to_string())?;
+            let res = Executor::new(problem, solver)
+                .configure(|s| s.param(u0).max_iters(self.settings.iterations as u64))
+                .run()
+                .map_err(|e| format!("fit stage {stage}: {e}"))?;
+            let best = res
+                .state()
+                .get_best_param()
+                .cloned()
+                .ok_or("fit: no parameters evaluated")?;
+            let next: Vec<f64> = self
+                .params
+                .iter()
+                .zip(&best)
+                .map(|(p, u)| p.natural(*u))
+                .collect();
+            let moved = next
+                .iter()
+                .zip(&current)
+                .map(|(a, b)| ((a - b) / b.abs().max(1e-3)).abs())
+                .fold(0.0, f64::max);
+            current = next;
+            if moved < 1e-4 {
+                break;
+            }
+        }
+        // uncertainty: Gauss–Newton at the optimum, Jacobian of the residuals by central differences
+        // of the smooth re-weighted objective (proposal at the optimum)
+        let proposal = Scene {
+            medium: medium_with(&self.scene.medium, &self.params, &current),
+            ..self.scene.clone()
+        };
+        let r0 = self
+            .target
+            .residuals(&self.covariance(&proposal, &current)?);
+        let mut jac = vec![vec![0.0; self.params.len()]; r0.len()];
+        for (k, p) in self.params.iter().enumerate() {
+            let h = 1e-4 * p.unconstrained(current[k]).abs().max(1.0);
+            let mut vp = current.clone();
+            let mut vm = current.clone();
+            vp[k] = p.natural(p.unconstrained(current[k]) + h);
+            vm[k] = p.natural(p.unconstrained(current[k]) - h);
+            let (rp, rm) = (
+                self.target.residuals(&self.covariance(&proposal, &vp)?),
+                self.target.residuals(&self.covariance(&proposal, &vm)?),
+            );
+            let dv = vp[k] - vm[k];
+            for t in 0..r0.len() {
+                jac[t][k] = (rp[t] - rm[t]) / dv;
+            }
+        }
+        let loss: f64 = r0.iter().map(|r| r * r).sum();
+        let dof = (r0.len() as f64 - self.params.len() as f64).max(1.0);
+        let scale = if self.target.has_errors() {
+            1.0
+        } else {
+            loss / dof
+        };
+        let (stddev, correlation) = gauss_newton(&jac, scale);
+        let model_initial = self.target.model_values(&self.covariance(
+            &Scene {
+                medium: medium_with(&self.scene.medium, &self.params, &initial),
+                ..self.scene.clone()
+            },
+            &initial,
+        )?);
+        let model_fitted = self
+            .target
+            .model_values(&self.covariance(&proposal, &current)?);
+        Ok(FitResult {
+            initial,
+            fitted: current,
+            stddev,
+            correlation,
+            loss,
+            log: log.into_inner().unwrap_or_default(),
+            model_initial,
+            model_fitted,
+        })
+    }
+}
+
+/// `(JᵀJ)⁻¹ × scale`: standard deviations and correlations (NaN where singular: not identifiable).
+fn gauss_newton(jac: &[Vec<f64>], scale: f64) -> (Vec<f64>, Vec<Vec<f64>>) {
+    let p = jac.first().map_or(0, |r| r.len());
+    let jtj = faer::Mat::<f64>::from_fn(p, p, |a, b| jac.iter().map(|r| r[a] * r[b]).sum());
+    let inv = {
+        use faer::linalg::solvers::Solve;
+        let id = faer::Mat::<f64>::identity(p, p);
+        jtj.partial_piv_lu().solve(&id)
+    };
+    let sd: Vec<f64> = (0..p)
+        .map(|a| (inv[(a, a)] * scale).max(0.0).sqrt())
+        .collect();
+    let corr = (0..p)
+        .map(|a| {
+            (0..p)
+                .map(|b| inv[(a, b)] / (inv[(a, a)] * inv[(b, b)]).sqrt())
+                .collect()
+        })
+        .collect();
+    (sd, corr)
+}
+
+/// The argmin problem for one stage (unconstrained variables `u`).
+struct Objective<'f, 'a> {
+    fit: &'f Fit<'a>,
+    proposal: &'f Scene,
+    stage: usize,
+    log: &'f Mutex<Vec<LogEntry>>,
+    progress: &'f (dyn Fn(&LogEntry) + Sync),
+}
+
+impl Objective<'_, '_> {
+    fn natural(&self, u: &[f64]) -> Vec<f64> {
+        self.fit
+            .params
+            .iter()
+            .zip(u)
+            .map(|(p, u)| p.natural(*u))
+            .collect()
+    }
+}
+
+impl CostFunction for Objective<'_, '_> {
+    type Param = Vec<f64>;
+    type Output = f64;
+    fn cost(&self, u: &Vec<f64>) -> Result<f64, ArgminError> {
+        let v = self.natural(u);
+        let c = self
+            .fit
+            .covariance(self.proposal, &v)
+            .map_err(ArgminError::msg)?;
+        Ok(self.fit.target.loss(&c).0)
+    }
+}
+
+impl Gradient for Objective<'_, '_> {
+    type Param = Vec<f64>;
+    type Gradient = Vec<f64>;
+    fn gradient(&self, u: &Vec<f64>) -> Result<Vec<f64>, ArgminError> {
+        let v = self.natural(u);
+        let (loss, g) = self
+            .fit
+            .loss_and_gradient(self.proposal, &v)
+            .map_err(ArgminError::msg)?;
+        let gu: Vec<f64> = self
+            .fit
+            .params
+            .iter()
+            .zip(&v)
+            .zip(&g)
+            .map(|((p, v), g)| g * p.dv_du(*v))
+            .collect();
+        let entry = LogEntry {
+            stage: self.stage,
+            loss,
+            params: v,
+            grad_norm: gu.iter().map(|x| x * x).sum::<f64>().sqrt(),
+        };
+        (self.progress)(&entry);
+        if let Ok(mut l) = self.log.lock() {
+            l.push(entry);
+        }
+        Ok(gu)
+    }
+}

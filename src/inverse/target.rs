@@ -1,0 +1,292 @@
+//! Fit targets: memory-effect curves (our `memory_effect.json`, or a measured curve as CSV
+//! `angle_deg,correlation[,stderr]` or JSON `{"angles_deg": [...], "correlation": [...],
+//! "stderr": [...]}`) and covariances (our `covariance.json`, from Monte Carlo or the wave solver).
+//! Each gives the loss (weighted least squares, by the target's standard errors when it has them),
+//! its adjoint `∂L/∂C` and the residuals.
+
+use crate::math::C64;
+use crate::speckle::Scene;
+use serde_json::Value;
+use std::path::Path;
+
+/// What to fit to.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Target {
+    /// Intensity correlation `|C12|²/(C11 C22)` of light 0 and view 0 tilted together by each angle.
+    Memory {
+        angles_deg: Vec<f64>,
+        correlation: Vec<f64>,
+        stderr: Option<Vec<f64>>,
+    },
+    /// Covariance entries, `J×J` in the pair order `j = l·V + v` (`J = lights × views`).
+    Covariance {
+        lights: usize,
+        views: usize,
+        value: Vec<C64>,
+        stderr: Vec<f64>,
+    },
+}
+
+fn floats(v: &Value, key: &str, path: &Path) -> Result<Vec<f64>, String> {
+    v[key]
+        .as_array()
+        .ok_or_else(|| format!("{}: missing array {key:?}", path.display()))?
+        .iter()
+        .map(|x| {
+            x.as_f64()
+                .ok_or_else(|| format!("{}: {key} holds a non-number", path.display()))
+        })
+        .collect()
+}
+
+impl Target {
+    /// Read a target file (format by content: covariance.json, memory curve JSON, or CSV).
+    pub fn read(path: &Path) -> Result<Target, String> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| format!("cannot read target {}: {e}", path.display()))?;
+        let t = if let Ok(v) = serde_json::from_str::<Value>(&text) {
+            if v.get("re").is_some() && v.get("stderr").is_some() {
+                Self::covariance_json(&v, path)?
+            } else {
+                let angles_deg = floats(&v, "angles_deg", path)?;
+                let correlation = floats(&v, "correlation", path)?;
+                let stderr = ["correlation_stderr", "stderr"]
+                    .iter()
+                    .find(|k| v.get(**k).is_some())
+                    .map(|k| floats(&v, k, path))
+                    .transpose()?;
+                Target::Memory {
+                    angles_deg,
+                    correlation,
+                    stderr,
+                }
+            }
+        } else {
+            Self::csv(&text, path)?
+        };
+        t.validate(path)?;
+        Ok(t)
+    }
+
+    fn covariance_json(v: &Value, path: &Path) -> Result<Target, String> {
+        let re = v["re"]
+            .as_array()
+            .ok_or_else(|| format!("{}: `re` is not an array", path.display()))?;
+        let nl = re.len();
+        let nv = re
+            .first()
+            .and_then(|x| x.get(0))
+            .and_then(|x| x.as_array())
+            .map_or(0, |x| x.len());
+        if nl == 0 || nv == 0 {
+            return Err(format!("{}: empty covariance", path.display()));
+        }
+        let j = nl * nv;
+        let mut value = vec![C64::default(); j * j];
+        let mut stderr = vec![0.0; j * j];
+        for l1 in 0..nl {
+            for l2 in 0..nl {
+                for v1 in 0..nv {
+                    for v2 in 0..nv {
+                        let g = |k: &str| {
+                            v[k][l1][l2][v1][v2].as_f64().ok_or_else(|| {
+                                format!("{}: {k}[{l1}][{l2}][{v1}][{v2}] missing", path.display())
+                            })
+                        };
+                        let i = (l1 * nv + v1) * j + l2 * nv + v2;
+                        value[i] = C64::new(g("re")?, g("im")?);
+                        stderr[i] = g("stderr")?;
+                    }
+                }
+            }
+        }
+        Ok(Target::Covariance {
+            lights: nl,
+            views: nv,
+            value,
+            stderr,
+        })
+    }
+
+    fn csv(text: &str, path: &Path) -> Result<Target, String> {
+        let (mut a, mut c, mut s) = (Vec::new(), Vec::new(), Vec::new());
+        for (n, line) in text.lines().enumerate() {
+            let line = line.trim();
+            if line.is_empty() || line.starts_with('#') {
+                continue;
+            }
+            let f: Vec<&str> = line
+                .split([',', ';', '\t', ' '])
+                .filter(|x| !x.is_empty())
+                .collect();
+            let nums: Result<Vec<f64>, _> = f.iter().map(|x| x.parse::<f64>()).collect();
+            match nums {
+                Ok(x) if x.len() == 2 || x.len() == 3 => {
+                    a.push(x[0]);
+                    c.push(x[1]);
+                    if x.len() == 3 {
+                        s.push(x[2]);
+                    }
+                }
+                Err(_) if a.is_empty() => continue, // header
+                _ => {
+                    return Err(format!(
+                        "{}: line {}: expected angle_deg,correlation[,stderr]",
+                        path.display(),
+                        n + 1
+                    ));
+                }
+            }
+        }
+        let stderr = if s.is_empty() {
+            None
+        } else if s.len() == a.len() {
+            Some(s)
+        } else {
+            return Err(format!(
+                "{}: give a stderr on every line or on none",
+                path.display()
+            ));
+        };
+        Ok(Target::Memory {
+            angles_deg: a,
+            correlation: c,
+            stderr,
+        })
+    }
+
+    fn validate(&self, path: &Path) -> Result<(), String> {
+        match self {
+            Target::Memory {
+                angles_deg,
+                correlation,
+                stderr,
+            } => {
+                if angles_deg.is_empty() || angles_deg.len() != correlation.len() {
+                    return Err(format!(
+                        "{}: angles_deg and correlation must be non-empty and of equal length",
+                        path.display()
+                    ));
+                }
+                if let Some(s) = stderr
+                    && (s.len() != angles_deg.len()
+                        || s.iter().any(|x| !(*x > 0.0 && x.is_finite())))
+                {
+                    return Err(format!(
+                        "{}: stderr must have one positive value per angle",
+                        path.display()
+                    ));
+                }
+                if angles_deg.iter().chain(correlation).any(|x| !x.is_finite()) {
+                    return Err(format!(
+                        "{}: non-finite angle or correlation",
+                        path.display()
+                    ));
+                }
+            }
+            Target::Covariance { value, .. } => {
+                if value.iter().any(|z| !z.re.is_finite() || !z.im.is_finite()) {
+                    return Err(format!("{}: non-finite covariance entries", path.display()));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Whether residuals are weighted by target errors (else the fit scales by the residual variance).
+    pub fn has_errors(&self) -> bool {
+        match self {
+            Target::Memory { stderr, .. } => stderr.is_some(),
+            Target::Covariance { stderr, .. } => stderr.iter().all(|s| *s > 0.0),
+        }
+    }
+
+    /// The (light, view) pairs whose covariance the target needs.
+    pub fn pairs(&self, scene: &Scene) -> Vec<(usize, usize)> {
+        match self {
+            Target::Memory { angles_deg, .. } => (0..=angles_deg.len()).map(|j| (j, j)).collect(),
+            Target::Covariance { .. } => crate::speckle::paths::SubpathSampler::all_pairs(scene),
+        }
+    }
+
+    /// Model values comparable with the target: the correlation curve, or the covariance diagonal.
+    pub fn model_values(&self, c: &[C64]) -> Vec<f64> {
+        match self {
+            Target::Memory { angles_deg, .. } => {
+                let j = angles_deg.len() + 1;
+                (1..j)
+                    .map(|t| c[t].norm_sqr() / (c[0].re * c[t * j + t].re))
+                    .collect()
+            }
+            Target::Covariance { lights, views, .. } => {
+                let j = lights * views;
+                (0..j).map(|a| c[a * j + a].re).collect()
+            }
+        }
+    }
+
+    /// Weighted residuals.
+    pub fn residuals(&self, c: &[C64]) -> Vec<f64> {
+        match self {
+            Target::Memory {
+                correlation,
+                stderr,
+                ..
+            } => {
+                let r = self.model_values(c);
+                r.iter()
+                    .enumerate()
+                    .map(|(t, x)| (x - correlation[t]) / stderr.as_ref().map_or(1.0, |s| s[t]))
+                    .collect()
+            }
+            Target::Covariance { value, stderr, .. } => value
+                .iter()
+                .zip(stderr)
+                .zip(c)
+                .flat_map(|((t, s), m)| {
+                    let d = (m - t) / s.max(1e-300);
+                    [d.re, d.im]
+                })
+                .collect(),
+        }
+    }
+
+    /// Loss `Σ residual²` and its adjoint `∂L/∂C` (`dL = Re Σ conj(Ā) dC`).
+    pub fn loss(&self, c: &[C64]) -> (f64, Vec<C64>) {
+        let mut adj = vec![C64::default(); c.len()];
+        let loss = match self {
+            Target::Memory {
+                correlation,
+                stderr,
+                ..
+            } => {
+                let j = correlation.len() + 1;
+                let a = c[0].re;
+                let mut l = 0.0;
+                for t in 1..j {
+                    let (b, x) = (c[t * j + t].re, c[t]);
+                    let r = x.norm_sqr() / (a * b);
+                    let s = stderr.as_ref().map_or(1.0, |s| s[t - 1]);
+                    let res = (r - correlation[t - 1]) / s;
+                    l += res * res;
+                    let dl_dr = 2.0 * res / s;
+                    adj[t] += x * (2.0 * dl_dr / (a * b));
+                    adj[0] += C64::new(-dl_dr * r / a, 0.0);
+                    adj[t * j + t] += C64::new(-dl_dr * r / b, 0.0);
+                }
+                l
+            }
+            Target::Covariance { value, stderr, .. } => {
+                let mut l = 0.0;
+                for (i, ((t, s), m)) in value.iter().zip(stderr).zip(c).enumerate() {
+                    let w = 1.0 / s.max(1e-300).powi(2);
+                    let d = m - t;
+                    l += d.norm_sqr() * w;
+                    adj[i] = d * (2.0 * w);
+                }
+                l
+            }
+        };
+        (loss, adj)
+    }
+}
