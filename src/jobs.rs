@@ -981,3 +981,161 @@ pub fn compare_job(
     }
     Ok((report, ok))
 }
+
+/// Options of `lightpath fit`.
+#[derive(Clone, Debug)]
+pub struct FitOptions {
+    pub fit: String,
+    pub samples: Option<u64>,
+    pub seed: Option<u64>,
+    pub stages: usize,
+    pub iterations: usize,
+    pub progress: bool,
+}
+
+/// `lightpath fit`: fit medium parameters so rendered statistics match a target.
+pub fn fit_job(mut cfg: Config, target_path: &Path, opts: &FitOptions, out: &Path) -> JobResult {
+    use crate::inverse::{Fit, FitParam, FitSettings, Target, check_params};
+    let target = Target::read(target_path)?;
+    let params: Vec<FitParam> = opts
+        .fit
+        .split(',')
+        .map(FitParam::parse)
+        .collect::<Result<_, _>>()?;
+    if params.is_empty() {
+        return Err("--fit: give at least one parameter".into());
+    }
+    if let Some(s) = opts.samples {
+        cfg.render.samples = s;
+    }
+    if let Some(s) = opts.seed {
+        cfg.render.seed = s;
+    }
+    let scene = match &target {
+        Target::Memory { angles_deg, .. } => {
+            let axis = cfg
+                .memory_effect
+                .as_ref()
+                .map_or([0.0, 1.0, 0.0], |m| m.axis);
+            cfg.memory_effect = Some(crate::io::config::MemoryEffectConfig {
+                angles_deg: angles_deg.clone(),
+                axis,
+            });
+            cfg.validate().map_err(|e| e.0)?;
+            memory_scene(&cfg)?.0
+        }
+        Target::Covariance { lights, views, .. } => {
+            let s = cfg.scene().map_err(|e| e.0)?;
+            if (s.lights.len(), s.views.len()) != (*lights, *views) {
+                return Err(format!(
+                    "target {} has {lights} light(s) × {views} view(s) but the config has {} × {}",
+                    target_path.display(),
+                    s.lights.len(),
+                    s.views.len()
+                ));
+            }
+            s
+        }
+    };
+    check_params(&params, &scene.medium)?;
+    if opts.stages == 0 || opts.iterations == 0 {
+        return Err("--stages and --iterations must be at least 1".into());
+    }
+    std::fs::create_dir_all(out)
+        .map_err(|e| format!("cannot create output folder {}: {e}", out.display()))?;
+    let settings = FitSettings {
+        samples: cfg.render.samples,
+        chunk: cfg.render.chunk,
+        seed: cfg.render.seed,
+        reversed: cfg.render.reversed,
+        stages: opts.stages,
+        iterations: opts.iterations,
+    };
+    let fit = Fit {
+        scene: &scene,
+        target: &target,
+        params: params.clone(),
+        settings,
+    };
+    let t0 = Instant::now();
+    let show = opts.progress;
+    let names: Vec<&str> = params.iter().map(|p| p.name()).collect();
+    let res = fit.run(&|e| {
+        if show {
+            let p: Vec<String> = names
+                .iter()
+                .zip(&e.params)
+                .map(|(n, v)| format!("{n} = {v:.5}"))
+                .collect();
+            eprintln!(
+                "stage {} loss {:.6e} |grad| {:.3e}  {}",
+                e.stage,
+                e.loss,
+                e.grad_norm,
+                p.join(", ")
+            );
+        }
+    })?;
+    let seconds = t0.elapsed().as_secs_f64();
+    let mut m = serde_json::Map::new();
+    m.insert("params".into(), json!(names));
+    m.insert("initial".into(), json!(res.initial));
+    m.insert("fitted".into(), json!(res.fitted));
+    m.insert("stddev".into(), json!(res.stddev));
+    m.insert("correlation".into(), json!(res.correlation));
+    m.insert("loss".into(), json!(res.loss));
+    m.insert("model_initial".into(), json!(res.model_initial));
+    m.insert("model_fitted".into(), json!(res.model_fitted));
+    m.insert(
+        "log".into(),
+        Value::Array(res.log.iter().map(|e| json!({"stage": e.stage, "loss": e.loss, "params": e.params, "grad_norm": e.grad_norm})).collect()),
+    );
+    m.insert("samples".into(), json!(cfg.render.samples));
+    m.insert("seed".into(), json!(cfg.render.seed));
+    m.insert("seconds".into(), json!(seconds));
+    m.insert("version".into(), json!(env!("CARGO_PKG_VERSION")));
+    m.insert("target".into(), json!(target_path.display().to_string()));
+    m.insert(
+        "config".into(),
+        serde_json::to_value(&cfg).unwrap_or(Value::Null),
+    );
+    let path = out.join("fit.json");
+    write_json(&path, &Value::Object(m))
+        .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+    let mut files = vec![path];
+    if let Target::Memory {
+        angles_deg,
+        correlation,
+        stderr,
+    } = &target
+    {
+        let png = out.join("fit.png");
+        crate::io::plot::fit_curve(
+            &png,
+            angles_deg,
+            correlation,
+            stderr.as_deref(),
+            &res.model_initial,
+            &res.model_fitted,
+        )?;
+        files.push(png);
+    }
+    let mut summary = format!("fit in {seconds:.1} s, final loss {:.4e}\n", res.loss);
+    for (i, n) in names.iter().enumerate() {
+        summary += &format!(
+            "  {n:>8}: {:.5} → {:.5} ± {:.5}\n",
+            res.initial[i], res.fitted[i], res.stddev[i]
+        );
+    }
+    for a in 0..names.len() {
+        for b in a + 1..names.len() {
+            let r = res.correlation[a][b];
+            summary += &format!("  correlation({}, {}) = {r:.3}", names[a], names[b]);
+            if r.abs() > 0.95 || !r.is_finite() {
+                summary += "  — strongly correlated: the data barely separate them (e.g. similarity σ_s(1 − g) ≈ const)";
+            }
+            summary += "\n";
+        }
+    }
+    Ok(Outcome { files, summary })
+}

@@ -69,6 +69,33 @@ enum Command {
         #[arg(long)]
         plot: Option<PathBuf>,
     },
+    /// Fit medium parameters (mfp, albedo, g, sigma_s, sigma_a) so rendered statistics match a target
+    Fit {
+        config: PathBuf,
+        /// memory_effect.json / covariance.json of a run, or a measured curve (CSV angle_deg,correlation[,stderr])
+        #[arg(long)]
+        target: PathBuf,
+        /// Parameters to fit, comma separated, e.g. mfp,g
+        #[arg(long)]
+        fit: String,
+        #[arg(long)]
+        out: PathBuf,
+        /// Subpaths per objective evaluation (default: render.samples)
+        #[arg(long)]
+        samples: Option<u64>,
+        #[arg(long)]
+        seed: Option<u64>,
+        #[arg(long)]
+        threads: Option<usize>,
+        /// Proposal re-centring stages
+        #[arg(long, default_value_t = 3)]
+        stages: usize,
+        /// L-BFGS iterations per stage
+        #[arg(long, default_value_t = 15)]
+        iterations: usize,
+        #[arg(long)]
+        quiet: bool,
+    },
     /// Check a config and print the scene it describes, without running anything
     Check { config: PathBuf },
     /// Measure paths/s, covariance entry-updates/s, field pixel-updates/s and the GEMM rate
@@ -193,6 +220,28 @@ fn main() -> ExitCode {
             with_threads(threads, || {
                 jobs::wave_job(cfg, realizations, seed, limits, !quiet, &out)
             })?
+        }),
+        Some(Command::Fit {
+            config,
+            target,
+            fit,
+            out,
+            samples,
+            seed,
+            threads,
+            stages,
+            iterations,
+            quiet,
+        }) => Config::from_file(&config).map_err(|e| e.0).and_then(|cfg| {
+            let opts = jobs::FitOptions {
+                fit,
+                samples,
+                seed,
+                stages,
+                iterations,
+                progress: !quiet,
+            };
+            with_threads(threads, || jobs::fit_job(cfg, &target, &opts, &out))?
         }),
         Some(Command::Compare {
             a,

@@ -21,6 +21,10 @@ use argmin::solver::linesearch::MoreThuenteLineSearch;
 use argmin::solver::quasinewton::LBFGS;
 use std::sync::Mutex;
 
+/// Half-width of a stage's trust region in the unconstrained variables: re-weighting stays accurate
+/// only near the proposal (the weights multiply a phase-function ratio per interior vertex).
+const TRUST: f64 = 0.25;
+
 /// A parameter a user fits, in natural units, each mapped to an unconstrained variable `u`
 /// (constraints by reparameterisation: `mfp, σ = e^u`, `albedo = 1/(1+e^{-u})`, `g = tanh u`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -268,20 +272,42 @@ impl Fit<'_> {
                 medium: medium_with(&self.scene.medium, &self.params, &current),
                 ..self.scene.clone()
             };
-            let problem = Objective {
-                fit: self,
-                proposal: &proposal,
-                stage,
-                log: &log,
-                progress,
-            };
             let u0: Vec<f64> = self
                 .params
                 .iter()
                 .zip(&current)
                 .map(|(p, v)| p.unconstrained(*v))
                 .collect();
-            let solver = LBFGS::new(MoreThuenteLineSearch::new(), 7)
+            let (_, g0) = self.loss_and_gradient(&proposal, &current)?;
+            let g0u = self
+                .params
+                .iter()
+                .zip(&current)
+                .zip(&g0)
+                .map(|((p, v), g)| (g * p.dv_du(*v)).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            if !g0u.is_finite() {
+                return Err(format!(
+                    "fit stage {stage}: the gradient is not finite at {current:?}"
+                ));
+            }
+            if g0u == 0.0 {
+                break;
+            }
+            let problem = Objective {
+                fit: self,
+                proposal: &proposal,
+                stage,
+                scale: 0.5 / g0u,
+                centre: u0.clone(),
+                log: &log,
+                progress,
+            };
+            let line = MoreThuenteLineSearch::new()
+                .with_bounds(1e-12, 4.0)
+                .map_err(|e| e.to_string())?;
+            let solver = LBFGS::new(line, 7)
                 .with_tolerance_grad(1e-10)
                 .map_err(|e| e.to_string())?
                 .with_tolerance_cost(1e-12)
@@ -338,8 +364,10 @@ impl Fit<'_> {
         }
         let loss: f64 = r0.iter().map(|r| r * r).sum();
         let dof = (r0.len() as f64 - self.params.len() as f64).max(1.0);
+        // with target errors, inflate by the Birge ratio when the fit is worse than they allow (the
+        // model's own Monte Carlo noise is not in them); without, scale by the residual variance
         let scale = if self.target.has_errors() {
-            1.0
+            (loss / dof).max(1.0)
         } else {
             loss / dof
         };
@@ -394,17 +422,30 @@ struct Objective<'f, 'a> {
     fit: &'f Fit<'a>,
     proposal: &'f Scene,
     stage: usize,
+    /// Loss scale making the first gradient (in `u`) of norm ½, so the first trial step is modest.
+    scale: f64,
+    /// The stage's start; each `u` stays within ±`TRUST` of it (a trust region: re-weighting from the
+    /// proposal is accurate only nearby, and the next stage re-centres).
+    centre: Vec<f64>,
     log: &'f Mutex<Vec<LogEntry>>,
     progress: &'f (dyn Fn(&LogEntry) + Sync),
 }
 
 impl Objective<'_, '_> {
     fn natural(&self, u: &[f64]) -> Vec<f64> {
+        let clamp = |u: f64, c: f64| {
+            if u.is_finite() {
+                u.clamp(c - TRUST, c + TRUST)
+            } else {
+                c
+            }
+        };
         self.fit
             .params
             .iter()
             .zip(u)
-            .map(|(p, u)| p.natural(*u))
+            .zip(&self.centre)
+            .map(|((p, u), c)| p.natural(clamp(*u, *c)))
             .collect()
     }
 }

@@ -232,3 +232,80 @@ pub fn compare(
     }
     Ok(vec![diag_path, mat_path])
 }
+
+/// Fit of a memory-effect curve: target (with ±2 s.e. bars when given), initial and fitted model.
+pub fn fit_curve(
+    path: &Path,
+    angles: &[f64],
+    target: &[f64],
+    stderr: Option<&[f64]>,
+    initial: &[f64],
+    fitted: &[f64],
+) -> Result<(), String> {
+    register_font();
+    let e = |e: &dyn std::fmt::Display| e.to_string();
+    let root = BitMapBackend::new(path, (800, 560)).into_drawing_area();
+    root.fill(&WHITE).map_err(|x| e(&x))?;
+    let xmax = angles.iter().fold(0.0f64, |a, b| a.max(b.abs())) * 1.05;
+    let ymax = target
+        .iter()
+        .chain(initial)
+        .chain(fitted)
+        .fold(1.0f64, |a, b| a.max(*b))
+        * 1.05;
+    let mut chart = ChartBuilder::on(&root)
+        .caption("Fit: memory-effect correlation", ("sans-serif", 22))
+        .margin(15)
+        .x_label_area_size(45)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0.0..xmax.max(1e-9), 0.0..ymax)
+        .map_err(|x| e(&x))?;
+    chart
+        .configure_mesh()
+        .x_desc("tilt angle θ [deg]")
+        .y_desc("|C12|² / (C11 C22)")
+        .label_style(("sans-serif", 15))
+        .draw()
+        .map_err(|x| e(&x))?;
+    let line = |v: &[f64]| -> Vec<(f64, f64)> {
+        let mut p: Vec<(f64, f64)> = angles
+            .iter()
+            .map(|a| a.abs())
+            .zip(v.iter().copied())
+            .collect();
+        p.sort_by(|a, b| a.0.total_cmp(&b.0));
+        p
+    };
+    chart
+        .draw_series(LineSeries::new(
+            line(initial),
+            BLACK.mix(0.5).stroke_width(2),
+        ))
+        .map_err(|x| e(&x))?
+        .label("initial")
+        .legend(|(x, y)| {
+            PathElement::new(vec![(x, y), (x + 20, y)], BLACK.mix(0.5).stroke_width(2))
+        });
+    chart
+        .draw_series(LineSeries::new(line(fitted), BLUE.stroke_width(2)))
+        .map_err(|x| e(&x))?
+        .label("fitted")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE.stroke_width(2)));
+    chart
+        .draw_series(angles.iter().zip(target).enumerate().map(|(i, (a, t))| {
+            let s = stderr.map_or(0.0, |s| s[i]);
+            ErrorBar::new_vertical(a.abs(), t - 2.0 * s, *t, t + 2.0 * s, RED.filled(), 6)
+        }))
+        .map_err(|x| e(&x))?
+        .label("target")
+        .legend(|(x, y)| Circle::new((x + 10, y), 4, RED.filled()));
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .label_font(("sans-serif", 15))
+        .draw()
+        .map_err(|x| e(&x))?;
+    root.present().map_err(|x| e(&x))?;
+    Ok(())
+}

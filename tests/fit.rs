@@ -1,0 +1,135 @@
+//! End-to-end fits (issue #4): recover (mfp, g) of a slab from a memory-effect curve rendered at
+//! another seed, within the uncertainty the fit reports; a malformed request is a clear error.
+
+use lightpath::io::Config;
+use lightpath::jobs::{FitOptions, Kind, Options, fit_job, run_job};
+
+const TRUTH: &str = r#"
+wavelength = 1.0
+[medium]
+slab = 40.0
+mfp = 20.0
+phase = { kind = "hg", g = 0.3 }
+[[light]]
+kind = "plane_wave"
+direction = [0.0, 0.0, 1.0]
+[[view]]
+kind = "far_field"
+direction = [0.0, 0.0, 1.0]
+[memory_effect]
+angles_deg = [0.05, 0.1, 0.2, 0.3, 0.45, 0.6, 0.8]
+[render]
+samples = 20000
+chunk = 500
+seed = 7
+"#;
+
+#[test]
+fn recovers_mfp_and_g_from_a_memory_effect_curve() {
+    let d = std::env::temp_dir().join(format!("lightpath-fit-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    run_job(
+        Kind::MemoryEffect,
+        Config::from_toml(TRUTH, None).unwrap(),
+        &Options::default(),
+        &d.join("target"),
+    )
+    .unwrap();
+    let start = TRUTH
+        .replace("mfp = 20.0", "mfp = 28.0")
+        .replace("g = 0.3", "g = 0.1")
+        .replace("seed = 7", "seed = 1");
+    let opts = FitOptions {
+        fit: "mfp,g".into(),
+        samples: None,
+        seed: None,
+        stages: 6,
+        iterations: 5,
+        progress: false,
+    };
+    let out = fit_job(
+        Config::from_toml(&start, None).unwrap(),
+        &d.join("target/memory_effect.json"),
+        &opts,
+        &d.join("fit"),
+    )
+    .unwrap();
+    eprintln!("{}", out.summary);
+    let v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(d.join("fit/fit.json")).unwrap()).unwrap();
+    let get = |k: &str, i: usize| v[k][i].as_f64().unwrap();
+    for (i, truth) in [(0, 20.0), (1, 0.3)] {
+        let (f, s) = (get("fitted", i), get("stddev", i));
+        eprintln!("{}: fitted {f:.4} ± {s:.4}, truth {truth}", v["params"][i]);
+        assert!(s > 0.0 && s.is_finite());
+        assert!(
+            (f - truth).abs() < 3.0 * s,
+            "{}: {f} ± {s} vs {truth}",
+            v["params"][i]
+        );
+    }
+    // the start was far off, so the fit must have moved: the loss fell by orders of magnitude
+    let log = v["log"].as_array().unwrap();
+    let first = log.first().unwrap()["loss"].as_f64().unwrap();
+    assert!(
+        first > 20.0 * v["loss"].as_f64().unwrap(),
+        "loss {first} → {}",
+        v["loss"]
+    );
+    assert!(d.join("fit/fit.png").exists());
+    // transmission memory-effect curves barely separate mfp from g (similarity): reported, not hidden
+    assert!(v["correlation"][0][1].as_f64().unwrap().abs() > 0.8);
+}
+
+#[test]
+fn bad_fit_requests_are_clear_errors() {
+    let d = std::env::temp_dir().join(format!("lightpath-fit-bad-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    std::fs::write(
+        d.join("curve.csv"),
+        "angle_deg,correlation\n0.1,0.9\n0.2,0.7\n",
+    )
+    .unwrap();
+    let cfg = || Config::from_toml(TRUTH, None).unwrap();
+    let opts = |fit: &str| FitOptions {
+        fit: fit.into(),
+        samples: Some(1000),
+        seed: None,
+        stages: 1,
+        iterations: 1,
+        progress: false,
+    };
+    let err = fit_job(
+        cfg(),
+        &d.join("curve.csv"),
+        &opts("mfp,colour"),
+        &d.join("o"),
+    )
+    .unwrap_err();
+    assert!(err.contains("colour") && err.contains("allowed"), "{err}");
+    let err = fit_job(
+        cfg(),
+        &d.join("curve.csv"),
+        &opts("mfp,sigma_s"),
+        &d.join("o"),
+    )
+    .unwrap_err();
+    assert!(err.contains("either"), "{err}");
+    let err = fit_job(cfg(), &d.join("missing.json"), &opts("mfp"), &d.join("o")).unwrap_err();
+    assert!(err.contains("cannot read target"), "{err}");
+    let iso = TRUTH.replace(
+        "phase = { kind = \"hg\", g = 0.3 }",
+        "phase = { kind = \"isotropic\" }",
+    );
+    let err = fit_job(
+        Config::from_toml(&iso, None).unwrap(),
+        &d.join("curve.csv"),
+        &opts("g"),
+        &d.join("o"),
+    )
+    .unwrap_err();
+    assert!(err.contains("hg"), "{err}");
+    // a measured CSV curve is a valid target
+    assert!(fit_job(cfg(), &d.join("curve.csv"), &opts("mfp"), &d.join("ok")).is_ok());
+}
