@@ -459,7 +459,9 @@ impl CostFunction for Objective<'_, '_> {
             .fit
             .covariance(self.proposal, &v)
             .map_err(ArgminError::msg)?;
-        Ok(self.fit.target.loss(&c).0)
+        let l = self.fit.target.loss(&c).0 * self.scale;
+        // a non-finite loss (parameters far outside the data's reach) must still rank worse
+        Ok(if l.is_finite() { l } else { 1e30 })
     }
 }
 
@@ -472,13 +474,17 @@ impl Gradient for Objective<'_, '_> {
             .fit
             .loss_and_gradient(self.proposal, &v)
             .map_err(ArgminError::msg)?;
-        let gu: Vec<f64> = self
-            .fit
-            .params
-            .iter()
-            .zip(&v)
-            .zip(&g)
-            .map(|((p, v), g)| g * p.dv_du(*v))
+        // d/du of the natural value; zero where the trust region clamps u
+        let gu: Vec<f64> = (0..v.len())
+            .map(|i| {
+                let inside = (u[i] - self.centre[i]).abs() < TRUST;
+                let d = if inside {
+                    g[i] * self.fit.params[i].dv_du(v[i])
+                } else {
+                    0.0
+                };
+                if d.is_finite() { d } else { 0.0 }
+            })
             .collect();
         let entry = LogEntry {
             stage: self.stage,
@@ -486,6 +492,7 @@ impl Gradient for Objective<'_, '_> {
             params: v,
             grad_norm: gu.iter().map(|x| x * x).sum::<f64>().sqrt(),
         };
+        let gu = gu.iter().map(|g| g * self.scale).collect();
         (self.progress)(&entry);
         if let Ok(mut l) = self.log.lock() {
             l.push(entry);
