@@ -140,6 +140,28 @@ pub fn run(quick: bool) -> Result<String, String> {
     let field_paths = plan_f.samples() as f64 / t_field;
     let field_updates = field_paths * events * j as f64;
 
+    // gradient (σ_s, σ_a) contracted with a dense adjoint, against the forward estimate, same paths
+    let grad_paths = if quick { 2_000 } else { 20_000 };
+    let plan_g = Plan::new(1, grad_paths, 500);
+    let pairs = SubpathSampler::all_pairs(&scene);
+    let time_of = |f: &dyn Fn()| {
+        let t0 = Instant::now();
+        f();
+        t0.elapsed().as_secs_f64()
+    };
+    let t_plain = time_of(&|| {
+        std::hint::black_box(mc::run(&cov, &plan_g, 0..plan_g.chunks, &[], &|_| {}));
+    });
+    let adjoint: Vec<C64> = (0..j * j)
+        .map(|i| C64::new((i % 7) as f64 - 3.0, (i % 5) as f64 - 2.0))
+        .collect();
+    let params = vec![crate::diff::Param::SigmaS, crate::diff::Param::SigmaA];
+    let rw = crate::diff::Reweighted::new(&scene, scene.medium.clone(), pairs, true, params)?;
+    let grad = crate::diff::CovarianceGradient::new(rw, &adjoint);
+    let t_grad = time_of(&|| {
+        std::hint::black_box(mc::run(&grad, &plan_g, 0..plan_g.chunks, &[], &|_| {}));
+    });
+
     let (dgemm, zgemm) = gemm_rates(2 * j, if quick { 2 } else { 8 });
     let cov_flops = cov_updates * 8.0 / 1e9;
     Ok(format!(
@@ -149,7 +171,8 @@ pub fn run(quick: bool) -> Result<String, String> {
          fields:     {field_paths:.0} paths/s ({:.0} per thread), {:.3e} pixel-updates/s\n\
          GEMM ({}², all threads): real dgemm {dgemm:.2} GFLOP/s, complex zgemm {zgemm:.2} GFLOP/s\n\
          covariance update at {:.0} % of the complex GEMM rate ({:.0} % of dgemm), counting all J² entries \
-         (only tiles on or above the diagonal are multiplied: {:.0} % of them)",
+         (only tiles on or above the diagonal are multiplied: {:.0} % of them)\n\
+         gradient (σ_s, σ_a) of a loss over all J² entries: {:.2}× the cost of the forward covariance estimate ({} paths: {:.2} s vs {:.2} s)",
         cov_paths / threads as f64,
         cov_updates,
         field_paths / threads as f64,
@@ -158,5 +181,9 @@ pub fn run(quick: bool) -> Result<String, String> {
         100.0 * cov_flops / zgemm,
         100.0 * cov_flops / dgemm,
         100.0 * crate::speckle::covariance::tile_fraction(j),
+        t_grad / t_plain,
+        plan_g.samples(),
+        t_grad,
+        t_plain,
     ))
 }

@@ -14,3 +14,6 @@ for L in 4 6 9 12; do
   lp covariance out/od1-L$L.toml --out out/od1-L$L-mc --quiet
 done
 python3 analyse.py
+# the 20 λ cube (~1260 scatterers, ~4 min): uncomment to add it to the table
+# sed "s/box = \[6.0, 6.0, 6.0\]/box = [20.0, 20.0, 20.0]/; s/mfp = 3.0/mfp = 20.0/; s/count = 36/count = 12/" od2.toml > out/od1-L20.toml
+# lp wave out/od1-L20.toml --out out/od1-L20-wave --realizations 600 --quiet && lp covariance out/od1-L20.toml --out out/od1-L20-mc --quiet

@@ -363,34 +363,109 @@ impl<'a> CovarianceGradient<'a> {
     }
 }
 
+/// Events gathered before one batched contraction `Y = conj(Ā) conj(A)` (a matrix product).
+const BATCH: usize = 64;
+
+/// Per-thread batch of events for [`CovarianceGradient`].
+pub struct ContractBatch {
+    j: usize,
+    p: usize,
+    n: usize,
+    /// `conj(a)` of each event, column-major `J × BATCH`.
+    conj_a: Vec<C64>,
+    a: Vec<C64>,
+    da: Vec<C64>,
+    w: Vec<f64>,
+    dlogw: Vec<f64>,
+    y: Vec<C64>,
+}
+
+impl ContractBatch {
+    fn new(j: usize, p: usize) -> Self {
+        ContractBatch {
+            j,
+            p,
+            n: 0,
+            conj_a: vec![C64::default(); j * BATCH],
+            a: vec![C64::default(); j * BATCH],
+            da: vec![C64::default(); p * j * BATCH],
+            w: vec![0.0; BATCH],
+            dlogw: vec![0.0; p * BATCH],
+            y: vec![C64::default(); j * BATCH],
+        }
+    }
+
+    /// Contract the gathered events with `conj(Ā)` (row-major `J×J`) into `grad`.
+    fn flush(&mut self, adj_conj: &[C64], grad: &mut [C64]) {
+        let (j, p, n) = (self.j, self.p, self.n);
+        if n == 0 {
+            return;
+        }
+        // SAFETY: adj_conj is j×j row-major, conj_a holds n columns of j (column-major), y is j×n
+        // column-major; all strides stay in bounds.
+        unsafe {
+            matrixmultiply::zgemm(
+                matrixmultiply::CGemmOption::Standard,
+                matrixmultiply::CGemmOption::Standard,
+                j,
+                j,
+                n,
+                [1.0, 0.0],
+                adj_conj.as_ptr() as *const [f64; 2],
+                j as isize,
+                1,
+                self.conj_a.as_ptr() as *const [f64; 2],
+                1,
+                j as isize,
+                [0.0, 0.0],
+                self.y.as_mut_ptr() as *mut [f64; 2],
+                1,
+                j as isize,
+            );
+        }
+        for e in 0..n {
+            let y = &self.y[e * j..(e + 1) * j];
+            let qa: f64 = self.a[e * j..(e + 1) * j]
+                .iter()
+                .zip(y)
+                .map(|(x, y)| (x * y).re)
+                .sum();
+            for (k, g) in grad.iter_mut().enumerate().take(p) {
+                let da = &self.da[(e * p + k) * j..(e * p + k + 1) * j];
+                let qd: f64 = da.iter().zip(y).map(|(x, y)| (x * y).re).sum();
+                g.re += self.w[e] * (self.dlogw[e * p + k] * qa + 2.0 * qd);
+            }
+        }
+        self.n = 0;
+    }
+}
+
 struct Contract<'b> {
     adj: &'b [C64],
-    y: &'b mut Vec<C64>,
+    batch: &'b mut ContractBatch,
     grad: &'b mut [C64],
 }
 
 impl DiffSink for Contract<'_> {
     fn event(&mut self, w: f64, dlogw: &[f64], a: &[C64], da: &[C64]) {
-        let j = a.len();
-        // y = conj(Ā) conj(a)
-        for (i, y) in self.y.iter_mut().enumerate() {
-            let row = &self.adj[i * j..(i + 1) * j];
-            *y = row.iter().zip(a).map(|(m, x)| m * x.conj()).sum();
+        if self.batch.n == BATCH {
+            self.batch.flush(self.adj, self.grad);
         }
-        let qa: f64 = a.iter().zip(self.y.iter()).map(|(x, y)| (x * y).re).sum();
-        for (p, g) in self.grad.iter_mut().enumerate() {
-            let qd: f64 = da[p * j..(p + 1) * j]
-                .iter()
-                .zip(self.y.iter())
-                .map(|(x, y)| (x * y).re)
-                .sum();
-            g.re += w * (dlogw[p] * qa + 2.0 * qd);
+        let b = &mut *self.batch;
+        let (j, p, e) = (b.j, b.p, b.n);
+        b.a[e * j..(e + 1) * j].copy_from_slice(a);
+        for (d, s) in b.conj_a[e * j..(e + 1) * j].iter_mut().zip(a) {
+            *d = s.conj();
         }
+        b.da[e * p * j..(e + 1) * p * j].copy_from_slice(da);
+        b.w[e] = w;
+        b.dlogw[e * p..(e + 1) * p].copy_from_slice(dlogw);
+        b.n += 1;
     }
 }
 
 impl Estimator for CovarianceGradient<'_> {
-    type Scratch = (DiffScratch, Vec<C64>);
+    type Scratch = (DiffScratch, ContractBatch);
 
     fn outputs(&self) -> usize {
         self.inner.params().len()
@@ -399,19 +474,21 @@ impl Estimator for CovarianceGradient<'_> {
     fn scratch(&self) -> Self::Scratch {
         (
             self.inner.scratch(),
-            vec![C64::default(); self.inner.fields()],
+            ContractBatch::new(self.inner.fields(), self.inner.params().len()),
         )
     }
 
     fn run_chunk(&self, rng: &mut Rng, paths: u64, sc: &mut Self::Scratch, out: &mut [C64]) {
-        let (d, y) = sc;
+        let (d, batch) = sc;
         let mut sink = Contract {
             adj: &self.adjoint_conj,
-            y,
+            batch,
             grad: out,
         };
         for _ in 0..paths {
             self.inner.trace(rng, d, &mut sink);
         }
+        let Contract { adj, batch, grad } = sink;
+        batch.flush(adj, grad);
     }
 }
