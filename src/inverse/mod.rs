@@ -343,9 +343,32 @@ impl Fit<'_> {
             medium: medium_with(&self.scene.medium, &self.params, &current),
             ..self.scene.clone()
         };
-        let r0 = self
-            .target
-            .residuals(&self.covariance(&proposal, &current)?);
+        let (at_opt, kept) = {
+            let target = medium_with(&self.scene.medium, &self.params, &current);
+            let r = Reweighted::new(
+                &proposal,
+                target,
+                self.target.pairs(self.scene),
+                self.settings.reversed,
+                vec![],
+            )?;
+            let plan = Plan::new(
+                self.settings.seed,
+                self.settings.samples,
+                self.settings.chunk,
+            );
+            let est = ReweightedCovariance(r);
+            let root = merge(
+                run(&est, &plan, 0..plan.chunks, &self.target.keep(), &|_| {}),
+                plan.chunks,
+            )?;
+            (Estimate::from_block(&root, &plan), root.kept)
+        };
+        let r0 = self.target.residuals(&at_opt.mean);
+        // the objective's own Monte Carlo error, in residual units: each residual's total variance is
+        // target² + model², so residuals and their Jacobian are down-weighted by sqrt(1 + model²)
+        let model = self.target.model_stderr(&at_opt, &kept);
+        let damp: Vec<f64> = model.iter().map(|m| 1.0 / (1.0 + m * m).sqrt()).collect();
         let mut jac = vec![vec![0.0; self.params.len()]; r0.len()];
         for (k, p) in self.params.iter().enumerate() {
             let h = 1e-4 * p.unconstrained(current[k]).abs().max(1.0);
@@ -359,13 +382,13 @@ impl Fit<'_> {
             );
             let dv = vp[k] - vm[k];
             for t in 0..r0.len() {
-                jac[t][k] = (rp[t] - rm[t]) / dv;
+                jac[t][k] = (rp[t] - rm[t]) / dv * damp[t];
             }
         }
-        let loss: f64 = r0.iter().map(|r| r * r).sum();
+        let loss: f64 = r0.iter().zip(&damp).map(|(r, d)| (r * d).powi(2)).sum();
         let dof = (r0.len() as f64 - self.params.len() as f64).max(1.0);
-        // with target errors, inflate by the Birge ratio when the fit is worse than they allow (the
-        // model's own Monte Carlo noise is not in them); without, scale by the residual variance
+        // with errors (target and model), inflate by the Birge ratio when the fit is worse than
+        // they allow; without target errors, scale by the residual variance
         let scale = if self.target.has_errors() {
             (loss / dof).max(1.0)
         } else {

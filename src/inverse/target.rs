@@ -225,6 +225,63 @@ impl Target {
         }
     }
 
+    /// Outputs whose per-chunk means the model's error estimate needs (memory: `C00, Ctt, C0t`).
+    pub fn keep(&self) -> Vec<usize> {
+        match self {
+            Target::Memory { angles_deg, .. } => {
+                let j = angles_deg.len() + 1;
+                let mut k = vec![0];
+                for t in 1..j {
+                    k.extend([t * j + t, t]);
+                }
+                k
+            }
+            Target::Covariance { .. } => vec![],
+        }
+    }
+
+    /// Standard errors of the model's residuals (residual units): for a memory curve by the delta
+    /// method over the kept per-chunk means (correlations between `C00, Ctt, C0t` included); for a
+    /// covariance from the per-entry batch-means errors.
+    pub fn model_stderr(&self, est: &crate::mc::Estimate, kept: &[C64]) -> Vec<f64> {
+        match self {
+            Target::Memory {
+                angles_deg, stderr, ..
+            } => {
+                let j = angles_deg.len() + 1;
+                let nk = 2 * angles_deg.len() + 1;
+                let chunks = kept.len() / nk;
+                let c = &est.mean;
+                (1..j)
+                    .map(|t| {
+                        let (a, b, x) = (c[0].re, c[t * j + t].re, c[t]);
+                        let r = x.norm_sqr() / (a * b);
+                        let (ga, gb, gx) = (-r / a, -r / b, x * (2.0 / (a * b)));
+                        let (ib, ix) = (2 * t - 1, 2 * t);
+                        let mut var = 0.0;
+                        for k in 0..chunks {
+                            let row = &kept[k * nk..(k + 1) * nk];
+                            let dx = row[ix] - x;
+                            let lin = ga * (row[0].re - a)
+                                + gb * (row[ib].re - b)
+                                + gx.re * dx.re
+                                + gx.im * dx.im;
+                            var += lin * lin;
+                        }
+                        var /= (chunks as f64 - 1.0) * chunks as f64;
+                        var.sqrt() / stderr.as_ref().map_or(1.0, |s| s[t - 1])
+                    })
+                    .collect()
+            }
+            Target::Covariance { stderr, .. } => est
+                .stderr
+                .iter()
+                .zip(stderr)
+                .flat_map(|(m, s)| [m / s.max(1e-300) / 2f64.sqrt(); 2])
+                .collect(),
+        }
+    }
+
     /// Weighted residuals.
     pub fn residuals(&self, c: &[C64]) -> Vec<f64> {
         match self {
