@@ -794,31 +794,22 @@ pub fn wave_job(
                 .sqrt()
         })
         .collect();
-    let mut m = serde_json::Map::new();
-    m.insert("wavelength".into(), json!(cfg.wavelength));
-    m.insert(
-        "lights".into(),
-        Value::Array(scene.lights.iter().map(light_json).collect()),
-    );
-    m.insert(
-        "views".into(),
-        Value::Array(scene.views.iter().map(view_json).collect()),
-    );
-    m.insert("samples".into(), json!(realizations));
+    // the common echo (samples = realizations); chunking and path reversal do not apply here
+    let pseudo = Plan {
+        seed: cfg.render.seed,
+        chunk_paths: 1,
+        chunks: realizations,
+    };
+    let mut m = common(&cfg, &scene, &pseudo, seconds);
+    m.remove("chunk");
+    m.remove("reversed");
     m.insert("realizations".into(), json!(realizations));
-    m.insert("seed".into(), json!(cfg.render.seed));
     m.insert("solver".into(), json!("foldy-lax"));
     m.insert(
         "scatterers_mean".into(),
         json!(*counts.lock().expect("counter") as f64 / r),
     );
     m.insert("scatterers_expected".into(), json!(n));
-    m.insert("seconds".into(), json!(seconds));
-    m.insert("version".into(), json!(env!("CARGO_PKG_VERSION")));
-    m.insert(
-        "config".into(),
-        serde_json::to_value(&cfg).unwrap_or(Value::Null),
-    );
     m.insert("re".into(), nested4(nl, nv, |i| cov[i].re));
     m.insert("im".into(), nested4(nl, nv, |i| cov[i].im));
     m.insert("stderr".into(), nested4(nl, nv, |i| se[i]));
