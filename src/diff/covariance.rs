@@ -138,8 +138,7 @@ impl<'a> Reweighted<'a> {
         for (l, p) in lam.iter_mut().zip(&self.params) {
             *l = match p {
                 Param::SigmaS | Param::SigmaA => -0.5 * c.inside,
-                Param::G(k) if *k == kind => 0.5 * phase.dlog_rho_dg(mu).unwrap_or(0.0),
-                Param::G(_) => 0.0,
+                p => 0.5 * p.dlog_phase(kind, phase, mu),
             };
         }
         c.prop * (-0.5 * d_sigma_t * c.inside).exp() * phase.amplitude(mu)
@@ -246,7 +245,7 @@ impl<'a> Reweighted<'a> {
                 sc.dlogw[i] = match p {
                     Param::SigmaS => b / m.sigma_s - hops,
                     Param::SigmaA => -hops,
-                    Param::G(_) => sc.interior[i],
+                    Param::G(_) | Param::Bin(..) => sc.interior[i],
                 };
             }
             let j = self.pairs.len();
@@ -279,9 +278,7 @@ impl<'a> Reweighted<'a> {
             let phase = m.scattering.phase(kind);
             log_ratio += (phase.eval(mu) / phase0.eval(mu)).ln();
             for (v, p) in sc.interior.iter_mut().zip(&self.params) {
-                if *p == Param::G(kind) {
-                    *v += phase.dlog_rho_dg(mu).unwrap_or(0.0);
-                }
+                *v += p.dlog_phase(kind, phase, mu);
             }
             x += w_out * d;
             w_in = w_out;

@@ -22,6 +22,8 @@ pub enum Param {
     SigmaA,
     /// Henyey–Greenstein `g` of mixture component `c` (0 for a single type).
     G(usize),
+    /// Value at node `k` of the tabulated phase function of component `c` (normalisation kept).
+    Bin(usize, usize),
 }
 
 impl Param {
@@ -31,6 +33,7 @@ impl Param {
             Param::SigmaA => "sigma_a".into(),
             Param::G(0) => "g".into(),
             Param::G(c) => format!("g[{c}]"),
+            Param::Bin(c, k) => format!("bin[{c}][{k}]"),
         }
     }
 
@@ -43,7 +46,30 @@ impl Param {
                 Some(PhaseFunction::HenyeyGreenstein { g }) => Some(*g),
                 _ => None,
             },
+            Param::Bin(c, k) => match m.scattering.components().get(*c).map(|x| &x.1) {
+                Some(PhaseFunction::Tabulated(t)) => t.node_value(*k),
+                _ => None,
+            },
         }
+    }
+
+    /// `∂ log ρ_kind(μ) / ∂θ` for phase-function parameters of component `kind` (0 for others).
+    #[inline]
+    pub fn dlog_phase(&self, kind: usize, phase: &PhaseFunction, mu: f64) -> f64 {
+        match (self, phase) {
+            (Param::G(c), PhaseFunction::HenyeyGreenstein { .. }) if *c == kind => {
+                phase.dlog_rho_dg(mu).unwrap_or(0.0)
+            }
+            (Param::Bin(c, k), PhaseFunction::Tabulated(t)) if *c == kind => {
+                t.dlog_rho_dnode(mu, *k)
+            }
+            _ => 0.0,
+        }
+    }
+
+    /// Whether this is a phase-function parameter (enters at vertices, not through coefficients).
+    pub fn is_phase(&self) -> bool {
+        matches!(self, Param::G(_) | Param::Bin(..))
     }
 
     /// A copy of `m` with this parameter set to `v`.
@@ -52,21 +78,22 @@ impl Param {
         match self {
             Param::SigmaS => out.sigma_s = v,
             Param::SigmaA => out.sigma_a = v,
-            Param::G(c) => {
+            Param::G(c) | Param::Bin(c, _) => {
                 let comps = m
                     .scattering
                     .components()
                     .iter()
                     .enumerate()
                     .map(|(i, (w, p))| {
-                        (
-                            *w,
-                            if i == *c {
-                                PhaseFunction::HenyeyGreenstein { g: v }
-                            } else {
-                                p.clone()
-                            },
-                        )
+                        let q = match (self, p) {
+                            (Param::G(_), _) if i == *c => PhaseFunction::HenyeyGreenstein { g: v },
+                            (Param::Bin(_, k), PhaseFunction::Tabulated(t)) if i == *c => t
+                                .with_node_value(*k, v)
+                                .map(PhaseFunction::Tabulated)
+                                .unwrap_or_else(|_| p.clone()),
+                            _ => p.clone(),
+                        };
+                        (*w, q)
                     })
                     .collect();
                 out.scattering = crate::medium::Scattering::mixture(comps);

@@ -182,6 +182,56 @@ impl Table {
         (self.cos[i] + t.clamp(0.0, h)).clamp(-1.0, 1.0)
     }
 
+    /// The normalised value `ρ_k` at node `k`.
+    pub fn node_value(&self, k: usize) -> Option<f64> {
+        self.rho.get(k).copied()
+    }
+
+    /// The table with node `k` set to `v` (amplitude phases kept) and renormalised.
+    pub fn with_node_value(&self, k: usize, v: f64) -> Result<Table, TableError> {
+        let s = (0..self.rho.len())
+            .map(|i| {
+                cis(self.arg[i])
+                    * if i == k {
+                        v.max(0.0).sqrt()
+                    } else {
+                        self.rho[i].sqrt()
+                    }
+            })
+            .collect();
+        if v < 0.0 {
+            return Err(TableError::Negative(k, v));
+        }
+        Table::from_amplitude(Some(self.cos.clone()), s)
+    }
+
+    /// `∂ log ρ(μ) / ∂v_k` for the node value `v_k` with the normalisation kept:
+    /// `hat_k(μ)/ρ(μ) − 2π w_k` (`w_k` the trapezoid weight of node k; the table is normalised).
+    pub fn dlog_rho_dnode(&self, mu: f64, k: usize) -> f64 {
+        let n = self.cos.len();
+        let (i, t) = self.segment(mu);
+        let hat = if k == i {
+            1.0 - t
+        } else if k == i + 1 {
+            t
+        } else {
+            0.0
+        };
+        let left = if k > 0 {
+            self.cos[k] - self.cos[k - 1]
+        } else {
+            0.0
+        };
+        let right = if k + 1 < n {
+            self.cos[k + 1] - self.cos[k]
+        } else {
+            0.0
+        };
+        let rho = self.rho(mu);
+        let ratio = if rho > 0.0 { hat / rho } else { 0.0 };
+        ratio - 2.0 * PI * 0.5 * (left + right)
+    }
+
     /// The nodes (cosines) and normalised `ρ` values.
     pub fn nodes(&self) -> (&[f64], &[f64]) {
         (&self.cos, &self.rho)
