@@ -291,10 +291,10 @@ fn memory_loss_gradient_matches_finite_differences() {
 }
 
 /// Gradients with respect to the node values of a tabulated (complex-amplitude) phase function, with
-/// the normalisation kept, mixed with a Henyey–Greenstein type: central differences with common
+/// the normalisation kept, mixed with a Henyey–Greenstein type, and to the types' shares of σ_s: central differences with common
 /// random numbers agree to 1e-5. Catches a missing normalisation term or a wrong hat function.
 #[test]
-fn tabulated_bin_gradients_match_finite_differences() {
+fn tabulated_bin_and_mixture_weight_gradients_match_finite_differences() {
     use lightpath::medium::Table;
     let s6 = [
         (1.0, 0.0),
@@ -314,11 +314,13 @@ fn tabulated_bin_gradients_match_finite_differences() {
     let params = vec![
         Param::Bin(0, 0),
         Param::Bin(0, 2),
+        Param::Weight(0),
         Param::Bin(0, 5),
         Param::G(1),
+        Param::Weight(1),
     ];
     let mut target = s.medium.clone();
-    for p in &params[..2] {
+    for p in &params[..3] {
         let v = p.get(&target).unwrap();
         target = p.set(&target, v * 1.1);
     }

@@ -176,14 +176,26 @@ impl<'a> Reweighted<'a> {
                 sc.da[p * self.pairs.len() + n] = sc.a[n] * sc.lam[p];
             }
         }
+        // particle types are drawn with the proposal's shares β⁰; the target's β enters as a ratio
+        let beta = |med: &Medium, k: usize| med.scattering.components()[k].0;
+        let type_ratio = |k: usize| (beta(m, k) / beta(m0, k)).ln();
+        let dlog_beta = |p: &Param, k: usize| match p {
+            Param::Weight(c) => f64::from(u8::from(*c == k)) / beta(m, k) - 1.0,
+            _ => 0.0,
+        };
         for (p, d) in self.params.iter().zip(sc.dlogw.iter_mut()) {
             *d = if *p == Param::SigmaS {
                 1.0 / m.sigma_s
             } else {
-                0.0
+                dlog_beta(p, kind1)
             };
         }
-        sink.event(m.sigma_s * vol, &sc.dlogw, &sc.a, &sc.da);
+        sink.event(
+            m.sigma_s * vol * type_ratio(kind1).exp(),
+            &sc.dlogw,
+            &sc.a,
+            &sc.da,
+        );
 
         // multiple scattering
         let w1 = uniform_sphere(uniform(rng), uniform(rng));
@@ -239,13 +251,16 @@ impl<'a> Reweighted<'a> {
             let b = bounces as f64;
             let log_w = b * m.sigma_s.ln() - m.sigma_t() * hops - (b - 1.0) * sigma_t0.ln()
                 + sigma_t0 * hops
-                + log_ratio;
+                + log_ratio
+                + type_ratio(kind1)
+                + type_ratio(kind);
             let w = base * roulette * log_w.exp();
             for (i, p) in self.params.iter().enumerate() {
                 sc.dlogw[i] = match p {
                     Param::SigmaS => b / m.sigma_s - hops,
                     Param::SigmaA => -hops,
                     Param::G(_) | Param::Bin(..) => sc.interior[i],
+                    Param::Weight(_) => sc.interior[i] + dlog_beta(p, kind1) + dlog_beta(p, kind),
                 };
             }
             let j = self.pairs.len();
@@ -276,9 +291,9 @@ impl<'a> Reweighted<'a> {
             }
             let mu = w_in.dot(w_out);
             let phase = m.scattering.phase(kind);
-            log_ratio += (phase.eval(mu) / phase0.eval(mu)).ln();
+            log_ratio += (phase.eval(mu) / phase0.eval(mu)).ln() + type_ratio(kind);
             for (v, p) in sc.interior.iter_mut().zip(&self.params) {
-                *v += p.dlog_phase(kind, phase, mu);
+                *v += p.dlog_phase(kind, phase, mu) + dlog_beta(p, kind);
             }
             x += w_out * d;
             w_in = w_out;

@@ -24,6 +24,9 @@ pub enum Param {
     G(usize),
     /// Value at node `k` of the tabulated phase function of component `c` (normalisation kept).
     Bin(usize, usize),
+    /// Share `β_c` of σ_s of particle type `c` (paper 001, Eq. 44); the shares stay normalised, so
+    /// this is the derivative with respect to `c`'s unnormalised weight at `Σ = 1`.
+    Weight(usize),
 }
 
 impl Param {
@@ -34,6 +37,7 @@ impl Param {
             Param::G(0) => "g".into(),
             Param::G(c) => format!("g[{c}]"),
             Param::Bin(c, k) => format!("bin[{c}][{k}]"),
+            Param::Weight(c) => format!("weight[{c}]"),
         }
     }
 
@@ -50,6 +54,7 @@ impl Param {
                 Some(PhaseFunction::Tabulated(t)) => t.node_value(*k),
                 _ => None,
             },
+            Param::Weight(c) => m.scattering.components().get(*c).map(|x| x.0),
         }
     }
 
@@ -78,6 +83,16 @@ impl Param {
         match self {
             Param::SigmaS => out.sigma_s = v,
             Param::SigmaA => out.sigma_a = v,
+            Param::Weight(c) => {
+                let comps = m
+                    .scattering
+                    .components()
+                    .iter()
+                    .enumerate()
+                    .map(|(i, (w, p))| (if i == *c { v } else { *w }, p.clone()))
+                    .collect();
+                out.scattering = crate::medium::Scattering::mixture(comps);
+            }
             Param::G(c) | Param::Bin(c, _) => {
                 let comps = m
                     .scattering
