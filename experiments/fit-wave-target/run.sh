@@ -1,0 +1,8 @@
+#!/usr/bin/env bash
+# Recover the mean free path from a wave-solver covariance (issue #4): the target is exact wave optics
+# (Foldy–Lax, 8000 placements), the model is the Monte Carlo covariance.
+set -euo pipefail
+cd "$(dirname "$0")"
+lp() { cargo run --release -q -- "$@"; }
+lp wave truth.toml --out out/wave --realizations 8000 --quiet
+time lp fit start.toml --target out/wave/covariance.json --fit mfp --out out/fit --stages 6 --iterations 5 --quiet
