@@ -4,6 +4,7 @@
 
 pub mod bench;
 pub mod diff;
+pub mod eikonal;
 pub mod inverse;
 pub mod io;
 pub mod jobs;

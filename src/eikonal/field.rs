@@ -1,0 +1,268 @@
+//! Refractive-index fields `n(x)` with analytic gradients and Hessians (issue #5), bounded by a
+//! geometry outside which `n` is the constant `n_out`.
+
+use glam::{DMat3, DVec3};
+
+/// An index field: value, gradient and Hessian of `n`.
+pub trait IndexField: Sync {
+    fn n(&self, x: DVec3) -> f64;
+    fn grad(&self, x: DVec3) -> DVec3;
+    fn hessian(&self, x: DVec3) -> DMat3;
+}
+
+/// Analytic index profiles (centred at the origin; radial profiles use `r = |x|`, fibre profiles the
+/// distance from the z axis).
+#[derive(Clone, Debug, PartialEq)]
+pub enum Profile {
+    Constant {
+        n: f64,
+    },
+    /// `n = n0 + g·x`.
+    Linear {
+        n0: f64,
+        gradient: DVec3,
+    },
+    /// Luneburg lens `n = sqrt(2 − (r/R)²)`.
+    Luneburg {
+        radius: f64,
+    },
+    /// Maxwell fish-eye `n = 2 / (1 + (r/R)²)`.
+    MaxwellFishEye {
+        radius: f64,
+    },
+    /// Parabolic GRIN fibre `n² = n0² (1 − α² ρ²)`, `ρ` the distance from the z axis.
+    ParabolicFibre {
+        n0: f64,
+        alpha: f64,
+    },
+    /// Hyperbolic-secant GRIN fibre `n = n0 sech(α ρ)`.
+    SechFibre {
+        n0: f64,
+        alpha: f64,
+    },
+}
+
+/// `n = f(q)` of a quadratic form `q = xᵀ D x` (D diagonal): value, `f'`, `f''` give all derivatives.
+fn quadratic(f: (f64, f64, f64), d: DVec3, x: DVec3) -> (f64, DVec3, DMat3) {
+    let (v, f1, f2) = f;
+    let dq = 2.0 * d * x; // ∇q
+    let grad = dq * f1;
+    let hess = DMat3::from_diagonal(2.0 * d) * f1 + outer(dq, dq) * f2;
+    (v, grad, hess)
+}
+
+fn outer(a: DVec3, b: DVec3) -> DMat3 {
+    DMat3::from_cols(a * b.x, a * b.y, a * b.z)
+}
+
+impl Profile {
+    fn eval(&self, x: DVec3) -> (f64, DVec3, DMat3) {
+        match *self {
+            Profile::Constant { n } => (n, DVec3::ZERO, DMat3::ZERO),
+            Profile::Linear { n0, gradient } => (n0 + gradient.dot(x), gradient, DMat3::ZERO),
+            Profile::Luneburg { radius } => {
+                // n = sqrt(2 − q), q = r²/R²
+                let d = DVec3::splat(1.0 / (radius * radius));
+                let q = (d * x).dot(x);
+                let n = (2.0 - q).sqrt();
+                quadratic((n, -0.5 / n, -0.25 / (n * n * n)), d, x)
+            }
+            Profile::MaxwellFishEye { radius } => {
+                let d = DVec3::splat(1.0 / (radius * radius));
+                let q = (d * x).dot(x);
+                let n = 2.0 / (1.0 + q);
+                quadratic((n, -2.0 / (1.0 + q).powi(2), 4.0 / (1.0 + q).powi(3)), d, x)
+            }
+            Profile::ParabolicFibre { n0, alpha } => {
+                // n = n0 sqrt(1 − q), q = α² ρ²
+                let d = DVec3::new(alpha * alpha, alpha * alpha, 0.0);
+                let q = (d * x).dot(x);
+                let s = (1.0 - q).sqrt();
+                quadratic((n0 * s, -0.5 * n0 / s, -0.25 * n0 / (s * s * s)), d, x)
+            }
+            Profile::SechFibre { n0, alpha } => {
+                let rho = (x.x * x.x + x.y * x.y).sqrt();
+                let t = alpha * rho;
+                let sech = 1.0 / t.cosh();
+                let n = n0 * sech;
+                // dn/dρ = −n0 α sech tanh; d²n/dρ² = n0 α² sech (1 − 2 sech²)
+                let d1 = -n0 * alpha * sech * t.tanh();
+                let d2 = n0 * alpha * alpha * sech * (1.0 - 2.0 * sech * sech);
+                if rho < 1e-12 {
+                    return (
+                        n,
+                        DVec3::ZERO,
+                        DMat3::from_diagonal(DVec3::new(d2, d2, 0.0)),
+                    );
+                }
+                let e = DVec3::new(x.x / rho, x.y / rho, 0.0);
+                let perp = DMat3::from_diagonal(DVec3::new(1.0, 1.0, 0.0)) - outer(e, e);
+                (n, e * d1, outer(e, e) * d2 + perp * (d1 / rho))
+            }
+        }
+    }
+}
+
+/// Where a profile applies; outside it `n = n_out`.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Bounds {
+    Everywhere,
+    Sphere {
+        radius: f64,
+    },
+    /// Cylinder about the z axis, `|z| ≤ half_length`.
+    Cylinder {
+        radius: f64,
+        half_length: f64,
+    },
+    Box {
+        half: DVec3,
+    },
+}
+
+impl Bounds {
+    pub fn contains(&self, x: DVec3) -> bool {
+        match *self {
+            Bounds::Everywhere => true,
+            Bounds::Sphere { radius } => x.length_squared() <= radius * radius,
+            Bounds::Cylinder {
+                radius,
+                half_length,
+            } => x.x * x.x + x.y * x.y <= radius * radius && x.z.abs() <= half_length,
+            Bounds::Box { half } => x.abs().cmple(half).all(),
+        }
+    }
+
+    /// Entry and exit parameters of the ray `o + t w` (unit `w`), if it meets the region.
+    pub fn interval(&self, o: DVec3, w: DVec3) -> Option<(f64, f64)> {
+        match *self {
+            Bounds::Everywhere => Some((f64::NEG_INFINITY, f64::INFINITY)),
+            Bounds::Sphere { radius } => {
+                let b = o.dot(w);
+                let c = o.length_squared() - radius * radius;
+                let disc = b * b - c;
+                (disc > 0.0).then(|| (-b - disc.sqrt(), -b + disc.sqrt()))
+            }
+            Bounds::Box { half } => crate::medium::Geometry::Box { half }.ray_interval(o, w),
+            Bounds::Cylinder {
+                radius,
+                half_length,
+            } => {
+                let (a, b, c) = (
+                    w.x * w.x + w.y * w.y,
+                    o.x * w.x + o.y * w.y,
+                    o.x * o.x + o.y * o.y - radius * radius,
+                );
+                let (mut t0, mut t1) = if a < 1e-300 {
+                    if c > 0.0 {
+                        return None;
+                    }
+                    (f64::NEG_INFINITY, f64::INFINITY)
+                } else {
+                    let disc = b * b - a * c;
+                    if disc <= 0.0 {
+                        return None;
+                    }
+                    ((-b - disc.sqrt()) / a, (-b + disc.sqrt()) / a)
+                };
+                if w.z != 0.0 {
+                    let (za, zb) = ((-half_length - o.z) / w.z, (half_length - o.z) / w.z);
+                    t0 = t0.max(za.min(zb));
+                    t1 = t1.min(za.max(zb));
+                } else if o.z.abs() > half_length {
+                    return None;
+                }
+                (t0 < t1).then_some((t0, t1))
+            }
+        }
+    }
+}
+
+/// A bounded analytic field, optionally the sum of a background and perturbations (`n = Σ n_i`
+/// inside, each profile contributing its value).
+#[derive(Clone, Debug, PartialEq)]
+pub struct BoundedField {
+    pub profiles: Vec<Profile>,
+    pub bounds: Bounds,
+    pub n_out: f64,
+}
+
+impl BoundedField {
+    pub fn single(profile: Profile, bounds: Bounds, n_out: f64) -> Self {
+        BoundedField {
+            profiles: vec![profile],
+            bounds,
+            n_out,
+        }
+    }
+}
+
+impl IndexField for BoundedField {
+    fn n(&self, x: DVec3) -> f64 {
+        if !self.bounds.contains(x) {
+            return self.n_out;
+        }
+        self.profiles.iter().map(|p| p.eval(x).0).sum()
+    }
+    fn grad(&self, x: DVec3) -> DVec3 {
+        if !self.bounds.contains(x) {
+            return DVec3::ZERO;
+        }
+        self.profiles.iter().map(|p| p.eval(x).1).sum()
+    }
+    fn hessian(&self, x: DVec3) -> DMat3 {
+        if !self.bounds.contains(x) {
+            return DMat3::ZERO;
+        }
+        self.profiles
+            .iter()
+            .fold(DMat3::ZERO, |acc, p| acc + p.eval(x).2)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Analytic gradients and Hessians against central differences, for every profile.
+    #[test]
+    fn derivatives_match_finite_differences() {
+        let profiles = [
+            Profile::Linear {
+                n0: 1.3,
+                gradient: DVec3::new(0.1, -0.2, 0.05),
+            },
+            Profile::Luneburg { radius: 1.5 },
+            Profile::MaxwellFishEye { radius: 0.8 },
+            Profile::ParabolicFibre {
+                n0: 1.5,
+                alpha: 0.4,
+            },
+            Profile::SechFibre {
+                n0: 1.5,
+                alpha: 0.7,
+            },
+        ];
+        let x = DVec3::new(0.31, -0.22, 0.4);
+        let h = 1e-5;
+        for p in profiles {
+            let (_, g, hs) = p.eval(x);
+            for a in 0..3 {
+                let mut e = DVec3::ZERO;
+                e[a] = h;
+                let fd = (p.eval(x + e).0 - p.eval(x - e).0) / (2.0 * h);
+                assert!(
+                    (g[a] - fd).abs() < 1e-8,
+                    "{p:?} grad[{a}]: {} vs {fd}",
+                    g[a]
+                );
+                let fdg = (p.eval(x + e).1 - p.eval(x - e).1) / (2.0 * h);
+                let col = hs.col(a);
+                assert!(
+                    (col - fdg).length() < 1e-7,
+                    "{p:?} hessian col {a}: {col} vs {fdg}"
+                );
+            }
+        }
+    }
+}

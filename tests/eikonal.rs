@@ -1,0 +1,128 @@
+//! Ray tracing in graded-index media (issue #5): integrator order on an exact solution, Luneburg and
+//! Maxwell fish-eye imaging, exact time reversibility.
+
+use glam::DVec3;
+use lightpath::eikonal::{BoundedField, Bounds, Profile, Ray, Tracer};
+
+fn luneburg() -> BoundedField {
+    BoundedField::single(
+        Profile::Luneburg { radius: 1.0 },
+        Bounds::Sphere { radius: 1.0 },
+        1.0,
+    )
+}
+
+/// For `n² = 2 − r²` the σ-form motion is `x(σ) = x0 cos σ + v0 sin σ`: the leapfrog error at σ = 1
+/// falls by 4 when the step halves (second order).
+#[test]
+fn leapfrog_is_second_order() {
+    let f = BoundedField::single(Profile::Luneburg { radius: 1.0 }, Bounds::Everywhere, 1.0);
+    let x0 = DVec3::new(0.3, -0.1, 0.2);
+    let v0 = DVec3::new(0.2, 0.9, -0.4).normalize() * (2.0 - x0.length_squared()).sqrt();
+    let exact = x0 * 1f64.cos() + v0 * 1f64.sin();
+    let mut errs = Vec::new();
+    for n in [10usize, 20, 40, 80] {
+        let t = Tracer {
+            field: &f,
+            step: 1.0 / n as f64,
+            max_steps: 0,
+        };
+        let r = t.steps(Ray { x: x0, v: v0 }, n, 1.0 / n as f64);
+        errs.push((r.x - exact).length());
+    }
+    for w in errs.windows(2) {
+        let order = (w[0] / w[1]).log2();
+        assert!(
+            (order - 2.0).abs() < 0.1,
+            "observed order {order} from errors {errs:?}"
+        );
+    }
+}
+
+/// Forward then backward (negated step) returns to the start to round-off.
+#[test]
+fn time_reversible() {
+    let f = BoundedField::single(
+        Profile::SechFibre {
+            n0: 1.5,
+            alpha: 0.8,
+        },
+        Bounds::Everywhere,
+        1.0,
+    );
+    let t = Tracer {
+        field: &f,
+        step: 0.01,
+        max_steps: 0,
+    };
+    let r0 = Ray {
+        x: DVec3::new(0.4, -0.2, 0.0),
+        v: DVec3::new(0.1, 0.2, 1.0).normalize() * f_n(&f, DVec3::new(0.4, -0.2, 0.0)),
+    };
+    let r1 = t.steps(r0, 5000, 0.01);
+    let back = t.steps(Ray { x: r1.x, v: r1.v }, 5000, -0.01);
+    assert!(
+        (back.x - r0.x).length() < 1e-10 && (back.v - r0.v).length() < 1e-10,
+        "{back:?} vs {r0:?}"
+    );
+    assert!((r1.x - r0.x).length() > 1.0, "the ray must have moved");
+}
+
+fn f_n(f: &BoundedField, x: DVec3) -> f64 {
+    use lightpath::eikonal::IndexField;
+    f.n(x)
+}
+
+/// A collimated beam through a Luneburg lens focuses at the antipodal point of the sphere; the error
+/// falls with the step.
+#[test]
+fn luneburg_focuses_a_collimated_beam() {
+    let f = luneburg();
+    let mut worst_prev = f64::INFINITY;
+    for step in [0.02, 0.005] {
+        let t = Tracer {
+            field: &f,
+            step,
+            max_steps: 100_000,
+        };
+        let mut worst: f64 = 0.0;
+        for b in [0.05, 0.3, 0.6, 0.85] {
+            for phi in [0.0f64, 2.0] {
+                let o = DVec3::new(b * phi.cos(), b * phi.sin(), -3.0);
+                let end = t.trace(o, DVec3::Z);
+                assert!(end.entered && end.exited);
+                worst = worst.max((end.x - DVec3::Z).length());
+            }
+        }
+        assert!(worst < 2e-3, "step {step}: focus error {worst}");
+        assert!(worst < worst_prev, "error must fall with the step");
+        worst_prev = worst;
+    }
+}
+
+/// The Maxwell fish-eye images a point on its surface to the antipodal point.
+#[test]
+fn maxwell_fish_eye_images_to_the_antipode() {
+    let f = BoundedField::single(
+        Profile::MaxwellFishEye { radius: 1.0 },
+        Bounds::Sphere { radius: 1.0 },
+        1.0,
+    );
+    let t = Tracer {
+        field: &f,
+        step: 0.002,
+        max_steps: 1_000_000,
+    };
+    let src = DVec3::new(0.0, 0.0, -1.0 + 1e-9);
+    for (a, phi) in [(0.2f64, 0.0f64), (0.7, 1.0), (1.2, 2.5)] {
+        let dir = DVec3::new(a.sin() * phi.cos(), a.sin() * phi.sin(), a.cos());
+        let end = t.trace(src, dir);
+        assert!(end.exited, "ray did not exit");
+        assert!(
+            (end.x - DVec3::Z).length() < 2e-3,
+            "angle {a}: exit at {}",
+            end.x
+        );
+        assert!(end.optical_path > 0.0);
+    }
+}
