@@ -266,3 +266,52 @@ mod tests {
         }
     }
 }
+
+impl Profile {
+    /// `(∂n/∂θ, ∇(∂n/∂θ))` for analytic parameter `which` of this profile, or `None` if not
+    /// differentiable here. Parameters: Constant `[n]`; Linear `[n0, gx, gy, gz]`; Luneburg `[R]`;
+    /// Maxwell fish-eye `[R]`; parabolic fibre `[n0, α]`; sech fibre `[n0]`.
+    pub fn dparam(&self, x: DVec3, which: usize) -> Option<(f64, DVec3)> {
+        let (n, grad, _) = self.eval(x);
+        match (self, which) {
+            (Profile::Constant { .. }, 0) => Some((1.0, DVec3::ZERO)),
+            (Profile::Linear { .. }, 0) => Some((1.0, DVec3::ZERO)),
+            (Profile::Linear { .. }, k @ 1..=3) => {
+                let mut e = DVec3::ZERO;
+                e[k - 1] = 1.0;
+                Some((x[k - 1], e))
+            }
+            (Profile::Luneburg { radius }, 0) => {
+                let r3 = radius.powi(3);
+                let r2 = x.length_squared();
+                let d = r2 / r3 / n;
+                Some((d, x * (2.0 / r3 / n) - grad * (d / n)))
+            }
+            (Profile::MaxwellFishEye { radius }, 0) => {
+                let (r3, q) = (radius.powi(3), x.length_squared() / (radius * radius));
+                let r2 = x.length_squared();
+                let d = 4.0 * r2 / (r3 * (1.0 + q).powi(2));
+                let dq = x * (2.0 / (radius * radius));
+                Some((
+                    d,
+                    (x * 2.0 / (1.0 + q).powi(2) - dq * (2.0 * r2 / (1.0 + q).powi(3)))
+                        * (4.0 / r3),
+                ))
+            }
+            (Profile::ParabolicFibre { n0, .. }, 0) | (Profile::SechFibre { n0, .. }, 0) => {
+                Some((n / n0, grad / *n0))
+            }
+            (Profile::ParabolicFibre { n0, alpha }, 1) => {
+                let rho2 = x.x * x.x + x.y * x.y;
+                let s = n / n0;
+                let perp = DVec3::new(x.x, x.y, 0.0);
+                let ds = -perp * (alpha * alpha / s);
+                Some((
+                    -n0 * alpha * rho2 / s,
+                    -(perp * 2.0 / s - ds * (rho2 / (s * s))) * (n0 * alpha),
+                ))
+            }
+            _ => None,
+        }
+    }
+}

@@ -1,8 +1,10 @@
 //! Light in media whose refractive index varies continuously (issue #5, paper 002 Sec. 3): index
-//! fields and a time-reversible symplectic ray tracer.
+//! fields, a time-reversible symplectic ray tracer and its constant-memory adjoint.
 
+pub mod adjoint;
 pub mod field;
 pub mod trace;
 
+pub use adjoint::{FieldParam, RayGradient};
 pub use field::{BoundedField, Bounds, IndexField, Profile};
 pub use trace::{Ray, RayEnd, Tracer};
