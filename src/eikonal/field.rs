@@ -220,53 +220,6 @@ impl IndexField for BoundedField {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Analytic gradients and Hessians against central differences, for every profile.
-    #[test]
-    fn derivatives_match_finite_differences() {
-        let profiles = [
-            Profile::Linear {
-                n0: 1.3,
-                gradient: DVec3::new(0.1, -0.2, 0.05),
-            },
-            Profile::Luneburg { radius: 1.5 },
-            Profile::MaxwellFishEye { radius: 0.8 },
-            Profile::ParabolicFibre {
-                n0: 1.5,
-                alpha: 0.4,
-            },
-            Profile::SechFibre {
-                n0: 1.5,
-                alpha: 0.7,
-            },
-        ];
-        let x = DVec3::new(0.31, -0.22, 0.4);
-        let h = 1e-5;
-        for p in profiles {
-            let (_, g, hs) = p.eval(x);
-            for a in 0..3 {
-                let mut e = DVec3::ZERO;
-                e[a] = h;
-                let fd = (p.eval(x + e).0 - p.eval(x - e).0) / (2.0 * h);
-                assert!(
-                    (g[a] - fd).abs() < 1e-8,
-                    "{p:?} grad[{a}]: {} vs {fd}",
-                    g[a]
-                );
-                let fdg = (p.eval(x + e).1 - p.eval(x - e).1) / (2.0 * h);
-                let col = hs.col(a);
-                assert!(
-                    (col - fdg).length() < 1e-7,
-                    "{p:?} hessian col {a}: {col} vs {fdg}"
-                );
-            }
-        }
-    }
-}
-
 impl Profile {
     /// `(∂n/∂θ, ∇(∂n/∂θ))` for analytic parameter `which` of this profile, or `None` if not
     /// differentiable here. Parameters: Constant `[n]`; Linear `[n0, gx, gy, gz]`; Luneburg `[R]`;
@@ -312,6 +265,53 @@ impl Profile {
                 ))
             }
             _ => None,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Analytic gradients and Hessians against central differences, for every profile.
+    #[test]
+    fn derivatives_match_finite_differences() {
+        let profiles = [
+            Profile::Linear {
+                n0: 1.3,
+                gradient: DVec3::new(0.1, -0.2, 0.05),
+            },
+            Profile::Luneburg { radius: 1.5 },
+            Profile::MaxwellFishEye { radius: 0.8 },
+            Profile::ParabolicFibre {
+                n0: 1.5,
+                alpha: 0.4,
+            },
+            Profile::SechFibre {
+                n0: 1.5,
+                alpha: 0.7,
+            },
+        ];
+        let x = DVec3::new(0.31, -0.22, 0.4);
+        let h = 1e-5;
+        for p in profiles {
+            let (_, g, hs) = p.eval(x);
+            for a in 0..3 {
+                let mut e = DVec3::ZERO;
+                e[a] = h;
+                let fd = (p.eval(x + e).0 - p.eval(x - e).0) / (2.0 * h);
+                assert!(
+                    (g[a] - fd).abs() < 1e-8,
+                    "{p:?} grad[{a}]: {} vs {fd}",
+                    g[a]
+                );
+                let fdg = (p.eval(x + e).1 - p.eval(x - e).1) / (2.0 * h);
+                let col = hs.col(a);
+                assert!(
+                    (col - fdg).length() < 1e-7,
+                    "{p:?} hessian col {a}: {col} vs {fdg}"
+                );
+            }
         }
     }
 }
