@@ -41,9 +41,13 @@ fn dforce(f: &BoundedField, x: DVec3, p: &FieldParam) -> Result<DVec3, String> {
         .profiles
         .get(p.profile)
         .ok_or_else(|| format!("no profile {}", p.profile))?;
-    let (dn, dgrad) = prof
-        .dparam(x, p.which)
-        .ok_or_else(|| format!("parameter {} of {prof:?} is not differentiable", p.which))?;
+    let (dn, dgrad) = prof.dparam(x, p.which).ok_or_else(|| {
+        format!(
+            "parameter {} of the {} profile is not differentiable",
+            p.which,
+            prof.kind()
+        )
+    })?;
     Ok(f.grad(x) * dn + dgrad * f.n(x))
 }
 

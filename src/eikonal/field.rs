@@ -40,6 +40,8 @@ pub enum Profile {
         n0: f64,
         alpha: f64,
     },
+    /// Sampled field (trilinear or prefiltered tricubic B-spline); parameters are its coefficients.
+    Grid(super::grid::GridField),
 }
 
 /// `n = f(q)` of a quadratic form `q = xᵀ D x` (D diagonal): value, `f'`, `f''` give all derivatives.
@@ -56,6 +58,19 @@ fn outer(a: DVec3, b: DVec3) -> DMat3 {
 }
 
 impl Profile {
+    /// A short name for messages.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Profile::Constant { .. } => "constant",
+            Profile::Linear { .. } => "linear",
+            Profile::Luneburg { .. } => "luneburg",
+            Profile::MaxwellFishEye { .. } => "maxwell_fish_eye",
+            Profile::ParabolicFibre { .. } => "parabolic_fibre",
+            Profile::SechFibre { .. } => "sech_fibre",
+            Profile::Grid(_) => "grid",
+        }
+    }
+
     fn eval(&self, x: DVec3) -> (f64, DVec3, DMat3) {
         match *self {
             Profile::Constant { n } => (n, DVec3::ZERO, DMat3::ZERO),
@@ -80,6 +95,7 @@ impl Profile {
                 let s = (1.0 - q).sqrt();
                 quadratic((n0 * s, -0.5 * n0 / s, -0.25 * n0 / (s * s * s)), d, x)
             }
+            Profile::Grid(ref g) => g.eval(x),
             Profile::SechFibre { n0, alpha } => {
                 let rho = (x.x * x.x + x.y * x.y).sqrt();
                 let t = alpha * rho;
@@ -223,7 +239,7 @@ impl IndexField for BoundedField {
 impl Profile {
     /// `(∂n/∂θ, ∇(∂n/∂θ))` for analytic parameter `which` of this profile, or `None` if not
     /// differentiable here. Parameters: Constant `[n]`; Linear `[n0, gx, gy, gz]`; Luneburg `[R]`;
-    /// Maxwell fish-eye `[R]`; parabolic fibre `[n0, α]`; sech fibre `[n0]`.
+    /// Maxwell fish-eye `[R]`; parabolic fibre `[n0, α]`; sech fibre `[n0]`; grid: coefficient index.
     pub fn dparam(&self, x: DVec3, which: usize) -> Option<(f64, DVec3)> {
         let (n, grad, _) = self.eval(x);
         match (self, which) {
@@ -254,6 +270,7 @@ impl Profile {
             (Profile::ParabolicFibre { n0, .. }, 0) | (Profile::SechFibre { n0, .. }, 0) => {
                 Some((n / n0, grad / *n0))
             }
+            (Profile::Grid(g), k) if k < g.coef.len() => Some(g.dcoef(x, k)),
             (Profile::ParabolicFibre { n0, alpha }, 1) => {
                 let rho2 = x.x * x.x + x.y * x.y;
                 let s = n / n0;

@@ -3,6 +3,7 @@
 
 pub mod adjoint;
 pub mod field;
+pub mod grid;
 pub mod trace;
 
 pub use adjoint::{FieldParam, RayGradient};
