@@ -134,40 +134,47 @@ impl GridField {
         }
     }
 
+    /// Per-axis tap weights `(w, w', w'')` at fraction `t`, and the first tap's offset.
+    fn basis(&self, t: f64) -> [(f64, f64, f64); 4] {
+        match self.interp {
+            Interp::Tricubic => {
+                let (w, d, dd) = bspline(t);
+                [0, 1, 2, 3].map(|i| (w[i], d[i], dd[i]))
+            }
+            Interp::Trilinear => [
+                (1.0 - t, -1.0, 0.0),
+                (t, 1.0, 0.0),
+                (0.0, 0.0, 0.0),
+                (0.0, 0.0, 0.0),
+            ],
+        }
+    }
+
     /// Visit the taps at `x`: `(coefficient index, w, ∇w, ∇²w)` in grid units (divide by spacing).
     #[inline]
     fn taps(&self, x: DVec3, mut visit: impl FnMut(usize, f64, DVec3, [[f64; 3]; 3])) {
         let u = (x - self.origin) / self.spacing;
         let base = u.floor();
         let t = u - base;
-        let (b0, b1, b2) = (base.x as isize, base.y as isize, base.z as isize);
-        let (wx, wy, wz, off): ([[f64; 4]; 3], [[f64; 4]; 3], [[f64; 4]; 3], isize) =
-            match self.interp {
-                Interp::Tricubic => {
-                    let (a, b, c) = (bspline(t.x), bspline(t.y), bspline(t.z));
-                    ([a.0, a.1, a.2], [b.0, b.1, b.2], [c.0, c.1, c.2], -1)
-                }
-                Interp::Trilinear => {
-                    let lin = |t: f64| [[1.0 - t, t, 0.0, 0.0], [-1.0, 1.0, 0.0, 0.0], [0.0; 4]];
-                    (lin(t.x), lin(t.y), lin(t.z), 0)
-                }
-            };
-        let n = if self.interp == Interp::Tricubic {
-            4
+        let (bx, by, bz) = (self.basis(t.x), self.basis(t.y), self.basis(t.z));
+        let (n, off) = if self.interp == Interp::Tricubic {
+            (4, -1)
         } else {
-            2
+            (2, 0)
         };
-        for c in 0..n {
-            for b in 0..n {
-                for a in 0..n {
+        let start = [
+            base.x as isize + off,
+            base.y as isize + off,
+            base.z as isize + off,
+        ];
+        for (c, &(z0, z1, z2)) in bz.iter().enumerate().take(n) {
+            for (b, &(y0, y1, y2)) in by.iter().enumerate().take(n) {
+                for (a, &(x0, x1, x2)) in bx.iter().enumerate().take(n) {
                     let idx = self.index(
-                        b0 + a as isize + off,
-                        b1 + b as isize + off,
-                        b2 + c as isize + off,
+                        start[0] + a as isize,
+                        start[1] + b as isize,
+                        start[2] + c as isize,
                     );
-                    let (x0, x1, x2) = (wx[0][a], wx[1][a], wx[2][a]);
-                    let (y0, y1, y2) = (wy[0][b], wy[1][b], wy[2][b]);
-                    let (z0, z1, z2) = (wz[0][c], wz[1][c], wz[2][c]);
                     let hess = [
                         [x2 * y0 * z0, x1 * y1 * z0, x1 * y0 * z1],
                         [x1 * y1 * z0, x0 * y2 * z0, x0 * y1 * z1],
