@@ -162,6 +162,8 @@ pub fn run(quick: bool) -> Result<String, String> {
         std::hint::black_box(mc::run(&grad, &plan_g, 0..plan_g.chunks, &[], &|_| {}));
     });
 
+    let eikonal = eikonal_rates(quick);
+
     let (dgemm, zgemm) = gemm_rates(2 * j, if quick { 2 } else { 8 });
     let cov_flops = cov_updates * 8.0 / 1e9;
     Ok(format!(
@@ -185,5 +187,70 @@ pub fn run(quick: bool) -> Result<String, String> {
         plan_g.samples(),
         t_grad,
         t_plain,
-    ))
+    ) + &eikonal)
+}
+
+/// Ray-steps/s of the graded-index tracer and its adjoint on a 64³ grid (tricubic and trilinear),
+/// rays in parallel.
+fn eikonal_rates(quick: bool) -> String {
+    use crate::eikonal::grid::{GridField, Interp};
+    use crate::eikonal::{BoundedField, Bounds, IndexField, Profile, Ray, Tracer};
+    let n = 64;
+    let spacing = 2.0 / (n - 1) as f64;
+    let origin = DVec3::splat(-1.0);
+    let mut samples = Vec::with_capacity(n * n * n);
+    for k in 0..n {
+        for j in 0..n {
+            for i in 0..n {
+                let p = origin + DVec3::new(i as f64, j as f64, k as f64) * spacing;
+                samples.push((2.0 - p.length_squared().min(1.0)).sqrt());
+            }
+        }
+    }
+    let rays = if quick { 512 } else { 4096 };
+    let steps = 200;
+    let mut out = String::new();
+    for interp in [Interp::Tricubic, Interp::Trilinear] {
+        let Ok(grid) = GridField::from_samples(origin, spacing, [n, n, n], samples.clone(), interp)
+        else {
+            continue;
+        };
+        let field = BoundedField::single(Profile::Grid(grid), Bounds::Everywhere, 1.0);
+        let t = Tracer {
+            field: &field,
+            step: 0.005,
+            max_steps: 0,
+        };
+        let start = |r: usize| {
+            let x = DVec3::new(
+                -0.5 + (r % 64) as f64 / 64.0,
+                -0.5 + (r / 64 % 64) as f64 / 64.0,
+                -0.5,
+            );
+            Ray {
+                x,
+                v: DVec3::Z * field.n(x),
+            }
+        };
+        let t0 = Instant::now();
+        let sum: f64 = (0..rays)
+            .into_par_iter()
+            .map(|r| t.steps(start(r), steps, 0.005).x.z)
+            .sum();
+        let fwd = (rays * steps) as f64 / t0.elapsed().as_secs_f64();
+        let t0 = Instant::now();
+        let adj: f64 = (0..rays)
+            .into_par_iter()
+            .map(|r| {
+                t.adjoint(start(r), steps, 0.005, &[], |f| (f.x, DVec3::ZERO))
+                    .map_or(0.0, |g| g.dx0.z)
+            })
+            .sum();
+        let back = (rays * steps) as f64 / t0.elapsed().as_secs_f64();
+        std::hint::black_box((sum, adj));
+        out += &format!(
+            "\neikonal {interp:?} 64³ grid: forward {fwd:.3e} ray-steps/s, adjoint (initial state) {back:.3e} ray-steps/s"
+        );
+    }
+    out
 }
