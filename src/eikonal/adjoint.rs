@@ -29,8 +29,8 @@ pub struct RayGradient {
 }
 
 fn jacobian(f: &BoundedField, x: DVec3) -> DMat3 {
-    let (n, g) = (f.n(x), f.grad(x));
-    DMat3::from_cols(g * g.x, g * g.y, g * g.z) + f.hessian(x) * n
+    let (n, g, h) = f.eval(x);
+    DMat3::from_cols(g * g.x, g * g.y, g * g.z) + h * n
 }
 
 fn dforce(f: &BoundedField, x: DVec3, p: &FieldParam) -> Result<DVec3, String> {

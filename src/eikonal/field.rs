@@ -8,6 +8,10 @@ pub trait IndexField: Sync {
     fn n(&self, x: DVec3) -> f64;
     fn grad(&self, x: DVec3) -> DVec3;
     fn hessian(&self, x: DVec3) -> DMat3;
+    /// `(n, ∇n, ∇²n)` in one evaluation (override when the parts share work, as grids do).
+    fn eval(&self, x: DVec3) -> (f64, DVec3, DMat3) {
+        (self.n(x), self.grad(x), self.hessian(x))
+    }
 }
 
 /// Analytic index profiles (centred at the origin; radial profiles use `r = |x|`, fibre profiles the
