@@ -8,6 +8,25 @@ use lightpath::math::{stream_rng, uniform};
 use lightpath::medium::{PhaseFunction, Scattering, Table};
 use std::f64::consts::PI;
 
+/// Simpson's rule for `f` over `[a, b]` with `m` (even) panels.
+fn simpson(f: &dyn Fn(f64) -> f64, a: f64, b: f64, m: usize) -> f64 {
+    let h = (b - a) / m as f64;
+    let weight = |i: usize| {
+        if i == 0 || i == m {
+            1.0
+        } else if i % 2 == 1 {
+            4.0
+        } else {
+            2.0
+        }
+    };
+    (0..=m)
+        .map(|i| weight(i) * f(a + i as f64 * h))
+        .sum::<f64>()
+        * h
+        / 3.0
+}
+
 /// χ² statistic of `n` samples of μ in `bins` equal bins against the exact bin probabilities.
 fn chi2(
     mut sample: impl FnMut(f64, f64) -> f64,
@@ -30,22 +49,7 @@ fn chi2(
             -1.0 + 2.0 * b as f64 / bins as f64,
             -1.0 + 2.0 * (b + 1) as f64 / bins as f64,
         );
-        let m = 64;
-        let h = (z - a) / m as f64;
-        let p: f64 = (0..=m)
-            .map(|i| {
-                let w = if i == 0 || i == m {
-                    1.0
-                } else if i % 2 == 1 {
-                    4.0
-                } else {
-                    2.0
-                };
-                w * pdf(a + i as f64 * h)
-            })
-            .sum::<f64>()
-            * h
-            / 3.0;
+        let p = simpson(&pdf, a, z, 64);
         let e = p * n as f64;
         stat += (c as f64 - e).powi(2) / e;
     }
@@ -57,24 +61,7 @@ const CHI2_49_999: f64 = 85.35;
 
 fn check(p: &PhaseFunction, seed: u64) {
     // normalisation
-    let m = 20000;
-    let h = 2.0 / m as f64;
-    let total: f64 = (0..=m)
-        .map(|i| {
-            let w = if i == 0 || i == m {
-                1.0
-            } else if i % 2 == 1 {
-                4.0
-            } else {
-                2.0
-            };
-            w * p.eval(-1.0 + i as f64 * h)
-        })
-        .sum::<f64>()
-        * h
-        / 3.0
-        * 2.0
-        * PI;
+    let total = 2.0 * PI * simpson(&|mu| p.eval(mu), -1.0, 1.0, 20000);
     assert!((total - 1.0).abs() < 1e-6, "{p:?}: ∫ρ dω = {total}");
     let s = chi2(
         |u, _| p.sample_mu(u),
