@@ -1130,3 +1130,84 @@ pub fn fit_job(mut cfg: Config, target_path: &Path, opts: &FitOptions, out: &Pat
     }
     Ok(Outcome { files, summary })
 }
+
+/// `lightpath trace`: trace a bundle of rays through an index field → rays.json and rays.png.
+pub fn trace_job(cfg: &crate::io::trace_config::TraceConfig, out: &Path) -> JobResult {
+    use crate::eikonal::{IndexField, Tracer};
+    use rayon::prelude::*;
+    let field = cfg.field().map_err(|e| e.0)?;
+    let rays = cfg.rays().map_err(|e| e.0)?;
+    let step = cfg.trace.step;
+    if !(step.is_finite() && step > 0.0) {
+        return Err(format!(
+            "trace.step = {step}: must be a positive finite number"
+        ));
+    }
+    if cfg.trace.max_steps == 0 {
+        return Err("trace.max_steps = 0: must be at least 1".into());
+    }
+    let tracer = Tracer {
+        field: &field,
+        step,
+        max_steps: cfg.trace.max_steps as usize,
+    };
+    let t0 = Instant::now();
+    let traced: Vec<(crate::eikonal::RayEnd, Vec<DVec3>, Option<DVec3>)> = rays
+        .par_iter()
+        .map(|&(o, d)| {
+            let mut path = vec![o];
+            let mut bad = None;
+            let mut k = 0usize;
+            let end = tracer.trace_with(o, d, |x| {
+                let n = field.n(x);
+                if bad.is_none() && !(n > 0.0 && n.is_finite()) {
+                    bad = Some(x);
+                }
+                if k.is_multiple_of(16) {
+                    path.push(x);
+                }
+                k += 1;
+            });
+            path.push(end.x);
+            (end, path, bad)
+        })
+        .collect();
+    if let Some(x) = traced.iter().find_map(|t| t.2) {
+        return Err(format!(
+            "field: n = {} at {x}: the refractive index must be positive and finite where rays run",
+            field.n(x)
+        ));
+    }
+    std::fs::create_dir_all(out)
+        .map_err(|e| format!("cannot create output folder {}: {e}", out.display()))?;
+    let seconds = t0.elapsed().as_secs_f64();
+    let list: Vec<Value> = rays
+        .iter()
+        .zip(&traced)
+        .map(|((o, d), (e, _, _))| {
+            json!({"origin": vec3(*o), "direction": vec3(*d), "exit_position": vec3(e.x), "exit_direction": vec3(e.direction),
+                   "optical_path": e.optical_path, "steps": e.steps, "entered": e.entered, "exited": e.exited})
+        })
+        .collect();
+    let m = json!({"rays": list, "seconds": seconds, "version": env!("CARGO_PKG_VERSION"), "config": serde_json::to_value(cfg).unwrap_or(Value::Null)});
+    let path = out.join("rays.json");
+    write_json(&path, &m).map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+    let png = out.join("rays.png");
+    let paths: Vec<Vec<DVec3>> = traced
+        .iter()
+        .map(|(e, p, _)| {
+            let mut p = p.clone();
+            p.push(e.x + e.direction * 1.5 * (e.x - p[0]).length().max(1.0));
+            p
+        })
+        .collect();
+    crate::io::plot::ray_paths(&png, &paths)?;
+    let exited = traced.iter().filter(|t| t.0.exited && t.0.entered).count();
+    Ok(Outcome {
+        files: vec![path, png],
+        summary: format!(
+            "traced {} rays ({exited} through the field) in {seconds:.2} s",
+            rays.len()
+        ),
+    })
+}

@@ -96,6 +96,14 @@ enum Command {
         #[arg(long)]
         quiet: bool,
     },
+    /// Trace rays through a graded-index field (eikonal) → rays.json + rays.png
+    Trace {
+        config: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long)]
+        threads: Option<usize>,
+    },
     /// Check a config and print the scene it describes, without running anything
     Check { config: PathBuf },
     /// Measure paths/s, covariance entry-updates/s, field pixel-updates/s and the GEMM rate
@@ -176,6 +184,14 @@ fn run(kind: Kind, a: RunArgs) -> Result<jobs::Outcome, String> {
     with_threads(a.threads, || jobs::run_job(kind, cfg, &opts, &a.out))?
 }
 
+/// Whether a config file is a `trace` config (it has a top-level `[field]` table).
+fn is_trace_config(path: &std::path::Path) -> bool {
+    std::fs::read_to_string(path)
+        .ok()
+        .and_then(|t| t.parse::<toml::Table>().ok())
+        .is_some_and(|t| t.contains_key("field"))
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
@@ -243,6 +259,13 @@ fn main() -> ExitCode {
             };
             with_threads(threads, || jobs::fit_job(cfg, &target, &opts, &out))?
         }),
+        Some(Command::Trace {
+            config,
+            out,
+            threads,
+        }) => lightpath::io::trace_config::TraceConfig::from_file(&config)
+            .map_err(|e| e.0)
+            .and_then(|cfg| with_threads(threads, || jobs::trace_job(&cfg, &out))?),
         Some(Command::Compare {
             a,
             b,
@@ -263,6 +286,22 @@ fn main() -> ExitCode {
                     ExitCode::from(2)
                 }
             };
+        }
+        Some(Command::Check { config }) if is_trace_config(&config) => {
+            lightpath::io::trace_config::TraceConfig::from_file(&config)
+                .map_err(|e| e.0)
+                .and_then(|c| {
+                    c.field().map_err(|e| e.0)?;
+                    let rays = c.rays().map_err(|e| e.0)?;
+                    Ok(jobs::Outcome {
+                        files: vec![],
+                        summary: format!(
+                            "{}: ok — trace config, {} ray(s)",
+                            config.display(),
+                            rays.len()
+                        ),
+                    })
+                })
         }
         Some(Command::Check { config }) => {
             Config::from_file(&config).map_err(|e| e.0).and_then(|c| {

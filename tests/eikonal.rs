@@ -387,3 +387,81 @@ fn grid_coefficient_gradients() {
         assert!(any, "the ray must pass the chosen coefficients");
     }
 }
+
+/// `lightpath trace` on the shipped Luneburg config focuses every ray at the antipode and writes its
+/// outputs; a field with n ≤ 0 where rays run and a bad value are clear errors.
+#[test]
+fn trace_command() {
+    let bin = env!("CARGO_BIN_EXE_lightpath");
+    let d = std::env::temp_dir().join(format!("lightpath-trace-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    let cfg = concat!(env!("CARGO_MANIFEST_DIR"), "/configs/luneburg.toml");
+    let o = std::process::Command::new(bin)
+        .args(["trace", cfg, "--out", d.join("lune").to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(d.join("lune/rays.json")).unwrap()).unwrap();
+    let rays = v["rays"].as_array().unwrap();
+    assert_eq!(rays.len(), 15);
+    for r in rays {
+        let x: Vec<f64> = r["exit_position"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_f64().unwrap())
+            .collect();
+        assert!(
+            (x[0].powi(2) + x[1].powi(2) + (x[2] - 1.0).powi(2)).sqrt() < 1e-3,
+            "exit {x:?}"
+        );
+    }
+    assert!(d.join("lune/rays.png").exists());
+    std::fs::create_dir_all(&d).unwrap();
+    let negative = r#"
+[field]
+profiles = [{ kind = "linear", n0 = 1.0, gradient = [0.0, 0.0, -1.0] }]
+bounds = { kind = "box", size = [4.0, 4.0, 4.0] }
+[rays]
+kind = "collimated"
+center = [0.0, 0.0, -3.0]
+direction = [0.0, 0.0, 1.0]
+width = 0.5
+count = 3
+[trace]
+step = 0.01
+max_steps = 2000
+"#;
+    let radius = r#"
+[field]
+profiles = [{ kind = "luneburg", radius = -1.0 }]
+[rays]
+kind = "fan"
+origin = [0.0, 0.0, -2.0]
+axis = [0.0, 0.0, 1.0]
+half_angle_deg = 10.0
+count = 3
+"#;
+    for (name, text, needle) in [
+        ("neg.toml", negative, "must be positive"),
+        ("radius.toml", radius, "radius = -1"),
+    ] {
+        std::fs::write(d.join(name), text).unwrap();
+        let o = std::process::Command::new(bin)
+            .args([
+                "trace",
+                d.join(name).to_str().unwrap(),
+                "--out",
+                d.join("bad").to_str().unwrap(),
+            ])
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            !o.status.success() && err.contains(needle) && !err.contains("panicked"),
+            "{name}: {err}"
+        );
+        assert!(!d.join("bad/rays.json").exists());
+    }
+}

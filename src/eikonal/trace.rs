@@ -77,6 +77,11 @@ impl Tracer<'_> {
 
     /// Trace a ray from `origin` along unit `dir` (straight outside the bounds) until it leaves.
     pub fn trace(&self, origin: DVec3, dir: DVec3) -> RayEnd {
+        self.trace_with(origin, dir, |_| {})
+    }
+
+    /// [`Tracer::trace`], reporting every position inside the field to `visit` (for drawing).
+    pub fn trace_with(&self, origin: DVec3, dir: DVec3, mut visit: impl FnMut(DVec3)) -> RayEnd {
         let bounds = &self.field.bounds;
         let mut x = origin;
         if !bounds.contains(origin) {
@@ -119,6 +124,7 @@ impl Tracer<'_> {
                     }
                 }
                 let end = self.leapfrog(r, hi);
+                visit(end.x);
                 opl += 0.5 * hi * (self.field.n(r.x).powi(2) + self.field.n(end.x).powi(2));
                 return RayEnd {
                     x: end.x,
@@ -131,6 +137,7 @@ impl Tracer<'_> {
             }
             opl += 0.5 * h * (self.field.n(r.x).powi(2) + self.field.n(next.x).powi(2));
             r = next;
+            visit(r.x);
         }
         RayEnd {
             x: r.x,

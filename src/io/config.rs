@@ -229,7 +229,7 @@ fn default_paths() -> u64 {
 }
 
 /// Keys that hold whole numbers; everything else numeric is read as a float.
-const INTEGER_KEYS: [&str; 7] = [
+const INTEGER_KEYS: [&str; 8] = [
     "samples",
     "seed",
     "chunk",
@@ -237,10 +237,11 @@ const INTEGER_KEYS: [&str; 7] = [
     "pixels",
     "realisations",
     "paths",
+    "max_steps",
 ];
 
 /// Let `1` stand for `1.0` in float keys and `1e6` for `1000000` in integer keys.
-fn normalise_numbers(v: &mut toml::Value, key: &str) {
+pub(crate) fn normalise_numbers(v: &mut toml::Value, key: &str) {
     match v {
         toml::Value::Integer(i) if !INTEGER_KEYS.contains(&key) => {
             *v = toml::Value::Float(*i as f64)

@@ -5,6 +5,7 @@ pub mod config;
 pub mod exr;
 pub mod plot;
 pub mod state;
+pub mod trace_config;
 
 pub use config::{Config, ConfigError};
 pub use state::write_atomic;

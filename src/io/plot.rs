@@ -309,3 +309,49 @@ pub fn fit_curve(
     root.present().map_err(|x| e(&x))?;
     Ok(())
 }
+
+/// Ray paths projected on the x-z plane.
+pub fn ray_paths(path: &Path, rays: &[Vec<glam::DVec3>]) -> Result<(), String> {
+    register_font();
+    let e = |e: &dyn std::fmt::Display| e.to_string();
+    let pts = rays.iter().flatten();
+    let (mut x0, mut x1, mut z0, mut z1) = (
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+    );
+    for p in pts {
+        x0 = x0.min(p.x);
+        x1 = x1.max(p.x);
+        z0 = z0.min(p.z);
+        z1 = z1.max(p.z);
+    }
+    if !(x0.is_finite() && z0.is_finite()) {
+        return Err("no ray points to draw".into());
+    }
+    let pad = 0.05 * (x1 - x0).max(z1 - z0).max(1e-9);
+    let root = BitMapBackend::new(path, (800, 600)).into_drawing_area();
+    root.fill(&WHITE).map_err(|x| e(&x))?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption("Ray paths (x-z projection)", ("sans-serif", 20))
+        .margin(15)
+        .x_label_area_size(40)
+        .y_label_area_size(50)
+        .build_cartesian_2d((z0 - pad)..(z1 + pad), (x0 - pad)..(x1 + pad))
+        .map_err(|x| e(&x))?;
+    chart
+        .configure_mesh()
+        .x_desc("z")
+        .y_desc("x")
+        .label_style(("sans-serif", 14))
+        .draw()
+        .map_err(|x| e(&x))?;
+    for r in rays {
+        chart
+            .draw_series(LineSeries::new(r.iter().map(|p| (p.z, p.x)), BLUE.mix(0.7)))
+            .map_err(|x| e(&x))?;
+    }
+    root.present().map_err(|x| e(&x))?;
+    Ok(())
+}

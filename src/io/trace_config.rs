@@ -1,0 +1,304 @@
+//! Configs of `lightpath trace`: an index field and a bundle of rays.
+
+use crate::eikonal::{BoundedField, Bounds, Profile};
+use crate::io::ConfigError;
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct TraceConfig {
+    pub field: FieldConfig,
+    pub rays: RaysConfig,
+    #[serde(default)]
+    pub trace: TraceSettings,
+}
+
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct FieldConfig {
+    /// Profiles summed inside the bounds.
+    pub profiles: Vec<ProfileConfig>,
+    #[serde(default)]
+    pub bounds: BoundsConfig,
+    #[serde(default = "one")]
+    pub n_out: f64,
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum ProfileConfig {
+    Constant { n: f64 },
+    Linear { n0: f64, gradient: [f64; 3] },
+    Luneburg { radius: f64 },
+    MaxwellFishEye { radius: f64 },
+    ParabolicFibre { n0: f64, alpha: f64 },
+    SechFibre { n0: f64, alpha: f64 },
+}
+
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq, Default)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum BoundsConfig {
+    #[default]
+    Everywhere,
+    Sphere {
+        radius: f64,
+    },
+    Cylinder {
+        radius: f64,
+        half_length: f64,
+    },
+    Box {
+        size: [f64; 3],
+    },
+}
+
+/// A bundle of rays: a collimated line of `count` rays across `width` through `center`, or a fan
+/// from `origin` spanning `half_angle_deg` about `axis`; both in the x-z plane about the axis.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum RaysConfig {
+    Collimated {
+        center: [f64; 3],
+        direction: [f64; 3],
+        width: f64,
+        count: u64,
+    },
+    Fan {
+        origin: [f64; 3],
+        axis: [f64; 3],
+        half_angle_deg: f64,
+        count: u64,
+    },
+}
+
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct TraceSettings {
+    #[serde(default = "default_step")]
+    pub step: f64,
+    #[serde(default = "default_max_steps")]
+    pub max_steps: u64,
+}
+
+fn default_step() -> f64 {
+    0.005
+}
+fn default_max_steps() -> u64 {
+    1_000_000
+}
+
+impl Default for TraceSettings {
+    fn default() -> Self {
+        TraceSettings {
+            step: default_step(),
+            max_steps: default_max_steps(),
+        }
+    }
+}
+
+fn err<T>(s: String) -> Result<T, ConfigError> {
+    Err(ConfigError(s))
+}
+
+fn pos(key: &str, v: f64) -> Result<f64, ConfigError> {
+    if v.is_finite() && v > 0.0 {
+        Ok(v)
+    } else {
+        err(format!("{key} = {v}: must be a positive finite number"))
+    }
+}
+
+fn unit(key: &str, v: [f64; 3]) -> Result<DVec3, ConfigError> {
+    let d = DVec3::from_array(v);
+    if d.is_finite() && d.length() > 0.0 {
+        Ok(d.normalize())
+    } else {
+        err(format!("{key} = {v:?}: must be a non-zero finite vector"))
+    }
+}
+
+impl TraceConfig {
+    pub fn from_file(path: &std::path::Path) -> Result<TraceConfig, ConfigError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| ConfigError(format!("cannot read config file {}: {e}", path.display())))?;
+        let mut value: toml::Value = toml::from_str(&text)
+            .map_err(|e| ConfigError(format!("{}: invalid TOML: {e}", path.display())))?;
+        crate::io::config::normalise_numbers(&mut value, "");
+        let cfg: TraceConfig = serde_path_to_error::deserialize(value).map_err(|e| {
+            let key = e.path().to_string();
+            ConfigError(format!("{}: {key}: {}", path.display(), e.into_inner()))
+        })?;
+        Ok(cfg)
+    }
+
+    /// The field, checked: `n > 0` at every sample of a coarse grid over the bounds (or where rays run).
+    pub fn field(&self) -> Result<BoundedField, ConfigError> {
+        let f = &self.field;
+        if f.profiles.is_empty() {
+            return err("field.profiles = []: give at least one profile".into());
+        }
+        let mut profiles = Vec::new();
+        for (i, p) in f.profiles.iter().enumerate() {
+            let k = format!("field.profiles[{i}]");
+            profiles.push(match *p {
+                ProfileConfig::Constant { n } => Profile::Constant { n },
+                ProfileConfig::Linear { n0, gradient } => Profile::Linear {
+                    n0,
+                    gradient: DVec3::from_array(gradient),
+                },
+                ProfileConfig::Luneburg { radius } => Profile::Luneburg {
+                    radius: pos(&format!("{k}.radius"), radius)?,
+                },
+                ProfileConfig::MaxwellFishEye { radius } => Profile::MaxwellFishEye {
+                    radius: pos(&format!("{k}.radius"), radius)?,
+                },
+                ProfileConfig::ParabolicFibre { n0, alpha } => Profile::ParabolicFibre {
+                    n0: pos(&format!("{k}.n0"), n0)?,
+                    alpha: pos(&format!("{k}.alpha"), alpha)?,
+                },
+                ProfileConfig::SechFibre { n0, alpha } => Profile::SechFibre {
+                    n0: pos(&format!("{k}.n0"), n0)?,
+                    alpha: pos(&format!("{k}.alpha"), alpha)?,
+                },
+            });
+        }
+        let bounds = match f.bounds {
+            BoundsConfig::Everywhere => Bounds::Everywhere,
+            BoundsConfig::Sphere { radius } => Bounds::Sphere {
+                radius: pos("field.bounds.radius", radius)?,
+            },
+            BoundsConfig::Cylinder {
+                radius,
+                half_length,
+            } => Bounds::Cylinder {
+                radius: pos("field.bounds.radius", radius)?,
+                half_length: pos("field.bounds.half_length", half_length)?,
+            },
+            BoundsConfig::Box { size } => {
+                for (a, v) in size.iter().enumerate() {
+                    pos(&format!("field.bounds.size[{a}]"), *v)?;
+                }
+                Bounds::Box {
+                    half: DVec3::from_array(size) * 0.5,
+                }
+            }
+        };
+        let field = BoundedField {
+            profiles,
+            bounds,
+            n_out: pos("field.n_out", f.n_out)?,
+        };
+        check_positive(&field)?;
+        Ok(field)
+    }
+
+    /// Ray origins and unit directions.
+    pub fn rays(&self) -> Result<Vec<(DVec3, DVec3)>, ConfigError> {
+        let count = |c: u64| {
+            if (1..=100_000).contains(&c) {
+                Ok(c as usize)
+            } else {
+                err(format!("rays.count = {c}: must be within [1, 100000]"))
+            }
+        };
+        match self.rays {
+            RaysConfig::Collimated {
+                center,
+                direction,
+                width,
+                count: c,
+            } => {
+                let d = unit("rays.direction", direction)?;
+                let w = if width.is_finite() && width >= 0.0 {
+                    width
+                } else {
+                    return err(format!("rays.width = {width}: must be >= 0"));
+                };
+                let n = count(c)?;
+                let (e1, _) = crate::math::orthonormal_basis(d);
+                let c0 = DVec3::from_array(center);
+                Ok((0..n)
+                    .map(|i| {
+                        (
+                            c0 + e1
+                                * (w * (if n == 1 {
+                                    0.0
+                                } else {
+                                    i as f64 / (n - 1) as f64 - 0.5
+                                })),
+                            d,
+                        )
+                    })
+                    .collect())
+            }
+            RaysConfig::Fan {
+                origin,
+                axis,
+                half_angle_deg,
+                count: c,
+            } => {
+                let a = unit("rays.axis", axis)?;
+                if !(half_angle_deg.is_finite() && (0.0..180.0).contains(&half_angle_deg)) {
+                    return err(format!(
+                        "rays.half_angle_deg = {half_angle_deg}: must be within [0, 180)"
+                    ));
+                }
+                let n = count(c)?;
+                let (e1, _) = crate::math::orthonormal_basis(a);
+                let rot_axis = a.cross(e1).normalize();
+                Ok((0..n)
+                    .map(|i| {
+                        let t = if n == 1 {
+                            0.0
+                        } else {
+                            2.0 * i as f64 / (n - 1) as f64 - 1.0
+                        };
+                        (
+                            DVec3::from_array(origin),
+                            crate::math::rotate(a, rot_axis, (t * half_angle_deg).to_radians()),
+                        )
+                    })
+                    .collect())
+            }
+        }
+    }
+}
+
+/// `n > 0` and finite at every node of a 17³ grid over the field's bounds (rays are checked again
+/// along their paths).
+fn check_positive(field: &BoundedField) -> Result<(), ConfigError> {
+    use crate::eikonal::IndexField;
+    let half = match field.bounds {
+        Bounds::Everywhere => return Ok(()),
+        Bounds::Sphere { radius } => DVec3::splat(radius),
+        Bounds::Cylinder {
+            radius,
+            half_length,
+        } => DVec3::new(radius, radius, half_length),
+        Bounds::Box { half } => half,
+    };
+    let m = 16;
+    for i in 0..=m {
+        for j in 0..=m {
+            for k in 0..=m {
+                let x =
+                    (DVec3::new(i as f64, j as f64, k as f64) / m as f64 * 2.0 - DVec3::ONE) * half;
+                if !field.bounds.contains(x) {
+                    continue;
+                }
+                let n = field.n(x);
+                if !(n > 0.0 && n.is_finite()) {
+                    return err(format!(
+                        "field: n = {n} at {x}: the refractive index must be positive and finite inside the bounds"
+                    ));
+                }
+            }
+        }
+    }
+    Ok(())
+}
