@@ -22,7 +22,7 @@ impl std::fmt::Display for ConfigError {
 
 impl std::error::Error for ConfigError {}
 
-fn err<T>(msg: impl Into<String>) -> Result<T, ConfigError> {
+pub(crate) fn err<T>(msg: impl Into<String>) -> Result<T, ConfigError> {
     Err(ConfigError(msg.into()))
 }
 
@@ -376,7 +376,7 @@ impl Config {
     }
 }
 
-fn positive(key: &str, v: f64) -> Result<f64, ConfigError> {
+pub(crate) fn positive(key: &str, v: f64) -> Result<f64, ConfigError> {
     if v.is_finite() && v > 0.0 {
         Ok(v)
     } else {
@@ -384,7 +384,7 @@ fn positive(key: &str, v: f64) -> Result<f64, ConfigError> {
     }
 }
 
-fn unit(key: &str, v: [f64; 3]) -> Result<DVec3, ConfigError> {
+pub(crate) fn unit(key: &str, v: [f64; 3]) -> Result<DVec3, ConfigError> {
     let d = DVec3::from_array(v);
     if d.is_finite() && d.length() > 0.0 {
         Ok(d.normalize())

@@ -2,6 +2,7 @@
 
 use crate::eikonal::{BoundedField, Bounds, Profile};
 use crate::io::ConfigError;
+use crate::io::config::{err, positive as pos, unit};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
@@ -101,27 +102,6 @@ impl Default for TraceSettings {
     }
 }
 
-fn err<T>(s: String) -> Result<T, ConfigError> {
-    Err(ConfigError(s))
-}
-
-fn pos(key: &str, v: f64) -> Result<f64, ConfigError> {
-    if v.is_finite() && v > 0.0 {
-        Ok(v)
-    } else {
-        err(format!("{key} = {v}: must be a positive finite number"))
-    }
-}
-
-fn unit(key: &str, v: [f64; 3]) -> Result<DVec3, ConfigError> {
-    let d = DVec3::from_array(v);
-    if d.is_finite() && d.length() > 0.0 {
-        Ok(d.normalize())
-    } else {
-        err(format!("{key} = {v:?}: must be a non-zero finite vector"))
-    }
-}
-
 impl TraceConfig {
     pub fn from_file(path: &std::path::Path) -> Result<TraceConfig, ConfigError> {
         let text = std::fs::read_to_string(path)
@@ -140,7 +120,7 @@ impl TraceConfig {
     pub fn field(&self) -> Result<BoundedField, ConfigError> {
         let f = &self.field;
         if f.profiles.is_empty() {
-            return err("field.profiles = []: give at least one profile".into());
+            return err("field.profiles = []: give at least one profile");
         }
         let mut profiles = Vec::new();
         for (i, p) in f.profiles.iter().enumerate() {
