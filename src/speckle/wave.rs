@@ -146,21 +146,12 @@ pub fn place_scatterers(scene: &Scene, rng: &mut Rng) -> Vec<DVec3> {
         .collect()
 }
 
-/// Fields `u[l·V + v]` of every light and view for scatterers at `pos` (Foldy–Lax, dense LU).
-pub fn solve(scene: &Scene, pos: &[DVec3]) -> Vec<C64> {
+/// Exciting fields `u_j` of the scatterers at `pos`, one column per light: one dense LU of the
+/// Foldy–Lax matrix `I − f G` (zero diagonal) with every light as a right-hand side.
+fn exciting(scene: &Scene, pos: &[DVec3]) -> Mat<c64> {
     let k = scene.k;
     let f = c64::new(0.0, 1.0 / k);
     let n = pos.len();
-    let (nl, nv) = (scene.lights.len(), scene.views.len());
-    let mut out = vec![C64::default(); nl * nv];
-    for (l, light) in scene.lights.iter().enumerate() {
-        for (v, view) in scene.views.iter().enumerate() {
-            out[l * nv + v] = direct(light, view, k);
-        }
-    }
-    if n == 0 {
-        return out;
-    }
     let a = Mat::<c64>::from_fn(n, n, |i, j| {
         if i == j {
             c64::new(1.0, 0.0)
@@ -169,9 +160,28 @@ pub fn solve(scene: &Scene, pos: &[DVec3]) -> Vec<C64> {
             -f * C64::from_polar(1.0 / r, k * r)
         }
     });
-    let b = Mat::<c64>::from_fn(n, nl, |i, l| incident(&scene.lights[l], pos[i], k));
-    let u = a.partial_piv_lu().solve(&b);
-    let s = Mat::<c64>::from_fn(nv, n, |v, j| f * sensor(&scene.views[v], pos[j], k));
+    let b = Mat::<c64>::from_fn(n, scene.lights.len(), |i, l| {
+        incident(&scene.lights[l], pos[i], k)
+    });
+    a.partial_piv_lu().solve(&b)
+}
+
+/// Fields `u[l·V + v]` of every light and view for scatterers at `pos` (Foldy–Lax, dense LU).
+pub fn solve(scene: &Scene, pos: &[DVec3]) -> Vec<C64> {
+    let k = scene.k;
+    let f = c64::new(0.0, 1.0 / k);
+    let (nl, nv) = (scene.lights.len(), scene.views.len());
+    let mut out = vec![C64::default(); nl * nv];
+    for (l, light) in scene.lights.iter().enumerate() {
+        for (v, view) in scene.views.iter().enumerate() {
+            out[l * nv + v] = direct(light, view, k);
+        }
+    }
+    if pos.is_empty() {
+        return out;
+    }
+    let u = exciting(scene, pos);
+    let s = Mat::<c64>::from_fn(nv, pos.len(), |v, j| f * sensor(&scene.views[v], pos[j], k));
     let fields = &s * &u;
     for l in 0..nl {
         for v in 0..nv {
@@ -183,24 +193,8 @@ pub fn solve(scene: &Scene, pos: &[DVec3]) -> Vec<C64> {
 
 /// Exciting fields `u_j` (one column per light) for scatterers at `pos`; for checks of the solve.
 pub fn exciting_fields(scene: &Scene, pos: &[DVec3]) -> Vec<Vec<C64>> {
-    let k = scene.k;
-    let f = c64::new(0.0, 1.0 / k);
-    let n = pos.len();
-    let a = Mat::<c64>::from_fn(n, n, |i, j| {
-        if i == j {
-            c64::new(1.0, 0.0)
-        } else {
-            -f * C64::from_polar(
-                1.0 / (pos[i] - pos[j]).length(),
-                k * (pos[i] - pos[j]).length(),
-            )
-        }
-    });
-    let b = Mat::<c64>::from_fn(n, scene.lights.len(), |i, l| {
-        incident(&scene.lights[l], pos[i], k)
-    });
-    let u = a.partial_piv_lu().solve(&b);
+    let u = exciting(scene, pos);
     (0..scene.lights.len())
-        .map(|l| (0..n).map(|j| u[(j, l)]).collect())
+        .map(|l| (0..pos.len()).map(|j| u[(j, l)]).collect())
         .collect()
 }
