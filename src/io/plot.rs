@@ -5,6 +5,23 @@ use plotters::prelude::*;
 use std::path::Path;
 use std::sync::Once;
 
+/// The legend box every plot uses.
+fn legend<'a, DB: DrawingBackend + 'a, CT: plotters::coord::CoordTranslate>(
+    chart: &mut ChartContext<'a, DB, CT>,
+    size: u32,
+) -> Result<(), String>
+where
+    DB::ErrorType: 'static,
+{
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .label_font(("sans-serif", size))
+        .draw()
+        .map_err(|x| x.to_string())
+}
+
 fn register_font() {
     static ONCE: Once = Once::new();
     ONCE.call_once(|| {
@@ -73,13 +90,7 @@ pub fn memory_effect(path: &Path, c: &MemoryCurve) -> Result<(), String> {
                 .map(|(a, r)| Circle::new((a.abs(), *r), 4, RED.filled())),
         )
         .map_err(|x| e(&x))?;
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .label_font(("sans-serif", 15))
-        .draw()
-        .map_err(|x| e(&x))?;
+    legend(&mut chart, 15)?;
     root.present().map_err(|x| e(&x))?;
     Ok(())
 }
@@ -182,13 +193,7 @@ pub fn compare(
                     .label(name)
                     .legend(move |(x, y)| Circle::new((x + 10, y), 4, colour.filled()));
             }
-            chart
-                .configure_series_labels()
-                .background_style(WHITE.mix(0.8))
-                .border_style(BLACK)
-                .label_font(("sans-serif", 13))
-                .draw()
-                .map_err(|x| e(&x))?;
+            legend(&mut chart, 13)?;
         }
         root.present().map_err(|x| e(&x))?;
     }
@@ -299,13 +304,7 @@ pub fn fit_curve(
         .map_err(|x| e(&x))?
         .label("target")
         .legend(|(x, y)| Circle::new((x + 10, y), 4, RED.filled()));
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .label_font(("sans-serif", 15))
-        .draw()
-        .map_err(|x| e(&x))?;
+    legend(&mut chart, 15)?;
     root.present().map_err(|x| e(&x))?;
     Ok(())
 }
