@@ -7,9 +7,12 @@
 //! coefficients) and contracted with a loss adjoint `∂L/∂C` per event, so memory does not grow with
 //! the number of covariance entries.
 
+pub mod bridge;
 pub mod covariance;
+pub mod ops;
 
 pub use covariance::{CovarianceGradient, Reweighted, ReweightedCovariance};
+pub use ops::{CovarianceOp, Proposal, medium_at};
 
 use crate::medium::{Medium, PhaseFunction};
 

@@ -201,10 +201,7 @@ impl Fit<'_> {
             self.settings.samples,
             self.settings.chunk,
         );
-        Estimate::from_block(
-            &merge(run(e, &plan, 0..plan.chunks, &[], &|_| {}), plan.chunks).expect("full range"),
-            &plan,
-        )
+        crate::mc::estimate(e, &plan)
     }
 
     fn diff_params(&self) -> Vec<Param> {

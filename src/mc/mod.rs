@@ -208,6 +208,14 @@ pub fn merge(mut blocks: Vec<Block>, chunks: u64) -> Result<Block, String> {
         .ok_or_else(|| "shard blocks are not contiguous".to_string())
 }
 
+/// Run every chunk of `plan` (no progress, nothing kept) and return the estimate: the whole-run
+/// convenience used inside objectives and differentiable operations.
+pub fn estimate<E: Estimator>(est: &E, plan: &Plan) -> Estimate {
+    let blocks = run(est, plan, 0..plan.chunks, &[], &|_| {});
+    let root = merge(blocks, plan.chunks).expect("run covers every chunk of the plan");
+    Estimate::from_block(&root, plan)
+}
+
 /// Mean and standard error (batch means over chunks) of every output.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Estimate {

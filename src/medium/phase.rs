@@ -189,20 +189,45 @@ impl Table {
 
     /// The table with node `k` set to `v` (amplitude phases kept) and renormalised.
     pub fn with_node_value(&self, k: usize, v: f64) -> Result<Table, TableError> {
-        let s = (0..self.rho.len())
-            .map(|i| {
-                cis(self.arg[i])
-                    * if i == k {
-                        v.max(0.0).sqrt()
-                    } else {
-                        self.rho[i].sqrt()
-                    }
-            })
-            .collect();
-        if v < 0.0 {
-            return Err(TableError::Negative(k, v));
+        let mut values = self.rho.clone();
+        if let Some(x) = values.get_mut(k) {
+            *x = v;
         }
+        self.with_node_values(&values)
+    }
+
+    /// The table with all node values replaced by (unnormalised) `values`, amplitude phases kept,
+    /// and renormalised. The derivative of the result with respect to an unnormalised value is
+    /// [`Self::dlog_rho_dnode`]` / Z` with `Z` = [`Self::integral`]`(values)`.
+    pub fn with_node_values(&self, values: &[f64]) -> Result<Table, TableError> {
+        if values.len() != self.rho.len() {
+            return Err(TableError::Length(self.rho.len(), values.len()));
+        }
+        for (i, &v) in values.iter().enumerate() {
+            if !v.is_finite() {
+                return Err(TableError::NotFinite(i));
+            }
+            if v < 0.0 {
+                return Err(TableError::Negative(i, v));
+            }
+        }
+        let s = values
+            .iter()
+            .zip(&self.arg)
+            .map(|(v, a)| cis(*a) * v.sqrt())
+            .collect();
         Table::from_amplitude(Some(self.cos.clone()), s)
+    }
+
+    /// `Z = 2π ∫ ρ̃ dμ` of unnormalised node values on this table's grid (trapezoid, as `build`).
+    pub fn integral(&self, values: &[f64]) -> f64 {
+        2.0 * PI
+            * self
+                .cos
+                .windows(2)
+                .zip(values.windows(2))
+                .map(|(c, v)| 0.5 * (v[0] + v[1]) * (c[1] - c[0]))
+                .sum::<f64>()
     }
 
     /// `∂ log ρ(μ) / ∂v_k` for the node value `v_k` with the normalisation kept:

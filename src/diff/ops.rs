@@ -1,0 +1,267 @@
+//! Speckle estimators as differentiable functions of a parameter vector, for the burn bridge
+//! ([`super::bridge`]) and any other reverse-mode user.
+//!
+//! [`CovarianceOp`] maps `θ` (values of [`Param`]s) to chosen covariance entries `C_ab(θ)` (real and
+//! imaginary parts) and pulls a loss adjoint back through the path-space gradient
+//! ([`CovarianceGradient`]), contracted per event, so memory does not depend on the entry count.
+
+use super::bridge::{Differentiable, Pullback};
+use super::{CovarianceGradient, Param, Reweighted, ReweightedCovariance};
+use crate::math::C64;
+use crate::mc::{Estimate, Plan, estimate};
+use crate::medium::{Medium, PhaseFunction, Scattering};
+use crate::speckle::Scene;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// The medium `base` with `params` set to `theta`, and per parameter the factor that turns the
+/// gradient the estimators compute into `∂/∂θ`.
+///
+/// Node values of a tabulated phase function and particle-type shares are *unnormalised*: the
+/// table (shares) is renormalised after all of them are set, and the estimators' derivative (taken
+/// with the normalisation kept, at unit total) is divided by the total `Z` (`W`), which is the exact
+/// derivative with respect to an unnormalised value.
+pub fn medium_at(
+    base: &Medium,
+    params: &[Param],
+    theta: &[f64],
+) -> Result<(Medium, Vec<f64>), String> {
+    if params.len() != theta.len() {
+        return Err(format!(
+            "{} parameter values for {} parameters",
+            theta.len(),
+            params.len()
+        ));
+    }
+    let mut m = base.clone();
+    let mut factor = vec![1.0; params.len()];
+    let comps = base.scattering.components();
+    let mut weights: Vec<f64> = comps.iter().map(|c| c.0).collect();
+    let mut phases: Vec<PhaseFunction> = comps.iter().map(|c| c.1.clone()).collect();
+    let mut node_values: Vec<Option<Vec<f64>>> = vec![None; comps.len()];
+    for (p, &v) in params.iter().zip(theta) {
+        let bad = |allowed: &str| Err(format!("{} = {v}: must be {allowed}", p.name()));
+        if p.get(base).is_none() {
+            return Err(format!(
+                "parameter {} does not exist in this medium",
+                p.name()
+            ));
+        }
+        match *p {
+            Param::SigmaS if !(v > 0.0 && v.is_finite()) => return bad("> 0"),
+            Param::SigmaS => m.sigma_s = v,
+            Param::SigmaA if !(v >= 0.0 && v.is_finite()) => return bad(">= 0"),
+            Param::SigmaA => m.sigma_a = v,
+            Param::G(_) if v.is_nan() || v.abs() >= 1.0 => return bad("within (-1, 1)"),
+            Param::G(c) => phases[c] = PhaseFunction::HenyeyGreenstein { g: v },
+            Param::Weight(_) if !(v > 0.0 && v.is_finite()) => return bad("> 0"),
+            Param::Weight(c) => weights[c] = v,
+            Param::Bin(c, k) => {
+                let PhaseFunction::Tabulated(t) = &comps[c].1 else {
+                    unreachable!("Param::get checked the component is tabulated")
+                };
+                node_values[c].get_or_insert_with(|| t.nodes().1.to_vec())[k] = v;
+            }
+        }
+    }
+    for (c, values) in node_values.iter().enumerate() {
+        if let (Some(values), PhaseFunction::Tabulated(t)) = (values, &comps[c].1) {
+            let table = t
+                .with_node_values(values)
+                .map_err(|e| format!("phase-function node values: {e}"))?;
+            let z = t.integral(values);
+            for (p, f) in params.iter().zip(factor.iter_mut()) {
+                if matches!(p, Param::Bin(pc, _) if *pc == c) {
+                    *f = 1.0 / z;
+                }
+            }
+            phases[c] = PhaseFunction::Tabulated(table);
+        }
+    }
+    let total: f64 = weights.iter().sum();
+    for (p, f) in params.iter().zip(factor.iter_mut()) {
+        if matches!(p, Param::Weight(_)) {
+            *f = 1.0 / total;
+        }
+    }
+    m.scattering = Scattering::mixture(weights.into_iter().zip(phases).collect());
+    Ok((m, factor))
+}
+
+/// Where each evaluation's paths come from.
+#[derive(Clone, Debug)]
+pub enum Proposal {
+    /// From the medium at `θ` itself, with a fresh seed per evaluation: unbiased stochastic
+    /// gradients of `E[C](θ)`, as stochastic optimisers (Adam) expect.
+    AtTheta,
+    /// From a fixed medium with a fixed seed: a deterministic objective, smooth in `θ`, whose
+    /// gradient is exact for it (common random numbers).
+    Fixed(Medium),
+}
+
+/// `θ ↦ (Re C_e, Im C_e)` for chosen entries `e = (a, b)` of the covariance of the (light, view)
+/// `pairs` (Algorithm 1 of paper 001 with re-weighted paths), with its path-space pullback.
+pub struct CovarianceOp {
+    pub scene: Scene,
+    pub params: Vec<Param>,
+    pub pairs: Vec<(usize, usize)>,
+    /// `(a, b)` indices into `pairs`: output `2e` is `Re C_ab`, `2e + 1` is `Im C_ab`.
+    pub entries: Vec<(usize, usize)>,
+    pub reversed: bool,
+    pub samples: u64,
+    pub chunk: u64,
+    pub seed: u64,
+    pub proposal: Proposal,
+    evaluations: AtomicU64,
+}
+
+/// The covariance entries of one evaluation with their standard errors.
+#[derive(Clone, Debug)]
+pub struct Entries {
+    pub value: Vec<C64>,
+    pub stderr: Vec<f64>,
+}
+
+impl CovarianceOp {
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        scene: Scene,
+        params: Vec<Param>,
+        pairs: Vec<(usize, usize)>,
+        entries: Vec<(usize, usize)>,
+        reversed: bool,
+        (samples, chunk, seed): (u64, u64, u64),
+        proposal: Proposal,
+    ) -> Result<Self, String> {
+        if let Some(&(a, b)) = entries
+            .iter()
+            .find(|(a, b)| *a >= pairs.len() || *b >= pairs.len())
+        {
+            return Err(format!(
+                "covariance entry ({a}, {b}) is outside the {} (light, view) pairs",
+                pairs.len()
+            ));
+        }
+        Ok(CovarianceOp {
+            scene,
+            params,
+            pairs,
+            entries,
+            reversed,
+            samples,
+            chunk,
+            seed,
+            proposal,
+            evaluations: AtomicU64::new(0),
+        })
+    }
+
+    /// How many evaluations have been made (each `AtTheta` evaluation uses the next seed).
+    pub fn evaluations(&self) -> u64 {
+        self.evaluations.load(Ordering::Relaxed)
+    }
+
+    fn prepare(&self, theta: &[f64]) -> Result<Evaluation, String> {
+        let (target, factor) = medium_at(&self.scene.medium, &self.params, theta)?;
+        let n = self.evaluations.fetch_add(1, Ordering::Relaxed);
+        let (proposal, seed) = match &self.proposal {
+            Proposal::AtTheta => (target.clone(), self.seed.wrapping_add(n)),
+            Proposal::Fixed(m) => (m.clone(), self.seed),
+        };
+        let e = Evaluation {
+            proposal: Scene {
+                medium: proposal,
+                ..self.scene.clone()
+            },
+            target,
+            factor,
+            params: self.params.clone(),
+            pairs: self.pairs.clone(),
+            entries: self.entries.clone(),
+            reversed: self.reversed,
+            plan: Plan::new(seed, self.samples, self.chunk),
+        };
+        // validate once here, so the pullback cannot meet an error the forward did not report
+        e.reweighted(e.params.clone())?;
+        Ok(e)
+    }
+
+    /// The entries at `θ` with their standard errors (one evaluation, no pullback).
+    pub fn evaluate(&self, theta: &[f64]) -> Result<Entries, String> {
+        self.prepare(theta).and_then(|e| e.entries())
+    }
+}
+
+/// One evaluation: everything its pullback needs, owned.
+struct Evaluation {
+    proposal: Scene,
+    target: Medium,
+    factor: Vec<f64>,
+    params: Vec<Param>,
+    pairs: Vec<(usize, usize)>,
+    entries: Vec<(usize, usize)>,
+    reversed: bool,
+    plan: Plan,
+}
+
+impl Evaluation {
+    fn reweighted(&self, params: Vec<Param>) -> Result<Reweighted<'_>, String> {
+        Reweighted::new(
+            &self.proposal,
+            self.target.clone(),
+            self.pairs.clone(),
+            self.reversed,
+            params,
+        )
+    }
+
+    fn entries(&self) -> Result<Entries, String> {
+        let est: Estimate = estimate(&ReweightedCovariance(self.reweighted(vec![])?), &self.plan);
+        let j = self.pairs.len();
+        Ok(Entries {
+            value: self
+                .entries
+                .iter()
+                .map(|(a, b)| est.mean[a * j + b])
+                .collect(),
+            stderr: self
+                .entries
+                .iter()
+                .map(|(a, b)| est.stderr[a * j + b])
+                .collect(),
+        })
+    }
+}
+
+impl Pullback for Evaluation {
+    fn pullback(&self, dy: &[f64]) -> Vec<f64> {
+        let j = self.pairs.len();
+        let mut adjoint = vec![C64::default(); j * j];
+        for (e, (a, b)) in self.entries.iter().enumerate() {
+            adjoint[a * j + b] += C64::new(dy[2 * e], dy[2 * e + 1]);
+        }
+        match self.reweighted(self.params.clone()) {
+            Ok(r) => estimate(&CovarianceGradient::new(r, &adjoint), &self.plan)
+                .mean
+                .iter()
+                .zip(&self.factor)
+                .map(|(g, f)| g.re * f)
+                .collect(),
+            // unreachable: `prepare` built the same estimator successfully
+            Err(_) => vec![f64::NAN; self.params.len()],
+        }
+    }
+}
+
+impl Differentiable for CovarianceOp {
+    fn forward(&self, theta: &[f64]) -> Result<(Vec<f64>, Arc<dyn Pullback>), String> {
+        let e = self.prepare(theta)?;
+        let y = e
+            .entries()?
+            .value
+            .iter()
+            .flat_map(|z| [z.re, z.im])
+            .collect();
+        Ok((y, Arc::new(e)))
+    }
+}
