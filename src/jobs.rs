@@ -980,7 +980,12 @@ pub struct FitOptions {
     pub samples: Option<u64>,
     pub seed: Option<u64>,
     pub stages: usize,
-    pub iterations: usize,
+    /// L-BFGS iterations per stage, or Adam iterations (defaults 15 and 150).
+    pub iterations: Option<usize>,
+    /// `lbfgs` or `adam` (default: adam when fitting `phase`, else lbfgs).
+    pub optimizer: Option<String>,
+    pub learning_rate: f64,
+    pub smooth: f64,
     pub progress: bool,
 }
 
@@ -988,14 +993,30 @@ pub struct FitOptions {
 pub fn fit_job(mut cfg: Config, target_path: &Path, opts: &FitOptions, out: &Path) -> JobResult {
     use crate::inverse::{Fit, FitParam, FitSettings, Target, check_params};
     let target = Target::read(target_path)?;
+    let phase = opts.fit.split(',').any(|p| p.trim() == "phase");
     let params: Vec<FitParam> = opts
         .fit
         .split(',')
+        .filter(|p| p.trim() != "phase")
         .map(FitParam::parse)
         .collect::<Result<_, _>>()?;
-    if params.is_empty() {
+    if params.is_empty() && !phase {
         return Err("--fit: give at least one parameter".into());
     }
+    let adam = match opts.optimizer.as_deref() {
+        None => phase,
+        Some("adam") => true,
+        Some("lbfgs") if phase => {
+            return Err(
+                "--optimizer lbfgs: fitting `phase` (many node values) needs --optimizer adam"
+                    .into(),
+            );
+        }
+        Some("lbfgs") => false,
+        Some(other) => {
+            return Err(format!("--optimizer {other:?}: allowed: adam, lbfgs"));
+        }
+    };
     if let Some(s) = opts.samples {
         cfg.render.samples = s;
     }
@@ -1015,32 +1036,45 @@ pub fn fit_job(mut cfg: Config, target_path: &Path, opts: &FitOptions, out: &Pat
             cfg.validate().map_err(|e| e.0)?;
             memory_scene(&cfg)?.0
         }
-        Target::Covariance { lights, views, .. } => {
+        Target::Covariance { .. } | Target::Entries { .. } => {
             let s = cfg.scene().map_err(|e| e.0)?;
-            if (s.lights.len(), s.views.len()) != (*lights, *views) {
-                return Err(format!(
-                    "target {} has {lights} light(s) × {views} view(s) but the config has {} × {}",
-                    target_path.display(),
-                    s.lights.len(),
-                    s.views.len()
-                ));
-            }
+            target.check_scene(&s, target_path)?;
             s
         }
     };
     check_params(&params, &scene.medium)?;
-    if opts.stages == 0 || opts.iterations == 0 {
+    let iterations = opts.iterations.unwrap_or(if adam { 150 } else { 15 });
+    if opts.stages == 0 || iterations == 0 {
         return Err("--stages and --iterations must be at least 1".into());
     }
     std::fs::create_dir_all(out)
         .map_err(|e| format!("cannot create output folder {}: {e}", out.display()))?;
+    if adam {
+        let settings = crate::inverse::AdamSettings {
+            samples: cfg.render.samples,
+            chunk: cfg.render.chunk,
+            seed: cfg.render.seed,
+            reversed: cfg.render.reversed,
+            iterations,
+            learning_rate: opts.learning_rate,
+            smooth: opts.smooth,
+        };
+        let fit = crate::inverse::AdamFit {
+            scene: &scene,
+            target: &target,
+            params,
+            phase,
+            settings,
+        };
+        return adam_fit_job(&cfg, &fit, target_path, opts.progress, out);
+    }
     let settings = FitSettings {
         samples: cfg.render.samples,
         chunk: cfg.render.chunk,
         seed: cfg.render.seed,
         reversed: cfg.render.reversed,
         stages: opts.stages,
-        iterations: opts.iterations,
+        iterations,
     };
     let fit = Fit {
         scene: &scene,
@@ -1127,6 +1161,119 @@ pub fn fit_job(mut cfg: Config, target_path: &Path, opts: &FitOptions, out: &Pat
             }
             summary += "\n";
         }
+    }
+    Ok(Outcome { files, summary })
+}
+
+/// The Adam branch of `lightpath fit`: fit.json (log, fitted values ± sd, the single-scattering
+/// reading where it applies), phase.png for a phase-function fit, fit.png for a memory curve.
+fn adam_fit_job(
+    cfg: &Config,
+    fit: &crate::inverse::AdamFit,
+    target_path: &Path,
+    show: bool,
+    out: &Path,
+) -> JobResult {
+    use crate::inverse::Target;
+    let t0 = Instant::now();
+    let res = fit.run(&|e| {
+        if show {
+            eprintln!(
+                "iteration {:>4} loss {:.6e} |grad| {:.3e}",
+                e.stage, e.loss, e.grad_norm
+            );
+        }
+    })?;
+    let seconds = t0.elapsed().as_secs_f64();
+    let readings = crate::inverse::shortcut::single_scattering_readings(fit.scene, fit.target);
+    let angles: Vec<f64> = res
+        .cos
+        .iter()
+        .map(|c| c.clamp(-1.0, 1.0).acos().to_degrees())
+        .collect();
+    let mut m = serde_json::Map::new();
+    m.insert("optimizer".into(), json!("adam"));
+    m.insert("params".into(), json!(res.names));
+    m.insert("initial".into(), json!(res.initial));
+    m.insert("fitted".into(), json!(res.fitted));
+    m.insert("stddev".into(), json!(res.stddev));
+    m.insert("loss".into(), json!(res.loss));
+    m.insert("dof".into(), json!(res.dof));
+    m.insert("phase_cos".into(), json!(res.cos));
+    m.insert("phase_angle_deg".into(), json!(angles));
+    m.insert("target_values".into(), json!(fit.target.values()));
+    m.insert("model_initial".into(), json!(res.model_initial));
+    m.insert("model_fitted".into(), json!(res.model_fitted));
+    if let Some(r) = &readings {
+        m.insert(
+            "single_scattering_reading".into(),
+            Value::Array(
+                r.iter()
+                    .map(|r| json!({"delta_deg": r.delta_deg, "angle_deg": r.angle_deg, "rho": r.rho, "stderr": r.stderr}))
+                    .collect(),
+            ),
+        );
+    }
+    m.insert(
+        "log".into(),
+        Value::Array(res.log.iter().map(|e| json!({"iteration": e.stage, "loss": e.loss, "params": e.params, "grad_norm": e.grad_norm})).collect()),
+    );
+    m.insert("learning_rate".into(), json!(fit.settings.learning_rate));
+    m.insert("smooth".into(), json!(fit.settings.smooth));
+    m.insert("samples".into(), json!(fit.settings.samples));
+    m.insert("seed".into(), json!(fit.settings.seed));
+    m.insert("seconds".into(), json!(seconds));
+    m.insert("version".into(), json!(env!("CARGO_PKG_VERSION")));
+    m.insert("target".into(), json!(target_path.display().to_string()));
+    m.insert(
+        "config".into(),
+        serde_json::to_value(cfg).unwrap_or(Value::Null),
+    );
+    let path = out.join("fit.json");
+    write_json(&path, &Value::Object(m))
+        .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+    let mut files = vec![path];
+    let scalars = fit.params.len();
+    if fit.phase {
+        let png = out.join("phase.png");
+        crate::io::plot::phase_fit(
+            &png,
+            &angles,
+            &res.initial[scalars..],
+            &res.fitted[scalars..],
+            &res.stddev[scalars..],
+            readings.as_deref().unwrap_or(&[]),
+        )?;
+        files.push(png);
+    }
+    if let Target::Memory {
+        angles_deg,
+        correlation,
+        stderr,
+    } = fit.target
+    {
+        let png = out.join("fit.png");
+        crate::io::plot::fit_curve(
+            &png,
+            angles_deg,
+            correlation,
+            stderr.as_deref(),
+            &res.model_initial,
+            &res.model_fitted,
+        )?;
+        files.push(png);
+    }
+    let mut summary = format!(
+        "Adam fit in {seconds:.1} s ({} iterations), final loss {:.4e} over {:.0} degrees of freedom\n",
+        res.log.len(),
+        res.loss,
+        res.dof
+    );
+    for (i, n) in res.names.iter().enumerate() {
+        summary += &format!(
+            "  {n:>14}: {:.5} → {:.5} ± {:.5}\n",
+            res.initial[i], res.fitted[i], res.stddev[i]
+        );
     }
     Ok(Outcome { files, summary })
 }

@@ -69,13 +69,14 @@ enum Command {
         #[arg(long)]
         plot: Option<PathBuf>,
     },
-    /// Fit medium parameters (mfp, albedo, g, sigma_s, sigma_a) so rendered statistics match a target
+    /// Fit medium parameters (mfp, albedo, g, sigma_s, sigma_a, phase) so rendered statistics match a target
     Fit {
         config: PathBuf,
         /// memory_effect.json / covariance.json of a run, or a measured curve (CSV angle_deg,correlation[,stderr])
         #[arg(long)]
         target: PathBuf,
-        /// Parameters to fit, comma separated, e.g. mfp,g
+        /// Parameters to fit, comma separated, e.g. mfp,g; `phase` fits every node value of a
+        /// tabulated phase function (with Adam)
         #[arg(long)]
         fit: String,
         #[arg(long)]
@@ -90,9 +91,19 @@ enum Command {
         /// Proposal re-centring stages
         #[arg(long, default_value_t = 3)]
         stages: usize,
-        /// L-BFGS iterations per stage
-        #[arg(long, default_value_t = 15)]
-        iterations: usize,
+        /// L-BFGS iterations per stage (default 15), or Adam iterations (default 150)
+        #[arg(long)]
+        iterations: Option<usize>,
+        /// lbfgs (few parameters, deterministic objective) or adam (many parameters, burn);
+        /// default: adam when fitting `phase`
+        #[arg(long)]
+        optimizer: Option<String>,
+        /// Adam step size in the unconstrained variables (log ρ, log mfp, …)
+        #[arg(long, default_value_t = 0.05)]
+        learning_rate: f64,
+        /// Weight of the smoothness prior Σ (Δ² log ρ)² on a fitted phase function
+        #[arg(long, default_value_t = 0.0)]
+        smooth: f64,
         #[arg(long)]
         quiet: bool,
     },
@@ -247,6 +258,9 @@ fn main() -> ExitCode {
             threads,
             stages,
             iterations,
+            optimizer,
+            learning_rate,
+            smooth,
             quiet,
         }) => Config::from_file(&config).map_err(|e| e.0).and_then(|cfg| {
             let opts = jobs::FitOptions {
@@ -255,6 +269,9 @@ fn main() -> ExitCode {
                 seed,
                 stages,
                 iterations,
+                optimizer,
+                learning_rate,
+                smooth,
                 progress: !quiet,
             };
             with_threads(threads, || jobs::fit_job(cfg, &target, &opts, &out))?

@@ -44,7 +44,10 @@ fn recovers_mfp_and_g_from_a_memory_effect_curve() {
         samples: None,
         seed: None,
         stages: 6,
-        iterations: 5,
+        iterations: Some(5),
+        optimizer: None,
+        learning_rate: 0.05,
+        smooth: 0.0,
         progress: false,
     };
     let out = fit_job(
@@ -97,7 +100,10 @@ fn bad_fit_requests_are_clear_errors() {
         samples: Some(1000),
         seed: None,
         stages: 1,
-        iterations: 1,
+        iterations: Some(1),
+        optimizer: None,
+        learning_rate: 0.05,
+        smooth: 0.0,
         progress: false,
     };
     let err = fit_job(

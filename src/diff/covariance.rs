@@ -11,7 +11,7 @@
 use super::Param;
 use crate::math::{C64, INV_4PI, Rng, uniform, uniform_sphere};
 use crate::mc::Estimator;
-use crate::medium::Medium;
+use crate::medium::{Medium, PhaseFunction};
 use crate::speckle::Scene;
 use crate::speckle::covariance::Batch;
 use crate::speckle::endpoint::{Connection, Endpoint};
@@ -135,10 +135,18 @@ impl<'a> Reweighted<'a> {
     fn amplitude(&self, c: &Connection, mu: f64, kind: usize, lam: &mut [f64]) -> C64 {
         let d_sigma_t = self.target.sigma_t() - self.proposal.medium.sigma_t();
         let phase = self.target.scattering.phase(kind);
+        // a tabulated law is located once for all its node parameters (hot: every connection)
+        let located = match phase {
+            PhaseFunction::Tabulated(t) => Some((t, t.locate(mu))),
+            _ => None,
+        };
         for (l, p) in lam.iter_mut().zip(&self.params) {
-            *l = match p {
-                Param::SigmaS | Param::SigmaA => -0.5 * c.inside,
-                p => 0.5 * p.dlog_phase(kind, phase, mu),
+            *l = match (p, located) {
+                (Param::SigmaS | Param::SigmaA, _) => -0.5 * c.inside,
+                (Param::Bin(pc, k), Some((t, at))) if *pc == kind => {
+                    0.5 * t.dlog_rho_dnode_at(at, *k)
+                }
+                (p, _) => 0.5 * p.dlog_phase(kind, phase, mu),
             };
         }
         c.prop * (-0.5 * d_sigma_t * c.inside).exp() * phase.amplitude(mu)

@@ -7,9 +7,12 @@
 //! ([`crate::diff`]). The proposal is re-centred on the current estimate between stages, which keeps
 //! the re-weighting variance small while the parameters move.
 
+pub mod adam;
+pub mod shortcut;
 pub mod target;
 
-pub use target::Target;
+pub use adam::{AdamFit, AdamResult, AdamSettings};
+pub use target::{Entry, Measured, Target};
 
 use crate::diff::{CovarianceGradient, Param, Reweighted, ReweightedCovariance};
 use crate::math::C64;
@@ -415,22 +418,27 @@ impl Fit<'_> {
     }
 }
 
-/// `(JᵀJ)⁻¹ × scale`: standard deviations and correlations (NaN where singular: not identifiable).
-fn gauss_newton(jac: &[Vec<f64>], scale: f64) -> (Vec<f64>, Vec<Vec<f64>>) {
+/// `(JᵀJ)⁻¹ × scale`: the Gauss–Newton covariance of the parameters.
+fn covariance_matrix(jac: &[Vec<f64>], scale: f64) -> faer::Mat<f64> {
+    use faer::linalg::solvers::Solve;
     let p = jac.first().map_or(0, |r| r.len());
     let jtj = faer::Mat::<f64>::from_fn(p, p, |a, b| jac.iter().map(|r| r[a] * r[b]).sum());
-    let inv = {
-        use faer::linalg::solvers::Solve;
-        let id = faer::Mat::<f64>::identity(p, p);
-        jtj.partial_piv_lu().solve(&id)
-    };
+    let id = faer::Mat::<f64>::identity(p, p);
+    jtj.partial_piv_lu().solve(&id) * faer::Scale(scale)
+}
+
+/// Standard deviations and correlations from [`covariance_matrix`] (NaN where singular: not
+/// identifiable).
+fn gauss_newton(jac: &[Vec<f64>], scale: f64) -> (Vec<f64>, Vec<Vec<f64>>) {
+    let cov = covariance_matrix(jac, 1.0);
+    let p = cov.nrows();
     let sd: Vec<f64> = (0..p)
-        .map(|a| (inv[(a, a)] * scale).max(0.0).sqrt())
+        .map(|a| (cov[(a, a)] * scale).max(0.0).sqrt())
         .collect();
     let corr = (0..p)
         .map(|a| {
             (0..p)
-                .map(|b| inv[(a, b)] / (inv[(a, a)] * inv[(b, b)]).sqrt())
+                .map(|b| cov[(a, b)] / (cov[(a, a)] * cov[(b, b)]).sqrt())
                 .collect()
         })
         .collect();

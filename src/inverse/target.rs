@@ -1,6 +1,11 @@
 //! Fit targets: memory-effect curves (our `memory_effect.json`, or a measured curve as CSV
 //! `angle_deg,correlation[,stderr]` or JSON `{"angles_deg": [...], "correlation": [...],
-//! "stderr": [...]}`) and covariances (our `covariance.json`, from Monte Carlo or the wave solver).
+//! "stderr": [...]}`), covariances (our `covariance.json`, from Monte Carlo or the wave solver), and
+//! arbitrary sets of measured entries (`{"entries": [{"light": [l1, l2], "view": [v1, v2], "re": ..,
+//! "im": .., "stderr": ..}, {"light": .., "view": .., "intensity_correlation": .., "stderr": ..}]}`,
+//! indices into the config's lights and views): complex field covariances `C = E[u1 ū2] − m1 m̄2`, or
+//! intensity correlations `E[I1 I2] − E[I1] E[I2] = |C|²` (Gaussian speckle; paper 004, Eqs. 4, 8),
+//! which is what a camera measures.
 //! Each gives the loss (weighted least squares, by the target's standard errors when it has them),
 //! its adjoint `∂L/∂C` and the residuals.
 
@@ -25,6 +30,27 @@ pub enum Target {
         value: Vec<C64>,
         stderr: Vec<f64>,
     },
+    /// Chosen entries between (light, view) pairs, each a field covariance or an intensity
+    /// correlation; `stderr` for all entries or none.
+    Entries {
+        entries: Vec<Entry>,
+        stderr: Option<Vec<f64>>,
+    },
+}
+
+/// One measured entry: lights `(l1, l2)`, views `(v1, v2)` and what was measured.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Entry {
+    pub light: [usize; 2],
+    pub view: [usize; 2],
+    pub value: Measured,
+}
+
+/// A measured field covariance `C`, or an intensity correlation `|C|²`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Measured {
+    Field(C64),
+    Intensity(f64),
 }
 
 fn floats(v: &Value, key: &str, path: &Path) -> Result<Vec<f64>, String> {
@@ -45,7 +71,9 @@ impl Target {
         let text = std::fs::read_to_string(path)
             .map_err(|e| format!("cannot read target {}: {e}", path.display()))?;
         let t = if let Ok(v) = serde_json::from_str::<Value>(&text) {
-            if v.get("re").is_some() && v.get("stderr").is_some() {
+            if v.get("entries").is_some() {
+                Self::entries_json(&v, path)?
+            } else if v.get("re").is_some() && v.get("stderr").is_some() {
                 Self::covariance_json(&v, path)?
             } else {
                 let angles_deg = floats(&v, "angles_deg", path)?;
@@ -106,6 +134,64 @@ impl Target {
             value,
             stderr,
         })
+    }
+
+    fn entries_json(v: &Value, path: &Path) -> Result<Target, String> {
+        let list = v["entries"]
+            .as_array()
+            .ok_or_else(|| format!("{}: `entries` is not an array", path.display()))?;
+        let (mut entries, mut stderr) = (Vec::new(), Vec::new());
+        for (i, e) in list.iter().enumerate() {
+            let at = |what: &str| format!("{}: entries[{i}]: {what}", path.display());
+            let index_pair = |key: &str| -> Result<[usize; 2], String> {
+                match e[key]
+                    .as_array()
+                    .map(|a| a.iter().map(Value::as_u64).collect::<Vec<_>>())
+                {
+                    Some(a) if a.len() == 2 && a.iter().all(Option::is_some) => {
+                        Ok([a[0].unwrap_or(0) as usize, a[1].unwrap_or(0) as usize])
+                    }
+                    _ => Err(at(&format!("`{key}` must be two indices, e.g. [0, 1]"))),
+                }
+            };
+            let num = |key: &str| {
+                e.get(key).map(|x| {
+                    x.as_f64()
+                        .ok_or_else(|| at(&format!("`{key}` is not a number")))
+                })
+            };
+            let value = match (num("re"), num("im"), num("intensity_correlation")) {
+                (Some(re), Some(im), None) => Measured::Field(C64::new(re?, im?)),
+                (None, None, Some(c)) => Measured::Intensity(c?),
+                _ => {
+                    return Err(at(
+                        "give either `re` and `im` (field covariance) or `intensity_correlation`",
+                    ));
+                }
+            };
+            if let Some(s) = num("stderr") {
+                stderr.push(s?);
+            }
+            entries.push(Entry {
+                light: index_pair("light")?,
+                view: index_pair("view")?,
+                value,
+            });
+        }
+        if entries.is_empty() {
+            return Err(format!("{}: `entries` is empty", path.display()));
+        }
+        let stderr = match stderr.len() {
+            0 => None,
+            n if n == entries.len() => Some(stderr),
+            _ => {
+                return Err(format!(
+                    "{}: give a stderr on every entry or on none",
+                    path.display()
+                ));
+            }
+        };
+        Ok(Target::Entries { entries, stderr })
     }
 
     fn csv(text: &str, path: &Path) -> Result<Target, String> {
@@ -189,14 +275,77 @@ impl Target {
                     return Err(format!("{}: non-finite covariance entries", path.display()));
                 }
             }
+            Target::Entries { entries, stderr } => {
+                for (i, e) in entries.iter().enumerate() {
+                    let finite = match e.value {
+                        Measured::Field(z) => z.re.is_finite() && z.im.is_finite(),
+                        Measured::Intensity(c) => c.is_finite(),
+                    };
+                    if !finite {
+                        return Err(format!("{}: entries[{i}] is not finite", path.display()));
+                    }
+                    if let Some(s) = stderr
+                        && !(s[i] > 0.0 && s[i].is_finite())
+                    {
+                        return Err(format!(
+                            "{}: entries[{i}].stderr = {}: must be > 0",
+                            path.display(),
+                            s[i]
+                        ));
+                    }
+                }
+            }
         }
         Ok(())
+    }
+
+    /// Check the target against the scene it is fitted with (light and view counts, indices).
+    pub fn check_scene(&self, scene: &Scene, path: &Path) -> Result<(), String> {
+        let (nl, nv) = (scene.lights.len(), scene.views.len());
+        match self {
+            Target::Memory { .. } => Ok(()),
+            Target::Covariance { lights, views, .. } if (*lights, *views) != (nl, nv) => {
+                Err(format!(
+                    "target {} has {lights} light(s) × {views} view(s) but the config has {nl} × {nv}",
+                    path.display()
+                ))
+            }
+            Target::Covariance { .. } => Ok(()),
+            Target::Entries { entries, .. } => {
+                for (i, e) in entries.iter().enumerate() {
+                    if e.light.iter().any(|l| *l >= nl) || e.view.iter().any(|v| *v >= nv) {
+                        return Err(format!(
+                            "target {}: entries[{i}] has light {:?}, view {:?}; the config has {nl} light(s) and {nv} view(s) (indices from 0)",
+                            path.display(),
+                            e.light,
+                            e.view
+                        ));
+                    }
+                }
+                Ok(())
+            }
+        }
+    }
+
+    /// For an entries target: each entry's `(a, b)` indices into [`Self::pairs`].
+    pub fn entry_indices(&self) -> Vec<(usize, usize)> {
+        match self {
+            Target::Entries { entries, .. } => {
+                let pairs = entry_pairs(entries);
+                let at = |l: usize, v: usize| pairs.binary_search(&(l, v)).unwrap_or(0);
+                entries
+                    .iter()
+                    .map(|e| (at(e.light[0], e.view[0]), at(e.light[1], e.view[1])))
+                    .collect()
+            }
+            _ => vec![],
+        }
     }
 
     /// Whether residuals are weighted by target errors (else the fit scales by the residual variance).
     pub fn has_errors(&self) -> bool {
         match self {
-            Target::Memory { stderr, .. } => stderr.is_some(),
+            Target::Memory { stderr, .. } | Target::Entries { stderr, .. } => stderr.is_some(),
             Target::Covariance { stderr, .. } => stderr.iter().all(|s| *s > 0.0),
         }
     }
@@ -206,6 +355,48 @@ impl Target {
         match self {
             Target::Memory { angles_deg, .. } => (0..=angles_deg.len()).map(|j| (j, j)).collect(),
             Target::Covariance { .. } => crate::speckle::paths::SubpathSampler::all_pairs(scene),
+            Target::Entries { entries, .. } => entry_pairs(entries),
+        }
+    }
+
+    /// The `(a, b)` covariance entries (indices into [`Self::pairs`]) the loss reads.
+    pub fn needed(&self) -> Vec<(usize, usize)> {
+        match self {
+            Target::Memory { angles_deg, .. } => {
+                let mut e = vec![(0, 0)];
+                for t in 1..=angles_deg.len() {
+                    e.extend([(t, t), (0, t)]);
+                }
+                e
+            }
+            Target::Covariance { lights, views, .. } => {
+                let j = lights * views;
+                (0..j * j).map(|i| (i / j, i % j)).collect()
+            }
+            Target::Entries { .. } => self.entry_indices(),
+        }
+    }
+
+    /// Target values in the units of [`Self::model_values`].
+    pub fn values(&self) -> Vec<f64> {
+        match self {
+            Target::Memory { correlation, .. } => correlation.clone(),
+            Target::Covariance {
+                lights,
+                views,
+                value,
+                ..
+            } => {
+                let j = lights * views;
+                (0..j).map(|a| value[a * j + a].re).collect()
+            }
+            Target::Entries { entries, .. } => entries
+                .iter()
+                .map(|e| match e.value {
+                    Measured::Field(z) => z.re,
+                    Measured::Intensity(c) => c,
+                })
+                .collect(),
         }
     }
 
@@ -222,6 +413,17 @@ impl Target {
                 let j = lights * views;
                 (0..j).map(|a| c[a * j + a].re).collect()
             }
+            Target::Entries { entries, .. } => {
+                let j = entry_pairs(entries).len();
+                entries
+                    .iter()
+                    .zip(self.entry_indices())
+                    .map(|(e, (a, b))| match e.value {
+                        Measured::Field(_) => c[a * j + b].re,
+                        Measured::Intensity(_) => c[a * j + b].norm_sqr(),
+                    })
+                    .collect()
+            }
         }
     }
 
@@ -236,7 +438,7 @@ impl Target {
                 }
                 k
             }
-            Target::Covariance { .. } => vec![],
+            Target::Covariance { .. } | Target::Entries { .. } => vec![],
         }
     }
 
@@ -279,6 +481,20 @@ impl Target {
                 .zip(stderr)
                 .flat_map(|(m, s)| [m / s.max(1e-300) / 2f64.sqrt(); 2])
                 .collect(),
+            Target::Entries { entries, stderr } => {
+                let j = entry_pairs(entries).len();
+                let mut out = Vec::new();
+                for ((i, e), (a, b)) in entries.iter().enumerate().zip(self.entry_indices()) {
+                    let (m, sd) = (est.mean[a * j + b], est.stderr[a * j + b]);
+                    let s = stderr.as_ref().map_or(1.0, |s| s[i]);
+                    match e.value {
+                        Measured::Field(_) => out.extend([sd / s / 2f64.sqrt(); 2]),
+                        // |C|² by the delta method: Var ≈ 4 (re² Var re + im² Var im) = 2 |C|² sd²
+                        Measured::Intensity(_) => out.push(2f64.sqrt() * m.norm() * sd / s),
+                    }
+                }
+                out
+            }
         }
     }
 
@@ -305,6 +521,21 @@ impl Target {
                     [d.re, d.im]
                 })
                 .collect(),
+            Target::Entries { entries, stderr } => {
+                let j = entry_pairs(entries).len();
+                let mut out = Vec::new();
+                for ((i, e), (a, b)) in entries.iter().enumerate().zip(self.entry_indices()) {
+                    let (m, s) = (c[a * j + b], stderr.as_ref().map_or(1.0, |s| s[i]));
+                    match e.value {
+                        Measured::Field(t) => {
+                            let d = (m - t) / s;
+                            out.extend([d.re, d.im]);
+                        }
+                        Measured::Intensity(t) => out.push((m.norm_sqr() - t) / s),
+                    }
+                }
+                out
+            }
         }
     }
 
@@ -343,7 +574,39 @@ impl Target {
                 }
                 l
             }
+            Target::Entries { entries, stderr } => {
+                let j = entry_pairs(entries).len();
+                let mut l = 0.0;
+                for ((i, e), (a, b)) in entries.iter().enumerate().zip(self.entry_indices()) {
+                    let (m, s) = (c[a * j + b], stderr.as_ref().map_or(1.0, |s| s[i]));
+                    match e.value {
+                        Measured::Field(t) => {
+                            let d = (m - t) / s;
+                            l += d.norm_sqr();
+                            adj[a * j + b] += d * (2.0 / s);
+                        }
+                        Measured::Intensity(t) => {
+                            // d|C|² = Re(conj(2C) dC)
+                            let res = (m.norm_sqr() - t) / s;
+                            l += res * res;
+                            adj[a * j + b] += m * (4.0 * res / s);
+                        }
+                    }
+                }
+                l
+            }
         };
         (loss, adj)
     }
+}
+
+/// The distinct (light, view) pairs an entries target reads, sorted.
+fn entry_pairs(entries: &[Entry]) -> Vec<(usize, usize)> {
+    let mut p: Vec<(usize, usize)> = entries
+        .iter()
+        .flat_map(|e| [(e.light[0], e.view[0]), (e.light[1], e.view[1])])
+        .collect();
+    p.sort_unstable();
+    p.dedup();
+    p
 }

@@ -354,3 +354,103 @@ pub fn ray_paths(path: &Path, rays: &[Vec<glam::DVec3>]) -> Result<(), String> {
     root.present().map_err(|x| e(&x))?;
     Ok(())
 }
+
+/// A fitted phase function: `ρ` at the table's nodes (log scale) — initial, fitted with ±1 sd
+/// bars — and, where the scene allows it, the single-scattering readings of paper 004 per
+/// illumination displacement `Δ`.
+pub fn phase_fit(
+    path: &Path,
+    angles_deg: &[f64],
+    initial: &[f64],
+    fitted: &[f64],
+    stddev: &[f64],
+    readings: &[crate::inverse::shortcut::Reading],
+) -> Result<(), String> {
+    register_font();
+    let e = |e: &dyn std::fmt::Display| e.to_string();
+    let root = BitMapBackend::new(path, (900, 600)).into_drawing_area();
+    root.fill(&WHITE).map_err(|x| e(&x))?;
+    let positive = |v: f64| v.is_finite() && v > 0.0;
+    let all = initial
+        .iter()
+        .chain(fitted)
+        .copied()
+        .chain(readings.iter().map(|r| r.rho))
+        .filter(|v| positive(*v));
+    let (lo, hi) = all.fold((f64::INFINITY, 0.0f64), |(a, b), v| (a.min(v), b.max(v)));
+    if !(positive(lo) && positive(hi)) {
+        return Err("phase_fit: nothing positive to plot".into());
+    }
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            "Phase function: fit and single-scattering reading",
+            ("sans-serif", 22),
+        )
+        .margin(15)
+        .x_label_area_size(45)
+        .y_label_area_size(70)
+        .build_cartesian_2d(0.0..180.0, (lo / 2.0..hi * 2.0).log_scale())
+        .map_err(|x| e(&x))?;
+    chart
+        .configure_mesh()
+        .x_desc("scattering angle θ [deg]")
+        .y_desc("ρ(θ) [1/sr]")
+        .label_style(("sans-serif", 15))
+        .draw()
+        .map_err(|x| e(&x))?;
+    let curve = |v: &[f64]| -> Vec<(f64, f64)> {
+        let mut p: Vec<(f64, f64)> = angles_deg.iter().copied().zip(v.iter().copied()).collect();
+        p.sort_by(|a, b| a.0.total_cmp(&b.0));
+        p
+    };
+    chart
+        .draw_series(LineSeries::new(
+            curve(initial),
+            BLACK.mix(0.5).stroke_width(2),
+        ))
+        .map_err(|x| e(&x))?
+        .label("initial")
+        .legend(|(x, y)| {
+            PathElement::new(vec![(x, y), (x + 20, y)], BLACK.mix(0.5).stroke_width(2))
+        });
+    chart
+        .draw_series(LineSeries::new(curve(fitted), BLUE.stroke_width(2)))
+        .map_err(|x| e(&x))?
+        .label("fitted (±1 sd)")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE.stroke_width(2)));
+    chart
+        .draw_series(
+            angles_deg
+                .iter()
+                .zip(fitted.iter().zip(stddev))
+                .map(|(a, (v, s))| {
+                    let low = (v - s).max(v / 10.0);
+                    ErrorBar::new_vertical(*a, low, *v, v + s, BLUE.filled(), 6)
+                }),
+        )
+        .map_err(|x| e(&x))?;
+    let mut deltas: Vec<f64> = readings
+        .iter()
+        .map(|r| (r.delta_deg * 1e3).round() / 1e3)
+        .collect();
+    deltas.sort_by(f64::total_cmp);
+    deltas.dedup();
+    for (i, d) in deltas.iter().enumerate() {
+        let colour = Palette99::pick(i + 1).to_rgba();
+        chart
+            .draw_series(
+                readings
+                    .iter()
+                    .filter(|r| {
+                        ((r.delta_deg * 1e3).round() / 1e3 - d).abs() < 1e-9 && positive(r.rho)
+                    })
+                    .map(|r| Circle::new((r.angle_deg, r.rho), 4, colour.filled())),
+            )
+            .map_err(|x| e(&x))?
+            .label(format!("single-scattering reading, Δ = {d:.2}°"))
+            .legend(move |(x, y)| Circle::new((x + 10, y), 4, colour.filled()));
+    }
+    legend(&mut chart, 14)?;
+    root.present().map_err(|x| e(&x))?;
+    Ok(())
+}

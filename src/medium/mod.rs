@@ -4,7 +4,7 @@ pub mod geometry;
 pub mod phase;
 
 pub use geometry::Geometry;
-pub use phase::{PhaseFunction, Scattering, Table, TableError};
+pub use phase::{Located, PhaseFunction, Scattering, Table, TableError};
 
 /// A homogeneous scattering medium (paper 001, Eqs. 7–8).
 #[derive(Clone, Debug, PartialEq)]

@@ -31,6 +31,14 @@ pub struct Table {
     cdf: Vec<f64>,
 }
 
+/// A cosine located in a [`Table`]: segment `i`, fraction `t` and the interpolated `ρ`.
+#[derive(Clone, Copy, Debug)]
+pub struct Located {
+    i: usize,
+    t: f64,
+    rho: f64,
+}
+
 /// Why a table was rejected.
 #[derive(Clone, Debug, PartialEq)]
 pub enum TableError {
@@ -159,8 +167,7 @@ impl Table {
     }
 
     fn rho(&self, mu: f64) -> f64 {
-        let (i, t) = self.segment(mu);
-        self.rho[i] + t * (self.rho[i + 1] - self.rho[i])
+        self.locate(mu).rho
     }
 
     fn arg(&self, mu: f64) -> f64 {
@@ -233,12 +240,28 @@ impl Table {
     /// `∂ log ρ(μ) / ∂v_k` for the node value `v_k` with the normalisation kept:
     /// `hat_k(μ)/ρ(μ) − 2π w_k` (`w_k` the trapezoid weight of node k; the table is normalised).
     pub fn dlog_rho_dnode(&self, mu: f64, k: usize) -> f64 {
-        let n = self.cos.len();
+        self.dlog_rho_dnode_at(self.locate(mu), k)
+    }
+
+    /// Where `μ` falls in the table, for [`Self::dlog_rho_dnode_at`]: one lookup serves every node.
+    #[inline]
+    pub fn locate(&self, mu: f64) -> Located {
         let (i, t) = self.segment(mu);
-        let hat = if k == i {
-            1.0 - t
-        } else if k == i + 1 {
-            t
+        Located {
+            i,
+            t,
+            rho: self.rho[i] + t * (self.rho[i + 1] - self.rho[i]),
+        }
+    }
+
+    /// [`Self::dlog_rho_dnode`] at a located `μ`.
+    #[inline]
+    pub fn dlog_rho_dnode_at(&self, at: Located, k: usize) -> f64 {
+        let n = self.cos.len();
+        let hat = if k == at.i {
+            1.0 - at.t
+        } else if k == at.i + 1 {
+            at.t
         } else {
             0.0
         };
@@ -252,8 +275,7 @@ impl Table {
         } else {
             0.0
         };
-        let rho = self.rho(mu);
-        let ratio = if rho > 0.0 { hat / rho } else { 0.0 };
+        let ratio = if at.rho > 0.0 { hat / at.rho } else { 0.0 };
         ratio - 2.0 * PI * 0.5 * (left + right)
     }
 
