@@ -1128,23 +1128,12 @@ pub fn fit_job(mut cfg: Config, target_path: &Path, opts: &FitOptions, out: &Pat
     write_json(&path, &Value::Object(m))
         .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
     let mut files = vec![path];
-    if let Target::Memory {
-        angles_deg,
-        correlation,
-        stderr,
-    } = &target
-    {
-        let png = out.join("fit.png");
-        crate::io::plot::fit_curve(
-            &png,
-            angles_deg,
-            correlation,
-            stderr.as_deref(),
-            &res.model_initial,
-            &res.model_fitted,
-        )?;
-        files.push(png);
-    }
+    files.extend(memory_fit_plot(
+        &target,
+        &res.model_initial,
+        &res.model_fitted,
+        out,
+    )?);
     let mut summary = format!("fit in {seconds:.1} s, final loss {:.4e}\n", res.loss);
     for (i, n) in names.iter().enumerate() {
         summary += &format!(
@@ -1165,6 +1154,33 @@ pub fn fit_job(mut cfg: Config, target_path: &Path, opts: &FitOptions, out: &Pat
     Ok(Outcome { files, summary })
 }
 
+/// fit.png for a memory-curve target: the target with error bars, the initial and fitted model.
+fn memory_fit_plot(
+    target: &crate::inverse::Target,
+    initial: &[f64],
+    fitted: &[f64],
+    out: &Path,
+) -> Result<Option<PathBuf>, String> {
+    let crate::inverse::Target::Memory {
+        angles_deg,
+        correlation,
+        stderr,
+    } = target
+    else {
+        return Ok(None);
+    };
+    let png = out.join("fit.png");
+    crate::io::plot::fit_curve(
+        &png,
+        angles_deg,
+        correlation,
+        stderr.as_deref(),
+        initial,
+        fitted,
+    )?;
+    Ok(Some(png))
+}
+
 /// The Adam branch of `lightpath fit`: fit.json (log, fitted values ± sd, the single-scattering
 /// reading where it applies), phase.png for a phase-function fit, fit.png for a memory curve.
 fn adam_fit_job(
@@ -1174,7 +1190,6 @@ fn adam_fit_job(
     show: bool,
     out: &Path,
 ) -> JobResult {
-    use crate::inverse::Target;
     let t0 = Instant::now();
     let res = fit.run(&|e| {
         if show {
@@ -1246,23 +1261,12 @@ fn adam_fit_job(
         )?;
         files.push(png);
     }
-    if let Target::Memory {
-        angles_deg,
-        correlation,
-        stderr,
-    } = fit.target
-    {
-        let png = out.join("fit.png");
-        crate::io::plot::fit_curve(
-            &png,
-            angles_deg,
-            correlation,
-            stderr.as_deref(),
-            &res.model_initial,
-            &res.model_fitted,
-        )?;
-        files.push(png);
-    }
+    files.extend(memory_fit_plot(
+        fit.target,
+        &res.model_initial,
+        &res.model_fitted,
+        out,
+    )?);
     let mut summary = format!(
         "Adam fit in {seconds:.1} s ({} iterations), final loss {:.4e} over {:.0} degrees of freedom\n",
         res.log.len(),
