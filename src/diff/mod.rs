@@ -12,7 +12,7 @@ pub mod covariance;
 pub mod ops;
 
 pub use covariance::{CovarianceGradient, Reweighted, ReweightedCovariance};
-pub use ops::{CovarianceOp, Proposal, medium_at};
+pub use ops::{CovarianceOp, MeanOp, Proposal, medium_at};
 
 use crate::medium::{Medium, PhaseFunction};
 

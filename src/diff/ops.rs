@@ -265,3 +265,59 @@ impl Differentiable for CovarianceOp {
         Ok((y, Arc::new(e)))
     }
 }
+
+/// `θ ↦ (Re m, Im m)` of the speckle mean for chosen (light, view) pairs (closed form, paper 001
+/// Eqs. 20, 47–48), with its analytic pullback ([`crate::speckle::mean::mean_field_gradient`]).
+pub struct MeanOp {
+    pub scene: Scene,
+    pub params: Vec<Param>,
+    /// `(light, view)` indices: output `2e` is `Re m`, `2e + 1` is `Im m`.
+    pub pairs: Vec<(usize, usize)>,
+}
+
+struct MeanPullback {
+    /// `∂(Re m_e, Im m_e)/∂θ_p`, scaled to unnormalised parameters.
+    jacobian: Vec<Vec<C64>>,
+}
+
+impl Pullback for MeanPullback {
+    fn pullback(&self, dy: &[f64]) -> Vec<f64> {
+        let np = self.jacobian.first().map_or(0, Vec::len);
+        (0..np)
+            .map(|p| {
+                self.jacobian
+                    .iter()
+                    .enumerate()
+                    .map(|(e, row)| dy[2 * e] * row[p].re + dy[2 * e + 1] * row[p].im)
+                    .sum()
+            })
+            .collect()
+    }
+}
+
+impl Differentiable for MeanOp {
+    fn forward(&self, theta: &[f64]) -> Result<(Vec<f64>, Arc<dyn Pullback>), String> {
+        let (medium, factor) = medium_at(&self.scene.medium, &self.params, theta)?;
+        let scene = Scene {
+            medium,
+            ..self.scene.clone()
+        };
+        let (mut y, mut jacobian) = (Vec::new(), Vec::new());
+        for &(l, v) in &self.pairs {
+            let (light, view) = match (scene.lights.get(l), scene.views.get(v)) {
+                (Some(a), Some(b)) => (a, b),
+                _ => {
+                    return Err(format!(
+                        "mean of light {l}, view {v}: no such light or view"
+                    ));
+                }
+            };
+            let (m, g) =
+                crate::speckle::mean::mean_field_gradient(&scene, light, view, &self.params)
+                    .ok_or(crate::speckle::endpoint::FOCUSED_UNSUPPORTED)?;
+            y.extend([m.re, m.im]);
+            jacobian.push(g.iter().zip(&factor).map(|(g, f)| g * f).collect());
+        }
+        Ok((y, Arc::new(MeanPullback { jacobian })))
+    }
+}
