@@ -6,7 +6,9 @@
 //! For `F = n∇n` one step is `v½ = v + h/2 F(x)`, `x' = x + h v½`, `v' = v½ + h/2 F(x')`; its
 //! adjoint uses `J_F = ∇n∇nᵀ + n ∇²n` (symmetric) and `∂F/∂θ = (∂n/∂θ)∇n + n ∇(∂n/∂θ)`.
 //! Rays run a fixed number of steps inside the field (the boundary-crossing derivative is not
-//! included yet).
+//! included yet). Gradients with respect to *every* coefficient of a grid profile are accumulated
+//! sparsely: each field evaluation touches only its 8 (trilinear) or 64 (tricubic) taps, so the
+//! cost per step does not depend on the grid size.
 
 use super::field::{BoundedField, IndexField};
 use super::trace::{Ray, Tracer};
@@ -26,6 +28,30 @@ pub struct RayGradient {
     pub dx0: DVec3,
     pub dv0: DVec3,
     pub dparams: Vec<f64>,
+}
+
+/// Where the adjoint accumulates `∂L/∂c` for every coefficient of grid profile `profile`.
+pub struct GridAdjoint<'a> {
+    pub profile: usize,
+    /// One entry per coefficient (added to, so many rays can share it).
+    pub grad: &'a mut [f64],
+}
+
+/// `grad[i] += (∂F/∂c_i)(x)·a` for every tap `i` of the grid at `x`, with
+/// `∂F/∂c_i = w_i ∇n + n ∇w_i` (`F = n∇n`).
+fn accumulate_grid(f: &BoundedField, x: DVec3, a: DVec3, grid: &mut Option<GridAdjoint>) {
+    let Some(GridAdjoint { profile, grad }) = grid else {
+        return;
+    };
+    if !f.bounds.contains(x) {
+        return;
+    }
+    let Some(super::field::Profile::Grid(g)) = f.profiles.get(*profile) else {
+        return;
+    };
+    let (n, gn, _) = f.eval(x);
+    let ga = gn.dot(a);
+    g.visit_dcoef(x, |i, w, dw| grad[i] += w * ga + n * dw.dot(a));
 }
 
 fn jacobian(f: &BoundedField, x: DVec3) -> DMat3 {
@@ -61,6 +87,7 @@ impl Tracer<'_> {
         lv: DVec3,
         params: &[FieldParam],
         dp: &mut [f64],
+        grid: &mut Option<GridAdjoint>,
     ) -> Result<(DVec3, DVec3), String> {
         let f = self.field;
         let v_half = r.v + f.grad(r.x) * (f.n(r.x) * 0.5 * h);
@@ -70,6 +97,7 @@ impl Tracer<'_> {
         for (g, p) in dp.iter_mut().zip(params) {
             *g += 0.5 * h * dforce(f, x1, p)?.dot(lv);
         }
+        accumulate_grid(f, x1, lv * (0.5 * h), grid);
         // x' = x + h v½: v½ collects λ_v' (direct) and h λ_x'
         let l_half = lv + lx1 * h;
         // v½ = v + h/2 F(x)
@@ -77,6 +105,7 @@ impl Tracer<'_> {
         for (g, p) in dp.iter_mut().zip(params) {
             *g += 0.5 * h * dforce(f, r.x, p)?.dot(l_half);
         }
+        accumulate_grid(f, r.x, l_half * (0.5 * h), grid);
         let lv0 = l_half;
         Ok((lx0, lv0))
     }
@@ -91,13 +120,26 @@ impl Tracer<'_> {
         params: &[FieldParam],
         loss_grad: impl FnOnce(Ray) -> (DVec3, DVec3),
     ) -> Result<RayGradient, String> {
+        self.adjoint_with_grid(r0, steps, h, params, None, loss_grad)
+    }
+
+    /// [`Self::adjoint`], also accumulating `∂L/∂c` for every coefficient of a grid profile.
+    pub fn adjoint_with_grid(
+        &self,
+        r0: Ray,
+        steps: usize,
+        h: f64,
+        params: &[FieldParam],
+        mut grid: Option<GridAdjoint>,
+        loss_grad: impl FnOnce(Ray) -> (DVec3, DVec3),
+    ) -> Result<RayGradient, String> {
         let final_ray = self.steps(r0, steps, h);
         let (mut lx, mut lv) = loss_grad(final_ray);
         let mut dp = vec![0.0; params.len()];
         let mut r = final_ray;
         for _ in 0..steps {
             let prev = self.leapfrog(r, -h); // reconstruct by reversing the integrator
-            (lx, lv) = self.adjoint_step(prev, h, lx, lv, params, &mut dp)?;
+            (lx, lv) = self.adjoint_step(prev, h, lx, lv, params, &mut dp, &mut grid)?;
             r = prev;
         }
         Ok(RayGradient {
@@ -117,6 +159,19 @@ impl Tracer<'_> {
         params: &[FieldParam],
         loss_grad: impl FnOnce(Ray) -> (DVec3, DVec3),
     ) -> Result<RayGradient, String> {
+        self.adjoint_tape_with_grid(r0, steps, h, params, None, loss_grad)
+    }
+
+    /// [`Self::adjoint_tape`] with a grid accumulator (cross-check of [`Self::adjoint_with_grid`]).
+    pub fn adjoint_tape_with_grid(
+        &self,
+        r0: Ray,
+        steps: usize,
+        h: f64,
+        params: &[FieldParam],
+        mut grid: Option<GridAdjoint>,
+        loss_grad: impl FnOnce(Ray) -> (DVec3, DVec3),
+    ) -> Result<RayGradient, String> {
         let mut tape = Vec::with_capacity(steps + 1);
         let mut r = r0;
         tape.push(r);
@@ -128,7 +183,7 @@ impl Tracer<'_> {
         let (mut lx, mut lv) = loss_grad(final_ray);
         let mut dp = vec![0.0; params.len()];
         for k in (0..steps).rev() {
-            (lx, lv) = self.adjoint_step(tape[k], h, lx, lv, params, &mut dp)?;
+            (lx, lv) = self.adjoint_step(tape[k], h, lx, lv, params, &mut dp, &mut grid)?;
         }
         Ok(RayGradient {
             final_ray,

@@ -213,6 +213,15 @@ impl GridField {
         (v, g / s, hess)
     }
 
+    /// Visit every coefficient that `n(x)` depends on with `(index, ∂n/∂c, ∇(∂n/∂c))` (clamped
+    /// taps may repeat an index; their contributions add). This is the sparse form the adjoint
+    /// accumulates over all coefficients with (8 taps trilinear, 64 tricubic).
+    #[inline]
+    pub fn visit_dcoef(&self, x: DVec3, mut visit: impl FnMut(usize, f64, DVec3)) {
+        let s = 1.0 / self.spacing;
+        self.taps(x, |i, w, dw, _| visit(i, w, dw * s));
+    }
+
     /// `(∂n/∂c, ∇(∂n/∂c))` for coefficient `which` at `x` (clamped taps sum).
     pub fn dcoef(&self, x: DVec3, which: usize) -> (f64, DVec3) {
         let (mut v, mut g) = (0.0, DVec3::ZERO);

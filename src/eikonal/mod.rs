@@ -6,6 +6,6 @@ pub mod field;
 pub mod grid;
 pub mod trace;
 
-pub use adjoint::{FieldParam, RayGradient};
+pub use adjoint::{FieldParam, GridAdjoint, RayGradient};
 pub use field::{BoundedField, Bounds, IndexField, Profile};
 pub use trace::{Ray, RayEnd, Tracer};
