@@ -37,6 +37,13 @@ pub struct GridAdjoint<'a> {
     pub grad: &'a mut [f64],
 }
 
+/// What the adjoint pass accumulates: analytic parameters and, optionally, a whole grid.
+struct Accumulators<'p, 'g> {
+    params: &'p [FieldParam],
+    dp: Vec<f64>,
+    grid: Option<GridAdjoint<'g>>,
+}
+
 /// `grad[i] += (∂F/∂c_i)(x)·a` for every tap `i` of the grid at `x`, with
 /// `∂F/∂c_i = w_i ∇n + n ∇w_i` (`F = n∇n`).
 fn accumulate_grid(f: &BoundedField, x: DVec3, a: DVec3, grid: &mut Option<GridAdjoint>) {
@@ -85,16 +92,15 @@ impl Tracer<'_> {
         h: f64,
         lx: DVec3,
         lv: DVec3,
-        params: &[FieldParam],
-        dp: &mut [f64],
-        grid: &mut Option<GridAdjoint>,
+        acc: &mut Accumulators,
     ) -> Result<(DVec3, DVec3), String> {
+        let Accumulators { params, dp, grid } = acc;
         let f = self.field;
         let v_half = r.v + f.grad(r.x) * (f.n(r.x) * 0.5 * h);
         let x1 = r.x + v_half * h;
         // v' = v½ + h/2 F(x'): x' collects J_F(x') λ_v' h/2 on top of λ_x'
         let lx1 = lx + jacobian(f, x1) * lv * (0.5 * h);
-        for (g, p) in dp.iter_mut().zip(params) {
+        for (g, p) in dp.iter_mut().zip(params.iter()) {
             *g += 0.5 * h * dforce(f, x1, p)?.dot(lv);
         }
         accumulate_grid(f, x1, lv * (0.5 * h), grid);
@@ -102,7 +108,7 @@ impl Tracer<'_> {
         let l_half = lv + lx1 * h;
         // v½ = v + h/2 F(x)
         let lx0 = lx1 + jacobian(f, r.x) * l_half * (0.5 * h);
-        for (g, p) in dp.iter_mut().zip(params) {
+        for (g, p) in dp.iter_mut().zip(params.iter()) {
             *g += 0.5 * h * dforce(f, r.x, p)?.dot(l_half);
         }
         accumulate_grid(f, r.x, l_half * (0.5 * h), grid);
@@ -130,23 +136,27 @@ impl Tracer<'_> {
         steps: usize,
         h: f64,
         params: &[FieldParam],
-        mut grid: Option<GridAdjoint>,
+        grid: Option<GridAdjoint>,
         loss_grad: impl FnOnce(Ray) -> (DVec3, DVec3),
     ) -> Result<RayGradient, String> {
         let final_ray = self.steps(r0, steps, h);
         let (mut lx, mut lv) = loss_grad(final_ray);
-        let mut dp = vec![0.0; params.len()];
+        let mut acc = Accumulators {
+            params,
+            dp: vec![0.0; params.len()],
+            grid,
+        };
         let mut r = final_ray;
         for _ in 0..steps {
             let prev = self.leapfrog(r, -h); // reconstruct by reversing the integrator
-            (lx, lv) = self.adjoint_step(prev, h, lx, lv, params, &mut dp, &mut grid)?;
+            (lx, lv) = self.adjoint_step(prev, h, lx, lv, &mut acc)?;
             r = prev;
         }
         Ok(RayGradient {
             final_ray,
             dx0: lx,
             dv0: lv,
-            dparams: dp,
+            dparams: acc.dp,
         })
     }
 
@@ -169,7 +179,7 @@ impl Tracer<'_> {
         steps: usize,
         h: f64,
         params: &[FieldParam],
-        mut grid: Option<GridAdjoint>,
+        grid: Option<GridAdjoint>,
         loss_grad: impl FnOnce(Ray) -> (DVec3, DVec3),
     ) -> Result<RayGradient, String> {
         let mut tape = Vec::with_capacity(steps + 1);
@@ -181,15 +191,19 @@ impl Tracer<'_> {
         }
         let final_ray = r;
         let (mut lx, mut lv) = loss_grad(final_ray);
-        let mut dp = vec![0.0; params.len()];
+        let mut acc = Accumulators {
+            params,
+            dp: vec![0.0; params.len()],
+            grid,
+        };
         for k in (0..steps).rev() {
-            (lx, lv) = self.adjoint_step(tape[k], h, lx, lv, params, &mut dp, &mut grid)?;
+            (lx, lv) = self.adjoint_step(tape[k], h, lx, lv, &mut acc)?;
         }
         Ok(RayGradient {
             final_ray,
             dx0: lx,
             dv0: lv,
-            dparams: dp,
+            dparams: acc.dp,
         })
     }
 }
