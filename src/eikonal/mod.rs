@@ -4,8 +4,10 @@
 pub mod adjoint;
 pub mod field;
 pub mod grid;
+pub mod ops;
 pub mod trace;
 
 pub use adjoint::{FieldParam, GridAdjoint, RayGradient};
 pub use field::{BoundedField, Bounds, IndexField, Profile};
+pub use ops::TraceOp;
 pub use trace::{Ray, RayEnd, Tracer};

@@ -1,0 +1,133 @@
+//! Ray tracing as a differentiable operation for the burn bridge ([`crate::diff::bridge`]): the
+//! coefficients of a grid index field in, the final ray states out, the constant-memory adjoint
+//! (accumulated over every coefficient) as the backward pass. A user writes the design loss and
+//! regularisers in burn and optimises the field with burn's Adam.
+
+use super::{BoundedField, GridAdjoint, Profile, Ray, Tracer};
+use crate::diff::bridge::{Differentiable, Pullback};
+use glam::DVec3;
+use rayon::prelude::*;
+use std::sync::Arc;
+
+/// `c ↦ (x_final, v_final)` per ray (6 outputs a ray) for the coefficients `c` of grid profile
+/// `profile` of `field`, each ray run `steps` leapfrog steps of size `step` (the σ-form of
+/// [`Tracer`]: `|v| = n`).
+pub struct TraceOp {
+    pub field: BoundedField,
+    pub profile: usize,
+    pub rays: Vec<Ray>,
+    pub steps: usize,
+    pub step: f64,
+}
+
+/// Ray groups of the backward pass (memory: one coefficient vector per group).
+const GROUPS: usize = 16;
+
+struct TracePullback {
+    field: BoundedField,
+    profile: usize,
+    rays: Vec<Ray>,
+    steps: usize,
+    step: f64,
+    coefficients: usize,
+}
+
+impl TraceOp {
+    /// The field with grid profile `profile` holding coefficients `c`.
+    pub fn field_with(&self, c: &[f64]) -> Result<BoundedField, String> {
+        let mut field = self.field.clone();
+        let Some(Profile::Grid(g)) = field.profiles.get_mut(self.profile) else {
+            return Err(format!("profile {} is not a grid", self.profile));
+        };
+        if c.len() != g.coef.len() {
+            return Err(format!(
+                "{} grid coefficients given, the grid has {}",
+                c.len(),
+                g.coef.len()
+            ));
+        }
+        if let Some(i) = c.iter().position(|x| !x.is_finite()) {
+            return Err(format!("grid coefficient {i} is {}", c[i]));
+        }
+        g.coef.copy_from_slice(c);
+        Ok(field)
+    }
+}
+
+impl Differentiable for TraceOp {
+    fn forward(&self, c: &[f64]) -> Result<(Vec<f64>, Arc<dyn Pullback>), String> {
+        let field = self.field_with(c)?;
+        let tracer = Tracer {
+            field: &field,
+            step: self.step,
+            max_steps: self.steps,
+        };
+        let ends: Vec<Ray> = self
+            .rays
+            .par_iter()
+            .map(|r| tracer.steps(*r, self.steps, self.step))
+            .collect();
+        if let Some(i) = ends
+            .iter()
+            .position(|r| !(r.x.is_finite() && r.v.is_finite()))
+        {
+            return Err(format!(
+                "ray {i} left the finite numbers (n ≤ 0 or a diverging field on its path)"
+            ));
+        }
+        let y = ends
+            .iter()
+            .flat_map(|r| r.x.to_array().into_iter().chain(r.v.to_array()))
+            .collect();
+        let pullback = TracePullback {
+            field,
+            profile: self.profile,
+            rays: self.rays.clone(),
+            steps: self.steps,
+            step: self.step,
+            coefficients: c.len(),
+        };
+        Ok((y, Arc::new(pullback)))
+    }
+}
+
+impl Pullback for TracePullback {
+    fn pullback(&self, dy: &[f64]) -> Vec<f64> {
+        let tracer = Tracer {
+            field: &self.field,
+            step: self.step,
+            max_steps: self.steps,
+        };
+        let n = self.coefficients;
+        // a fixed number of ray groups, each summed in ray order and the groups in group order:
+        // the gradient is bitwise the same for any thread count
+        let groups = self.rays.len().clamp(1, GROUPS);
+        let per = self.rays.len().div_ceil(groups);
+        let parts: Vec<Vec<f64>> = (0..groups)
+            .into_par_iter()
+            .map(|g| {
+                let mut acc = vec![0.0; n];
+                for i in g * per..((g + 1) * per).min(self.rays.len()) {
+                    let d = &dy[6 * i..6 * i + 6];
+                    let seed = (DVec3::new(d[0], d[1], d[2]), DVec3::new(d[3], d[4], d[5]));
+                    let grid = Some(GridAdjoint {
+                        profile: self.profile,
+                        grad: &mut acc,
+                    });
+                    if tracer
+                        .adjoint_with_grid(self.rays[i], self.steps, self.step, &[], grid, |_| seed)
+                        .is_err()
+                    {
+                        acc.iter_mut().for_each(|x| *x = f64::NAN);
+                    }
+                }
+                acc
+            })
+            .collect();
+        let mut total = vec![0.0; n];
+        for p in &parts {
+            total.iter_mut().zip(p).for_each(|(t, x)| *t += x);
+        }
+        total
+    }
+}
