@@ -1282,6 +1282,129 @@ fn adam_fit_job(
     Ok(Outcome { files, summary })
 }
 
+/// `lightpath design`: shape a grid index field so beams pass through their foci → design.json
+/// (loss history, final grid, radial profile), loss.png, profile.png and a central EXR slice.
+pub fn design_job(
+    cfg: &crate::io::design_config::DesignConfig,
+    show: bool,
+    out: &Path,
+) -> JobResult {
+    use crate::eikonal::design::radial_profile;
+    let problem = cfg.problem().map_err(|e| e.0)?;
+    std::fs::create_dir_all(out)
+        .map_err(|e| format!("cannot create output folder {}: {e}", out.display()))?;
+    let t0 = Instant::now();
+    let res = problem.run(&|s| {
+        if show && (s.iteration % 10 == 0 || s.iteration + 1 == problem.iterations) {
+            eprintln!(
+                "level {} iteration {:>5} loss {:.5e} mean miss² {:.5e}",
+                s.level, s.iteration, s.loss, s.miss2
+            );
+        }
+    })?;
+    let seconds = t0.elapsed().as_secs_f64();
+    crate::io::trace_config::check_positive(&res.field)
+        .map_err(|e| format!("design result: {}", e.0))?;
+    let r_max = match res.field.bounds {
+        crate::eikonal::Bounds::Sphere { radius } => radius,
+        crate::eikonal::Bounds::Cylinder { radius, .. } => radius,
+        crate::eikonal::Bounds::Box { half } => half.min_element(),
+        crate::eikonal::Bounds::Everywhere => 1.0,
+    };
+    let profile = radial_profile(&res.field, r_max * 0.999, 41);
+    let g = &res.grid;
+    let mut m = serde_json::Map::new();
+    m.insert("rms_miss_initial".into(), json!(res.rms_miss_initial));
+    m.insert("rms_miss_final".into(), json!(res.rms_miss_final));
+    m.insert(
+        "log".into(),
+        Value::Array(res.log.iter().map(|s| json!({"level": s.level, "iteration": s.iteration, "loss": s.loss, "mean_miss2": s.miss2})).collect()),
+    );
+    m.insert(
+        "grid".into(),
+        json!({"dims": g.dims, "origin": g.origin.to_array(), "spacing": g.spacing,
+               "interp": format!("{:?}", g.interp).to_lowercase(), "samples": res.grid_samples,
+               "coefficients": g.coef}),
+    );
+    m.insert(
+        "radial_profile".into(),
+        json!({"r": profile.iter().map(|p| p.0).collect::<Vec<_>>(),
+               "mean": profile.iter().map(|p| p.1).collect::<Vec<_>>(),
+               "min": profile.iter().map(|p| p.2).collect::<Vec<_>>(),
+               "max": profile.iter().map(|p| p.3).collect::<Vec<_>>()}),
+    );
+    m.insert("seconds".into(), json!(seconds));
+    m.insert("version".into(), json!(env!("CARGO_PKG_VERSION")));
+    m.insert(
+        "config".into(),
+        serde_json::to_value(cfg).unwrap_or(Value::Null),
+    );
+    let path = out.join("design.json");
+    write_json(&path, &Value::Object(m))
+        .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+    let loss_png = out.join("loss.png");
+    let levels = res.log.iter().map(|s| s.level).max().unwrap_or(0);
+    let series: Vec<(String, Vec<(f64, f64)>)> = (0..=levels)
+        .map(|l| {
+            let n = problem.levels[l];
+            (
+                format!("level {l} ({n}³)"),
+                res.log
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, s)| s.level == l)
+                    .map(|(i, s)| (i as f64, s.miss2))
+                    .collect(),
+            )
+        })
+        .collect();
+    crate::io::plot::lines(
+        &loss_png,
+        "Design: mean squared miss distance",
+        "iteration",
+        "mean miss²",
+        &series,
+        true,
+    )?;
+    let profile_png = out.join("profile.png");
+    crate::io::plot::lines(
+        &profile_png,
+        "Designed index along 26 radial directions",
+        "r",
+        "n",
+        &[
+            (
+                "mean".to_string(),
+                profile.iter().map(|p| (p.0, p.1)).collect(),
+            ),
+            (
+                "min".to_string(),
+                profile.iter().map(|p| (p.0, p.2)).collect(),
+            ),
+            (
+                "max".to_string(),
+                profile.iter().map(|p| (p.0, p.3)).collect(),
+            ),
+        ],
+        false,
+    )?;
+    let [nx, ny, nz] = g.dims;
+    let slice: Vec<f64> = res.grid_samples[nx * ny * (nz / 2)..nx * ny * (nz / 2 + 1)].to_vec();
+    let exr_path = out.join("grid_slice_z.exr");
+    crate::io::exr::write_scalar(&exr_path, &slice, nx, ny, "n")?;
+    let summary = format!(
+        "design in {seconds:.1} s ({} iterations over {} level(s)): RMS miss distance {:.4e} → {:.4e}",
+        res.log.len(),
+        problem.levels.len(),
+        res.rms_miss_initial,
+        res.rms_miss_final
+    );
+    Ok(Outcome {
+        files: vec![path, loss_png, profile_png, exr_path],
+        summary,
+    })
+}
+
 /// `lightpath trace`: trace a bundle of rays through an index field → rays.json and rays.png.
 pub fn trace_job(cfg: &crate::io::trace_config::TraceConfig, out: &Path) -> JobResult {
     use crate::eikonal::{IndexField, Tracer};

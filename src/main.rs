@@ -115,6 +115,17 @@ enum Command {
         #[arg(long)]
         threads: Option<usize>,
     },
+    /// Design a graded-index field (grid, coarse to fine) so beams pass through their foci, by Adam
+    /// through the adjoint → design.json + loss.png + profile.png + grid_slice_z.exr
+    Design {
+        config: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long)]
+        threads: Option<usize>,
+        #[arg(long)]
+        quiet: bool,
+    },
     /// Check a config and print the scene it describes, without running anything
     Check { config: PathBuf },
     /// Measure paths/s, covariance entry-updates/s, field pixel-updates/s and the GEMM rate
@@ -283,6 +294,14 @@ fn main() -> ExitCode {
         }) => lightpath::io::trace_config::TraceConfig::from_file(&config)
             .map_err(|e| e.0)
             .and_then(|cfg| with_threads(threads, || jobs::trace_job(&cfg, &out))?),
+        Some(Command::Design {
+            config,
+            out,
+            threads,
+            quiet,
+        }) => lightpath::io::design_config::DesignConfig::from_file(&config)
+            .map_err(|e| e.0)
+            .and_then(|cfg| with_threads(threads, || jobs::design_job(&cfg, !quiet, &out))?),
         Some(Command::Compare {
             a,
             b,

@@ -136,3 +136,153 @@ fn adam_designs_a_converging_lens() {
     eprintln!("spread loss {first:.4e} → {last:.4e}");
     assert!(last < 0.2 * first, "{first} → {last}");
 }
+
+fn luneburg_problem(
+    levels: Vec<usize>,
+    iterations: usize,
+) -> lightpath::eikonal::design::FocusDesign {
+    use lightpath::eikonal::design::{Beam, FocusDesign};
+    let axes = [DVec3::Z, DVec3::X, DVec3::Y];
+    let beams = axes
+        .iter()
+        .map(|&a| {
+            let (e1, e2) = lightpath::math::orthonormal_basis(a);
+            let mut rays = Vec::new();
+            for i in 0..5 {
+                for j in 0..5 {
+                    let (u, w) = (-0.6 + 0.3 * i as f64 + 0.011, -0.6 + 0.3 * j as f64 + 0.007);
+                    if u * u + w * w <= 0.7 * 0.7 {
+                        rays.push((a * -1.2 + e1 * u + e2 * w, a));
+                    }
+                }
+            }
+            Beam { rays, focus: a }
+        })
+        .collect();
+    FocusDesign {
+        background: BoundedField {
+            profiles: vec![],
+            bounds: Bounds::Sphere { radius: 1.0 },
+            n_out: 1.0,
+        },
+        levels,
+        interp: Interp::Tricubic,
+        initial: 1.0,
+        beams,
+        step: 0.02,
+        steps: 150,
+        iterations,
+        learning_rate: 0.02,
+        smooth: 1e-4,
+    }
+}
+
+/// Coarse-to-fine design of a lens that focuses collimated beams from three directions at their
+/// antipodes (the Luneburg lens's defining property), from n ≡ 1: the RMS miss distance must fall
+/// at least five-fold and the log must cover every level. Would catch a level hand-over that loses
+/// the field, or a loss whose gradient does not reach the coefficients.
+#[test]
+fn coarse_to_fine_design_focuses_three_beams() {
+    let problem = luneburg_problem(vec![6, 9], 40);
+    let res = problem.run(&|_| {}).unwrap();
+    eprintln!(
+        "RMS miss {:.4} → {:.4}; final loss {:.4e}",
+        res.rms_miss_initial,
+        res.rms_miss_final,
+        res.log.last().unwrap().loss
+    );
+    assert!(res.rms_miss_final < 0.2 * res.rms_miss_initial);
+    assert_eq!(res.log.len(), 80);
+    assert_eq!(res.log[40].level, 1);
+    assert_eq!(res.grid.dims, [9, 9, 9]);
+}
+
+/// `lightpath design` end to end on a tiny problem (outputs written, the miss distance falls), and
+/// bad design configs fail with the key and value, exit status 2 and no result file.
+#[test]
+fn design_command_and_bad_configs() {
+    let bin = env!("CARGO_BIN_EXE_lightpath");
+    let d = std::env::temp_dir().join(format!("lightpath-design-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    let good = r#"
+[field]
+bounds = { kind = "sphere", radius = 1.0 }
+profiles = []
+
+[grid]
+levels = [5, 7]
+initial = 1.0
+
+[[beam]]
+center = [0.0, 0.0, -1.2]
+direction = [0.0, 0.0, 1.0]
+radius = 0.6
+count = 3
+focus = [0.0, 0.0, 1.0]
+
+[trace]
+step = 0.02
+steps = 150
+
+[design]
+iterations = 15
+learning_rate = 0.02
+"#;
+    std::fs::write(d.join("good.toml"), good).unwrap();
+    let o = std::process::Command::new(bin)
+        .args(["design", d.join("good.toml").to_str().unwrap(), "--out"])
+        .arg(d.join("out"))
+        .arg("--quiet")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for f in ["design.json", "loss.png", "profile.png", "grid_slice_z.exr"] {
+        assert!(d.join("out").join(f).exists(), "{f} missing");
+    }
+    let v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(d.join("out/design.json")).unwrap()).unwrap();
+    let (a, b) = (
+        v["rms_miss_initial"].as_f64().unwrap(),
+        v["rms_miss_final"].as_f64().unwrap(),
+    );
+    assert!(b < 0.5 * a, "miss {a} → {b}");
+    assert_eq!(v["log"].as_array().unwrap().len(), 30);
+    assert_eq!(v["grid"]["samples"].as_array().unwrap().len(), 343);
+    for (bad, expect) in [
+        ("levels = [5, 7]", "levels = [2]", "grid.levels[0] = 2"),
+        (
+            "direction = [0.0, 0.0, 1.0]",
+            "direction = [0.0, 0.0, 0.0]",
+            "beam[0].direction",
+        ),
+        (
+            "learning_rate = 0.02",
+            "learning_rate = -1.0",
+            "design.learning_rate = -1",
+        ),
+        (
+            "kind = \"sphere\", radius = 1.0",
+            "kind = \"everywhere\"",
+            "needs bounds",
+        ),
+        ("steps = 150", "steps = 0", "trace.steps = 0"),
+        ("initial = 1.0", "initial = 1.0\ncolour = 3", "colour"),
+    ]
+    .map(|(from, to, msg)| (good.replace(from, to), msg))
+    {
+        let path = d.join("bad.toml");
+        std::fs::write(&path, &bad).unwrap();
+        let out = d.join("bad-out");
+        let o = std::process::Command::new(bin)
+            .args(["design", path.to_str().unwrap(), "--out"])
+            .arg(&out)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{expect}: {err}");
+        assert!(err.contains(expect), "expected {expect:?} in {err}");
+        assert!(!out.join("design.json").exists());
+    }
+    let _ = std::fs::remove_dir_all(&d);
+}

@@ -2,6 +2,7 @@
 //! fields, a time-reversible symplectic ray tracer and its constant-memory adjoint.
 
 pub mod adjoint;
+pub mod design;
 pub mod field;
 pub mod grid;
 pub mod ops;

@@ -229,7 +229,7 @@ fn default_paths() -> u64 {
 }
 
 /// Keys that hold whole numbers; everything else numeric is read as a float.
-const INTEGER_KEYS: [&str; 8] = [
+const INTEGER_KEYS: [&str; 11] = [
     "samples",
     "seed",
     "chunk",
@@ -238,6 +238,9 @@ const INTEGER_KEYS: [&str; 8] = [
     "realisations",
     "paths",
     "max_steps",
+    "levels",
+    "steps",
+    "iterations",
 ];
 
 /// Let `1` stand for `1.0` in float keys and `1e6` for `1000000` in integer keys.

@@ -39,3 +39,21 @@ pub fn write_fields(
     }
     Ok(files)
 }
+
+/// Write one scalar channel `name` as a `width × height` image (row-major `values`).
+pub fn write_scalar(
+    path: &Path,
+    values: &[f64],
+    width: usize,
+    height: usize,
+    name: &str,
+) -> Result<(), String> {
+    use exr::prelude::*;
+    let pixels = SpecificChannels::build()
+        .with_channel(name)
+        .with_pixel_fn(|p: Vec2<usize>| (values[p.y() * width + p.x()] as f32,));
+    Image::from_channels((width, height), pixels)
+        .write()
+        .to_file(path)
+        .map_err(|e| e.to_string())
+}

@@ -2,6 +2,7 @@
 //! PNG plots.
 
 pub mod config;
+pub mod design_config;
 pub mod exr;
 pub mod plot;
 pub mod state;

@@ -454,3 +454,69 @@ pub fn phase_fit(
     root.present().map_err(|x| e(&x))?;
     Ok(())
 }
+
+/// Named line series on one chart (`log_y` for loss curves).
+pub fn lines(
+    path: &Path,
+    title: &str,
+    x_desc: &str,
+    y_desc: &str,
+    series: &[(String, Vec<(f64, f64)>)],
+    log_y: bool,
+) -> Result<(), String> {
+    register_font();
+    let e = |e: &dyn std::fmt::Display| e.to_string();
+    let pts = series.iter().flat_map(|s| s.1.iter());
+    let (mut x0, mut x1, mut y0, mut y1) = (
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+    );
+    for &(x, y) in pts.filter(|(x, y)| x.is_finite() && y.is_finite() && (!log_y || *y > 0.0)) {
+        (x0, x1, y0, y1) = (x0.min(x), x1.max(x), y0.min(y), y1.max(y));
+    }
+    if !(x0.is_finite() && y0.is_finite()) {
+        return Err(format!("{title}: nothing to plot"));
+    }
+    let root = BitMapBackend::new(path, (900, 600)).into_drawing_area();
+    root.fill(&WHITE).map_err(|x| e(&x))?;
+    let mut builder = ChartBuilder::on(&root);
+    builder
+        .caption(title, ("sans-serif", 22))
+        .margin(15)
+        .x_label_area_size(45)
+        .y_label_area_size(70);
+    let xr = x0..x1.max(x0 + 1e-12);
+    macro_rules! draw {
+        ($chart:expr) => {{
+            let mut chart = $chart.map_err(|x| e(&x))?;
+            chart
+                .configure_mesh()
+                .x_desc(x_desc)
+                .y_desc(y_desc)
+                .label_style(("sans-serif", 15))
+                .draw()
+                .map_err(|x| e(&x))?;
+            for (i, (name, s)) in series.iter().enumerate() {
+                let colour = Palette99::pick(i).to_rgba();
+                chart
+                    .draw_series(LineSeries::new(s.iter().copied(), colour.stroke_width(2)))
+                    .map_err(|x| e(&x))?
+                    .label(name.as_str())
+                    .legend(move |(x, y)| {
+                        PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2))
+                    });
+            }
+            legend(&mut chart, 14)?;
+        }};
+    }
+    if log_y {
+        draw!(builder.build_cartesian_2d(xr, (y0 / 1.5..y1 * 1.5).log_scale()));
+    } else {
+        let pad = 0.05 * (y1 - y0).max(1e-12);
+        draw!(builder.build_cartesian_2d(xr, (y0 - pad)..(y1 + pad)));
+    }
+    root.present().map_err(|x| e(&x))?;
+    Ok(())
+}

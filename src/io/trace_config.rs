@@ -102,26 +102,11 @@ impl Default for TraceSettings {
     }
 }
 
-impl TraceConfig {
-    pub fn from_file(path: &std::path::Path) -> Result<TraceConfig, ConfigError> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| ConfigError(format!("cannot read config file {}: {e}", path.display())))?;
-        let mut value: toml::Value = toml::from_str(&text)
-            .map_err(|e| ConfigError(format!("{}: invalid TOML: {e}", path.display())))?;
-        crate::io::config::normalise_numbers(&mut value, "");
-        let cfg: TraceConfig = serde_path_to_error::deserialize(value).map_err(|e| {
-            let key = e.path().to_string();
-            ConfigError(format!("{}: {key}: {}", path.display(), e.into_inner()))
-        })?;
-        Ok(cfg)
-    }
-
-    /// The field, checked: `n > 0` at every sample of a coarse grid over the bounds (or where rays run).
-    pub fn field(&self) -> Result<BoundedField, ConfigError> {
-        let f = &self.field;
-        if f.profiles.is_empty() {
-            return err("field.profiles = []: give at least one profile");
-        }
+impl FieldConfig {
+    /// The field these keys describe (profiles may be empty: `n = 0 + …` inside, for a design's
+    /// background), each value checked.
+    pub fn build(&self) -> Result<BoundedField, ConfigError> {
+        let f = self;
         let mut profiles = Vec::new();
         for (i, p) in f.profiles.iter().enumerate() {
             let k = format!("field.profiles[{i}]");
@@ -173,6 +158,30 @@ impl TraceConfig {
             bounds,
             n_out: pos("field.n_out", f.n_out)?,
         };
+        Ok(field)
+    }
+}
+
+impl TraceConfig {
+    pub fn from_file(path: &std::path::Path) -> Result<TraceConfig, ConfigError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| ConfigError(format!("cannot read config file {}: {e}", path.display())))?;
+        let mut value: toml::Value = toml::from_str(&text)
+            .map_err(|e| ConfigError(format!("{}: invalid TOML: {e}", path.display())))?;
+        crate::io::config::normalise_numbers(&mut value, "");
+        let cfg: TraceConfig = serde_path_to_error::deserialize(value).map_err(|e| {
+            let key = e.path().to_string();
+            ConfigError(format!("{}: {key}: {}", path.display(), e.into_inner()))
+        })?;
+        Ok(cfg)
+    }
+
+    /// The field, checked: `n > 0` at every sample of a coarse grid over the bounds (or where rays run).
+    pub fn field(&self) -> Result<BoundedField, ConfigError> {
+        if self.field.profiles.is_empty() {
+            return err("field.profiles = []: give at least one profile");
+        }
+        let field = self.field.build()?;
         check_positive(&field)?;
         Ok(field)
     }
@@ -251,7 +260,7 @@ impl TraceConfig {
 
 /// `n > 0` and finite at every node of a 17³ grid over the field's bounds (rays are checked again
 /// along their paths).
-fn check_positive(field: &BoundedField) -> Result<(), ConfigError> {
+pub(crate) fn check_positive(field: &BoundedField) -> Result<(), ConfigError> {
     use crate::eikonal::IndexField;
     let half = match field.bounds {
         Bounds::Everywhere => return Ok(()),

@@ -1,0 +1,6 @@
+#!/usr/bin/env bash
+# Recover a Luneburg lens by design (issue #5): see README.md.
+set -euo pipefail
+cd "$(dirname "$0")"
+time cargo run --release -q -- design luneburg.toml --out out
+python3 compare.py out/design.json

@@ -1,0 +1,289 @@
+//! Graded-index design (issue #5; lecture 003's GRIN optimisation targets): shape a grid index
+//! field so collimated beams pass through their foci, by burn's Adam through [`TraceOp`], coarse to
+//! fine.
+//!
+//! The loss is the mean squared miss distance — the distance from each beam's focus to the
+//! straight line a ray follows after its last step (outside the bounds `n` is constant, so rays
+//! are straight there) — plus `smooth` times the squared differences of neighbouring grid
+//! coefficients along each axis. Each level starts from the previous level's field sampled on a
+//! finer grid.
+
+use super::grid::{GridField, Interp};
+use super::{BoundedField, Bounds, IndexField, Profile, Ray, TraceOp};
+use crate::diff::bridge::{apply, device, tensor, values};
+use burn::module::{Module, Param as Variable};
+use burn::optim::{AdamConfig, GradientsParams};
+use burn::tensor::Tensor;
+use glam::DVec3;
+
+/// A bundle of rays (origins, unit directions) that should pass through `focus`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Beam {
+    pub rays: Vec<(DVec3, DVec3)>,
+    pub focus: DVec3,
+}
+
+/// The design problem.
+#[derive(Clone, Debug)]
+pub struct FocusDesign {
+    /// Bounds, `n_out` and any fixed background profiles; the designed grid is added to them.
+    pub background: BoundedField,
+    /// Grid nodes per side at each level, coarse to fine.
+    pub levels: Vec<usize>,
+    pub interp: Interp,
+    /// Starting value of the grid's samples.
+    pub initial: f64,
+    pub beams: Vec<Beam>,
+    pub step: f64,
+    pub steps: usize,
+    pub iterations: usize,
+    pub learning_rate: f64,
+    pub smooth: f64,
+}
+
+/// One iteration's record.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DesignStep {
+    pub level: usize,
+    pub iteration: usize,
+    /// Mean squared miss distance (without the smoothness term).
+    pub miss2: f64,
+    pub loss: f64,
+}
+
+/// The designed field and the history.
+#[derive(Clone, Debug)]
+pub struct DesignResult {
+    pub field: BoundedField,
+    /// The designed grid (samples of its own contribution at the nodes are `grid_samples`).
+    pub grid: GridField,
+    pub grid_samples: Vec<f64>,
+    pub log: Vec<DesignStep>,
+    /// RMS miss distance of the starting and the final field.
+    pub rms_miss_initial: f64,
+    pub rms_miss_final: f64,
+}
+
+#[derive(Module, Debug)]
+struct Coefficients {
+    c: Variable<Tensor<1>>,
+}
+
+impl FocusDesign {
+    /// Half extents of the box the grid spans (the bounds, padded by one coarse cell).
+    fn half(&self) -> Result<DVec3, String> {
+        Ok(match self.background.bounds {
+            Bounds::Everywhere => {
+                return Err("design: the field needs bounds (sphere, cylinder or box)".into());
+            }
+            Bounds::Sphere { radius } => DVec3::splat(radius),
+            Bounds::Cylinder {
+                radius,
+                half_length,
+            } => DVec3::new(radius, radius, half_length),
+            Bounds::Box { half } => half,
+        })
+    }
+
+    fn grid_at(&self, n: usize, samples: Vec<f64>) -> Result<GridField, String> {
+        let half = self.half()?;
+        let extent = half.max_element() * 2.0 * (1.0 + 2.0 / n as f64);
+        let spacing = extent / (n - 1) as f64;
+        GridField::from_samples(
+            DVec3::splat(-0.5 * extent),
+            spacing,
+            [n; 3],
+            samples,
+            self.interp,
+        )
+    }
+
+    fn node(g: &GridField, i: usize) -> DVec3 {
+        let [nx, ny, _] = g.dims;
+        g.origin
+            + DVec3::new(
+                (i % nx) as f64,
+                (i / nx % ny) as f64,
+                (i / (nx * ny)) as f64,
+            ) * g.spacing
+    }
+
+    fn field_with(&self, g: &GridField) -> BoundedField {
+        let mut f = self.background.clone();
+        f.profiles.push(Profile::Grid(g.clone()));
+        f
+    }
+
+    fn rays(&self, field: &BoundedField) -> Vec<Ray> {
+        self.beams
+            .iter()
+            .flat_map(|b| b.rays.iter())
+            .map(|(x, d)| Ray {
+                x: *x,
+                v: *d * field.n(*x),
+            })
+            .collect()
+    }
+
+    /// `(mean miss², total loss)` in burn from the final states `y` and coefficients `c`.
+    fn loss(
+        &self,
+        y: Tensor<1>,
+        c: Tensor<1>,
+        foci: &Tensor<2>,
+        n: usize,
+    ) -> (Tensor<1>, Tensor<1>) {
+        let r = y.dims()[0] / 6;
+        let y = y.reshape([r, 6]);
+        let x = y.clone().narrow(1, 0, 3);
+        let v = y.narrow(1, 3, 3);
+        let d = foci.clone() - x;
+        let dd = (d.clone() * d.clone()).sum_dim(1);
+        let dv = (d * v.clone()).sum_dim(1);
+        let vv = (v.clone() * v).sum_dim(1);
+        let miss2 = (dd - dv.clone() * dv / vv).mean().reshape([1]);
+        if self.smooth == 0.0 {
+            return (miss2.clone(), miss2);
+        }
+        let g = c.reshape([n, n, n]);
+        let mut rough = Tensor::<1>::zeros([1], (&g.device(), burn::tensor::DType::F64));
+        for axis in 0..3 {
+            let diff = g.clone().narrow(axis, 1, n - 1) - g.clone().narrow(axis, 0, n - 1);
+            rough = rough + (diff.clone() * diff).sum().reshape([1]);
+        }
+        (miss2.clone(), miss2 + rough * self.smooth)
+    }
+
+    /// Run every level; `progress` sees each iteration.
+    pub fn run(&self, progress: &dyn Fn(&DesignStep)) -> Result<DesignResult, String> {
+        if self.levels.is_empty() || self.levels.iter().any(|&n| n < 4) {
+            return Err(format!(
+                "design: levels {:?} must be grid sizes of at least 4 nodes per side",
+                self.levels
+            ));
+        }
+        if self.beams.iter().all(|b| b.rays.is_empty()) {
+            return Err("design: no rays".into());
+        }
+        let dev = device();
+        let foci: Vec<f64> = self
+            .beams
+            .iter()
+            .flat_map(|b| b.rays.iter().flat_map(|_| b.focus.to_array()))
+            .collect();
+        let rays_total = foci.len() / 3;
+        let foci = tensor(&foci, &dev).reshape([rays_total, 3]);
+        let mut grid = self.grid_at(self.levels[0], vec![self.initial; self.levels[0].pow(3)])?;
+        let mut log = Vec::new();
+        let miss = |g: &GridField| -> Result<f64, String> {
+            let field = self.field_with(g);
+            let op = self.op(field);
+            let y = values(&apply(&op, tensor(&g.coef, &burn::tensor::Device::flex()))?);
+            Ok(rms_miss(&y, &self.beams))
+        };
+        let rms_miss_initial = miss(&grid)?;
+        for (level, &n) in self.levels.iter().enumerate() {
+            if level > 0 {
+                // the previous level's contribution, sampled at the finer nodes
+                let coarse = grid.clone();
+                let fine = self.grid_at(n, vec![0.0; n * n * n])?;
+                let samples = (0..n * n * n)
+                    .map(|i| coarse.eval(Self::node(&fine, i)).0)
+                    .collect();
+                grid = self.grid_at(n, samples)?;
+            }
+            let op = self.op(self.field_with(&grid));
+            let mut vars = Coefficients {
+                c: Variable::from_tensor(tensor(&grid.coef, &dev)),
+            };
+            let mut optimiser = AdamConfig::new().init();
+            for iteration in 0..self.iterations {
+                let c = vars.c.val();
+                let y = apply(&op, c.clone())
+                    .map_err(|e| format!("design level {level}, iteration {iteration}: {e}"))?;
+                let (miss2, loss) = self.loss(y, c, &foci, n);
+                let entry = DesignStep {
+                    level,
+                    iteration,
+                    miss2: values(&miss2)[0],
+                    loss: values(&loss)[0],
+                };
+                if !entry.loss.is_finite() {
+                    return Err(format!(
+                        "design level {level}, iteration {iteration}: the loss is not finite; try a smaller learning_rate"
+                    ));
+                }
+                progress(&entry);
+                log.push(entry);
+                let grads = GradientsParams::from_grads(loss.backward(), &vars);
+                vars = optimiser.step(self.learning_rate, vars, grads);
+            }
+            grid.coef = values(&vars.c.val());
+        }
+        let grid_samples = (0..grid.coef.len())
+            .map(|i| grid.eval(Self::node(&grid, i)).0)
+            .collect();
+        Ok(DesignResult {
+            field: self.field_with(&grid),
+            rms_miss_final: miss(&grid)?,
+            grid,
+            grid_samples,
+            log,
+            rms_miss_initial,
+        })
+    }
+
+    fn op(&self, field: BoundedField) -> TraceOp {
+        let rays = self.rays(&field);
+        TraceOp {
+            profile: field.profiles.len() - 1,
+            field,
+            rays,
+            steps: self.steps,
+            step: self.step,
+        }
+    }
+}
+
+/// RMS distance of the beams' foci from the rays' final straight lines (`y`: 6 values a ray).
+pub fn rms_miss(y: &[f64], beams: &[Beam]) -> f64 {
+    let foci: Vec<DVec3> = beams
+        .iter()
+        .flat_map(|b| b.rays.iter().map(|_| b.focus))
+        .collect();
+    let mut acc = 0.0;
+    for (i, f) in foci.iter().enumerate() {
+        let x = DVec3::new(y[6 * i], y[6 * i + 1], y[6 * i + 2]);
+        let v = DVec3::new(y[6 * i + 3], y[6 * i + 4], y[6 * i + 5]);
+        acc += (*f - x).cross(v.normalize()).length_squared();
+    }
+    (acc / foci.len().max(1) as f64).sqrt()
+}
+
+/// `n(r)` of a field along 26 directions from the origin: `(r, mean, min, max)` for `count` radii
+/// up to `r_max` (how close a design came to a radial profile such as Luneburg's).
+pub fn radial_profile(field: &BoundedField, r_max: f64, count: usize) -> Vec<(f64, f64, f64, f64)> {
+    let mut dirs = Vec::new();
+    for i in -1i32..=1 {
+        for j in -1i32..=1 {
+            for k in -1i32..=1 {
+                if (i, j, k) != (0, 0, 0) {
+                    dirs.push(DVec3::new(i as f64, j as f64, k as f64).normalize());
+                }
+            }
+        }
+    }
+    (0..count)
+        .map(|s| {
+            let r = r_max * s as f64 / (count - 1).max(1) as f64;
+            let ns: Vec<f64> = dirs.iter().map(|d| field.n(*d * r)).collect();
+            let mean = ns.iter().sum::<f64>() / ns.len() as f64;
+            let (lo, hi) = ns
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| {
+                    (a.min(*x), b.max(*x))
+                });
+            (r, mean, lo, hi)
+        })
+        .collect()
+}

@@ -1,0 +1,179 @@
+//! Configs of `lightpath design`: bounds and background of the index field, the designed grid
+//! (levels coarse to fine), collimated beams with their foci, and the optimiser settings.
+
+use crate::eikonal::design::{Beam, FocusDesign};
+use crate::eikonal::grid::Interp;
+use crate::io::ConfigError;
+use crate::io::config::{err, positive as pos, unit};
+use crate::io::trace_config::FieldConfig;
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct DesignConfig {
+    pub field: FieldConfig,
+    pub grid: GridConfig,
+    pub beam: Vec<BeamConfig>,
+    pub trace: StepsConfig,
+    pub design: OptimiserConfig,
+}
+
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct GridConfig {
+    /// Nodes per side at each level, coarse to fine.
+    pub levels: Vec<u64>,
+    #[serde(default = "tricubic")]
+    pub interp: String,
+    /// Starting value of the grid's own contribution to `n`.
+    pub initial: f64,
+}
+
+fn tricubic() -> String {
+    "tricubic".into()
+}
+
+/// A collimated beam: `count × count` rays on a square lattice across a disk of `radius` about
+/// `center`, travelling along `direction`, all meant to pass through `focus`.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct BeamConfig {
+    pub center: [f64; 3],
+    pub direction: [f64; 3],
+    pub radius: f64,
+    pub count: u64,
+    pub focus: [f64; 3],
+}
+
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct StepsConfig {
+    pub step: f64,
+    /// Leapfrog steps per ray (fixed, so the objective is smooth); rays must leave the bounds.
+    pub steps: u64,
+}
+
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct OptimiserConfig {
+    /// Adam iterations per level.
+    pub iterations: u64,
+    pub learning_rate: f64,
+    #[serde(default)]
+    pub smooth: f64,
+}
+
+impl DesignConfig {
+    pub fn from_file(path: &std::path::Path) -> Result<DesignConfig, ConfigError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| ConfigError(format!("cannot read config file {}: {e}", path.display())))?;
+        let mut value: toml::Value = toml::from_str(&text)
+            .map_err(|e| ConfigError(format!("{}: invalid TOML: {e}", path.display())))?;
+        crate::io::config::normalise_numbers(&mut value, "");
+        serde_path_to_error::deserialize(value).map_err(|e| {
+            let key = e.path().to_string();
+            ConfigError(format!("{}: {key}: {}", path.display(), e.into_inner()))
+        })
+    }
+
+    /// The design problem, every value checked.
+    pub fn problem(&self) -> Result<FocusDesign, ConfigError> {
+        let background = self.field.build()?;
+        if matches!(background.bounds, crate::eikonal::Bounds::Everywhere) {
+            return err(
+                "field.bounds: a design needs bounds (sphere, cylinder or box) for its grid",
+            );
+        }
+        let g = &self.grid;
+        if g.levels.is_empty() {
+            return err("grid.levels = []: give at least one grid size, e.g. [8, 16]");
+        }
+        for (i, &n) in g.levels.iter().enumerate() {
+            if !(4..=160).contains(&n) {
+                return err(format!("grid.levels[{i}] = {n}: must be within [4, 160]"));
+            }
+        }
+        let interp = match g.interp.as_str() {
+            "tricubic" => Interp::Tricubic,
+            "trilinear" => Interp::Trilinear,
+            other => {
+                return err(format!(
+                    "grid.interp = {other:?}: allowed: \"tricubic\", \"trilinear\""
+                ));
+            }
+        };
+        if !g.initial.is_finite() {
+            return err(format!("grid.initial = {}: must be finite", g.initial));
+        }
+        if self.beam.is_empty() {
+            return err("beam: give at least one [[beam]]");
+        }
+        let mut beams = Vec::new();
+        for (i, b) in self.beam.iter().enumerate() {
+            let k = |s: &str| format!("beam[{i}].{s}");
+            let d = unit(&k("direction"), b.direction)?;
+            let radius = pos(&k("radius"), b.radius)?;
+            if !(1..=64).contains(&b.count) {
+                return err(format!(
+                    "{} = {}: must be within [1, 64]",
+                    k("count"),
+                    b.count
+                ));
+            }
+            let (e1, e2) = crate::math::orthonormal_basis(d);
+            let c = DVec3::from_array(b.center);
+            let m = b.count as usize;
+            let mut rays = Vec::new();
+            for a in 0..m {
+                for bb in 0..m {
+                    let lattice = |i: usize| {
+                        if m == 1 {
+                            0.0
+                        } else {
+                            radius * (2.0 * i as f64 / (m - 1) as f64 - 1.0)
+                        }
+                    };
+                    let (u, w) = (lattice(a), lattice(bb));
+                    if u * u + w * w <= radius * radius * (1.0 + 1e-9) {
+                        rays.push((c + e1 * u + e2 * w, d));
+                    }
+                }
+            }
+            beams.push(Beam {
+                rays,
+                focus: DVec3::from_array(b.focus),
+            });
+        }
+        let step = pos("trace.step", self.trace.step)?;
+        if !(1..=100_000).contains(&self.trace.steps) {
+            return err(format!(
+                "trace.steps = {}: must be within [1, 100000]",
+                self.trace.steps
+            ));
+        }
+        let o = &self.design;
+        if !(1..=100_000).contains(&o.iterations) {
+            return err(format!(
+                "design.iterations = {}: must be within [1, 100000]",
+                o.iterations
+            ));
+        }
+        let learning_rate = pos("design.learning_rate", o.learning_rate)?;
+        if !(o.smooth >= 0.0 && o.smooth.is_finite()) {
+            return err(format!("design.smooth = {}: must be >= 0", o.smooth));
+        }
+        Ok(FocusDesign {
+            background,
+            levels: g.levels.iter().map(|&n| n as usize).collect(),
+            interp,
+            initial: g.initial,
+            beams,
+            step,
+            steps: self.trace.steps as usize,
+            iterations: o.iterations as usize,
+            learning_rate,
+            smooth: o.smooth,
+        })
+    }
+}
