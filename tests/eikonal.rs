@@ -500,3 +500,73 @@ count = 3
         assert!(!d.join("bad/rays.json").exists());
     }
 }
+
+/// Where `n` jumps at the bounds the ray refracts (Snell) on entry and exit: a plate of constant
+/// n = 1.5 returns the incident direction and shifts the ray by `L tan θ_t` (closed form); a
+/// step-index rod guides a ray by total internal reflection at its side and releases it at the
+/// far end at the angle it came in with. Would catch unrefracted entry/exit or a lost reflection.
+#[test]
+fn refraction_at_index_jumps() {
+    let deg = std::f64::consts::PI / 180.0;
+    let plate = BoundedField::single(
+        Profile::Constant { n: 1.5 },
+        Bounds::Box {
+            half: DVec3::new(20.0, 20.0, 0.5),
+        },
+        1.0,
+    );
+    let t = Tracer {
+        field: &plate,
+        step: 0.01,
+        max_steps: 10_000,
+    };
+    let theta = 30.0 * deg;
+    let d = DVec3::new(theta.sin(), 0.0, theta.cos());
+    let end = t.trace(DVec3::new(0.0, 0.0, -2.0) - d * 0.0, d);
+    let entry_x = 1.5 * theta.tan();
+    let theta_t = (theta.sin() / 1.5).asin();
+    assert!((end.direction - d).length() < 1e-9, "{:?}", end.direction);
+    assert!((end.x.z - 0.5).abs() < 1e-9);
+    assert!(
+        (end.x.x - (entry_x + theta_t.tan())).abs() < 1e-9,
+        "exit x {} vs {}",
+        end.x.x,
+        entry_x + theta_t.tan()
+    );
+    // optical path inside: n² ∫dσ = n · (geometric length) in the σ-form
+    assert!(
+        (end.optical_path - 1.5 / theta_t.cos()).abs() < 1e-6,
+        "{}",
+        end.optical_path
+    );
+
+    let rod = BoundedField::single(
+        Profile::Constant { n: 1.5 },
+        Bounds::Cylinder {
+            radius: 0.5,
+            half_length: 5.0,
+        },
+        1.0,
+    );
+    let t = Tracer {
+        field: &rod,
+        step: 0.01,
+        max_steps: 100_000,
+    };
+    let a = 40.0 * deg;
+    let d = DVec3::new(a.sin(), 0.0, a.cos());
+    let end = t.trace(DVec3::new(0.0, 0.0, -5.3), d);
+    assert!(end.exited && end.entered);
+    assert!(
+        (end.x.z - 5.0).abs() < 1e-6,
+        "left through the side at {:?}",
+        end.x
+    );
+    let out_angle = end.direction.z.acos();
+    assert!(
+        (out_angle - a).abs() < 1e-6,
+        "exit angle {} vs {}",
+        out_angle / deg,
+        a / deg
+    );
+}

@@ -153,6 +153,35 @@ impl Bounds {
         }
     }
 
+    /// Outward unit normal of the surface nearest to `x` (a point on or near it); `None` for
+    /// `Everywhere`.
+    pub fn normal(&self, x: DVec3) -> Option<DVec3> {
+        match *self {
+            Bounds::Everywhere => None,
+            Bounds::Sphere { .. } => Some(x.normalize()),
+            Bounds::Cylinder {
+                radius,
+                half_length,
+            } => {
+                let rho = (x.x * x.x + x.y * x.y).sqrt();
+                Some(
+                    if (x.z.abs() - half_length) > (rho - radius) || rho == 0.0 {
+                        DVec3::Z * x.z.signum()
+                    } else {
+                        DVec3::new(x.x / rho, x.y / rho, 0.0)
+                    },
+                )
+            }
+            Bounds::Box { half } => {
+                let r = x / half;
+                let a = r.abs().max_position();
+                let mut n = DVec3::ZERO;
+                n[a] = r[a].signum();
+                Some(n)
+            }
+        }
+    }
+
     /// Entry and exit parameters of the ray `o + t w` (unit `w`), if it meets the region.
     pub fn interval(&self, o: DVec3, w: DVec3) -> Option<(f64, f64)> {
         match *self {

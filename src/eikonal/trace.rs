@@ -81,24 +81,36 @@ impl Tracer<'_> {
     }
 
     /// [`Tracer::trace`], reporting every position inside the field to `visit` (for drawing).
+    ///
+    /// Where `n` jumps at the bounds (`n_out` against the profile's value there) the ray refracts
+    /// by Snell's law on entry and exit; total internal reflection at the exit sends it back in.
     pub fn trace_with(&self, origin: DVec3, dir: DVec3, mut visit: impl FnMut(DVec3)) -> RayEnd {
         let bounds = &self.field.bounds;
+        let n_out = self.field.n_out;
         let mut x = origin;
+        let mut dir = dir;
+        let outside = |x: DVec3, d: DVec3, entered: bool| RayEnd {
+            x,
+            direction: d,
+            optical_path: 0.0,
+            steps: 0,
+            exited: true,
+            entered,
+        };
         if !bounds.contains(origin) {
             match bounds.interval(origin, dir) {
                 Some((t0, t1)) if t1 > 0.0 && t0 >= 0.0 => {
-                    x = origin + dir * (t0 + 1e-12 * (1.0 + t0.abs()))
+                    let surface = origin + dir * t0;
+                    x = origin + dir * (t0 + 1e-12 * (1.0 + t0.abs()));
+                    if let Some(normal) = bounds.normal(surface) {
+                        match refract(dir, normal, n_out / self.field.n(x)) {
+                            Ok(t) => dir = t,
+                            // reflected off the surface: it never enters
+                            Err(reflected) => return outside(surface, reflected, false),
+                        }
+                    }
                 }
-                _ => {
-                    return RayEnd {
-                        x: origin,
-                        direction: dir,
-                        optical_path: 0.0,
-                        steps: 0,
-                        exited: true,
-                        entered: false,
-                    };
-                }
+                _ => return outside(origin, dir, false),
             }
         }
         let mut r = Ray {
@@ -123,17 +135,34 @@ impl Tracer<'_> {
                         break;
                     }
                 }
-                let end = self.leapfrog(r, hi);
+                let (inner, end) = (self.leapfrog(r, lo), self.leapfrog(r, hi));
                 visit(end.x);
-                opl += 0.5 * hi * (self.field.n(r.x).powi(2) + self.field.n(end.x).powi(2));
-                return RayEnd {
-                    x: end.x,
-                    direction: end.v.normalize(),
-                    optical_path: opl,
-                    steps: k + 1,
-                    exited: true,
-                    entered: true,
-                };
+                opl += 0.5 * hi * (self.field.n(r.x).powi(2) + self.field.n(inner.x).powi(2));
+                let n_in = self.field.n(inner.x);
+                let d = end.v.normalize();
+                match bounds
+                    .normal(end.x)
+                    .map(|nrm| refract(d, -nrm, n_in / n_out))
+                {
+                    Some(Err(reflected)) => {
+                        // total internal reflection: continue inside from the surface
+                        r = Ray {
+                            x: inner.x,
+                            v: reflected * n_in,
+                        };
+                        continue;
+                    }
+                    refracted => {
+                        return RayEnd {
+                            x: end.x,
+                            direction: refracted.map_or(d, |t| t.unwrap_or(d)),
+                            optical_path: opl,
+                            steps: k + 1,
+                            exited: true,
+                            entered: true,
+                        };
+                    }
+                }
             }
             opl += 0.5 * h * (self.field.n(r.x).powi(2) + self.field.n(next.x).powi(2));
             r = next;
@@ -148,4 +177,17 @@ impl Tracer<'_> {
             entered: true,
         }
     }
+}
+
+/// Snell's law for unit direction `d` meeting a surface with unit `normal` pointing back towards
+/// the side `d` comes from, with `eta = n_from / n_to`: the refracted direction, or `Err` with the
+/// mirror direction on total internal reflection.
+pub fn refract(d: DVec3, normal: DVec3, eta: f64) -> Result<DVec3, DVec3> {
+    let n = if normal.dot(d) > 0.0 { -normal } else { normal };
+    let cos_i = -n.dot(d);
+    let sin2_t = eta * eta * (1.0 - cos_i * cos_i);
+    if sin2_t > 1.0 {
+        return Err(d + n * (2.0 * cos_i));
+    }
+    Ok((d * eta + n * (eta * cos_i - (1.0 - sin2_t).sqrt())).normalize())
 }
