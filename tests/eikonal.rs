@@ -570,3 +570,66 @@ fn refraction_at_index_jumps() {
         a / deg
     );
 }
+
+/// Forward sensitivities `∂(x, v)/∂(x0, v0)` (paper 002, Alg. 2) against central differences of the
+/// same steps, and symplecticity `Mᵀ Ω M = Ω` of the 6×6 map (the leapfrog map is symplectic, so
+/// this holds to round-off — an independent check of every block).
+#[test]
+fn forward_sensitivities() {
+    let field = BoundedField::single(
+        Profile::Luneburg { radius: 1.0 },
+        Bounds::Sphere { radius: 1.0 },
+        1.0,
+    );
+    let t = Tracer {
+        field: &field,
+        step: 0.01,
+        max_steps: 0,
+    };
+    let r0 = Ray {
+        x: DVec3::new(0.2, -0.1, -0.6),
+        v: DVec3::new(0.1, 0.05, 1.0).normalize() * 1.2,
+    };
+    let steps = 90;
+    let (end, [[xx, xv], [vx, vv]]) = t.steps_with_sensitivities(r0, steps, 0.01);
+    assert_eq!(end, t.steps(r0, steps, 0.01));
+    let h = 1e-6;
+    for k in 0..6 {
+        let mut e = [0.0; 6];
+        e[k] = h;
+        let shift = |s: f64| Ray {
+            x: r0.x + DVec3::new(e[0], e[1], e[2]) * s,
+            v: r0.v + DVec3::new(e[3], e[4], e[5]) * s,
+        };
+        let (p, m) = (
+            t.steps(shift(1.0), steps, 0.01),
+            t.steps(shift(-1.0), steps, 0.01),
+        );
+        let (dx, dv) = ((p.x - m.x) / (2.0 * h), (p.v - m.v) / (2.0 * h));
+        let (cx, cv) = if k < 3 {
+            (xx.col(k), vx.col(k))
+        } else {
+            (xv.col(k - 3), vv.col(k - 3))
+        };
+        assert!(
+            (cx - dx).length() < 1e-6 * dx.length().max(1.0),
+            "column {k}: {cx} vs {dx}"
+        );
+        assert!(
+            (cv - dv).length() < 1e-6 * dv.length().max(1.0),
+            "column {k}: {cv} vs {dv}"
+        );
+    }
+    let eye = glam::DMat3::IDENTITY;
+    let blocks = [
+        xx.transpose() * vx - vx.transpose() * xx,
+        xx.transpose() * vv - vx.transpose() * xv - eye,
+        xv.transpose() * vv - vv.transpose() * xv,
+    ];
+    for b in blocks {
+        assert!(
+            b.abs_diff_eq(glam::DMat3::ZERO, 1e-11),
+            "not symplectic: {b}"
+        );
+    }
+}

@@ -12,7 +12,7 @@
 
 use super::field::{BoundedField, IndexField};
 use super::trace::{Ray, Tracer};
-use glam::{DMat3, DVec3};
+use glam::DVec3;
 
 /// An analytic field parameter: parameter `which` of profile `profile` (see `Profile::dparam`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -61,10 +61,7 @@ fn accumulate_grid(f: &BoundedField, x: DVec3, a: DVec3, grid: &mut Option<GridA
     g.visit_dcoef(x, |i, w, dw| grad[i] += w * ga + n * dw.dot(a));
 }
 
-fn jacobian(f: &BoundedField, x: DVec3) -> DMat3 {
-    let (n, g, h) = f.eval(x);
-    DMat3::from_cols(g * g.x, g * g.y, g * g.z) + h * n
-}
+use super::trace::force_jacobian as jacobian;
 
 fn dforce(f: &BoundedField, x: DVec3, p: &FieldParam) -> Result<DVec3, String> {
     if !f.bounds.contains(x) {

@@ -8,7 +8,7 @@
 //! at their boundary (e.g. Luneburg and fish-eye lenses in `n_out = 1`).
 
 use super::field::{BoundedField, IndexField};
-use glam::DVec3;
+use glam::{DMat3, DVec3};
 
 /// A ray state in the σ-form.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -73,6 +73,25 @@ impl Tracer<'_> {
             };
         }
         r
+    }
+
+    /// `n` leapfrog steps with the forward sensitivities `∂(x, v)/∂(x0, v0)` (paper 002, Alg. 2:
+    /// the tangent map that point-to-point connections solve with), as blocks
+    /// `[[∂x/∂x0, ∂x/∂v0], [∂v/∂x0, ∂v/∂v0]]`. The leapfrog map is symplectic, so the 6×6 matrix
+    /// is too (to round-off).
+    pub fn steps_with_sensitivities(&self, mut r: Ray, n: usize, h: f64) -> (Ray, [[DMat3; 2]; 2]) {
+        let (mut xx, mut xv, mut vx, mut vv) =
+            (DMat3::IDENTITY, DMat3::ZERO, DMat3::ZERO, DMat3::IDENTITY);
+        for _ in 0..n {
+            let a0 = force_jacobian(self.field, r.x) * (0.5 * h);
+            let (hx, hv) = (vx + a0 * xx, vv + a0 * xv);
+            let next = self.leapfrog(r, h);
+            (xx, xv) = (xx + hx * h, xv + hv * h);
+            let a1 = force_jacobian(self.field, next.x) * (0.5 * h);
+            (vx, vv) = (hx + a1 * xx, hv + a1 * xv);
+            r = next;
+        }
+        (r, [[xx, xv], [vx, vv]])
     }
 
     /// Trace a ray from `origin` along unit `dir` (straight outside the bounds) until it leaves.
@@ -177,6 +196,12 @@ impl Tracer<'_> {
             entered: true,
         }
     }
+}
+
+/// `∂F/∂x` of the force `F = n∇n`: `∇n ∇nᵀ + n ∇²n` (symmetric).
+pub(crate) fn force_jacobian(f: &BoundedField, x: DVec3) -> DMat3 {
+    let (n, g, h) = f.eval(x);
+    DMat3::from_cols(g * g.x, g * g.y, g * g.z) + h * n
 }
 
 /// Snell's law for unit direction `d` meeting a surface with unit `normal` pointing back towards
