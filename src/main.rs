@@ -207,11 +207,14 @@ fn run(kind: Kind, a: RunArgs) -> Result<jobs::Outcome, String> {
 }
 
 /// Whether a config file is a `trace` config (it has a top-level `[field]` table).
-fn is_trace_config(path: &std::path::Path) -> bool {
+/// `(has [field], has [[beam]])`: a trace config has the first, a design config both.
+fn eikonal_config_kind(path: &std::path::Path) -> (bool, bool) {
     std::fs::read_to_string(path)
         .ok()
         .and_then(|t| t.parse::<toml::Table>().ok())
-        .is_some_and(|t| t.contains_key("field"))
+        .map_or((false, false), |t| {
+            (t.contains_key("field"), t.contains_key("beam"))
+        })
 }
 
 fn main() -> ExitCode {
@@ -323,7 +326,24 @@ fn main() -> ExitCode {
                 }
             };
         }
-        Some(Command::Check { config }) if is_trace_config(&config) => {
+        Some(Command::Check { config }) if eikonal_config_kind(&config) == (true, true) => {
+            lightpath::io::design_config::DesignConfig::from_file(&config)
+                .map_err(|e| e.0)
+                .and_then(|c| {
+                    let p = c.problem().map_err(|e| e.0)?;
+                    Ok(jobs::Outcome {
+                        files: vec![],
+                        summary: format!(
+                            "{}: ok — design config, {} beam(s), {} ray(s), levels {:?}",
+                            config.display(),
+                            p.beams.len(),
+                            p.beams.iter().map(|b| b.rays.len()).sum::<usize>(),
+                            p.levels
+                        ),
+                    })
+                })
+        }
+        Some(Command::Check { config }) if eikonal_config_kind(&config).0 => {
             lightpath::io::trace_config::TraceConfig::from_file(&config)
                 .map_err(|e| e.0)
                 .and_then(|c| {
