@@ -9,7 +9,7 @@
 //! finer grid.
 
 use super::grid::{GridField, Interp};
-use super::{BoundedField, Bounds, IndexField, Profile, Ray, TraceOp};
+use super::{BoundedField, IndexField, Profile, Ray, TraceOp};
 use crate::diff::bridge::{apply, device, tensor, values};
 use burn::module::{Module, Param as Variable};
 use burn::optim::{AdamConfig, GradientsParams};
@@ -70,19 +70,12 @@ struct Coefficients {
 }
 
 impl FocusDesign {
-    /// Half extents of the box the grid spans (the bounds, padded by one coarse cell).
+    /// Half extents of the bounds (the grid spans them, padded by two cells).
     fn half(&self) -> Result<DVec3, String> {
-        Ok(match self.background.bounds {
-            Bounds::Everywhere => {
-                return Err("design: the field needs bounds (sphere, cylinder or box)".into());
-            }
-            Bounds::Sphere { radius } => DVec3::splat(radius),
-            Bounds::Cylinder {
-                radius,
-                half_length,
-            } => DVec3::new(radius, radius, half_length),
-            Bounds::Box { half } => half,
-        })
+        self.background
+            .bounds
+            .half_extent()
+            .ok_or_else(|| "design: the field needs bounds (sphere, cylinder or box)".into())
     }
 
     fn grid_at(&self, n: usize, samples: Vec<f64>) -> Result<GridField, String> {

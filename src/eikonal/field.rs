@@ -153,6 +153,19 @@ impl Bounds {
         }
     }
 
+    /// Half extents of the bounding box of the region (`None` for `Everywhere`).
+    pub fn half_extent(&self) -> Option<DVec3> {
+        match *self {
+            Bounds::Everywhere => None,
+            Bounds::Sphere { radius } => Some(DVec3::splat(radius)),
+            Bounds::Cylinder {
+                radius,
+                half_length,
+            } => Some(DVec3::new(radius, radius, half_length)),
+            Bounds::Box { half } => Some(half),
+        }
+    }
+
     /// Outward unit normal of the surface nearest to `x` (a point on or near it); `None` for
     /// `Everywhere`.
     pub fn normal(&self, x: DVec3) -> Option<DVec3> {

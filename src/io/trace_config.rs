@@ -262,14 +262,8 @@ impl TraceConfig {
 /// along their paths).
 pub(crate) fn check_positive(field: &BoundedField) -> Result<(), ConfigError> {
     use crate::eikonal::IndexField;
-    let half = match field.bounds {
-        Bounds::Everywhere => return Ok(()),
-        Bounds::Sphere { radius } => DVec3::splat(radius),
-        Bounds::Cylinder {
-            radius,
-            half_length,
-        } => DVec3::new(radius, radius, half_length),
-        Bounds::Box { half } => half,
+    let Some(half) = field.bounds.half_extent() else {
+        return Ok(());
     };
     let m = 16;
     for i in 0..=m {
