@@ -93,35 +93,46 @@ fn theta() -> Vec<f64> {
 /// O(h²) truncation limits agreement: 1e-5 relative.
 #[test]
 fn bridge_gradient_matches_finite_differences() {
-    let base = scene().medium;
-    let op = op(Proposal::Fixed(base));
+    let op = op(Proposal::Fixed(scene().medium));
+    let rows = bridge_and_finite_differences(&op, 1e-4);
+    let scale = rows.iter().map(|r| r.1.abs()).fold(0.0, f64::max);
+    for (name, g, fd) in rows {
+        assert!(
+            (g - fd).abs() <= 1e-5 * fd.abs().max(1e-3 * scale),
+            "{name}: {g} vs {fd}"
+        );
+    }
+}
+
+/// Per parameter: the burn backward of [`loss`] through `op` at [`theta`], and the central
+/// difference of the same loss with relative step `rel`.
+fn bridge_and_finite_differences(
+    op: &dyn lightpath::diff::bridge::Differentiable,
+    rel: f64,
+) -> Vec<(String, f64, f64)> {
     let dev = device();
     let t = theta();
     let x = tensor(&t, &dev).require_grad();
-    let l = loss(apply(&op, x.clone()).unwrap());
+    let l = loss(apply(op, x.clone()).unwrap());
     let g = values(&x.grad(&l.backward()).unwrap());
-    let at = |v: &[f64]| values(&loss(apply(&op, tensor(v, &dev)).unwrap()))[0];
-    for (i, p) in params().iter().enumerate() {
-        let h = 1e-4 * t[i].abs().max(0.05);
-        let (mut up, mut down) = (t.clone(), t.clone());
-        up[i] += h;
-        down[i] -= h;
-        let fd = (at(&up) - at(&down)) / (2.0 * h);
-        eprintln!(
-            "{}: bridge {:.8e}, finite difference {fd:.8e}",
-            p.name(),
-            g[i]
-        );
-        assert!(
-            (g[i] - fd).abs()
-                <= 1e-5
-                    * fd.abs()
-                        .max(1e-3 * g.iter().map(|x| x.abs()).fold(0.0, f64::max)),
-            "{}: {} vs {fd}",
-            p.name(),
-            g[i]
-        );
-    }
+    let at = |v: &[f64]| values(&loss(apply(op, tensor(v, &dev)).unwrap()))[0];
+    params()
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let h = rel * t[i].abs().max(0.05);
+            let (mut up, mut down) = (t.clone(), t.clone());
+            up[i] += h;
+            down[i] -= h;
+            let fd = (at(&up) - at(&down)) / (2.0 * h);
+            eprintln!(
+                "{}: bridge {:.8e}, finite difference {fd:.8e}",
+                p.name(),
+                g[i]
+            );
+            (p.name(), g[i], fd)
+        })
+        .collect()
 }
 
 /// Node values are unnormalised: scaling them all leaves the covariance unchanged, and (Euler) the
@@ -195,29 +206,12 @@ fn mean_op_gradient_matches_finite_differences() {
         params: params(),
         pairs: vec![(0, 0), (1, 1), (0, 2), (1, 0)],
     };
-    let dev = device();
-    let t = theta();
-    let x = tensor(&t, &dev).require_grad();
-    let l = loss(apply(&op, x.clone()).unwrap());
-    let g = values(&x.grad(&l.backward()).unwrap());
-    let at = |v: &[f64]| values(&loss(apply(&op, tensor(v, &dev)).unwrap()))[0];
-    let scale = g.iter().map(|x| x.abs()).fold(0.0, f64::max);
-    for (i, p) in params().iter().enumerate() {
-        let h = 1e-5 * t[i].abs().max(0.05);
-        let (mut up, mut down) = (t.clone(), t.clone());
-        up[i] += h;
-        down[i] -= h;
-        let fd = (at(&up) - at(&down)) / (2.0 * h);
-        eprintln!(
-            "{}: bridge {:.8e}, finite difference {fd:.8e}",
-            p.name(),
-            g[i]
-        );
+    let rows = bridge_and_finite_differences(&op, 1e-5);
+    let scale = rows.iter().map(|r| r.1.abs()).fold(0.0, f64::max);
+    for (name, g, fd) in rows {
         assert!(
-            (g[i] - fd).abs() <= 1e-6 * fd.abs() + 1e-9 * scale,
-            "{}: {} vs {fd}",
-            p.name(),
-            g[i]
+            (g - fd).abs() <= 1e-6 * fd.abs() + 1e-9 * scale,
+            "{name}: {g} vs {fd}"
         );
     }
 }

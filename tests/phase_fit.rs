@@ -2,7 +2,7 @@
 //! reading of paper 004 (Claim 1) that such a fit is compared with.
 
 use glam::DVec3;
-use lightpath::diff::{CovarianceOp, Param, Proposal};
+use lightpath::diff::{CovarianceOp, Proposal};
 use lightpath::inverse::shortcut::single_scattering_readings;
 use lightpath::inverse::{AdamFit, AdamSettings, Entry, Measured, Target};
 use lightpath::medium::{Geometry, Medium, PhaseFunction, Scattering, Table};
@@ -177,7 +177,5 @@ fn adam_recovers_a_tabulated_phase_function() {
     }
     assert_eq!(res.log.len(), 90);
     assert!(res.log[89].loss < 0.01 * res.log[0].loss);
-    // the objective's parameters: every node is a `Param::Bin` of component 0
     assert_eq!(res.names.len(), 5);
-    let _ = Param::Bin(0, 4);
 }

@@ -56,16 +56,19 @@ fn amplitude_density(m: &Medium, k: f64, mu: f64) -> C64 {
         .scattering
         .components()
         .iter()
-        .map(|(b, p)| {
-            let s1 = p.amplitude(1.0);
-            if s1.norm() > 0.0 {
-                p.amplitude(mu) / s1 * *b
-            } else {
-                C64::default()
-            }
-        })
+        .map(|(b, p)| forward_ratio(p, mu) * *b)
         .sum();
     C64::new(0.0, k * m.sigma_s * INV_4PI) * ratio
+}
+
+/// `s(μ)/s(1)` of one particle type (0 when its forward amplitude vanishes).
+fn forward_ratio(p: &crate::medium::PhaseFunction, mu: f64) -> C64 {
+    let s1 = p.amplitude(1.0);
+    if s1.norm() > 0.0 {
+        p.amplitude(mu) / s1
+    } else {
+        C64::default()
+    }
 }
 
 fn far_far(m: &Medium, k: f64, d: DVec3, v: DVec3) -> C64 {
@@ -93,67 +96,71 @@ pub fn mean_field_gradient(
 ) -> Option<(C64, Vec<C64>)> {
     use crate::diff::Param;
     let m = &scene.medium;
+    if let (Light::PlaneWave { direction: d }, View::FarField { direction: v }) = (*light, *view) {
+        return Some(far_far_gradient(m, scene.k, d, v, params));
+    }
     let value = mean_field(scene, light, view)?;
-    let attenuated = |len: f64| {
-        params
-            .iter()
-            .map(|p| match p {
-                Param::SigmaS | Param::SigmaA => value * (-0.5 * len),
-                _ => C64::default(),
-            })
-            .collect()
-    };
-    let grad = match (*light, *view) {
+    let len = match (*light, *view) {
         (Light::Point { position: p }, View::Point { position: q }) => {
             let r = (q - p).length();
-            attenuated(chord(&m.geometry, p, (q - p) / r, r))
+            chord(&m.geometry, p, (q - p) / r, r)
         }
         (Light::Point { position: p }, View::FarField { direction: v }) => {
-            attenuated(chord(&m.geometry, p, v, f64::INFINITY))
+            chord(&m.geometry, p, v, f64::INFINITY)
         }
         (Light::PlaneWave { direction: d }, View::Point { position: q }) => {
-            attenuated(chord(&m.geometry, q, -d, f64::INFINITY))
-        }
-        (Light::PlaneWave { direction: d }, View::FarField { direction: v }) => {
-            let Geometry::Box { half } = m.geometry else {
-                return Some((value, vec![C64::default(); params.len()]));
-            };
-            let k = scene.k;
-            let mu = d.dot(v);
-            let b = box_integral(half, k, C64::new(m.sigma_t(), 0.0), d, v);
-            let db = box_integral_dsigma(half, k, m.sigma_t(), d, v);
-            let nf = amplitude_density(m, k, mu);
-            let coefficient = C64::new(0.0, k * INV_4PI);
-            // ratio_ι = s_ι(μ)/s_ι(1) and ∂ log ratio_ι = ½ (∂ log ρ_ι(μ) − ∂ log ρ_ι(1))
-            let comps = m.scattering.components();
-            let ratio = |c: usize| {
-                let p = &comps[c].1;
-                let s1 = p.amplitude(1.0);
-                if s1.norm() > 0.0 {
-                    p.amplitude(mu) / s1
-                } else {
-                    C64::default()
-                }
-            };
-            let total: C64 = (0..comps.len()).map(|c| ratio(c) * comps[c].0).sum();
-            params
-                .iter()
-                .map(|p| match *p {
-                    Param::SigmaS => nf / m.sigma_s * b + nf * db,
-                    Param::SigmaA => nf * db,
-                    Param::G(c) | Param::Bin(c, _) => {
-                        let ph = &comps[c].1;
-                        let dlog = 0.5 * (p.dlog_phase(c, ph, mu) - p.dlog_phase(c, ph, 1.0));
-                        coefficient * m.sigma_s * comps[c].0 * ratio(c) * dlog * b
-                    }
-                    // β normalised: ∂β_j/∂w_c = δ_jc − β_j at unit total
-                    Param::Weight(c) => coefficient * m.sigma_s * (ratio(c) - total) * b,
-                })
-                .collect()
+            chord(&m.geometry, q, -d, f64::INFINITY)
         }
         _ => return None,
     };
+    // the attenuated direct field e^{−σ_t ℓ/2}: only σ_s and σ_a enter
+    let grad = params
+        .iter()
+        .map(|p| match p {
+            Param::SigmaS | Param::SigmaA => value * (-0.5 * len),
+            _ => C64::default(),
+        })
+        .collect();
     Some((value, grad))
+}
+
+/// Plane wave → far field: `m = n f(μ) B(σ_t)` and its derivatives (see [`mean_field_gradient`]).
+fn far_far_gradient(
+    m: &Medium,
+    k: f64,
+    d: DVec3,
+    v: DVec3,
+    params: &[crate::diff::Param],
+) -> (C64, Vec<C64>) {
+    use crate::diff::Param;
+    let Geometry::Box { half } = m.geometry else {
+        // a slab's off-specular mean per unit area is 0, and so are its derivatives
+        return (C64::default(), vec![C64::default(); params.len()]);
+    };
+    let mu = d.dot(v);
+    let b = box_integral(half, k, C64::new(m.sigma_t(), 0.0), d, v);
+    let db = box_integral_dsigma(half, k, m.sigma_t(), d, v);
+    let nf = amplitude_density(m, k, mu);
+    let coefficient = C64::new(0.0, k * INV_4PI);
+    // ratio_ι = s_ι(μ)/s_ι(1) and ∂ log ratio_ι = ½ (∂ log ρ_ι(μ) − ∂ log ρ_ι(1))
+    let comps = m.scattering.components();
+    let ratio = |c: usize| forward_ratio(&comps[c].1, mu);
+    let total: C64 = (0..comps.len()).map(|c| ratio(c) * comps[c].0).sum();
+    let grad = params
+        .iter()
+        .map(|p| match *p {
+            Param::SigmaS => nf / m.sigma_s * b + nf * db,
+            Param::SigmaA => nf * db,
+            Param::G(c) | Param::Bin(c, _) => {
+                let ph = &comps[c].1;
+                let dlog = 0.5 * (p.dlog_phase(c, ph, mu) - p.dlog_phase(c, ph, 1.0));
+                coefficient * m.sigma_s * comps[c].0 * ratio(c) * dlog * b
+            }
+            // β normalised: ∂β_j/∂w_c = δ_jc − β_j at unit total
+            Param::Weight(c) => coefficient * m.sigma_s * (ratio(c) - total) * b,
+        })
+        .collect();
+    (nf * b, grad)
 }
 
 /// `dB/dσ_t` of [`box_integral`] by Cauchy's formula on a circle of radius `1/L` (`L` the box
