@@ -5,13 +5,14 @@
 //!
 //! For `F = n∇n` one step is `v½ = v + h/2 F(x)`, `x' = x + h v½`, `v' = v½ + h/2 F(x')`; its
 //! adjoint uses `J_F = ∇n∇nᵀ + n ∇²n` (symmetric) and `∂F/∂θ = (∂n/∂θ)∇n + n ∇(∂n/∂θ)`.
-//! Rays run a fixed number of steps inside the field (the boundary-crossing derivative is not
-//! included yet). Gradients with respect to *every* coefficient of a grid profile are accumulated
+//! [`Tracer::adjoint`] runs a fixed number of steps inside the field; [`Tracer::exit_adjoint`]
+//! follows [`Tracer::trace`] to the exit, with refraction, reflections and boundary crossings
+//! differentiated too. Gradients with respect to *every* coefficient of a grid profile are accumulated
 //! sparsely: each field evaluation touches only its 8 (trilinear) or 64 (tricubic) taps, so the
 //! cost per step does not depend on the grid size.
 
-use super::field::{BoundedField, IndexField};
-use super::trace::{Ray, Tracer};
+use super::field::{BoundedField, Bounds, IndexField};
+use super::trace::{Ray, RayEnd, Segment, Tracer};
 use glam::DVec3;
 
 /// An analytic field parameter: parameter `which` of profile `profile` (see `Profile::dparam`).
@@ -202,5 +203,187 @@ impl Tracer<'_> {
             dv0: lv,
             dparams: acc.dp,
         })
+    }
+}
+
+/// Gradients of a loss on where a ray leaves the field (see [`Tracer::exit_adjoint`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ExitGradient {
+    pub end: RayEnd,
+    /// `∂L/∂origin` and `∂L/∂direction` of the ray as given to [`Tracer::trace`]; directions are
+    /// unit vectors, so the direction gradient is tangential (`⟂ direction`).
+    pub d_origin: DVec3,
+    pub d_direction: DVec3,
+    pub dparams: Vec<f64>,
+}
+
+/// `λ·∂n/∂θ` into the accumulators (analytic parameters and grid taps) for a loss that depends on
+/// the value `n(x)` with adjoint `ln`; returns `ln ∇n(x)`, the part for `x`.
+fn accumulate_dn(f: &BoundedField, x: DVec3, ln: f64, acc: &mut Accumulators) -> DVec3 {
+    if !f.bounds.contains(x) {
+        return DVec3::ZERO;
+    }
+    for (g, p) in acc.dp.iter_mut().zip(acc.params.iter()) {
+        if let Some((dn, _)) = f.profiles.get(p.profile).and_then(|q| q.dparam(x, p.which)) {
+            *g += ln * dn;
+        }
+    }
+    if let Some(GridAdjoint { profile, grad }) = &mut acc.grid
+        && let Some(super::field::Profile::Grid(g)) = f.profiles.get(*profile)
+    {
+        g.visit_dcoef(x, |i, w, _| grad[i] += ln * w);
+    }
+    f.grad(x) * ln
+}
+
+/// Adjoint of the surface normal `ν(x)` of `bounds` (curved surfaces only): `λν ↦ λx`.
+fn normal_adjoint(bounds: &Bounds, x: DVec3, l_normal: DVec3) -> DVec3 {
+    let project = |nu: DVec3, l: DVec3, r: f64| (l - nu * l.dot(nu)) / r;
+    match (bounds, bounds.normal(x)) {
+        (Bounds::Sphere { .. }, Some(nu)) => project(nu, l_normal, x.length()),
+        (Bounds::Cylinder { .. }, Some(nu)) if nu.z == 0.0 => {
+            let l = DVec3::new(l_normal.x, l_normal.y, 0.0);
+            project(nu, l, (x.x * x.x + x.y * x.y).sqrt())
+        }
+        _ => DVec3::ZERO,
+    }
+}
+
+/// Adjoint of [`refract`] (refracted branch) at unit `d`, unit `normal`, ratio `eta`: `λt ↦ (λd,
+/// λnormal, λη)`, from `t = η d + (η c − k) n`, `c = −n·d`, `k = sqrt(1 − η²(1 − c²))`.
+fn refract_adjoint(d: DVec3, normal: DVec3, eta: f64, lt: DVec3) -> (DVec3, DVec3, f64) {
+    let sign = if normal.dot(d) > 0.0 { -1.0 } else { 1.0 };
+    let n = normal * sign;
+    let c = -n.dot(d);
+    let k = (1.0 - eta * eta * (1.0 - c * c)).max(1e-300).sqrt();
+    let a = lt.dot(n);
+    let lc = a * (eta - eta * eta * c / k);
+    let ld = lt * eta - n * lc;
+    let ln = lt * (eta * c - k) - d * lc;
+    let leta = lt.dot(d) + a * (c + eta * (1.0 - c * c) / k);
+    (ld, ln * sign, leta)
+}
+
+/// Adjoint of `d = v/|v|`.
+fn unit_adjoint(v: DVec3, ld: DVec3) -> DVec3 {
+    let d = v.normalize();
+    (ld - d * ld.dot(d)) / v.length()
+}
+
+impl Tracer<'_> {
+    /// Gradient of a loss on the exit of [`Tracer::trace`] — `loss_grad(end)` gives `∂L/∂x` and
+    /// `∂L/∂direction` at the exit — with respect to the ray's origin and direction, analytic
+    /// parameters and (optionally) every coefficient of a grid profile. Everything the tracer does
+    /// is differentiated: refraction on entry and exit (Snell), total internal reflections, the
+    /// implicit dependence of each boundary-crossing step on the parameters (`c(x(τ)) = 0` ⇒
+    /// `λx += s ν`, `s = −λ·∂(x, v)/∂τ / (ν·∂x/∂τ)`), and the leapfrog steps, reversed in constant
+    /// memory as in [`Tracer::adjoint`]. Memory grows only with the number of reflections.
+    pub fn exit_adjoint(
+        &self,
+        origin: DVec3,
+        dir: DVec3,
+        params: &[FieldParam],
+        grid: Option<GridAdjoint>,
+        loss_grad: impl FnOnce(&RayEnd) -> (DVec3, DVec3),
+    ) -> Result<ExitGradient, String> {
+        let f = self.field;
+        let mut segments: Vec<Segment> = Vec::new();
+        let end = self.walk(origin, dir, |_| {}, |s| segments.push(s));
+        let (lx_end, lt_end) = loss_grad(&end);
+        let mut acc = Accumulators {
+            params,
+            dp: vec![0.0; params.len()],
+            grid,
+        };
+        if !end.entered {
+            if end.x == origin && end.direction == dir {
+                // missed the field: a straight line
+                return Ok(ExitGradient {
+                    end,
+                    d_origin: lx_end,
+                    d_direction: lt_end - dir * lt_end.dot(dir),
+                    dparams: acc.dp,
+                });
+            }
+            return Err("the ray is reflected off the field's surface on entry".into());
+        }
+        if !end.exited {
+            return Err(format!(
+                "the ray did not leave the field within max_steps = {}",
+                self.max_steps
+            ));
+        }
+        let (mut lx, mut lv) = (DVec3::ZERO, DVec3::ZERO);
+        for (i, seg) in segments.iter().enumerate().rev() {
+            let e = self.leapfrog(seg.last, seg.tau);
+            let n_in = f.n(e.x);
+            let d = e.v.normalize();
+            let nu = f.bounds.normal(e.x).unwrap_or(DVec3::Z);
+            // adjoint of what follows the boundary state e: exit refraction or a reflection
+            let (mut ex, ev) = if i + 1 == segments.len() {
+                let (ld, lnormal, leta) = refract_adjoint(d, -nu, n_in / f.n_out, lt_end);
+                let ex = lx_end + normal_adjoint(&f.bounds, e.x, -lnormal);
+                let ex = ex + accumulate_dn(f, e.x, leta / f.n_out, &mut acc);
+                (ex, unit_adjoint(e.v, ld))
+            } else {
+                // next start: x = e.x, v = R n_in, R = d − 2(ν·d)ν
+                let refl = d - nu * (2.0 * nu.dot(d));
+                let lr = lv * n_in;
+                let ld = lr - nu * (2.0 * nu.dot(lr));
+                let lnu = -(d * lr.dot(nu) + lr * nu.dot(d)) * 2.0;
+                let ex = lx + normal_adjoint(&f.bounds, e.x, lnu);
+                let ex = ex + accumulate_dn(f, e.x, lv.dot(refl), &mut acc);
+                (ex, unit_adjoint(e.v, ld))
+            };
+            // the crossing step's length τ depends on everything upstream through c(e.x) = 0
+            let f0 = self.force_at(seg.last.x);
+            let xdot = seg.last.v + f0 * seg.tau;
+            let vdot = (f0 + self.force_at(e.x)) * 0.5 + jacobian(f, e.x) * xdot * (0.5 * seg.tau);
+            let s = -(ex.dot(xdot) + ev.dot(vdot)) / nu.dot(xdot);
+            ex += nu * s;
+            (lx, lv) = self.adjoint_step(seg.last, seg.tau, ex, ev, &mut acc)?;
+            let mut r = seg.last;
+            for _ in 0..seg.steps {
+                let prev = self.leapfrog(r, -self.step);
+                (lx, lv) = self.adjoint_step(prev, self.step, lx, lv, &mut acc)?;
+                r = prev;
+            }
+        }
+        // the first state inside: v = d_in n(x_in)
+        let start = segments[0].start;
+        let n_in = f.n(start.x);
+        let d_in = start.v / n_in;
+        let (d_origin, d_direction) = if f.bounds.contains(origin) {
+            let lo = lx + accumulate_dn(f, origin, lv.dot(d_in), &mut acc);
+            (lo, lv * n_in)
+        } else {
+            // x_in = o + t_in w on the surface (t0 from c(o + t0 w) = 0), d_in = refract(w, ν, η)
+            let (t0, _) = f
+                .bounds
+                .interval(origin, dir)
+                .ok_or("the ray's entry could not be found again")?;
+            let surface = origin + dir * t0;
+            let nu = f.bounds.normal(surface).unwrap_or(DVec3::Z);
+            let (ld, lnormal, leta) = refract_adjoint(dir, nu, f.n_out / n_in, lv * n_in);
+            let ln = lv.dot(d_in) - leta * f.n_out / (n_in * n_in);
+            let lx_in = lx
+                + accumulate_dn(f, start.x, ln, &mut acc)
+                + normal_adjoint(&f.bounds, surface, lnormal);
+            let (a, nw) = (lx_in.dot(dir), nu.dot(dir));
+            let lo = lx_in - nu * (a / nw);
+            let lw = ld + lx_in * super::trace::entry_parameter(t0) - nu * (a * t0 / nw);
+            (lo, lw)
+        };
+        Ok(ExitGradient {
+            end,
+            d_origin,
+            d_direction: d_direction - dir * d_direction.dot(dir),
+            dparams: acc.dp,
+        })
+    }
+
+    /// `n∇n` at `x` (zero outside the bounds).
+    fn force_at(&self, x: DVec3) -> DVec3 {
+        self.field.grad(x) * self.field.n(x)
     }
 }

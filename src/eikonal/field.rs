@@ -44,6 +44,14 @@ pub enum Profile {
         n0: f64,
         alpha: f64,
     },
+    /// Ultrasonically sculpted index `n = n0 + n_max J_m(k_r r) cos(m φ)` (paper 002, Eq. 15; `r`, `φ`
+    /// cylindrical about the z axis; the time factor `sin Ωt` folded into `n_max`).
+    Ultrasonic {
+        n0: f64,
+        n_max: f64,
+        k_r: f64,
+        m: u32,
+    },
     /// Sampled field (trilinear or prefiltered tricubic B-spline); parameters are its coefficients.
     Grid(super::grid::GridField),
 }
@@ -71,6 +79,7 @@ impl Profile {
             Profile::MaxwellFishEye { .. } => "maxwell_fish_eye",
             Profile::ParabolicFibre { .. } => "parabolic_fibre",
             Profile::SechFibre { .. } => "sech_fibre",
+            Profile::Ultrasonic { .. } => "ultrasonic",
             Profile::Grid(_) => "grid",
         }
     }
@@ -100,6 +109,10 @@ impl Profile {
                 quadratic((n0 * s, -0.5 * n0 / s, -0.25 * n0 / (s * s * s)), d, x)
             }
             Profile::Grid(ref g) => g.eval(x),
+            Profile::Ultrasonic { n0, n_max, k_r, m } => {
+                let h = super::bessel::harmonic(k_r, m, x);
+                (n0 + n_max * h.u, h.grad * n_max, h.hessian * n_max)
+            }
             Profile::SechFibre { n0, alpha } => {
                 let rho = (x.x * x.x + x.y * x.y).sqrt();
                 let t = alpha * rho;
@@ -283,9 +296,47 @@ impl IndexField for BoundedField {
 }
 
 impl Profile {
+    /// A mutable reference to analytic parameter `which` (numbering as in [`Profile::dparam`]).
+    pub fn param_mut(&mut self, which: usize) -> Option<&mut f64> {
+        match (self, which) {
+            (Profile::Constant { n }, 0) => Some(n),
+            (Profile::Linear { n0, .. }, 0) => Some(n0),
+            (Profile::Linear { gradient, .. }, k @ 1..=3) => Some(&mut gradient[k - 1]),
+            (Profile::Luneburg { radius }, 0) | (Profile::MaxwellFishEye { radius }, 0) => {
+                Some(radius)
+            }
+            (Profile::ParabolicFibre { n0, .. }, 0) | (Profile::SechFibre { n0, .. }, 0) => {
+                Some(n0)
+            }
+            (Profile::ParabolicFibre { alpha, .. }, 1) => Some(alpha),
+            (Profile::Ultrasonic { n0, .. }, 0) => Some(n0),
+            (Profile::Ultrasonic { n_max, .. }, 1) => Some(n_max),
+            (Profile::Ultrasonic { k_r, .. }, 2) => Some(k_r),
+            (Profile::Grid(g), k) => g.coef.get_mut(k),
+            _ => None,
+        }
+    }
+
+    /// Parameter `which` by name, for configs and messages (grids have no named parameters).
+    pub fn param_index(&self, name: &str) -> Option<usize> {
+        let names: &[&str] = match self {
+            Profile::Constant { .. } => &["n"],
+            Profile::Linear { .. } => &["n0", "gx", "gy", "gz"],
+            Profile::Luneburg { .. } | Profile::MaxwellFishEye { .. } => &["radius"],
+            Profile::ParabolicFibre { .. } => &["n0", "alpha"],
+            Profile::SechFibre { .. } => &["n0"],
+            Profile::Ultrasonic { .. } => &["n0", "n_max", "k_r"],
+            Profile::Grid(_) => &[],
+        };
+        names.iter().position(|n| *n == name)
+    }
+}
+
+impl Profile {
     /// `(∂n/∂θ, ∇(∂n/∂θ))` for analytic parameter `which` of this profile, or `None` if not
     /// differentiable here. Parameters: Constant `[n]`; Linear `[n0, gx, gy, gz]`; Luneburg `[R]`;
-    /// Maxwell fish-eye `[R]`; parabolic fibre `[n0, α]`; sech fibre `[n0]`; grid: coefficient index.
+    /// Maxwell fish-eye `[R]`; parabolic fibre `[n0, α]`; sech fibre `[n0]`; ultrasonic
+    /// `[n0, n_max, k_r]`; grid: coefficient index.
     pub fn dparam(&self, x: DVec3, which: usize) -> Option<(f64, DVec3)> {
         let (n, grad, _) = self.eval(x);
         match (self, which) {
@@ -317,6 +368,15 @@ impl Profile {
                 Some((n / n0, grad / *n0))
             }
             (Profile::Grid(g), k) if k < g.coef.len() => Some(g.dcoef(x, k)),
+            (Profile::Ultrasonic { .. }, 0) => Some((1.0, DVec3::ZERO)),
+            (Profile::Ultrasonic { k_r, m, .. }, 1) => {
+                let h = super::bessel::harmonic(*k_r, *m, x);
+                Some((h.u, h.grad))
+            }
+            (Profile::Ultrasonic { n_max, k_r, m, .. }, 2) => {
+                let h = super::bessel::harmonic(*k_r, *m, x);
+                Some((h.du_dk * n_max, h.dgrad_dk * n_max))
+            }
             (Profile::ParabolicFibre { n0, alpha }, 1) => {
                 let rho2 = x.x * x.x + x.y * x.y;
                 let s = n / n0;
@@ -353,6 +413,12 @@ mod tests {
             Profile::SechFibre {
                 n0: 1.5,
                 alpha: 0.7,
+            },
+            Profile::Ultrasonic {
+                n0: 1.33,
+                n_max: 0.01,
+                k_r: 4.0,
+                m: 2,
             },
         ];
         let x = DVec3::new(0.31, -0.22, 0.4);

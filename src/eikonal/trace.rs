@@ -4,8 +4,8 @@
 //! `|v| = n`, so that arc length is `ds = n dσ` and the optical path length is `∫ n ds = ∫ n² dσ`
 //! (paper 002, Eqs. 1–2 rescaled; for `n² = 2 − r²` the motion is the harmonic oscillator
 //! `x(σ) = x0 cos σ + v0 sin σ`). Outside the field's bounds rays are straight; the exit point is
-//! found by bisection on the last step. There is no interface refraction: fields should be continuous
-//! at their boundary (e.g. Luneburg and fish-eye lenses in `n_out = 1`).
+//! found by bisection on the last step, and where `n` jumps at the boundary rays refract (Snell) or
+//! are totally reflected.
 
 use super::field::{BoundedField, IndexField};
 use glam::{DMat3, DVec3};
@@ -103,7 +103,19 @@ impl Tracer<'_> {
     ///
     /// Where `n` jumps at the bounds (`n_out` against the profile's value there) the ray refracts
     /// by Snell's law on entry and exit; total internal reflection at the exit sends it back in.
-    pub fn trace_with(&self, origin: DVec3, dir: DVec3, mut visit: impl FnMut(DVec3)) -> RayEnd {
+    pub fn trace_with(&self, origin: DVec3, dir: DVec3, visit: impl FnMut(DVec3)) -> RayEnd {
+        self.walk(origin, dir, visit, |_| {})
+    }
+
+    /// The tracing loop behind [`Tracer::trace_with`], also reporting each [`Segment`] (entry or
+    /// reflection to the boundary) to `record`: what the exit adjoint needs to retrace the ray.
+    pub(crate) fn walk(
+        &self,
+        origin: DVec3,
+        dir: DVec3,
+        mut visit: impl FnMut(DVec3),
+        mut record: impl FnMut(Segment),
+    ) -> RayEnd {
         let bounds = &self.field.bounds;
         let n_out = self.field.n_out;
         let mut x = origin;
@@ -120,7 +132,7 @@ impl Tracer<'_> {
             match bounds.interval(origin, dir) {
                 Some((t0, t1)) if t1 > 0.0 && t0 >= 0.0 => {
                     let surface = origin + dir * t0;
-                    x = origin + dir * (t0 + 1e-12 * (1.0 + t0.abs()));
+                    x = origin + dir * entry_parameter(t0);
                     if let Some(normal) = bounds.normal(surface) {
                         match refract(dir, normal, n_out / self.field.n(x)) {
                             Ok(t) => dir = t,
@@ -136,12 +148,15 @@ impl Tracer<'_> {
             x,
             v: dir * self.field.n(x),
         };
+        let mut start = r;
+        let mut segment_steps = 0;
         let mut opl = 0.0;
         let h = self.step;
         for k in 0..self.max_steps {
             let next = self.leapfrog(r, h);
             if !bounds.contains(next.x) {
-                // bisection on the step length for the boundary crossing
+                // bisection on the step length for the boundary crossing; the exit state is the
+                // last one inside (within 1e-14 h of the surface)
                 let (mut lo, mut hi) = (0.0, h);
                 for _ in 0..60 {
                     let mid = 0.5 * (lo + hi);
@@ -154,10 +169,16 @@ impl Tracer<'_> {
                         break;
                     }
                 }
-                let (inner, end) = (self.leapfrog(r, lo), self.leapfrog(r, hi));
+                let end = self.leapfrog(r, lo);
                 visit(end.x);
-                opl += 0.5 * hi * (self.field.n(r.x).powi(2) + self.field.n(inner.x).powi(2));
-                let n_in = self.field.n(inner.x);
+                record(Segment {
+                    start,
+                    last: r,
+                    steps: segment_steps,
+                    tau: lo,
+                });
+                opl += 0.5 * lo * (self.field.n(r.x).powi(2) + self.field.n(end.x).powi(2));
+                let n_in = self.field.n(end.x);
                 let d = end.v.normalize();
                 match bounds
                     .normal(end.x)
@@ -166,9 +187,11 @@ impl Tracer<'_> {
                     Some(Err(reflected)) => {
                         // total internal reflection: continue inside from the surface
                         r = Ray {
-                            x: inner.x,
+                            x: end.x,
                             v: reflected * n_in,
                         };
+                        start = r;
+                        segment_steps = 0;
                         continue;
                     }
                     refracted => {
@@ -185,6 +208,7 @@ impl Tracer<'_> {
             }
             opl += 0.5 * h * (self.field.n(r.x).powi(2) + self.field.n(next.x).powi(2));
             r = next;
+            segment_steps += 1;
             visit(r.x);
         }
         RayEnd {
@@ -196,6 +220,21 @@ impl Tracer<'_> {
             entered: true,
         }
     }
+}
+
+/// The ray parameter of the first state inside the bounds after entering at `t0`.
+pub(crate) fn entry_parameter(t0: f64) -> f64 {
+    t0 + 1e-12 * (1.0 + t0.abs())
+}
+
+/// One stretch of a traced ray inside the field, from its entry or a reflection (`start`) through
+/// `steps` full leapfrog steps (to `last`) and a final fractional step `tau` onto the boundary.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Segment {
+    pub start: Ray,
+    pub last: Ray,
+    pub steps: usize,
+    pub tau: f64,
 }
 
 /// `∂F/∂x` of the force `F = n∇n`: `∇n ∇nᵀ + n ∇²n` (symmetric).

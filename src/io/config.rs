@@ -229,7 +229,7 @@ fn default_paths() -> u64 {
 }
 
 /// Keys that hold whole numbers; everything else numeric is read as a float.
-const INTEGER_KEYS: [&str; 11] = [
+const INTEGER_KEYS: [&str; 13] = [
     "samples",
     "seed",
     "chunk",
@@ -241,6 +241,8 @@ const INTEGER_KEYS: [&str; 11] = [
     "levels",
     "steps",
     "iterations",
+    "m",
+    "dims",
 ];
 
 /// Let `1` stand for `1.0` in float keys and `1e6` for `1000000` in integer keys.

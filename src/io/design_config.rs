@@ -71,10 +71,12 @@ impl DesignConfig {
         let mut value: toml::Value = toml::from_str(&text)
             .map_err(|e| ConfigError(format!("{}: invalid TOML: {e}", path.display())))?;
         crate::io::config::normalise_numbers(&mut value, "");
-        serde_path_to_error::deserialize(value).map_err(|e| {
+        let mut cfg: DesignConfig = serde_path_to_error::deserialize(value).map_err(|e| {
             let key = e.path().to_string();
             ConfigError(format!("{}: {key}: {}", path.display(), e.into_inner()))
-        })
+        })?;
+        cfg.field.resolve_paths(path);
+        Ok(cfg)
     }
 
     /// The design problem, every value checked.

@@ -33,12 +33,51 @@ fn one() -> f64 {
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum ProfileConfig {
-    Constant { n: f64 },
-    Linear { n0: f64, gradient: [f64; 3] },
-    Luneburg { radius: f64 },
-    MaxwellFishEye { radius: f64 },
-    ParabolicFibre { n0: f64, alpha: f64 },
-    SechFibre { n0: f64, alpha: f64 },
+    Constant {
+        n: f64,
+    },
+    Linear {
+        n0: f64,
+        gradient: [f64; 3],
+    },
+    Luneburg {
+        radius: f64,
+    },
+    MaxwellFishEye {
+        radius: f64,
+    },
+    ParabolicFibre {
+        n0: f64,
+        alpha: f64,
+    },
+    SechFibre {
+        n0: f64,
+        alpha: f64,
+    },
+    /// `n = n0 + n_max J_m(k_r r) cos(m φ)` (paper 002, Eq. 15).
+    Ultrasonic {
+        n0: f64,
+        n_max: f64,
+        k_r: f64,
+        m: u64,
+    },
+    /// Samples on a regular grid (x fastest), interpolated tricubically (default) or trilinearly.
+    Grid {
+        dims: [u64; 3],
+        origin: [f64; 3],
+        spacing: f64,
+        values: Vec<f64>,
+        #[serde(default = "tricubic")]
+        interp: String,
+    },
+    /// The grid of a `lightpath design` result (`design.json`).
+    GridFile {
+        path: String,
+    },
+}
+
+fn tricubic() -> String {
+    "tricubic".into()
 }
 
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq, Default)]
@@ -103,6 +142,16 @@ impl Default for TraceSettings {
 }
 
 impl FieldConfig {
+    /// Make grid-file paths relative to the config file's folder.
+    pub fn resolve_paths(&mut self, config: &std::path::Path) {
+        let dir = config.parent().unwrap_or(std::path::Path::new(""));
+        for p in &mut self.profiles {
+            if let ProfileConfig::GridFile { path } = p {
+                *path = dir.join(&*path).to_string_lossy().into_owned();
+            }
+        }
+    }
+
     /// The field these keys describe (profiles may be empty: `n = 0 + …` inside, for a design's
     /// background), each value checked.
     pub fn build(&self) -> Result<BoundedField, ConfigError> {
@@ -130,6 +179,28 @@ impl FieldConfig {
                     n0: pos(&format!("{k}.n0"), n0)?,
                     alpha: pos(&format!("{k}.alpha"), alpha)?,
                 },
+                ProfileConfig::Ultrasonic { n0, n_max, k_r, m } => {
+                    if !n_max.is_finite() {
+                        return err(format!("{k}.n_max = {n_max}: must be finite"));
+                    }
+                    if m > 64 {
+                        return err(format!("{k}.m = {m}: must be within [0, 64]"));
+                    }
+                    Profile::Ultrasonic {
+                        n0: pos(&format!("{k}.n0"), n0)?,
+                        n_max,
+                        k_r: pos(&format!("{k}.k_r"), k_r)?,
+                        m: m as u32,
+                    }
+                }
+                ProfileConfig::Grid {
+                    dims,
+                    origin,
+                    spacing,
+                    ref values,
+                    ref interp,
+                } => grid_profile(&k, dims, origin, spacing, values.clone(), interp)?,
+                ProfileConfig::GridFile { ref path } => grid_file(&k, path)?,
             });
         }
         let bounds = match f.bounds {
@@ -162,6 +233,67 @@ impl FieldConfig {
     }
 }
 
+/// A grid profile from its keys (`key` names it in messages).
+fn grid_profile(
+    key: &str,
+    dims: [u64; 3],
+    origin: [f64; 3],
+    spacing: f64,
+    values: Vec<f64>,
+    interp: &str,
+) -> Result<Profile, ConfigError> {
+    use crate::eikonal::grid::{GridField, Interp};
+    let interp = match interp {
+        "tricubic" => Interp::Tricubic,
+        "trilinear" => Interp::Trilinear,
+        other => {
+            return err(format!(
+                "{key}.interp = \"{other}\": must be \"tricubic\" or \"trilinear\""
+            ));
+        }
+    };
+    if let Some(v) = values.iter().find(|v| !v.is_finite()) {
+        return err(format!("{key}.values: {v} is not a finite number"));
+    }
+    if origin.iter().any(|o| !o.is_finite()) {
+        return err(format!("{key}.origin = {origin:?}: must be finite"));
+    }
+    if dims.iter().any(|&d| d > 4096) {
+        return err(format!(
+            "{key}.dims = {dims:?}: at most 4096 nodes per axis"
+        ));
+    }
+    let dims = dims.map(|d| d as usize);
+    GridField::from_samples(DVec3::from_array(origin), spacing, dims, values, interp)
+        .map(Profile::Grid)
+        .map_err(|e| ConfigError(format!("{key}: {e}")))
+}
+
+/// The grid written by `lightpath design` to `design.json` (key `grid`).
+fn grid_file(key: &str, path: &str) -> Result<Profile, ConfigError> {
+    #[derive(Deserialize)]
+    struct Saved {
+        grid: SavedGrid,
+    }
+    #[derive(Deserialize)]
+    struct SavedGrid {
+        dims: [u64; 3],
+        origin: [f64; 3],
+        spacing: f64,
+        samples: Vec<f64>,
+        interp: String,
+    }
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| ConfigError(format!("{key}.path = \"{path}\": cannot read: {e}")))?;
+    let saved: Saved = serde_json::from_str(&text).map_err(|e| {
+        ConfigError(format!(
+            "{key}.path = \"{path}\": not a design result with a grid: {e}"
+        ))
+    })?;
+    let g = saved.grid;
+    grid_profile(key, g.dims, g.origin, g.spacing, g.samples, &g.interp)
+}
+
 impl TraceConfig {
     pub fn from_file(path: &std::path::Path) -> Result<TraceConfig, ConfigError> {
         let text = std::fs::read_to_string(path)
@@ -169,10 +301,11 @@ impl TraceConfig {
         let mut value: toml::Value = toml::from_str(&text)
             .map_err(|e| ConfigError(format!("{}: invalid TOML: {e}", path.display())))?;
         crate::io::config::normalise_numbers(&mut value, "");
-        let cfg: TraceConfig = serde_path_to_error::deserialize(value).map_err(|e| {
+        let mut cfg: TraceConfig = serde_path_to_error::deserialize(value).map_err(|e| {
             let key = e.path().to_string();
             ConfigError(format!("{}: {key}: {}", path.display(), e.into_inner()))
         })?;
+        cfg.field.resolve_paths(path);
         Ok(cfg)
     }
 
