@@ -44,6 +44,12 @@ pub enum Profile {
         n0: f64,
         alpha: f64,
     },
+    /// Radial polynomial about the z axis, `n = n0 + Σ_k c_k ρ^{2k}` (`k = 1, 2, …`): a free-form
+    /// GRIN-fibre profile whose coefficients a design can fit (sech: `c₂/c₁² = 5/(6 n0)`...).
+    RadialPolynomial {
+        n0: f64,
+        coefficients: Vec<f64>,
+    },
     /// Ultrasonically sculpted index `n = n0 + n_max J_m(k_r r) cos(m φ)` (paper 002, Eq. 15; `r`, `φ`
     /// cylindrical about the z axis; the time factor `sin Ωt` folded into `n_max`).
     Ultrasonic {
@@ -80,6 +86,7 @@ impl Profile {
             Profile::ParabolicFibre { .. } => "parabolic_fibre",
             Profile::SechFibre { .. } => "sech_fibre",
             Profile::Ultrasonic { .. } => "ultrasonic",
+            Profile::RadialPolynomial { .. } => "radial_polynomial",
             Profile::Grid(_) => "grid",
         }
     }
@@ -112,6 +119,23 @@ impl Profile {
             Profile::Ultrasonic { n0, n_max, k_r, m } => {
                 let h = super::bessel::harmonic(k_r, m, x);
                 (n0 + n_max * h.u, h.grad * n_max, h.hessian * n_max)
+            }
+            Profile::RadialPolynomial {
+                n0,
+                ref coefficients,
+            } => {
+                let q = x.x * x.x + x.y * x.y;
+                let (mut f, mut f1, mut f2) = (n0, 0.0, 0.0);
+                // q^{k-2}, q^{k-1} as k runs up
+                let (mut qm2, mut qm1) = (0.0, 1.0);
+                for (i, c) in coefficients.iter().enumerate() {
+                    let k = (i + 1) as f64;
+                    f += c * qm1 * q;
+                    f1 += k * c * qm1;
+                    f2 += k * (k - 1.0) * c * qm2;
+                    (qm2, qm1) = (qm1, qm1 * q);
+                }
+                quadratic((f, f1, f2), DVec3::new(1.0, 1.0, 0.0), x)
             }
             Profile::SechFibre { n0, alpha } => {
                 let rho = (x.x * x.x + x.y * x.y).sqrt();
@@ -309,7 +333,12 @@ impl Profile {
                 Some(n0)
             }
             (Profile::ParabolicFibre { alpha, .. }, 1) => Some(alpha),
-            (Profile::Ultrasonic { n0, .. }, 0) => Some(n0),
+            (Profile::Ultrasonic { n0, .. }, 0) | (Profile::RadialPolynomial { n0, .. }, 0) => {
+                Some(n0)
+            }
+            (Profile::RadialPolynomial { coefficients, .. }, k) if k >= 1 => {
+                coefficients.get_mut(k - 1)
+            }
             (Profile::Ultrasonic { n_max, .. }, 1) => Some(n_max),
             (Profile::Ultrasonic { k_r, .. }, 2) => Some(k_r),
             (Profile::Grid(g), k) => g.coef.get_mut(k),
@@ -326,6 +355,15 @@ impl Profile {
             Profile::ParabolicFibre { .. } => &["n0", "alpha"],
             Profile::SechFibre { .. } => &["n0"],
             Profile::Ultrasonic { .. } => &["n0", "n_max", "k_r"],
+            Profile::RadialPolynomial { coefficients, .. } => {
+                return match name {
+                    "n0" => Some(0),
+                    _ => name
+                        .strip_prefix('c')
+                        .and_then(|k| k.parse::<usize>().ok())
+                        .filter(|k| (1..=coefficients.len()).contains(k)),
+                };
+            }
             Profile::Grid(_) => &[],
         };
         names.iter().position(|n| *n == name)
@@ -336,7 +374,7 @@ impl Profile {
     /// `(∂n/∂θ, ∇(∂n/∂θ))` for analytic parameter `which` of this profile, or `None` if not
     /// differentiable here. Parameters: Constant `[n]`; Linear `[n0, gx, gy, gz]`; Luneburg `[R]`;
     /// Maxwell fish-eye `[R]`; parabolic fibre `[n0, α]`; sech fibre `[n0]`; ultrasonic
-    /// `[n0, n_max, k_r]`; grid: coefficient index.
+    /// `[n0, n_max, k_r]`; radial polynomial `[n0, c1, c2, …]`; grid: coefficient index.
     pub fn dparam(&self, x: DVec3, which: usize) -> Option<(f64, DVec3)> {
         let (n, grad, _) = self.eval(x);
         match (self, which) {
@@ -368,7 +406,15 @@ impl Profile {
                 Some((n / n0, grad / *n0))
             }
             (Profile::Grid(g), k) if k < g.coef.len() => Some(g.dcoef(x, k)),
-            (Profile::Ultrasonic { .. }, 0) => Some((1.0, DVec3::ZERO)),
+            (Profile::Ultrasonic { .. }, 0) | (Profile::RadialPolynomial { .. }, 0) => {
+                Some((1.0, DVec3::ZERO))
+            }
+            (Profile::RadialPolynomial { coefficients, .. }, k) if k <= coefficients.len() => {
+                // ∂n/∂c_k = ρ^{2k}, ∇ = 2k ρ^{2k−2} (x, y, 0)
+                let q = x.x * x.x + x.y * x.y;
+                let g = 2.0 * k as f64 * q.powi(k as i32 - 1);
+                Some((q.powi(k as i32), DVec3::new(x.x * g, x.y * g, 0.0)))
+            }
             (Profile::Ultrasonic { k_r, m, .. }, 1) => {
                 let h = super::bessel::harmonic(*k_r, *m, x);
                 Some((h.u, h.grad))
@@ -419,6 +465,10 @@ mod tests {
                 n_max: 0.01,
                 k_r: 4.0,
                 m: 2,
+            },
+            Profile::RadialPolynomial {
+                n0: 1.5,
+                coefficients: vec![-0.2, 0.05, -0.01],
             },
         ];
         let x = DVec3::new(0.31, -0.22, 0.4);

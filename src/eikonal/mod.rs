@@ -5,6 +5,7 @@ pub mod adjoint;
 pub mod bessel;
 pub mod design;
 pub mod field;
+pub mod fit;
 pub mod grid;
 pub mod ops;
 pub mod trace;

@@ -1,0 +1,239 @@
+//! Fitting a few analytic field parameters (ultrasonic `n_max`, `k_r`; fibre profile coefficients;
+//! lens radii) so that beams focus where requested: L-BFGS (argmin) on the exact gradient of the
+//! traced exits ([`Tracer::exit_adjoint`]: refraction, reflections and boundary crossings included).
+//!
+//! Loss: the mean over rays of the squared distance from each beam's focus to the ray's exit line
+//! `x_exit + t d_exit` — a focus may lie on the exit face or beyond it.
+
+use super::adjoint::FieldParam;
+use super::design::Beam;
+use super::{BoundedField, Tracer};
+use argmin::core::{CostFunction, Error as ArgminError, Executor, Gradient, State};
+use argmin::solver::linesearch::MoreThuenteLineSearch;
+use argmin::solver::quasinewton::LBFGS;
+use glam::DVec3;
+use rayon::prelude::*;
+use std::sync::Mutex;
+
+/// A parameter fit: `params` of `field` (named for reports) start at their values in `field`.
+pub struct ParamFit {
+    pub field: BoundedField,
+    pub params: Vec<FieldParam>,
+    pub names: Vec<String>,
+    pub beams: Vec<Beam>,
+    pub step: f64,
+    pub max_steps: usize,
+    pub iterations: usize,
+}
+
+/// One evaluation of the loss during the fit.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FitStep {
+    pub evaluation: usize,
+    pub params: Vec<f64>,
+    pub mean_miss2: f64,
+}
+
+/// What a fit found.
+#[derive(Clone, Debug)]
+pub struct ParamFitResult {
+    pub initial: Vec<f64>,
+    pub fitted: Vec<f64>,
+    pub field: BoundedField,
+    pub log: Vec<FitStep>,
+    pub rms_miss_initial: f64,
+    pub rms_miss_final: f64,
+}
+
+/// Squared distance of `focus` from the line `x + t d` (unit `d`) and its gradients in `x`, `d`.
+fn line_miss(focus: DVec3, x: DVec3, d: DVec3) -> (f64, DVec3, DVec3) {
+    let q = focus - x;
+    let p = q - d * q.dot(d);
+    (p.length_squared(), -p * 2.0, -p * (2.0 * q.dot(d)))
+}
+
+impl ParamFit {
+    /// The field with the fitted parameters set to `theta`.
+    pub fn field_with(&self, theta: &[f64]) -> Result<BoundedField, String> {
+        let mut f = self.field.clone();
+        for ((p, v), name) in self.params.iter().zip(theta).zip(&self.names) {
+            if !v.is_finite() {
+                return Err(format!("{name} = {v}"));
+            }
+            let slot = f
+                .profiles
+                .get_mut(p.profile)
+                .and_then(|q| q.param_mut(p.which))
+                .ok_or_else(|| format!("no parameter {name}"))?;
+            *slot = *v;
+        }
+        Ok(f)
+    }
+
+    /// The parameters' values in the starting field.
+    pub fn initial(&self) -> Result<Vec<f64>, String> {
+        let mut f = self.field.clone();
+        self.params
+            .iter()
+            .zip(&self.names)
+            .map(|(p, name)| {
+                f.profiles
+                    .get_mut(p.profile)
+                    .and_then(|q| q.param_mut(p.which))
+                    .map(|v| *v)
+                    .ok_or_else(|| format!("no parameter {name}"))
+            })
+            .collect()
+    }
+
+    /// Mean squared miss distance over all rays and its gradient in the parameters (rays in
+    /// parallel, summed in ray order: deterministic).
+    pub fn loss_and_gradient(&self, theta: &[f64]) -> Result<(f64, Vec<f64>), String> {
+        let field = self.field_with(theta)?;
+        let tracer = Tracer {
+            field: &field,
+            step: self.step,
+            max_steps: self.max_steps,
+        };
+        let rays: Vec<(DVec3, DVec3, DVec3)> = self
+            .beams
+            .iter()
+            .flat_map(|b| b.rays.iter().map(|&(o, d)| (o, d, b.focus)))
+            .collect();
+        let parts: Vec<Result<(f64, Vec<f64>), String>> = rays
+            .par_iter()
+            .enumerate()
+            .map(|(i, &(o, d, focus))| {
+                let mut miss = 0.0;
+                let g = tracer
+                    .exit_adjoint(o, d, &self.params, None, |e| {
+                        let (m, dx, dd) = line_miss(focus, e.x, e.direction);
+                        miss = m;
+                        (dx, dd)
+                    })
+                    .map_err(|e| format!("ray {i} from {o}: {e}"))?;
+                Ok((miss, g.dparams))
+            })
+            .collect();
+        let (mut loss, mut grad) = (0.0, vec![0.0; theta.len()]);
+        for p in parts {
+            let (m, g) = p?;
+            loss += m;
+            grad.iter_mut().zip(&g).for_each(|(a, b)| *a += b);
+        }
+        let n = rays.len().max(1) as f64;
+        Ok((loss / n, grad.iter().map(|g| g / n).collect()))
+    }
+
+    /// Run L-BFGS in the scaled variables `u_i = θ_i / s_i` (`s_i` the starting magnitude), so
+    /// parameters of very different size (`n_max ~ 1e-4`, `k_r ~ 4`) are balanced.
+    pub fn run(&self, progress: &(dyn Fn(&FitStep) + Sync)) -> Result<ParamFitResult, String> {
+        let initial = self.initial()?;
+        let scale: Vec<f64> = initial
+            .iter()
+            .map(|v| if *v != 0.0 { v.abs() } else { 1.0 })
+            .collect();
+        let (l0, g0) = self.loss_and_gradient(&initial)?;
+        let gnorm = g0
+            .iter()
+            .zip(&scale)
+            .map(|(g, s)| (g * s).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        let log = Mutex::new(Vec::new());
+        let problem = Objective {
+            fit: self,
+            scale: scale.clone(),
+            loss_scale: if gnorm > 0.0 { 1.0 / gnorm } else { 1.0 },
+            log: &log,
+            progress,
+            last: Mutex::new(None),
+        };
+        let solver = LBFGS::new(MoreThuenteLineSearch::new(), 7)
+            .with_tolerance_grad(1e-12)
+            .map_err(|e| e.to_string())?
+            .with_tolerance_cost(1e-14)
+            .map_err(|e| e.to_string())?;
+        let u0: Vec<f64> = initial.iter().zip(&scale).map(|(v, s)| v / s).collect();
+        let res = Executor::new(problem, solver)
+            .configure(|s| s.param(u0).max_iters(self.iterations as u64))
+            .run()
+            .map_err(|e| format!("fit: {e}"))?;
+        let best = res
+            .state()
+            .get_best_param()
+            .cloned()
+            .ok_or("fit: no parameters evaluated")?;
+        let fitted: Vec<f64> = best.iter().zip(&scale).map(|(u, s)| u * s).collect();
+        let (l1, _) = self.loss_and_gradient(&fitted)?;
+        Ok(ParamFitResult {
+            field: self.field_with(&fitted)?,
+            initial,
+            fitted,
+            log: log.into_inner().unwrap_or_default(),
+            rms_miss_initial: l0.sqrt(),
+            rms_miss_final: l1.sqrt(),
+        })
+    }
+}
+
+struct Objective<'a> {
+    fit: &'a ParamFit,
+    scale: Vec<f64>,
+    /// Makes the first gradient (in `u`) of unit norm, so the first trial step is modest.
+    loss_scale: f64,
+    log: &'a Mutex<Vec<FitStep>>,
+    progress: &'a (dyn Fn(&FitStep) + Sync),
+    /// The last evaluation (argmin asks for cost and gradient at the same point separately).
+    last: Mutex<Option<(Vec<f64>, f64, Vec<f64>)>>,
+}
+
+impl Objective<'_> {
+    fn eval(&self, u: &[f64]) -> Result<(f64, Vec<f64>), ArgminError> {
+        if let Ok(last) = self.last.lock()
+            && let Some((lu, l, g)) = last.as_ref()
+            && lu.as_slice() == u
+        {
+            return Ok((*l, g.clone()));
+        }
+        let theta: Vec<f64> = u.iter().zip(&self.scale).map(|(u, s)| u * s).collect();
+        let (l, g) = self
+            .fit
+            .loss_and_gradient(&theta)
+            .map_err(ArgminError::msg)?;
+        if let Ok(mut log) = self.log.lock() {
+            let step = FitStep {
+                evaluation: log.len(),
+                params: theta,
+                mean_miss2: l,
+            };
+            (self.progress)(&step);
+            log.push(step);
+        }
+        let gu = g
+            .iter()
+            .zip(&self.scale)
+            .map(|(g, s)| g * s * self.loss_scale)
+            .collect::<Vec<f64>>();
+        if let Ok(mut last) = self.last.lock() {
+            *last = Some((u.to_vec(), l * self.loss_scale, gu.clone()));
+        }
+        Ok((l * self.loss_scale, gu))
+    }
+}
+
+impl CostFunction for Objective<'_> {
+    type Param = Vec<f64>;
+    type Output = f64;
+    fn cost(&self, u: &Vec<f64>) -> Result<f64, ArgminError> {
+        self.eval(u).map(|r| r.0)
+    }
+}
+
+impl Gradient for Objective<'_> {
+    type Param = Vec<f64>;
+    type Gradient = Vec<f64>;
+    fn gradient(&self, u: &Vec<f64>) -> Result<Vec<f64>, ArgminError> {
+        self.eval(u).map(|r| r.1)
+    }
+}
