@@ -115,8 +115,9 @@ enum Command {
         #[arg(long)]
         threads: Option<usize>,
     },
-    /// Design a graded-index field (grid, coarse to fine) so beams pass through their foci, by Adam
-    /// through the adjoint → design.json + loss.png + profile.png + grid_slice_z.exr
+    /// Design a graded-index field so beams pass through their foci: a grid (coarse to fine) by
+    /// Adam through the adjoint → design.json + loss.png + profile.png + grid_slice_z.exr; or, with
+    /// a `[parameters]` table, analytic parameters by L-BFGS → fit.json + loss.png + rays.png
     Design {
         config: PathBuf,
         #[arg(long)]
@@ -217,6 +218,14 @@ fn eikonal_config_kind(path: &std::path::Path) -> (bool, bool) {
         })
 }
 
+/// Whether a design config fits analytic parameters (a `[parameters]` table) instead of a grid.
+fn has_parameters(path: &std::path::Path) -> bool {
+    std::fs::read_to_string(path)
+        .ok()
+        .and_then(|t| t.parse::<toml::Table>().ok())
+        .is_some_and(|t| t.contains_key("parameters"))
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
@@ -302,6 +311,16 @@ fn main() -> ExitCode {
             out,
             threads,
             quiet,
+        }) if has_parameters(&config) => {
+            lightpath::io::design_config::ParamFitConfig::from_file(&config)
+                .map_err(|e| e.0)
+                .and_then(|cfg| with_threads(threads, || jobs::param_fit_job(&cfg, !quiet, &out))?)
+        }
+        Some(Command::Design {
+            config,
+            out,
+            threads,
+            quiet,
         }) => lightpath::io::design_config::DesignConfig::from_file(&config)
             .map_err(|e| e.0)
             .and_then(|cfg| with_threads(threads, || jobs::design_job(&cfg, !quiet, &out))?),
@@ -325,6 +344,25 @@ fn main() -> ExitCode {
                     ExitCode::from(2)
                 }
             };
+        }
+        Some(Command::Check { config })
+            if eikonal_config_kind(&config) == (true, true) && has_parameters(&config) =>
+        {
+            lightpath::io::design_config::ParamFitConfig::from_file(&config)
+                .map_err(|e| e.0)
+                .and_then(|c| {
+                    let p = c.problem().map_err(|e| e.0)?;
+                    Ok(jobs::Outcome {
+                        files: vec![],
+                        summary: format!(
+                            "{}: ok — parameter fit config, {} beam(s), {} ray(s), fitting {}",
+                            config.display(),
+                            p.beams.len(),
+                            p.beams.iter().map(|b| b.rays.len()).sum::<usize>(),
+                            p.names.join(", ")
+                        ),
+                    })
+                })
         }
         Some(Command::Check { config }) if eikonal_config_kind(&config) == (true, true) => {
             lightpath::io::design_config::DesignConfig::from_file(&config)

@@ -46,8 +46,14 @@ struct Accumulators<'p, 'g> {
 }
 
 /// `grad[i] += (∂F/∂c_i)(x)·a` for every tap `i` of the grid at `x`, with
-/// `∂F/∂c_i = w_i ∇n + n ∇w_i` (`F = n∇n`).
-fn accumulate_grid(f: &BoundedField, x: DVec3, a: DVec3, grid: &mut Option<GridAdjoint>) {
+/// `∂F/∂c_i = w_i ∇n + n ∇w_i` (`F = n∇n`), given `(n, ∇n)` at `x`.
+fn accumulate_grid(
+    f: &BoundedField,
+    x: DVec3,
+    (n, gn): (f64, DVec3),
+    a: DVec3,
+    grid: &mut Option<GridAdjoint>,
+) {
     let Some(GridAdjoint { profile, grad }) = grid else {
         return;
     };
@@ -57,14 +63,14 @@ fn accumulate_grid(f: &BoundedField, x: DVec3, a: DVec3, grid: &mut Option<GridA
     let Some(super::field::Profile::Grid(g)) = f.profiles.get(*profile) else {
         return;
     };
-    let (n, gn, _) = f.eval(x);
     let ga = gn.dot(a);
     g.visit_dcoef(x, |i, w, dw| grad[i] += w * ga + n * dw.dot(a));
 }
 
 use super::trace::force_jacobian as jacobian;
 
-fn dforce(f: &BoundedField, x: DVec3, p: &FieldParam) -> Result<DVec3, String> {
+/// `∂F/∂θ = (∂n/∂θ)∇n + n ∇(∂n/∂θ)` at `x`, given `(n, ∇n)` there.
+fn dforce(f: &BoundedField, x: DVec3, n: f64, g: DVec3, p: &FieldParam) -> Result<DVec3, String> {
     if !f.bounds.contains(x) {
         return Ok(DVec3::ZERO);
     }
@@ -79,7 +85,17 @@ fn dforce(f: &BoundedField, x: DVec3, p: &FieldParam) -> Result<DVec3, String> {
             prof.kind()
         )
     })?;
-    Ok(f.grad(x) * dn + dgrad * f.n(x))
+    Ok(g * dn + dgrad * n)
+}
+
+/// `(n, ∇n, J_F)` at `x`, `J_F = ∇n∇nᵀ + n∇²n` the force Jacobian: one field evaluation.
+fn local(f: &BoundedField, x: DVec3) -> (f64, DVec3, glam::DMat3) {
+    let (n, g, h) = f.eval(x);
+    (
+        n,
+        g,
+        glam::DMat3::from_cols(g * g.x, g * g.y, g * g.z) + h * n,
+    )
 }
 
 impl Tracer<'_> {
@@ -94,22 +110,24 @@ impl Tracer<'_> {
     ) -> Result<(DVec3, DVec3), String> {
         let Accumulators { params, dp, grid } = acc;
         let f = self.field;
-        let v_half = r.v + f.grad(r.x) * (f.n(r.x) * 0.5 * h);
+        let (n0, g0, j0) = local(f, r.x);
+        let v_half = r.v + g0 * (n0 * 0.5 * h);
         let x1 = r.x + v_half * h;
+        let (n1, g1, j1) = local(f, x1);
         // v' = v½ + h/2 F(x'): x' collects J_F(x') λ_v' h/2 on top of λ_x'
-        let lx1 = lx + jacobian(f, x1) * lv * (0.5 * h);
+        let lx1 = lx + j1 * lv * (0.5 * h);
         for (g, p) in dp.iter_mut().zip(params.iter()) {
-            *g += 0.5 * h * dforce(f, x1, p)?.dot(lv);
+            *g += 0.5 * h * dforce(f, x1, n1, g1, p)?.dot(lv);
         }
-        accumulate_grid(f, x1, lv * (0.5 * h), grid);
+        accumulate_grid(f, x1, (n1, g1), lv * (0.5 * h), grid);
         // x' = x + h v½: v½ collects λ_v' (direct) and h λ_x'
         let l_half = lv + lx1 * h;
         // v½ = v + h/2 F(x)
-        let lx0 = lx1 + jacobian(f, r.x) * l_half * (0.5 * h);
+        let lx0 = lx1 + j0 * l_half * (0.5 * h);
         for (g, p) in dp.iter_mut().zip(params.iter()) {
-            *g += 0.5 * h * dforce(f, r.x, p)?.dot(l_half);
+            *g += 0.5 * h * dforce(f, r.x, n0, g0, p)?.dot(l_half);
         }
-        accumulate_grid(f, r.x, l_half * (0.5 * h), grid);
+        accumulate_grid(f, r.x, (n0, g0), l_half * (0.5 * h), grid);
         let lv0 = l_half;
         Ok((lx0, lv0))
     }

@@ -317,6 +317,17 @@ impl IndexField for BoundedField {
             .iter()
             .fold(DMat3::ZERO, |acc, p| acc + p.eval(x).2)
     }
+    fn eval(&self, x: DVec3) -> (f64, DVec3, DMat3) {
+        if !self.bounds.contains(x) {
+            return (self.n_out, DVec3::ZERO, DMat3::ZERO);
+        }
+        self.profiles
+            .iter()
+            .fold((0.0, DVec3::ZERO, DMat3::ZERO), |(n, g, h), p| {
+                let (pn, pg, ph) = p.eval(x);
+                (n + pn, g + pg, h + ph)
+            })
+    }
 }
 
 impl Profile {
@@ -376,7 +387,7 @@ impl Profile {
     /// Maxwell fish-eye `[R]`; parabolic fibre `[n0, α]`; sech fibre `[n0]`; ultrasonic
     /// `[n0, n_max, k_r]`; radial polynomial `[n0, c1, c2, …]`; grid: coefficient index.
     pub fn dparam(&self, x: DVec3, which: usize) -> Option<(f64, DVec3)> {
-        let (n, grad, _) = self.eval(x);
+        let eval = || self.eval(x);
         match (self, which) {
             (Profile::Constant { .. }, 0) => Some((1.0, DVec3::ZERO)),
             (Profile::Linear { .. }, 0) => Some((1.0, DVec3::ZERO)),
@@ -386,6 +397,7 @@ impl Profile {
                 Some((x[k - 1], e))
             }
             (Profile::Luneburg { radius }, 0) => {
+                let (n, grad, _) = eval();
                 let r3 = radius.powi(3);
                 let r2 = x.length_squared();
                 let d = r2 / r3 / n;
@@ -403,6 +415,7 @@ impl Profile {
                 ))
             }
             (Profile::ParabolicFibre { n0, .. }, 0) | (Profile::SechFibre { n0, .. }, 0) => {
+                let (n, grad, _) = eval();
                 Some((n / n0, grad / *n0))
             }
             (Profile::Grid(g), k) if k < g.coef.len() => Some(g.dcoef(x, k)),
@@ -424,6 +437,7 @@ impl Profile {
                 Some((h.du_dk * n_max, h.dgrad_dk * n_max))
             }
             (Profile::ParabolicFibre { n0, alpha }, 1) => {
+                let n = eval().0;
                 let rho2 = x.x * x.x + x.y * x.y;
                 let s = n / n0;
                 let perp = DVec3::new(x.x, x.y, 0.0);

@@ -229,7 +229,7 @@ fn default_paths() -> u64 {
 }
 
 /// Keys that hold whole numbers; everything else numeric is read as a float.
-const INTEGER_KEYS: [&str; 13] = [
+const INTEGER_KEYS: [&str; 14] = [
     "samples",
     "seed",
     "chunk",
@@ -243,6 +243,7 @@ const INTEGER_KEYS: [&str; 13] = [
     "iterations",
     "m",
     "dims",
+    "profile",
 ];
 
 /// Let `1` stand for `1.0` in float keys and `1e6` for `1000000` in integer keys.

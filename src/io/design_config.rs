@@ -34,16 +34,88 @@ fn tricubic() -> String {
     "tricubic".into()
 }
 
-/// A collimated beam: `count × count` rays on a square lattice across a disk of `radius` about
-/// `center`, travelling along `direction`, all meant to pass through `focus`.
+/// A beam: `count × count` rays on a square lattice across the unit disk, mapped to positions
+/// `center + radius·(u e1 + w e2)` and directions `direction + tan(half_angle)·(u e1 + w e2)` —
+/// collimated (`half_angle_deg = 0`), a cone from a point (`radius = 0`) or both; all meant to
+/// pass through `focus`.
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct BeamConfig {
     pub center: [f64; 3],
     pub direction: [f64; 3],
+    #[serde(default)]
     pub radius: f64,
+    #[serde(default)]
+    pub half_angle_deg: f64,
     pub count: u64,
     pub focus: [f64; 3],
+}
+
+/// The beams of a design or fit config, every value checked.
+pub fn beams(config: &[BeamConfig]) -> Result<Vec<Beam>, ConfigError> {
+    if config.is_empty() {
+        return err("beam: give at least one [[beam]]");
+    }
+    let mut beams = Vec::new();
+    for (i, b) in config.iter().enumerate() {
+        let k = |s: &str| format!("beam[{i}].{s}");
+        let d = unit(&k("direction"), b.direction)?;
+        if !(b.radius >= 0.0 && b.radius.is_finite()) {
+            return err(format!("{} = {}: must be >= 0", k("radius"), b.radius));
+        }
+        if !(0.0..89.0).contains(&b.half_angle_deg) {
+            return err(format!(
+                "{} = {}: must be within [0, 89)",
+                k("half_angle_deg"),
+                b.half_angle_deg
+            ));
+        }
+        if !(1..=64).contains(&b.count) {
+            return err(format!(
+                "{} = {}: must be within [1, 64]",
+                k("count"),
+                b.count
+            ));
+        }
+        if b.count > 1 && b.radius == 0.0 && b.half_angle_deg == 0.0 {
+            return err(format!(
+                "{}: {} rays a side need a radius or a half_angle_deg > 0",
+                k("count"),
+                b.count
+            ));
+        }
+        let (e1, e2) = crate::math::orthonormal_basis(d);
+        let c = DVec3::from_array(b.center);
+        let spread = b.half_angle_deg.to_radians().tan();
+        let m = b.count as usize;
+        let lattice = |i: usize| {
+            if m == 1 {
+                0.0
+            } else {
+                2.0 * i as f64 / (m - 1) as f64 - 1.0
+            }
+        };
+        let mut rays = Vec::new();
+        for a in 0..m {
+            for bb in 0..m {
+                let (u, w) = (lattice(a), lattice(bb));
+                if u * u + w * w <= 1.0 + 1e-9 {
+                    let t = e1 * u + e2 * w;
+                    let dir = if spread == 0.0 {
+                        d
+                    } else {
+                        (d + t * spread).normalize()
+                    };
+                    rays.push((c + t * b.radius, dir));
+                }
+            }
+        }
+        beams.push(Beam {
+            rays,
+            focus: DVec3::from_array(b.focus),
+        });
+    }
+    Ok(beams)
 }
 
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
@@ -108,45 +180,7 @@ impl DesignConfig {
         if !g.initial.is_finite() {
             return err(format!("grid.initial = {}: must be finite", g.initial));
         }
-        if self.beam.is_empty() {
-            return err("beam: give at least one [[beam]]");
-        }
-        let mut beams = Vec::new();
-        for (i, b) in self.beam.iter().enumerate() {
-            let k = |s: &str| format!("beam[{i}].{s}");
-            let d = unit(&k("direction"), b.direction)?;
-            let radius = pos(&k("radius"), b.radius)?;
-            if !(1..=64).contains(&b.count) {
-                return err(format!(
-                    "{} = {}: must be within [1, 64]",
-                    k("count"),
-                    b.count
-                ));
-            }
-            let (e1, e2) = crate::math::orthonormal_basis(d);
-            let c = DVec3::from_array(b.center);
-            let m = b.count as usize;
-            let mut rays = Vec::new();
-            for a in 0..m {
-                for bb in 0..m {
-                    let lattice = |i: usize| {
-                        if m == 1 {
-                            0.0
-                        } else {
-                            radius * (2.0 * i as f64 / (m - 1) as f64 - 1.0)
-                        }
-                    };
-                    let (u, w) = (lattice(a), lattice(bb));
-                    if u * u + w * w <= radius * radius * (1.0 + 1e-9) {
-                        rays.push((c + e1 * u + e2 * w, d));
-                    }
-                }
-            }
-            beams.push(Beam {
-                rays,
-                focus: DVec3::from_array(b.focus),
-            });
-        }
+        let beams = beams(&self.beam)?;
         let step = pos("trace.step", self.trace.step)?;
         if !(1..=100_000).contains(&self.trace.steps) {
             return err(format!(
@@ -176,6 +210,115 @@ impl DesignConfig {
             iterations: o.iterations as usize,
             learning_rate,
             smooth: o.smooth,
+        })
+    }
+}
+
+/// Configs of `lightpath design` that fit analytic field parameters (a `[parameters]` table instead
+/// of `[grid]`): L-BFGS on exit-adjoint gradients so the beams pass through their foci.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ParamFitConfig {
+    pub field: FieldConfig,
+    pub beam: Vec<BeamConfig>,
+    #[serde(default)]
+    pub trace: crate::io::trace_config::TraceSettings,
+    pub parameters: ParametersConfig,
+}
+
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ParametersConfig {
+    /// The parameters to fit, e.g. `[{ profile = 0, name = "n_max" }]`.
+    pub fit: Vec<ParamRef>,
+    /// L-BFGS iterations.
+    pub iterations: u64,
+}
+
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ParamRef {
+    pub profile: u64,
+    pub name: String,
+}
+
+impl ParamFitConfig {
+    pub fn from_file(path: &std::path::Path) -> Result<ParamFitConfig, ConfigError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| ConfigError(format!("cannot read config file {}: {e}", path.display())))?;
+        let mut value: toml::Value = toml::from_str(&text)
+            .map_err(|e| ConfigError(format!("{}: invalid TOML: {e}", path.display())))?;
+        crate::io::config::normalise_numbers(&mut value, "");
+        let mut cfg: ParamFitConfig = serde_path_to_error::deserialize(value).map_err(|e| {
+            let key = e.path().to_string();
+            ConfigError(format!("{}: {key}: {}", path.display(), e.into_inner()))
+        })?;
+        cfg.field.resolve_paths(path);
+        Ok(cfg)
+    }
+
+    /// The fit problem, every value checked.
+    pub fn problem(&self) -> Result<crate::eikonal::fit::ParamFit, ConfigError> {
+        use crate::eikonal::FieldParam;
+        if self.field.profiles.is_empty() {
+            return err("field.profiles = []: give at least one profile");
+        }
+        let field = self.field.build()?;
+        crate::io::trace_config::check_positive(&field)?;
+        if matches!(field.bounds, crate::eikonal::Bounds::Everywhere) {
+            return err(
+                "field.bounds: a fit traces rays to where they leave the field; give bounds (sphere, cylinder or box)",
+            );
+        }
+        if self.parameters.fit.is_empty() {
+            return err(
+                "parameters.fit = []: name at least one, e.g. [{ profile = 0, name = \"n_max\" }]",
+            );
+        }
+        let mut params = Vec::new();
+        let mut names = Vec::new();
+        for (i, p) in self.parameters.fit.iter().enumerate() {
+            let prof = field.profiles.get(p.profile as usize).ok_or_else(|| {
+                ConfigError(format!(
+                    "parameters.fit[{i}].profile = {}: there are {} profile(s)",
+                    p.profile,
+                    field.profiles.len()
+                ))
+            })?;
+            let which = prof.param_index(&p.name).ok_or_else(|| {
+                ConfigError(format!(
+                    "parameters.fit[{i}].name = \"{}\": the {} profile has no such parameter",
+                    p.name,
+                    prof.kind()
+                ))
+            })?;
+            params.push(FieldParam {
+                profile: p.profile as usize,
+                which,
+            });
+            names.push(format!("profiles[{}].{}", p.profile, p.name));
+        }
+        let step = pos("trace.step", self.trace.step)?;
+        if !(1..=10_000_000).contains(&self.trace.max_steps) {
+            return err(format!(
+                "trace.max_steps = {}: must be within [1, 10000000]",
+                self.trace.max_steps
+            ));
+        }
+        if !(1..=10_000).contains(&self.parameters.iterations) {
+            return err(format!(
+                "parameters.iterations = {}: must be within [1, 10000]",
+                self.parameters.iterations
+            ));
+        }
+        Ok(crate::eikonal::fit::ParamFit {
+            field,
+            params,
+            names,
+            beams: beams(&self.beam)?,
+            step,
+            max_steps: self.trace.max_steps as usize,
+            iterations: self.parameters.iterations as usize,
         })
     }
 }

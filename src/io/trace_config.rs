@@ -54,6 +54,11 @@ pub enum ProfileConfig {
         n0: f64,
         alpha: f64,
     },
+    /// `n = n0 + Σ_k c_k ρ^{2k}` about the z axis (`coefficients = [c1, c2, …]`).
+    RadialPolynomial {
+        n0: f64,
+        coefficients: Vec<f64>,
+    },
     /// `n = n0 + n_max J_m(k_r r) cos(m φ)` (paper 002, Eq. 15).
     Ultrasonic {
         n0: f64,
@@ -191,6 +196,24 @@ impl FieldConfig {
                         n_max,
                         k_r: pos(&format!("{k}.k_r"), k_r)?,
                         m: m as u32,
+                    }
+                }
+                ProfileConfig::RadialPolynomial {
+                    n0,
+                    ref coefficients,
+                } => {
+                    if let Some(c) = coefficients.iter().find(|c| !c.is_finite()) {
+                        return err(format!("{k}.coefficients: {c} is not a finite number"));
+                    }
+                    if coefficients.len() > 16 {
+                        return err(format!(
+                            "{k}.coefficients: {} given, at most 16",
+                            coefficients.len()
+                        ));
+                    }
+                    Profile::RadialPolynomial {
+                        n0: pos(&format!("{k}.n0"), n0)?,
+                        coefficients: coefficients.clone(),
                     }
                 }
                 ProfileConfig::Grid {
