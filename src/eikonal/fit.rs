@@ -177,6 +177,9 @@ impl ParamFit {
     }
 }
 
+/// `(u, loss, gradient)` in the scaled variables.
+type Evaluation = (Vec<f64>, f64, Vec<f64>);
+
 struct Objective<'a> {
     fit: &'a ParamFit,
     scale: Vec<f64>,
@@ -185,7 +188,7 @@ struct Objective<'a> {
     log: &'a Mutex<Vec<FitStep>>,
     progress: &'a (dyn Fn(&FitStep) + Sync),
     /// The last evaluation (argmin asks for cost and gradient at the same point separately).
-    last: Mutex<Option<(Vec<f64>, f64, Vec<f64>)>>,
+    last: Mutex<Option<Evaluation>>,
 }
 
 impl Objective<'_> {
