@@ -485,9 +485,26 @@ axis = [0.0, 0.0, 1.0]
 half_angle_deg = 10.0
 count = 3
 "#;
+    let grid = r#"
+[field]
+profiles = [{ kind = "grid", dims = [2, 2, 2], origin = [-1.0, -1.0, -1.0], spacing = 2.0, values = [1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0] }]
+bounds = { kind = "sphere", radius = 1.0 }
+[rays]
+kind = "fan"
+origin = [0.0, 0.0, -2.0]
+axis = [0.0, 0.0, 1.0]
+half_angle_deg = 10.0
+count = 3
+"#;
+    let grid_file = radius.replace(
+        r#"{ kind = "luneburg", radius = -1.0 }"#,
+        r#"{ kind = "grid_file", path = "no-such-design.json" }"#,
+    );
     for (name, text, needle) in [
         ("neg.toml", negative, "must be positive"),
         ("radius.toml", radius, "radius = -1"),
+        ("grid.toml", grid, "7 values given, 2×2×2 = 8 expected"),
+        ("gridfile.toml", &grid_file, "no-such-design.json"),
     ] {
         std::fs::write(d.join(name), text).unwrap();
         let o = std::process::Command::new(bin)

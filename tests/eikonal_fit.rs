@@ -64,3 +64,116 @@ fn ultrasonic_focal_depth_matches_paraxial_closed_form() {
     assert!((got / want - 1.0).abs() < 1e-3, "{got} vs {want}");
     assert!(res.rms_miss_final < 1e-3 * res.rms_miss_initial);
 }
+
+/// A radial polynomial fibre fitted so an on-axis point re-images on the axis half a pitch later
+/// (rays up to 20°) must find the sech profile's coefficients — exactly periodic for meridional
+/// rays — not the parabolic ones: `c1 = −n0 α²/2`, `c2 = +5 n0 α⁴/24` (parabolic: `−n0 α⁴/8`).
+#[test]
+fn fibre_fit_finds_the_sech_profile() {
+    let (n0, half) = (1.5, std::f64::consts::PI);
+    let alpha = std::f64::consts::PI / (2.0 * half);
+    let field = BoundedField::single(
+        Profile::RadialPolynomial {
+            n0,
+            coefficients: vec![-0.15, -0.01, -0.001],
+        },
+        Bounds::Cylinder {
+            radius: 2.0,
+            half_length: half,
+        },
+        1.0,
+    );
+    let rays = (1..=6)
+        .map(|i| {
+            let t = (20.0f64 * i as f64 / 6.0).to_radians();
+            (
+                DVec3::new(0.0, 0.0, -half),
+                DVec3::new(t.sin(), 0.0, t.cos()),
+            )
+        })
+        .collect();
+    let fit = ParamFit {
+        field,
+        params: (1..=3)
+            .map(|which| FieldParam { profile: 0, which })
+            .collect(),
+        names: vec!["c1".into(), "c2".into(), "c3".into()],
+        beams: vec![Beam {
+            rays,
+            focus: DVec3::new(0.0, 0.0, half),
+        }],
+        step: 0.005,
+        max_steps: 100_000,
+        iterations: 100,
+    };
+    let res = fit.run(&|_| {}).unwrap();
+    let (c1, c2) = (res.fitted[0], res.fitted[1]);
+    let (s1, s2) = (-n0 * alpha.powi(2) / 2.0, 5.0 * n0 * alpha.powi(4) / 24.0);
+    eprintln!("c1 {c1:.6e} (sech {s1:.6e}), c2 {c2:.6e} (sech {s2:.6e})");
+    assert!((c1 / s1 - 1.0).abs() < 1e-3, "c1 = {c1}, sech {s1}");
+    assert!((c2 / s2 - 1.0).abs() < 0.02, "c2 = {c2}, sech {s2}");
+    assert!(res.rms_miss_final < 1e-4, "RMS miss {}", res.rms_miss_final);
+}
+
+/// `lightpath design` with a `[parameters]` table runs the fit and writes fit.json, loss.png and
+/// rays.png; a parameter the profile lacks, or a profile that does not exist, is a clear error.
+#[test]
+fn design_command_fits_parameters() {
+    let bin = env!("CARGO_BIN_EXE_lightpath");
+    let d = std::env::temp_dir().join(format!("lightpath-pfit-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    let cfg = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/experiments/grin-fibre/fibre.toml"
+    );
+    let o = std::process::Command::new(bin)
+        .args([
+            "design",
+            cfg,
+            "--quiet",
+            "--out",
+            d.join("fit").to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(d.join("fit/fit.json")).unwrap()).unwrap();
+    let c1 = v["fitted"][0].as_f64().unwrap();
+    assert!((c1 / -0.1875 - 1.0).abs() < 1e-3, "c1 = {c1}");
+    assert!(d.join("fit/loss.png").exists() && d.join("fit/rays.png").exists());
+    let text = std::fs::read_to_string(cfg).unwrap();
+    for (name, bad, needle) in [
+        (
+            "name.toml",
+            text.replace(r#"name = "c3""#, r#"name = "c9""#),
+            r#"parameters.fit[2].name = "c9""#,
+        ),
+        (
+            "profile.toml",
+            text.replace(
+                r#"{ profile = 0, name = "c1" }"#,
+                r#"{ profile = 3, name = "c1" }"#,
+            ),
+            "parameters.fit[0].profile = 3",
+        ),
+    ] {
+        std::fs::write(d.join(name), bad).unwrap();
+        let o = std::process::Command::new(bin)
+            .args([
+                "design",
+                d.join(name).to_str().unwrap(),
+                "--out",
+                d.join("bad").to_str().unwrap(),
+            ])
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            !o.status.success() && err.contains(needle) && !err.contains("panicked"),
+            "{name}: {err}"
+        );
+        assert!(!d.join("bad/fit.json").exists());
+    }
+}
