@@ -311,5 +311,60 @@ fn eikonal_rates(quick: bool) -> String {
              (so 128² rays × 10 × 400 steps, forward + adjoint: ≈ {per_iteration:.0} s per design iteration)"
         );
     }
-    out
+    out + &ultrasonic_rates(quick)
+}
+
+/// Ray-steps/s through the ultrasonic Bessel field (m = 2, plane-wave quadrature per evaluation):
+/// tracing to the exit and the exit adjoint with respect to `(n0, n_max, k_r)`.
+fn ultrasonic_rates(quick: bool) -> String {
+    use crate::eikonal::{BoundedField, Bounds, FieldParam, Profile, Tracer};
+    let field = BoundedField::single(
+        Profile::Ultrasonic {
+            n0: 1.33,
+            n_max: 1e-3,
+            k_r: 4.0,
+            m: 2,
+        },
+        Bounds::Cylinder {
+            radius: 5.0,
+            half_length: 15.0,
+        },
+        1.33,
+    );
+    let t = Tracer {
+        field: &field,
+        step: 0.05,
+        max_steps: 1_000_000,
+    };
+    let rays = if quick { 256 } else { 2048 };
+    let origin = |r: usize| {
+        DVec3::new(
+            -0.5 + (r % 32) as f64 / 32.0,
+            -0.5 + (r / 32 % 32) as f64 / 32.0,
+            -16.0,
+        )
+    };
+    let t0 = Instant::now();
+    let steps: usize = (0..rays)
+        .into_par_iter()
+        .map(|r| t.trace(origin(r), DVec3::Z).steps)
+        .sum();
+    let fwd = steps as f64 / t0.elapsed().as_secs_f64();
+    let params: Vec<FieldParam> = (0..3)
+        .map(|which| FieldParam { profile: 0, which })
+        .collect();
+    let t0 = Instant::now();
+    let g: f64 = (0..rays)
+        .into_par_iter()
+        .map(|r| {
+            t.exit_adjoint(origin(r), DVec3::Z, &params, None, |e| (e.x, DVec3::ZERO))
+                .map_or(0.0, |g| g.dparams[1])
+        })
+        .sum();
+    let back = steps as f64 / t0.elapsed().as_secs_f64();
+    std::hint::black_box(g);
+    format!(
+        "\neikonal ultrasonic J_2 field: trace to exit {fwd:.3e} ray-steps/s, \
+         exit adjoint (forward + reverse, 3 parameters) {back:.3e} ray-steps/s"
+    )
 }
