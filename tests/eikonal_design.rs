@@ -47,6 +47,7 @@ fn op(g: GridField, steps: usize) -> TraceOp {
         rays,
         steps,
         step: 0.01,
+        to_exit: false,
     }
 }
 
@@ -102,6 +103,67 @@ fn trace_op_gradient_matches_finite_differences() {
             "the rays must depend on the grid"
         );
     }
+}
+
+/// Exit mode: rays from outside a sphere holding the grid (n ≈ 1.3 inside, 1 outside: refraction on
+/// entry and exit) traced to where they leave; outputs exit position and direction, backward the
+/// exit adjoint over every coefficient. Against central differences on the coefficients with the
+/// largest gradients.
+#[test]
+fn trace_op_to_exit_matches_finite_differences() {
+    let g = grid(Interp::Tricubic, |p| {
+        1.3 - 0.05 * (p.x * p.x + p.y * p.y) + 0.02 * p.z
+    });
+    let field = BoundedField::single(
+        Profile::Grid(g.clone()),
+        Bounds::Sphere { radius: 1.2 },
+        1.0,
+    );
+    let rays = (0..9)
+        .map(|i| Ray {
+            x: DVec3::new(
+                -0.5 + 0.33 * (i % 3) as f64,
+                -0.4 + 0.37 * (i / 3) as f64,
+                -2.0,
+            ),
+            v: DVec3::new(0.02, -0.01, 1.0).normalize(),
+        })
+        .collect();
+    let op = TraceOp {
+        field,
+        profile: 0,
+        rays,
+        steps: 100_000,
+        step: 0.01,
+        to_exit: true,
+    };
+    let dev = device();
+    let c = tensor(&g.coef, &dev).require_grad();
+    let l = loss(apply(&op, c.clone()).unwrap());
+    let grad = values(&c.grad(&l.backward()).unwrap());
+    let at = |coef: &[f64]| values(&loss(apply(&op, tensor(coef, &dev)).unwrap()))[0];
+    let mut order: Vec<usize> = (0..grad.len()).collect();
+    order.sort_by(|a, b| grad[*b].abs().total_cmp(&grad[*a].abs()));
+    for &i in order.iter().take(6) {
+        let h = 1e-6;
+        let (mut up, mut down) = (g.coef.clone(), g.coef.clone());
+        up[i] += h;
+        down[i] -= h;
+        let fd = (at(&up) - at(&down)) / (2.0 * h);
+        eprintln!(
+            "coefficient {i}: bridge {:.8e}, finite difference {fd:.8e}",
+            grad[i]
+        );
+        assert!(
+            (grad[i] - fd).abs() <= 2e-6 * fd.abs().max(1e-3),
+            "coefficient {i}: {} vs {fd}",
+            grad[i]
+        );
+    }
+    assert!(
+        grad[order[0]].abs() > 1e-3,
+        "the rays must depend on the grid"
+    );
 }
 
 #[derive(Module, Debug)]
@@ -171,6 +233,7 @@ fn luneburg_problem(
         beams,
         step: 0.02,
         steps: 150,
+        to_exit: false,
         iterations,
         learning_rate: 0.02,
         smooth: 1e-4,
@@ -267,6 +330,7 @@ learning_rate = 0.02
             "needs bounds",
         ),
         ("steps = 150", "steps = 0", "trace.steps = 0"),
+        ("steps = 150", "steps = 150\nmax_steps = 10", "not both"),
         ("initial = 1.0", "initial = 1.0\ncolour = 3", "colour"),
     ]
     .map(|(from, to, msg)| (good.replace(from, to), msg))
@@ -284,5 +348,49 @@ learning_rate = 0.02
         assert!(err.contains(expect), "expected {expect:?} in {err}");
         assert!(!out.join("design.json").exists());
     }
+    // the designed grid read back by a trace config (`grid_file`), and a design traced to the exit
+    let trace = format!(
+        r#"
+[field]
+profiles = [{{ kind = "grid_file", path = "out/design.json" }}]
+bounds = {{ kind = "sphere", radius = 1.0 }}
+[rays]
+kind = "collimated"
+center = [0.0, 0.0, -1.2]
+direction = [0.0, 0.0, 1.0]
+width = 1.0
+count = 5
+"#
+    );
+    std::fs::write(d.join("trace.toml"), trace).unwrap();
+    let o = std::process::Command::new(bin)
+        .args(["trace", d.join("trace.toml").to_str().unwrap(), "--out"])
+        .arg(d.join("traced"))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    std::fs::write(
+        d.join("exit.toml"),
+        good.replace("steps = 150", "max_steps = 100000"),
+    )
+    .unwrap();
+    let o = std::process::Command::new(bin)
+        .args([
+            "design",
+            d.join("exit.toml").to_str().unwrap(),
+            "--quiet",
+            "--out",
+        ])
+        .arg(d.join("exit"))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(d.join("exit/design.json")).unwrap()).unwrap();
+    let (a, b) = (
+        v["rms_miss_initial"].as_f64().unwrap(),
+        v["rms_miss_final"].as_f64().unwrap(),
+    );
+    assert!(b < 0.5 * a, "exit mode: miss {a} → {b}");
     let _ = std::fs::remove_dir_all(&d);
 }

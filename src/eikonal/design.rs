@@ -35,7 +35,11 @@ pub struct FocusDesign {
     pub initial: f64,
     pub beams: Vec<Beam>,
     pub step: f64,
+    /// Leapfrog steps per ray, or with `to_exit` the most a ray may take before it leaves.
     pub steps: usize,
+    /// Trace each ray to where it leaves the bounds (refraction at jumps of `n` included) instead of
+    /// a fixed number of steps.
+    pub to_exit: bool,
     pub iterations: usize,
     pub learning_rate: f64,
     pub smooth: f64,
@@ -113,7 +117,8 @@ impl FocusDesign {
             .flat_map(|b| b.rays.iter())
             .map(|(x, d)| Ray {
                 x: *x,
-                v: *d * field.n(*x),
+                // exit mode takes origin and unit direction; fixed steps the σ-form state
+                v: if self.to_exit { *d } else { *d * field.n(*x) },
             })
             .collect()
     }
@@ -234,6 +239,7 @@ impl FocusDesign {
             rays,
             steps: self.steps,
             step: self.step,
+            to_exit: self.to_exit,
         }
     }
 }

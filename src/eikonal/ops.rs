@@ -11,13 +11,17 @@ use std::sync::Arc;
 
 /// `c ↦ (x_final, v_final)` per ray (6 outputs a ray) for the coefficients `c` of grid profile
 /// `profile` of `field`, each ray run `steps` leapfrog steps of size `step` (the σ-form of
-/// [`Tracer`]: `|v| = n`).
+/// [`Tracer`]: `|v| = n`). With `to_exit`, each ray is instead traced from origin `x` along unit
+/// direction `v` until it leaves the bounds (at most `steps` steps; refraction and reflections
+/// included) and the outputs are its exit position and exit direction, differentiated by
+/// [`Tracer::exit_adjoint`].
 pub struct TraceOp {
     pub field: BoundedField,
     pub profile: usize,
     pub rays: Vec<Ray>,
     pub steps: usize,
     pub step: f64,
+    pub to_exit: bool,
 }
 
 /// Ray groups of the backward pass (memory: one coefficient vector per group).
@@ -29,6 +33,7 @@ struct TracePullback {
     rays: Vec<Ray>,
     steps: usize,
     step: f64,
+    to_exit: bool,
     coefficients: usize,
 }
 
@@ -62,11 +67,30 @@ impl Differentiable for TraceOp {
             step: self.step,
             max_steps: self.steps,
         };
-        let ends: Vec<Ray> = self
-            .rays
-            .par_iter()
-            .map(|r| tracer.steps(*r, self.steps, self.step))
-            .collect();
+        let ends: Vec<Ray> = if self.to_exit {
+            let ends: Vec<_> = self
+                .rays
+                .par_iter()
+                .map(|r| tracer.trace(r.x, r.v))
+                .collect();
+            if let Some(i) = ends.iter().position(|e| !e.exited) {
+                return Err(format!(
+                    "ray {i} did not leave the field within {} steps",
+                    self.steps
+                ));
+            }
+            ends.iter()
+                .map(|e| Ray {
+                    x: e.x,
+                    v: e.direction,
+                })
+                .collect()
+        } else {
+            self.rays
+                .par_iter()
+                .map(|r| tracer.steps(*r, self.steps, self.step))
+                .collect()
+        };
         if let Some(i) = ends
             .iter()
             .position(|r| !(r.x.is_finite() && r.v.is_finite()))
@@ -85,6 +109,7 @@ impl Differentiable for TraceOp {
             rays: self.rays.clone(),
             steps: self.steps,
             step: self.step,
+            to_exit: self.to_exit,
             coefficients: c.len(),
         };
         Ok((y, Arc::new(pullback)))
@@ -114,10 +139,15 @@ impl Pullback for TracePullback {
                         profile: self.profile,
                         grad: &mut acc,
                     });
-                    if tracer
-                        .adjoint_with_grid(self.rays[i], self.steps, self.step, &[], grid, |_| seed)
-                        .is_err()
-                    {
+                    let r = self.rays[i];
+                    let ok = if self.to_exit {
+                        tracer.exit_adjoint(r.x, r.v, &[], grid, |_| seed).is_ok()
+                    } else {
+                        tracer
+                            .adjoint_with_grid(r, self.steps, self.step, &[], grid, |_| seed)
+                            .is_ok()
+                    };
+                    if !ok {
                         acc.iter_mut().for_each(|x| *x = f64::NAN);
                     }
                 }

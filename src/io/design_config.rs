@@ -122,8 +122,12 @@ pub fn beams(config: &[BeamConfig]) -> Result<Vec<Beam>, ConfigError> {
 #[serde(deny_unknown_fields)]
 pub struct StepsConfig {
     pub step: f64,
-    /// Leapfrog steps per ray (fixed, so the objective is smooth); rays must leave the bounds.
-    pub steps: u64,
+    /// Leapfrog steps per ray (fixed; rays must have left the bounds by then). Without it, rays are
+    /// traced to where they leave the bounds (refracting where `n` jumps), at most `max_steps`.
+    #[serde(default)]
+    pub steps: Option<u64>,
+    #[serde(default)]
+    pub max_steps: Option<u64>,
 }
 
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
@@ -182,12 +186,26 @@ impl DesignConfig {
         }
         let beams = beams(&self.beam)?;
         let step = pos("trace.step", self.trace.step)?;
-        if !(1..=100_000).contains(&self.trace.steps) {
-            return err(format!(
-                "trace.steps = {}: must be within [1, 100000]",
-                self.trace.steps
-            ));
-        }
+        let (steps, to_exit) = match (self.trace.steps, self.trace.max_steps) {
+            (Some(_), Some(_)) => {
+                return err(
+                    "trace: give either steps (a fixed number per ray) or max_steps (trace to the exit), not both",
+                );
+            }
+            (Some(s), None) if (1..=100_000).contains(&s) => (s as usize, false),
+            (Some(s), None) => {
+                return err(format!("trace.steps = {s}: must be within [1, 100000]"));
+            }
+            (None, m) => {
+                let m = m.unwrap_or(1_000_000);
+                if !(1..=10_000_000).contains(&m) {
+                    return err(format!(
+                        "trace.max_steps = {m}: must be within [1, 10000000]"
+                    ));
+                }
+                (m as usize, true)
+            }
+        };
         let o = &self.design;
         if !(1..=100_000).contains(&o.iterations) {
             return err(format!(
@@ -206,7 +224,8 @@ impl DesignConfig {
             initial: g.initial,
             beams,
             step,
-            steps: self.trace.steps as usize,
+            steps,
+            to_exit,
             iterations: o.iterations as usize,
             learning_rate,
             smooth: o.smooth,
