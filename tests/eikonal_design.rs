@@ -349,19 +349,17 @@ learning_rate = 0.02
         assert!(!out.join("design.json").exists());
     }
     // the designed grid read back by a trace config (`grid_file`), and a design traced to the exit
-    let trace = format!(
-        r#"
+    let trace = r#"
 [field]
-profiles = [{{ kind = "grid_file", path = "out/design.json" }}]
-bounds = {{ kind = "sphere", radius = 1.0 }}
+profiles = [{ kind = "grid_file", path = "out/design.json" }]
+bounds = { kind = "sphere", radius = 1.0 }
 [rays]
 kind = "collimated"
 center = [0.0, 0.0, -1.2]
 direction = [0.0, 0.0, 1.0]
 width = 1.0
 count = 5
-"#
-    );
+"#;
     std::fs::write(d.join("trace.toml"), trace).unwrap();
     let o = std::process::Command::new(bin)
         .args(["trace", d.join("trace.toml").to_str().unwrap(), "--out"])
