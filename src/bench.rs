@@ -368,3 +368,61 @@ fn ultrasonic_rates(quick: bool) -> String {
          exit adjoint (forward + reverse, 3 parameters) {back:.3e} ray-steps/s"
     )
 }
+
+/// One design iteration at the published GPU benchmark's scale, measured (not extrapolated): a
+/// 128³ grid (Luneburg samples), 128² rays × 10 (a collimated bundle), 400 leapfrog steps each,
+/// forward and backward of [`crate::eikonal::TraceOp`] (the gradient of every coefficient).
+pub fn design_iteration() -> Result<String, String> {
+    use crate::diff::bridge::Differentiable;
+    use crate::eikonal::grid::{GridField, Interp};
+    use crate::eikonal::{BoundedField, Bounds, IndexField, Profile, Ray, TraceOp};
+    let n = 128;
+    let spacing = 2.0 / (n - 1) as f64;
+    let origin = DVec3::splat(-1.0);
+    let samples: Vec<f64> = (0..n * n * n)
+        .map(|i| {
+            let p = origin
+                + DVec3::new((i % n) as f64, (i / n % n) as f64, (i / (n * n)) as f64) * spacing;
+            (2.0 - p.length_squared().min(1.0)).sqrt()
+        })
+        .collect();
+    let rays = 128 * 128 * 10;
+    let mut out = String::new();
+    for interp in [Interp::Tricubic, Interp::Trilinear] {
+        let grid = GridField::from_samples(origin, spacing, [n; 3], samples.clone(), interp)?;
+        let coef = grid.coef.clone();
+        let field = BoundedField::single(Profile::Grid(grid), Bounds::Everywhere, 1.0);
+        let starts: Vec<Ray> = (0..rays)
+            .map(|r| {
+                // a 405 × 405 lattice across the unit disk's bounding square, in order
+                let (a, b) = ((r % 405) as f64 / 404.0, (r / 405) as f64 / 404.0);
+                let x = DVec3::new(1.4 * a - 0.7, 1.4 * b - 0.7, -0.99);
+                Ray {
+                    x,
+                    v: DVec3::Z * field.n(x),
+                }
+            })
+            .collect();
+        let op = TraceOp {
+            field,
+            profile: 0,
+            rays: starts,
+            steps: 400,
+            step: 0.005,
+            to_exit: false,
+        };
+        let t0 = Instant::now();
+        let (y, pullback) = op.forward(&coef)?;
+        let forward = t0.elapsed().as_secs_f64();
+        let t0 = Instant::now();
+        let g = pullback.pullback(&y);
+        let backward = t0.elapsed().as_secs_f64();
+        std::hint::black_box(g[coef.len() / 2]);
+        out += &format!(
+            "design iteration, {interp:?} 128³ grid, 128² × 10 rays × 400 steps: forward {forward:.1} s + \
+             backward (every coefficient) {backward:.1} s = {:.1} s\n",
+            forward + backward
+        );
+    }
+    Ok(out)
+}

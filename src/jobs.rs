@@ -1535,6 +1535,12 @@ pub fn trace_job(cfg: &crate::io::trace_config::TraceConfig, out: &Path) -> JobR
             (end, path, bad)
         })
         .collect();
+    if !traced.iter().any(|t| t.0.entered) {
+        return Err(format!(
+            "rays: none of the {} rays meets the field's bounds: check rays.center / rays.origin and the direction",
+            traced.len()
+        ));
+    }
     if let Some(x) = traced.iter().find_map(|t| t.2) {
         return Err(format!(
             "field: n = {} at {x}: the refractive index must be positive and finite where rays run",

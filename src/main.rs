@@ -134,6 +134,10 @@ enum Command {
         /// Shorter measurement (for a smoke test)
         #[arg(long)]
         quick: bool,
+        /// Instead, time one GRIN design iteration at the published GPU scale (128³ grid, 128² × 10
+        /// rays, 400 steps; a few minutes)
+        #[arg(long)]
+        design_iteration: bool,
     },
 }
 
@@ -414,7 +418,14 @@ fn main() -> ExitCode {
                 })
             })
         }
-        Some(Command::Bench { quick }) => {
+        Some(Command::Bench {
+            design_iteration: true,
+            ..
+        }) => lightpath::bench::design_iteration().map(|summary| jobs::Outcome {
+            files: vec![],
+            summary,
+        }),
+        Some(Command::Bench { quick, .. }) => {
             lightpath::bench::run(quick).map(|summary| jobs::Outcome {
                 files: vec![],
                 summary,

@@ -500,7 +500,15 @@ count = 3
         r#"{ kind = "luneburg", radius = -1.0 }"#,
         r#"{ kind = "grid_file", path = "no-such-design.json" }"#,
     );
+    let miss = radius
+        .replace("radius = -1.0", "radius = 1.0")
+        .replace(
+            "[rays]",
+            "bounds = { kind = \"sphere\", radius = 1.0 }\n[rays]",
+        )
+        .replace("origin = [0.0, 0.0, -2.0]", "origin = [5.0, 0.0, -2.0]");
     for (name, text, needle) in [
+        ("miss.toml", miss.as_str(), "none of the 3 rays meets"),
         ("neg.toml", negative, "must be positive"),
         ("radius.toml", radius, "radius = -1"),
         ("grid.toml", grid, "7 values given, 2×2×2 = 8 expected"),

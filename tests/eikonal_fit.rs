@@ -158,6 +158,14 @@ fn design_command_fits_parameters() {
             ),
             "parameters.fit[0].profile = 3",
         ),
+        (
+            "miss.toml",
+            text.replace(
+                "center = [0.0, 0.0, -3.141592653589793]",
+                "center = [5.0, 0.0, -3.141592653589793]",
+            ),
+            "never enters the field",
+        ),
     ] {
         std::fs::write(d.join(name), bad).unwrap();
         let o = std::process::Command::new(bin)

@@ -343,7 +343,9 @@ impl Profile {
             (Profile::ParabolicFibre { n0, .. }, 0) | (Profile::SechFibre { n0, .. }, 0) => {
                 Some(n0)
             }
-            (Profile::ParabolicFibre { alpha, .. }, 1) => Some(alpha),
+            (Profile::ParabolicFibre { alpha, .. }, 1) | (Profile::SechFibre { alpha, .. }, 1) => {
+                Some(alpha)
+            }
             (Profile::Ultrasonic { n0, .. }, 0) | (Profile::RadialPolynomial { n0, .. }, 0) => {
                 Some(n0)
             }
@@ -363,8 +365,7 @@ impl Profile {
             Profile::Constant { .. } => &["n"],
             Profile::Linear { .. } => &["n0", "gx", "gy", "gz"],
             Profile::Luneburg { .. } | Profile::MaxwellFishEye { .. } => &["radius"],
-            Profile::ParabolicFibre { .. } => &["n0", "alpha"],
-            Profile::SechFibre { .. } => &["n0"],
+            Profile::ParabolicFibre { .. } | Profile::SechFibre { .. } => &["n0", "alpha"],
             Profile::Ultrasonic { .. } => &["n0", "n_max", "k_r"],
             Profile::RadialPolynomial { coefficients, .. } => {
                 return match name {
@@ -384,7 +385,7 @@ impl Profile {
 impl Profile {
     /// `(∂n/∂θ, ∇(∂n/∂θ))` for analytic parameter `which` of this profile, or `None` if not
     /// differentiable here. Parameters: Constant `[n]`; Linear `[n0, gx, gy, gz]`; Luneburg `[R]`;
-    /// Maxwell fish-eye `[R]`; parabolic fibre `[n0, α]`; sech fibre `[n0]`; ultrasonic
+    /// Maxwell fish-eye `[R]`; parabolic and sech fibres `[n0, α]`; ultrasonic
     /// `[n0, n_max, k_r]`; radial polynomial `[n0, c1, c2, …]`; grid: coefficient index.
     pub fn dparam(&self, x: DVec3, which: usize) -> Option<(f64, DVec3)> {
         let eval = || self.eval(x);
@@ -435,6 +436,20 @@ impl Profile {
             (Profile::Ultrasonic { n_max, k_r, m, .. }, 2) => {
                 let h = super::bessel::harmonic(*k_r, *m, x);
                 Some((h.du_dk * n_max, h.dgrad_dk * n_max))
+            }
+            (Profile::SechFibre { n0, alpha }, 1) => {
+                // ∂n/∂α = −n0 ρ sech(t) tanh(t), t = αρ; d/dρ of it = −n0 sech (tanh + t(sech² − tanh²))
+                let rho = (x.x * x.x + x.y * x.y).sqrt();
+                let t = alpha * rho;
+                let (sech, tanh) = (1.0 / t.cosh(), t.tanh());
+                let d = -n0 * rho * sech * tanh;
+                let dd = -n0 * sech * (tanh + t * (sech * sech - tanh * tanh));
+                let e = if rho > 0.0 {
+                    DVec3::new(x.x / rho, x.y / rho, 0.0)
+                } else {
+                    DVec3::ZERO
+                };
+                Some((d, e * dd))
             }
             (Profile::ParabolicFibre { n0, alpha }, 1) => {
                 let n = eval().0;
@@ -505,6 +520,62 @@ mod tests {
                     "{p:?} hessian col {a}: {col} vs {fdg}"
                 );
             }
+        }
+    }
+
+    /// `Profile::dparam` (value and gradient) against central differences in each parameter, for
+    /// every analytic profile and every parameter `param_mut` exposes.
+    #[test]
+    fn parameter_derivatives_match_finite_differences() {
+        let profiles = [
+            Profile::Constant { n: 1.4 },
+            Profile::Linear {
+                n0: 1.3,
+                gradient: DVec3::new(0.1, -0.2, 0.05),
+            },
+            Profile::Luneburg { radius: 1.5 },
+            Profile::MaxwellFishEye { radius: 0.8 },
+            Profile::ParabolicFibre {
+                n0: 1.5,
+                alpha: 0.4,
+            },
+            Profile::SechFibre {
+                n0: 1.5,
+                alpha: 0.7,
+            },
+            Profile::Ultrasonic {
+                n0: 1.33,
+                n_max: 0.01,
+                k_r: 4.0,
+                m: 2,
+            },
+            Profile::RadialPolynomial {
+                n0: 1.5,
+                coefficients: vec![-0.2, 0.05, -0.01],
+            },
+        ];
+        let x = DVec3::new(0.31, -0.22, 0.4);
+        let h = 1e-6;
+        for p in profiles {
+            let mut which = 0;
+            while p.clone().param_mut(which).is_some() {
+                let at = |d: f64| {
+                    let mut q = p.clone();
+                    *q.param_mut(which).unwrap() += d;
+                    q.eval(x)
+                };
+                let (dn, dg) = p.dparam(x, which).expect("differentiable");
+                let (up, down) = (at(h), at(-h));
+                let fd = (up.0 - down.0) / (2.0 * h);
+                let fdg = (up.1 - down.1) / (2.0 * h);
+                assert!((dn - fd).abs() < 1e-8, "{p:?} param {which}: {dn} vs {fd}");
+                assert!(
+                    (dg - fdg).length() < 1e-7,
+                    "{p:?} param {which} gradient: {dg} vs {fdg}"
+                );
+                which += 1;
+            }
+            assert!(which > 0, "{p:?} has no parameters");
         }
     }
 }

@@ -112,6 +112,11 @@ impl ParamFit {
                         (dx, dd)
                     })
                     .map_err(|e| format!("ray {i} from {o}: {e}"))?;
+                if !g.end.entered {
+                    return Err(format!(
+                        "ray {i} from {o} along {d} never enters the field: check the beam's center and direction"
+                    ));
+                }
                 Ok((miss, g.dparams))
             })
             .collect();

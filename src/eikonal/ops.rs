@@ -73,6 +73,12 @@ impl Differentiable for TraceOp {
                 .par_iter()
                 .map(|r| tracer.trace(r.x, r.v))
                 .collect();
+            if let Some(i) = ends.iter().position(|e| !e.entered) {
+                return Err(format!(
+                    "ray {i} from {} never enters the field: check the beam's center and direction",
+                    self.rays[i].x
+                ));
+            }
             if let Some(i) = ends.iter().position(|e| !e.exited) {
                 return Err(format!(
                     "ray {i} did not leave the field within {} steps",
