@@ -246,6 +246,22 @@ const INTEGER_KEYS: [&str; 14] = [
     "profile",
 ];
 
+/// Read a TOML config file into `T`: numbers normalised (see [`normalise_numbers`]), errors naming
+/// the file and the key.
+pub(crate) fn read_toml<T: serde::de::DeserializeOwned>(
+    path: &std::path::Path,
+) -> Result<T, ConfigError> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| ConfigError(format!("cannot read config file {}: {e}", path.display())))?;
+    let mut value: toml::Value = toml::from_str(&text)
+        .map_err(|e| ConfigError(format!("{}: invalid TOML: {e}", path.display())))?;
+    normalise_numbers(&mut value, "");
+    serde_path_to_error::deserialize(value).map_err(|e| {
+        let key = e.path().to_string();
+        ConfigError(format!("{}: {key}: {}", path.display(), e.into_inner()))
+    })
+}
+
 /// Let `1` stand for `1.0` in float keys and `1e6` for `1000000` in integer keys.
 pub(crate) fn normalise_numbers(v: &mut toml::Value, key: &str) {
     match v {

@@ -142,15 +142,7 @@ pub struct OptimiserConfig {
 
 impl DesignConfig {
     pub fn from_file(path: &std::path::Path) -> Result<DesignConfig, ConfigError> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| ConfigError(format!("cannot read config file {}: {e}", path.display())))?;
-        let mut value: toml::Value = toml::from_str(&text)
-            .map_err(|e| ConfigError(format!("{}: invalid TOML: {e}", path.display())))?;
-        crate::io::config::normalise_numbers(&mut value, "");
-        let mut cfg: DesignConfig = serde_path_to_error::deserialize(value).map_err(|e| {
-            let key = e.path().to_string();
-            ConfigError(format!("{}: {key}: {}", path.display(), e.into_inner()))
-        })?;
+        let mut cfg: DesignConfig = crate::io::config::read_toml(path)?;
         cfg.field.resolve_paths(path);
         Ok(cfg)
     }
@@ -263,15 +255,7 @@ pub struct ParamRef {
 
 impl ParamFitConfig {
     pub fn from_file(path: &std::path::Path) -> Result<ParamFitConfig, ConfigError> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| ConfigError(format!("cannot read config file {}: {e}", path.display())))?;
-        let mut value: toml::Value = toml::from_str(&text)
-            .map_err(|e| ConfigError(format!("{}: invalid TOML: {e}", path.display())))?;
-        crate::io::config::normalise_numbers(&mut value, "");
-        let mut cfg: ParamFitConfig = serde_path_to_error::deserialize(value).map_err(|e| {
-            let key = e.path().to_string();
-            ConfigError(format!("{}: {key}: {}", path.display(), e.into_inner()))
-        })?;
+        let mut cfg: ParamFitConfig = crate::io::config::read_toml(path)?;
         cfg.field.resolve_paths(path);
         Ok(cfg)
     }

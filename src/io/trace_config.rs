@@ -319,15 +319,7 @@ fn grid_file(key: &str, path: &str) -> Result<Profile, ConfigError> {
 
 impl TraceConfig {
     pub fn from_file(path: &std::path::Path) -> Result<TraceConfig, ConfigError> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| ConfigError(format!("cannot read config file {}: {e}", path.display())))?;
-        let mut value: toml::Value = toml::from_str(&text)
-            .map_err(|e| ConfigError(format!("{}: invalid TOML: {e}", path.display())))?;
-        crate::io::config::normalise_numbers(&mut value, "");
-        let mut cfg: TraceConfig = serde_path_to_error::deserialize(value).map_err(|e| {
-            let key = e.path().to_string();
-            ConfigError(format!("{}: {key}: {}", path.display(), e.into_inner()))
-        })?;
+        let mut cfg: TraceConfig = crate::io::config::read_toml(path)?;
         cfg.field.resolve_paths(path);
         Ok(cfg)
     }
