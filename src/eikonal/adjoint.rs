@@ -88,14 +88,10 @@ fn dforce(f: &BoundedField, x: DVec3, n: f64, g: DVec3, p: &FieldParam) -> Resul
     Ok(g * dn + dgrad * n)
 }
 
-/// `(n, ∇n, J_F)` at `x`, `J_F = ∇n∇nᵀ + n∇²n` the force Jacobian: one field evaluation.
+/// `(n, ∇n, J_F)` at `x` from one field evaluation.
 fn local(f: &BoundedField, x: DVec3) -> (f64, DVec3, glam::DMat3) {
     let (n, g, h) = f.eval(x);
-    (
-        n,
-        g,
-        glam::DMat3::from_cols(g * g.x, g * g.y, g * g.z) + h * n,
-    )
+    (n, g, super::trace::jacobian_of(n, g, h))
 }
 
 impl Tracer<'_> {
@@ -354,9 +350,9 @@ impl Tracer<'_> {
                 (ex, unit_adjoint(e.v, ld))
             };
             // the crossing step's length τ depends on everything upstream through c(e.x) = 0
-            let f0 = self.force_at(seg.last.x);
+            let f0 = self.force(seg.last.x);
             let xdot = seg.last.v + f0 * seg.tau;
-            let vdot = (f0 + self.force_at(e.x)) * 0.5 + jacobian(f, e.x) * xdot * (0.5 * seg.tau);
+            let vdot = (f0 + self.force(e.x)) * 0.5 + jacobian(f, e.x) * xdot * (0.5 * seg.tau);
             let s = -(ex.dot(xdot) + ev.dot(vdot)) / nu.dot(xdot);
             ex += nu * s;
             (lx, lv) = self.adjoint_step(seg.last, seg.tau, ex, ev, &mut acc)?;
@@ -398,10 +394,5 @@ impl Tracer<'_> {
             d_direction: d_direction - dir * d_direction.dot(dir),
             dparams: acc.dp,
         })
-    }
-
-    /// `n∇n` at `x` (zero outside the bounds).
-    fn force_at(&self, x: DVec3) -> DVec3 {
-        self.field.grad(x) * self.field.n(x)
     }
 }

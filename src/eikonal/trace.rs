@@ -40,9 +40,9 @@ pub struct Tracer<'f> {
 }
 
 impl Tracer<'_> {
-    /// `n∇n` at `x`.
+    /// `n∇n` at `x` (zero outside the bounds).
     #[inline]
-    fn force(&self, x: DVec3) -> DVec3 {
+    pub(crate) fn force(&self, x: DVec3) -> DVec3 {
         let (n, g, _) = self.field.eval(x);
         g * n
     }
@@ -240,6 +240,12 @@ pub(crate) struct Segment {
 /// `∂F/∂x` of the force `F = n∇n`: `∇n ∇nᵀ + n ∇²n` (symmetric).
 pub(crate) fn force_jacobian(f: &BoundedField, x: DVec3) -> DMat3 {
     let (n, g, h) = f.eval(x);
+    jacobian_of(n, g, h)
+}
+
+/// `∇n ∇nᵀ + n ∇²n` from `(n, ∇n, ∇²n)` at one point.
+#[inline]
+pub(crate) fn jacobian_of(n: f64, g: DVec3, h: DMat3) -> DMat3 {
     DMat3::from_cols(g * g.x, g * g.y, g * g.z) + h * n
 }
 
