@@ -61,13 +61,14 @@ fn ultrasonic_focal_depth_matches_paraxial_closed_form() {
         res.rms_miss_initial,
         res.rms_miss_final
     );
-    assert!((got / want - 1.0).abs() < 1e-3, "{got} vs {want}");
+    assert!((got / want - 1.0).abs() < 5e-4, "{got} vs {want}");
     assert!(res.rms_miss_final < 1e-3 * res.rms_miss_initial);
 }
 
 /// A radial polynomial fibre fitted so an on-axis point re-images on the axis half a pitch later
 /// (rays up to 20°) must find the sech profile's coefficients — exactly periodic for meridional
 /// rays — not the parabolic ones: `c1 = −n0 α²/2`, `c2 = +5 n0 α⁴/24` (parabolic: `−n0 α⁴/8`).
+/// Deterministic; measured deviations 3e-5 (c1) and 0.3 % (c2, the ρ⁴ term the rays barely probe).
 #[test]
 fn fibre_fit_finds_the_sech_profile() {
     let (n0, half) = (1.5, std::f64::consts::PI);
@@ -110,8 +111,8 @@ fn fibre_fit_finds_the_sech_profile() {
     let (c1, c2) = (res.fitted[0], res.fitted[1]);
     let (s1, s2) = (-n0 * alpha.powi(2) / 2.0, 5.0 * n0 * alpha.powi(4) / 24.0);
     eprintln!("c1 {c1:.6e} (sech {s1:.6e}), c2 {c2:.6e} (sech {s2:.6e})");
-    assert!((c1 / s1 - 1.0).abs() < 1e-3, "c1 = {c1}, sech {s1}");
-    assert!((c2 / s2 - 1.0).abs() < 0.02, "c2 = {c2}, sech {s2}");
+    assert!((c1 / s1 - 1.0).abs() < 2e-4, "c1 = {c1}, sech {s1}");
+    assert!((c2 / s2 - 1.0).abs() < 0.01, "c2 = {c2}, sech {s2}");
     assert!(res.rms_miss_final < 1e-4, "RMS miss {}", res.rms_miss_final);
 }
 
