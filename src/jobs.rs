@@ -705,6 +705,7 @@ impl Progress {
 pub struct WaveLimits {
     pub max_scatterers: f64,
     pub max_memory_gb: f64,
+    pub max_minutes: f64,
 }
 
 /// `lightpath wave`: Foldy–Lax solutions over `realizations` scatterer placements, reduced to the
@@ -733,9 +734,8 @@ pub fn wave_job(
     let n_hi = n + 6.0 * n.sqrt() + 10.0;
     let threads = rayon::current_num_threads() as f64;
     let gb = threads * (2.0 * 16.0 * n_hi * n_hi) / 1e9;
-    let secs = realizations as f64 * (32.0 / 3.0 * n * n * n) / 5e9 / threads;
     let size = format!(
-        "the scene has ~{n:.0} scatterers (σ_s·V/c_s with c_s = λ²/π = {:.4}): dense solves need ~{gb:.2} GB with {threads} threads and roughly {secs:.0} s for {realizations} realizations",
+        "the scene has ~{n:.0} scatterers (σ_s·V/c_s with c_s = λ²/π = {:.4}): dense solves need ~{gb:.2} GB with {threads} threads",
         wave::cross_section(scene.k)
     );
     if n > limits.max_scatterers || gb > limits.max_memory_gb {
@@ -743,6 +743,19 @@ pub fn wave_job(
             "wave: {size}, beyond the limits (--max-scatterers {}, --max-memory-gb {}). The count grows as σ_s·V/λ²: shrink the box, lower σ_s (raise mfp), or raise the limits",
             limits.max_scatterers, limits.max_memory_gb
         ));
+    }
+    let mut rng = crate::math::stream_rng(cfg.render.seed ^ 0x7469_6d65, 0);
+    let secs = realizations as f64 * wave::seconds_per_solve(&scene, n, &mut rng) / threads;
+    let size =
+        format!("{size}, and ~{secs:.0} s for {realizations} realizations (timed on this machine)");
+    if secs > 60.0 * limits.max_minutes {
+        return Err(format!(
+            "wave: {size}, beyond --max-minutes {}. Use fewer --realizations, a smaller or sparser scene, more --threads, or raise --max-minutes",
+            limits.max_minutes
+        ));
+    }
+    if progress {
+        eprintln!("wave: {size}");
     }
     std::fs::create_dir_all(out)
         .map_err(|e| format!("cannot create output folder {}: {e}", out.display()))?;

@@ -55,6 +55,9 @@ enum Command {
         /// Refuse scenes whose dense solves need more memory than this (all threads)
         #[arg(long, default_value_t = 8.0)]
         max_memory_gb: f64,
+        /// Refuse runs whose timed estimate exceeds this many minutes
+        #[arg(long, default_value_t = 240.0)]
+        max_minutes: f64,
         #[arg(long)]
         quiet: bool,
     },
@@ -265,11 +268,13 @@ fn main() -> ExitCode {
             threads,
             max_scatterers,
             max_memory_gb,
+            max_minutes,
             quiet,
         }) => Config::from_file(&config).map_err(|e| e.0).and_then(|cfg| {
             let limits = jobs::WaveLimits {
                 max_scatterers,
                 max_memory_gb,
+                max_minutes,
             };
             with_threads(threads, || {
                 jobs::wave_job(cfg, realizations, seed, limits, !quiet, &out)

@@ -368,6 +368,7 @@ fn point_to_point_and_guard_rails() {
     let limits = lightpath::jobs::WaveLimits {
         max_scatterers: 6000.0,
         max_memory_gb: 8.0,
+        max_minutes: 240.0,
     };
     let err = lightpath::jobs::wave_job(
         cfg,
@@ -397,6 +398,27 @@ fn point_to_point_and_guard_rails() {
     )
     .unwrap_err();
     assert!(err.contains("albedo") && err.contains("lossless"), "{err}");
+    // the timed estimate: 10⁷ solves of ~170 scatterers take far longer than a minute
+    let long = big
+        .replace("box = [60.0, 60.0, 60.0]", "box = [6.0, 6.0, 6.0]")
+        .replace("mfp = 10.0", "mfp = 4.0");
+    let quick = lightpath::jobs::WaveLimits {
+        max_minutes: 1.0,
+        ..limits
+    };
+    let err = lightpath::jobs::wave_job(
+        Config::from_toml(&long, None).unwrap(),
+        10_000_000,
+        None,
+        quick,
+        false,
+        &std::env::temp_dir().join("lp-wave-long"),
+    )
+    .unwrap_err();
+    assert!(
+        err.contains("--max-minutes 1") && err.contains("10000000 realizations"),
+        "{err}"
+    );
 }
 
 /// `lightpath wave` is deterministic per seed whatever the thread count, and `lightpath compare`

@@ -191,6 +191,26 @@ pub fn solve(scene: &Scene, pos: &[DVec3]) -> Vec<C64> {
     out
 }
 
+/// Measured seconds of one realisation with `n` scatterers on this machine: the time of a solve
+/// with `min(n, 300)` scatterers (best of two), scaled by `(n / n₀)³` (the LU dominates).
+pub fn seconds_per_solve(scene: &Scene, n: f64, rng: &mut Rng) -> f64 {
+    let n0 = n.clamp(1.0, 300.0).round() as usize;
+    let pos: Vec<DVec3> = (0..n0)
+        .map(|_| {
+            let u = [uniform(rng), uniform(rng), uniform(rng)];
+            scene.medium.geometry.sample_volume(u)
+        })
+        .collect();
+    let best = (0..2)
+        .map(|_| {
+            let t = std::time::Instant::now();
+            std::hint::black_box(solve(scene, &pos));
+            t.elapsed().as_secs_f64()
+        })
+        .fold(f64::INFINITY, f64::min);
+    best * (n / n0 as f64).max(1.0).powi(3)
+}
+
 /// Exciting fields `u_j` (one column per light) for scatterers at `pos`; for checks of the solve.
 pub fn exciting_fields(scene: &Scene, pos: &[DVec3]) -> Vec<Vec<C64>> {
     let u = exciting(scene, pos);
