@@ -192,9 +192,9 @@ pub fn solve(scene: &Scene, pos: &[DVec3]) -> Vec<C64> {
 }
 
 /// Measured seconds of one realisation with `n` scatterers on this machine: the time of a solve
-/// with `min(n, 300)` scatterers (best of two), scaled by `(n / n₀)³` (the LU dominates).
+/// with `min(n, 600)` scatterers (best of two), scaled by `(n / n₀)³` (the LU dominates).
 pub fn seconds_per_solve(scene: &Scene, n: f64, rng: &mut Rng) -> f64 {
-    let n0 = n.clamp(1.0, 300.0).round() as usize;
+    let n0 = n.clamp(1.0, 600.0).round() as usize;
     let pos: Vec<DVec3> = (0..n0)
         .map(|_| {
             let u = [uniform(rng), uniform(rng), uniform(rng)];
