@@ -36,7 +36,10 @@ fn walk(dir: &std::path::Path) -> Vec<std::path::PathBuf> {
         for e in rd.flatten() {
             let p = e.path();
             if p.is_dir() {
-                out.extend(walk(&p))
+                // experiments write their generated configs and results into out/ (not shipped)
+                if !p.ends_with("out") {
+                    out.extend(walk(&p))
+                }
             } else {
                 out.push(p)
             }
