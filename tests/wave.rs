@@ -364,21 +364,18 @@ fn point_to_point_and_guard_rails() {
     }
     // guard rails
     let big = "wavelength = 1.0\n[medium]\nbox = [60.0, 60.0, 60.0]\nmfp = 10.0\n[[light]]\nkind = \"plane_wave\"\ndirection = [0.0, 0.0, 1.0]\n[[view]]\nkind = \"far_field\"\ndirection = [0.0, 0.0, 1.0]\n";
-    let cfg = Config::from_toml(big, None).unwrap();
     let limits = lightpath::jobs::WaveLimits {
         max_scatterers: 6000.0,
         max_memory_gb: 8.0,
         max_minutes: 240.0,
     };
-    let err = lightpath::jobs::wave_job(
-        cfg,
-        10,
-        None,
-        limits,
-        false,
-        &std::env::temp_dir().join("lp-wave-big"),
-    )
-    .unwrap_err();
+    // the error `lightpath wave` gives for a config text
+    let refused = |toml: &str, realizations: u64, limits| {
+        let cfg = Config::from_toml(toml, None).unwrap();
+        let out = std::env::temp_dir().join("lp-wave-refused");
+        lightpath::jobs::wave_job(cfg, realizations, None, limits, false, &out).unwrap_err()
+    };
+    let err = refused(big, 10, limits);
     assert!(
         err.contains("scatterers")
             && err.contains("--max-scatterers")
@@ -388,15 +385,7 @@ fn point_to_point_and_guard_rails() {
     let lossy = big
         .replace("box = [60.0, 60.0, 60.0]", "box = [4.0, 4.0, 4.0]")
         .replace("mfp = 10.0", "mfp = 10.0\nalbedo = 0.9");
-    let err = lightpath::jobs::wave_job(
-        Config::from_toml(&lossy, None).unwrap(),
-        10,
-        None,
-        limits,
-        false,
-        &std::env::temp_dir().join("lp-wave-lossy"),
-    )
-    .unwrap_err();
+    let err = refused(&lossy, 10, limits);
     assert!(err.contains("albedo") && err.contains("lossless"), "{err}");
     // the timed estimate: 10⁷ solves of ~170 scatterers take far longer than a minute
     let long = big
@@ -406,15 +395,7 @@ fn point_to_point_and_guard_rails() {
         max_minutes: 1.0,
         ..limits
     };
-    let err = lightpath::jobs::wave_job(
-        Config::from_toml(&long, None).unwrap(),
-        10_000_000,
-        None,
-        quick,
-        false,
-        &std::env::temp_dir().join("lp-wave-long"),
-    )
-    .unwrap_err();
+    let err = refused(&long, 10_000_000, quick);
     assert!(
         err.contains("--max-minutes 1") && err.contains("10000000 realizations"),
         "{err}"
