@@ -75,8 +75,7 @@ pub fn run_job(kind: Kind, mut cfg: Config, opts: &Options, out: &Path) -> JobRe
         return Err("memory-effect needs a [memory_effect] table with angles_deg = [...]".into());
     }
     cfg.validate().map_err(|e| e.0)?;
-    std::fs::create_dir_all(out)
-        .map_err(|e| format!("cannot create output folder {}: {e}", out.display()))?;
+    create_out(out)?;
     let plan = plan_of(kind, &cfg);
     let units = match kind {
         Kind::Speckle => plan.chunks * cfg.speckle.as_ref().map_or(1, |s| s.realisations),
@@ -179,8 +178,7 @@ pub fn merge_job(inputs: &[PathBuf], out: &Path) -> JobResult {
         chunk_paths: h.chunk_paths,
         chunks: h.chunks,
     };
-    std::fs::create_dir_all(out)
-        .map_err(|e| format!("cannot create output folder {}: {e}", out.display()))?;
+    create_out(out)?;
     finish(kind, &h.config, &plan, blocks, f64::NAN, out)
 }
 
@@ -700,6 +698,12 @@ impl Progress {
     }
 }
 
+/// Create the output folder `out` (and its parents), or say which one could not be made.
+fn create_out(out: &Path) -> Result<(), String> {
+    std::fs::create_dir_all(out)
+        .map_err(|e| format!("cannot create output folder {}: {e}", out.display()))
+}
+
 /// Limits of the wave solver's dense solves.
 #[derive(Clone, Copy, Debug)]
 pub struct WaveLimits {
@@ -757,8 +761,7 @@ pub fn wave_job(
     if progress {
         eprintln!("wave: {size}");
     }
-    std::fs::create_dir_all(out)
-        .map_err(|e| format!("cannot create output folder {}: {e}", out.display()))?;
+    create_out(out)?;
     let t0 = Instant::now();
     let bar = Progress::new(progress, realizations, "wave");
     let done = std::sync::atomic::AtomicU64::new(0);
@@ -1060,8 +1063,7 @@ pub fn fit_job(mut cfg: Config, target_path: &Path, opts: &FitOptions, out: &Pat
     if opts.stages == 0 || iterations == 0 {
         return Err("--stages and --iterations must be at least 1".into());
     }
-    std::fs::create_dir_all(out)
-        .map_err(|e| format!("cannot create output folder {}: {e}", out.display()))?;
+    create_out(out)?;
     if adam {
         let settings = crate::inverse::AdamSettings {
             samples: cfg.render.samples,
@@ -1304,8 +1306,7 @@ pub fn design_job(
 ) -> JobResult {
     use crate::eikonal::design::radial_profile;
     let problem = cfg.problem().map_err(|e| e.0)?;
-    std::fs::create_dir_all(out)
-        .map_err(|e| format!("cannot create output folder {}: {e}", out.display()))?;
+    create_out(out)?;
     let t0 = Instant::now();
     let res = problem.run(&|s| {
         if show && (s.iteration % 10 == 0 || s.iteration + 1 == problem.iterations) {
@@ -1427,8 +1428,7 @@ pub fn param_fit_job(
 ) -> JobResult {
     use crate::eikonal::Tracer;
     let problem = cfg.problem().map_err(|e| e.0)?;
-    std::fs::create_dir_all(out)
-        .map_err(|e| format!("cannot create output folder {}: {e}", out.display()))?;
+    create_out(out)?;
     let t0 = Instant::now();
     let res = problem.run(&|s| {
         if show {
@@ -1560,8 +1560,7 @@ pub fn trace_job(cfg: &crate::io::trace_config::TraceConfig, out: &Path) -> JobR
             field.n(x)
         ));
     }
-    std::fs::create_dir_all(out)
-        .map_err(|e| format!("cannot create output folder {}: {e}", out.display()))?;
+    create_out(out)?;
     let seconds = t0.elapsed().as_secs_f64();
     let list: Vec<Value> = rays
         .iter()
