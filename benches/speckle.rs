@@ -2,7 +2,7 @@
 
 fn main() {
     let quick = std::env::args().any(|a| a == "--quick");
-    match lightpath::bench::run(quick) {
+    match lightpath::app::bench::run(quick) {
         Ok(s) => println!("{s}"),
         Err(e) => {
             eprintln!("bench failed: {e}");

@@ -1,14 +1,20 @@
 //! lightpath: forward and inverse rendering of light in scattering and refractive media.
 //!
-//! See `README.md` for the command line and `../shared/DESIGN.md` for the architecture.
+//! The layers, from the bottom: `math` → `medium` → `mc` (the engine) → `speckle`, `eikonal` (the
+//! estimators and ray integrators) → `diff` (gradients, the burn bridge) → `inverse` (fits and
+//! designs) → `config` (the one loader), `io` (typed result files, images, plots) → `app` (one file
+//! per command). `ARCHITECTURE.md` is the map.
 
-pub mod bench;
+pub mod app;
+pub mod config;
 pub mod diff;
 pub mod eikonal;
+pub mod error;
 pub mod inverse;
 pub mod io;
-pub mod jobs;
 pub mod math;
 pub mod mc;
 pub mod medium;
 pub mod speckle;
+
+pub use error::{Error, Result};

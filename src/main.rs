@@ -1,9 +1,10 @@
 //! The `lightpath` command line: parse, call the library, print.
 
-use clap::{Args, Parser, Subcommand};
-use lightpath::io::Config;
-use lightpath::jobs::{self, Kind, Options};
-use std::path::PathBuf;
+use clap::{Args, Parser, Subcommand, ValueEnum};
+use lightpath::app::{self, Outcome, with_threads};
+use lightpath::config::{self, Task, TaskKind};
+use lightpath::{Error, Result};
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 /// The quick-start scene run by `lightpath` with no arguments.
@@ -49,6 +50,9 @@ enum Command {
         seed: Option<u64>,
         #[arg(long)]
         threads: Option<usize>,
+        /// Run shard i of n (e.g. 2/8) and write state.bin for `lightpath merge`
+        #[arg(long, value_parser = parse_shard)]
+        shard: Option<(u64, u64)>,
         /// Refuse scenes with more expected scatterers than this
         #[arg(long, default_value_t = 6000.0)]
         max_scatterers: f64,
@@ -99,8 +103,8 @@ enum Command {
         iterations: Option<usize>,
         /// lbfgs (few parameters, deterministic objective) or adam (many parameters, burn);
         /// default: adam when fitting `phase`
-        #[arg(long)]
-        optimizer: Option<String>,
+        #[arg(long, value_enum)]
+        optimizer: Option<Optimizer>,
         /// Adam step size in the unconstrained variables (log ρ, log mfp, …)
         #[arg(long, default_value_t = 0.05)]
         learning_rate: f64,
@@ -144,6 +148,13 @@ enum Command {
     },
 }
 
+/// The optimiser of `lightpath fit`.
+#[derive(Clone, Copy, ValueEnum)]
+enum Optimizer {
+    Lbfgs,
+    Adam,
+}
+
 #[derive(Args)]
 struct RunArgs {
     /// Scene config (TOML)
@@ -168,7 +179,7 @@ struct RunArgs {
     quiet: bool,
 }
 
-fn parse_shard(s: &str) -> Result<(u64, u64), String> {
+fn parse_shard(s: &str) -> std::result::Result<(u64, u64), String> {
     let (i, n) = s
         .split_once('/')
         .ok_or_else(|| format!("--shard {s}: expected i/n, e.g. 0/4"))?;
@@ -186,100 +197,69 @@ fn parse_shard(s: &str) -> Result<(u64, u64), String> {
     Ok((i, n))
 }
 
-fn with_threads<T: Send>(
-    threads: Option<usize>,
-    f: impl FnOnce() -> T + Send,
-) -> Result<T, String> {
-    match threads {
-        None => Ok(f()),
-        Some(0) => Err("--threads 0: must be at least 1".into()),
-        Some(n) => {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(n)
-                .build()
-                .map_err(|e| e.to_string())?;
-            Ok(pool.install(f))
-        }
-    }
+/// Load `path` and require the speckle scene the command needs.
+fn scene(path: &Path, command: &str) -> Result<config::SceneTask> {
+    Ok(config::load(path)?.into_scene(&format!("lightpath {command} {}", path.display()))?)
 }
 
-fn run(kind: Kind, a: RunArgs) -> Result<jobs::Outcome, String> {
-    let cfg = Config::from_file(&a.config).map_err(|e| e.0)?;
-    let opts = Options {
+fn run(kind: app::run::Kind, a: RunArgs) -> Result<Outcome> {
+    let task = scene(&a.config, kind.name())?;
+    let opts = app::run::RunOptions {
         samples: a.samples,
         seed: a.seed,
         shard: a.shard,
         progress: !a.quiet,
     };
-    with_threads(a.threads, || jobs::run_job(kind, cfg, &opts, &a.out))?
+    with_threads(a.threads, || app::run::run_scene(kind, task, &opts, &a.out))
 }
 
-/// Whether a config file is a `trace` config (it has a top-level `[field]` table).
-/// `(has [field], has [[beam]])`: a trace config has the first, a design config both.
-fn eikonal_config_kind(path: &std::path::Path) -> (bool, bool) {
-    std::fs::read_to_string(path)
-        .ok()
-        .and_then(|t| t.parse::<toml::Table>().ok())
-        .map_or((false, false), |t| {
-            (t.contains_key("field"), t.contains_key("beam"))
-        })
-}
-
-/// Whether a design config fits analytic parameters (a `[parameters]` table) instead of a grid.
-fn has_parameters(path: &std::path::Path) -> bool {
-    std::fs::read_to_string(path)
-        .ok()
-        .and_then(|t| t.parse::<toml::Table>().ok())
-        .is_some_and(|t| t.contains_key("parameters"))
-}
-
-fn main() -> ExitCode {
-    let cli = Cli::parse();
-    let result = match cli.command {
+fn dispatch(command: Option<Command>) -> Result<Outcome> {
+    use app::run::Kind;
+    match command {
         None => {
-            let cfg = Config::from_toml(QUICKSTART, None)
-                .map_err(|e| format!("embedded quick start: {e}"));
+            let task = config::scene_from_text(QUICKSTART)
+                .map_err(|e| Error::input(format!("embedded quick start: {e}")))?;
             let out = PathBuf::from("lightpath-out");
             eprintln!(
                 "lightpath quick start: memory effect of a slab (L = 200 λ, optical depth 10) → {}/",
                 out.display()
             );
-            cfg.and_then(|cfg| {
-                jobs::run_job(
-                    Kind::MemoryEffect,
-                    cfg,
-                    &Options {
-                        progress: true,
-                        ..Default::default()
-                    },
-                    &out,
-                )
-            })
+            let opts = app::run::RunOptions {
+                progress: true,
+                ..Default::default()
+            };
+            app::run::run_scene(Kind::MemoryEffect, task, &opts, &out)
         }
         Some(Command::Covariance(a)) => run(Kind::Covariance, a),
         Some(Command::Speckle(a)) => run(Kind::Speckle, a),
         Some(Command::MemoryEffect(a)) => run(Kind::MemoryEffect, a),
-        Some(Command::Merge { shards, out }) => jobs::merge_job(&shards, &out),
+        Some(Command::Merge { shards, out }) => app::run::merge_shards(&shards, &out),
         Some(Command::Wave {
             config,
             out,
             realizations,
             seed,
             threads,
+            shard,
             max_scatterers,
             max_memory_gb,
             max_minutes,
             quiet,
-        }) => Config::from_file(&config).map_err(|e| e.0).and_then(|cfg| {
-            let limits = jobs::WaveLimits {
-                max_scatterers,
-                max_memory_gb,
-                max_minutes,
+        }) => {
+            let task = scene(&config, "wave")?;
+            let opts = app::wave::WaveOptions {
+                realizations,
+                seed,
+                shard,
+                limits: app::wave::WaveLimits {
+                    max_scatterers,
+                    max_memory_gb,
+                    max_minutes,
+                },
+                progress: !quiet,
             };
-            with_threads(threads, || {
-                jobs::wave_job(cfg, realizations, seed, limits, !quiet, &out)
-            })?
-        }),
+            with_threads(threads, || app::wave::run(task, &opts, &out))
+        }
         Some(Command::Fit {
             config,
             target,
@@ -294,150 +274,98 @@ fn main() -> ExitCode {
             learning_rate,
             smooth,
             quiet,
-        }) => Config::from_file(&config).map_err(|e| e.0).and_then(|cfg| {
-            let opts = jobs::FitOptions {
+        }) => {
+            let task = scene(&config, "fit")?;
+            let opts = app::fit::FitOptions {
                 fit,
                 samples,
                 seed,
                 stages,
                 iterations,
-                optimizer,
+                optimizer: optimizer.map(|o| match o {
+                    Optimizer::Lbfgs => "lbfgs".to_string(),
+                    Optimizer::Adam => "adam".to_string(),
+                }),
                 learning_rate,
                 smooth,
                 progress: !quiet,
             };
-            with_threads(threads, || jobs::fit_job(cfg, &target, &opts, &out))?
-        }),
+            with_threads(threads, || app::fit::fit(task, &target, &opts, &out))
+        }
         Some(Command::Trace {
             config,
             out,
             threads,
-        }) => lightpath::io::trace_config::TraceConfig::from_file(&config)
-            .map_err(|e| e.0)
-            .and_then(|cfg| with_threads(threads, || jobs::trace_job(&cfg, &out))?),
+        }) => match config::load(&config)? {
+            Task::Trace(t) => with_threads(threads, || app::grin::trace(&t, &out)),
+            other => Err(wrong_task(
+                &config,
+                "trace",
+                other.kind(),
+                &[TaskKind::Trace],
+            )),
+        },
         Some(Command::Design {
             config,
             out,
             threads,
             quiet,
-        }) if has_parameters(&config) => {
-            lightpath::io::design_config::ParamFitConfig::from_file(&config)
-                .map_err(|e| e.0)
-                .and_then(|cfg| with_threads(threads, || jobs::param_fit_job(&cfg, !quiet, &out))?)
-        }
-        Some(Command::Design {
-            config,
-            out,
-            threads,
-            quiet,
-        }) => lightpath::io::design_config::DesignConfig::from_file(&config)
-            .map_err(|e| e.0)
-            .and_then(|cfg| with_threads(threads, || jobs::design_job(&cfg, !quiet, &out))?),
-        Some(Command::Compare {
-            a,
-            b,
-            tolerance,
-            plot,
-        }) => {
-            return match jobs::compare_job(&a, &b, tolerance, plot.as_deref()) {
-                Ok((report, agree)) => {
-                    println!("{report}");
-                    if agree {
-                        ExitCode::SUCCESS
-                    } else {
-                        ExitCode::from(1)
-                    }
-                }
-                Err(e) => {
-                    eprintln!("error: {e}");
-                    ExitCode::from(2)
-                }
-            };
-        }
-        Some(Command::Check { config })
-            if eikonal_config_kind(&config) == (true, true) && has_parameters(&config) =>
-        {
-            lightpath::io::design_config::ParamFitConfig::from_file(&config)
-                .map_err(|e| e.0)
-                .and_then(|c| {
-                    let p = c.problem().map_err(|e| e.0)?;
-                    Ok(jobs::Outcome {
-                        files: vec![],
-                        summary: format!(
-                            "{}: ok — parameter fit config, {} beam(s), {} ray(s), fitting {}",
-                            config.display(),
-                            p.beams.len(),
-                            p.beams.iter().map(|b| b.rays.len()).sum::<usize>(),
-                            p.names.join(", ")
-                        ),
-                    })
-                })
-        }
-        Some(Command::Check { config }) if eikonal_config_kind(&config) == (true, true) => {
-            lightpath::io::design_config::DesignConfig::from_file(&config)
-                .map_err(|e| e.0)
-                .and_then(|c| {
-                    let p = c.problem().map_err(|e| e.0)?;
-                    Ok(jobs::Outcome {
-                        files: vec![],
-                        summary: format!(
-                            "{}: ok — design config, {} beam(s), {} ray(s), levels {:?}",
-                            config.display(),
-                            p.beams.len(),
-                            p.beams.iter().map(|b| b.rays.len()).sum::<usize>(),
-                            p.levels
-                        ),
-                    })
-                })
-        }
-        Some(Command::Check { config }) if eikonal_config_kind(&config).0 => {
-            lightpath::io::trace_config::TraceConfig::from_file(&config)
-                .map_err(|e| e.0)
-                .and_then(|c| {
-                    c.field().map_err(|e| e.0)?;
-                    let rays = c.rays().map_err(|e| e.0)?;
-                    Ok(jobs::Outcome {
-                        files: vec![],
-                        summary: format!(
-                            "{}: ok — trace config, {} ray(s)",
-                            config.display(),
-                            rays.len()
-                        ),
-                    })
-                })
-        }
-        Some(Command::Check { config }) => {
-            Config::from_file(&config).map_err(|e| e.0).and_then(|c| {
-                let s = c.scene().map_err(|e| e.0)?;
-                Ok(jobs::Outcome {
-                    files: vec![],
-                    summary: format!(
-                        "{}: ok — {} light(s), {} view(s), σ_s = {}, σ_a = {}, k = {:.6}",
-                        config.display(),
-                        s.lights.len(),
-                        s.views.len(),
-                        s.medium.sigma_s,
-                        s.medium.sigma_a,
-                        s.k
-                    ),
-                })
-            })
-        }
+        }) => match config::load(&config)? {
+            Task::Design(t) => with_threads(threads, || app::grin::design(&t, !quiet, &out)),
+            Task::ParamFit(t) => with_threads(threads, || app::grin::param_fit(&t, !quiet, &out)),
+            other => Err(wrong_task(
+                &config,
+                "design",
+                other.kind(),
+                &[TaskKind::Design, TaskKind::ParamFit],
+            )),
+        },
+        Some(Command::Compare { .. }) => unreachable!("handled in main"),
+        Some(Command::Check { config }) => app::check::check(&config),
         Some(Command::Bench {
             design_iteration: true,
             ..
-        }) => lightpath::bench::design_iteration().map(|summary| jobs::Outcome {
-            files: vec![],
-            summary,
-        }),
-        Some(Command::Bench { quick, .. }) => {
-            lightpath::bench::run(quick).map(|summary| jobs::Outcome {
-                files: vec![],
-                summary,
-            })
-        }
-    };
-    match result {
+        }) => Ok(Outcome::text(app::bench::design_iteration()?)),
+        Some(Command::Bench { quick, .. }) => Ok(Outcome::text(app::bench::run(quick)?)),
+    }
+}
+
+/// The file holds another task than the command runs.
+fn wrong_task(path: &Path, command: &str, got: TaskKind, wanted: &[TaskKind]) -> Error {
+    let wanted: Vec<&str> = wanted.iter().map(|k| k.describe()).collect();
+    Error::input(format!(
+        "{}: `lightpath {command}` needs {}, but the file holds {}",
+        path.display(),
+        wanted.join(" or "),
+        got.describe()
+    ))
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    if let Some(Command::Compare {
+        a,
+        b,
+        tolerance,
+        plot,
+    }) = &cli.command
+    {
+        return match app::compare::compare(a, b, *tolerance, plot.as_deref()) {
+            Ok((report, agree)) => {
+                println!("{report}");
+                if agree {
+                    ExitCode::SUCCESS
+                } else {
+                    ExitCode::from(1)
+                }
+            }
+            Err(e) => {
+                eprintln!("error: {e}");
+                ExitCode::from(2)
+            }
+        };
+    }
+    match dispatch(cli.command) {
         Ok(o) => {
             println!("{}", o.summary.trim_end());
             for f in o.files {

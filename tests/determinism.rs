@@ -37,7 +37,7 @@ seed = 4
 
 #[test]
 fn one_and_two_threads_agree_bitwise() {
-    let cfg = lightpath::io::Config::from_toml(SCENE, None).unwrap();
+    let cfg = lightpath::config::Config::from_toml(SCENE, None).unwrap();
     let scene = cfg.scene().unwrap();
     let est = Covariance::all_pairs(&scene, true).unwrap();
     let plan = Plan::new(4, 7000, 300);

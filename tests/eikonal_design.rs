@@ -5,9 +5,10 @@ use burn::module::{Module, Param as Variable};
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::tensor::Tensor;
 use glam::DVec3;
+use lightpath::diff::TraceOp;
 use lightpath::diff::bridge::{apply, device, tensor, values};
 use lightpath::eikonal::grid::{GridField, Interp};
-use lightpath::eikonal::{BoundedField, Bounds, IndexField, Profile, Ray, TraceOp};
+use lightpath::eikonal::{BoundedField, Bounds, IndexField, Profile, Ray};
 
 fn grid(interp: Interp, n_of: impl Fn(DVec3) -> f64) -> GridField {
     let dims = [8, 8, 10];
@@ -182,8 +183,8 @@ fn adam_designs_a_converging_lens() {
 fn luneburg_problem(
     levels: Vec<usize>,
     iterations: usize,
-) -> lightpath::eikonal::design::FocusDesign {
-    use lightpath::eikonal::design::{Beam, FocusDesign};
+) -> lightpath::inverse::grin_design::FocusDesign {
+    use lightpath::inverse::grin_design::{Beam, FocusDesign};
     let axes = [DVec3::Z, DVec3::X, DVec3::Y];
     let beams = axes
         .iter()

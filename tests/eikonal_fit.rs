@@ -2,9 +2,9 @@
 //! ultrasonic lens's `n_max` for a requested focal depth against the paraxial closed form.
 
 use glam::DVec3;
-use lightpath::eikonal::design::Beam;
-use lightpath::eikonal::fit::ParamFit;
 use lightpath::eikonal::{BoundedField, Bounds, FieldParam, Profile};
+use lightpath::inverse::grin_design::Beam;
+use lightpath::inverse::grin_fit::ParamFit;
 
 /// A thin collimated beam along z through `n = n0 + n_max J_0(k_r r)` must focus on the exit face
 /// at depth `d`. Paraxially `n ≈ n_c − n_max k_r² r²/4` (`n_c = n0 + n_max`), so rays obey

@@ -1,8 +1,9 @@
 //! End-to-end fits (issue #4): recover (mfp, g) of a slab from a memory-effect curve rendered at
 //! another seed, within the uncertainty the fit reports; a malformed request is a clear error.
 
-use lightpath::io::Config;
-use lightpath::jobs::{FitOptions, Kind, Options, fit_job, run_job};
+use lightpath::app::fit::{FitOptions, fit};
+use lightpath::app::run::{Kind, RunOptions, run_scene};
+use lightpath::config::scene_from_text;
 
 const TRUTH: &str = r#"
 wavelength = 1.0
@@ -28,10 +29,10 @@ seed = 7
 fn recovers_mfp_and_g_from_a_memory_effect_curve() {
     let d = std::env::temp_dir().join(format!("lightpath-fit-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
-    run_job(
+    run_scene(
         Kind::MemoryEffect,
-        Config::from_toml(TRUTH, None).unwrap(),
-        &Options::default(),
+        scene_from_text(TRUTH).unwrap(),
+        &RunOptions::default(),
         &d.join("target"),
     )
     .unwrap();
@@ -50,8 +51,8 @@ fn recovers_mfp_and_g_from_a_memory_effect_curve() {
         smooth: 0.0,
         progress: false,
     };
-    let out = fit_job(
-        Config::from_toml(&start, None).unwrap(),
+    let out = fit(
+        scene_from_text(&start).unwrap(),
         &d.join("target/memory_effect.json"),
         &opts,
         &d.join("fit"),
@@ -94,7 +95,7 @@ fn bad_fit_requests_are_clear_errors() {
         "angle_deg,correlation\n0.1,0.9\n0.2,0.7\n",
     )
     .unwrap();
-    let cfg = || Config::from_toml(TRUTH, None).unwrap();
+    let cfg = || scene_from_text(TRUTH).unwrap();
     let opts = |fit: &str| FitOptions {
         fit: fit.into(),
         samples: Some(1000),
@@ -106,36 +107,41 @@ fn bad_fit_requests_are_clear_errors() {
         smooth: 0.0,
         progress: false,
     };
-    let err = fit_job(
+    let err = fit(
         cfg(),
         &d.join("curve.csv"),
         &opts("mfp,colour"),
         &d.join("o"),
     )
-    .unwrap_err();
+    .unwrap_err()
+    .to_string();
     assert!(err.contains("colour") && err.contains("allowed"), "{err}");
-    let err = fit_job(
+    let err = fit(
         cfg(),
         &d.join("curve.csv"),
         &opts("mfp,sigma_s"),
         &d.join("o"),
     )
-    .unwrap_err();
+    .unwrap_err()
+    .to_string();
     assert!(err.contains("either"), "{err}");
-    let err = fit_job(cfg(), &d.join("missing.json"), &opts("mfp"), &d.join("o")).unwrap_err();
+    let err = fit(cfg(), &d.join("missing.json"), &opts("mfp"), &d.join("o"))
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("cannot read target"), "{err}");
     let iso = TRUTH.replace(
         "phase = { kind = \"hg\", g = 0.3 }",
         "phase = { kind = \"isotropic\" }",
     );
-    let err = fit_job(
-        Config::from_toml(&iso, None).unwrap(),
+    let err = fit(
+        scene_from_text(&iso).unwrap(),
         &d.join("curve.csv"),
         &opts("g"),
         &d.join("o"),
     )
-    .unwrap_err();
+    .unwrap_err()
+    .to_string();
     assert!(err.contains("hg"), "{err}");
     // a measured CSV curve is a valid target
-    assert!(fit_job(cfg(), &d.join("curve.csv"), &opts("mfp"), &d.join("ok")).is_ok());
+    assert!(fit(cfg(), &d.join("curve.csv"), &opts("mfp"), &d.join("ok")).is_ok());
 }

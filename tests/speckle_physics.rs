@@ -3,12 +3,12 @@
 //! types, the memory-effect diffusion formula (Eq. 39), and Algorithm 2's fields against Algorithm 1.
 
 use glam::DVec3;
-use lightpath::io::Config;
-use lightpath::jobs::{Kind, Options, run_job};
+use lightpath::config::Config;
 use lightpath::math::{C64, rotate};
 use lightpath::mc::{Estimate, Plan, merge, run};
 use lightpath::medium::{Geometry, Medium, PhaseFunction, Scattering, Table};
 use lightpath::speckle::mean::mean_field;
+use lightpath::speckle::memory::MemoryScan;
 use lightpath::speckle::paths::SubpathSampler;
 use lightpath::speckle::{Covariance, FieldSampler, Light, Scene, View};
 
@@ -258,23 +258,28 @@ samples = 120000
 chunk = 500
 seed = 3
 "#;
+    // through the library: the scan, the covariance estimator over its pairs, the curve
     let cfg = Config::from_toml(text, None).unwrap();
-    let out = std::env::temp_dir().join(format!("lightpath-me-{}", std::process::id()));
-    run_job(Kind::MemoryEffect, cfg, &Options::default(), &out).unwrap();
-    let v: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out.join("memory_effect.json")).unwrap()).unwrap();
-    let get = |k: &str| -> Vec<f64> {
-        v[k].as_array()
-            .unwrap()
-            .iter()
-            .map(|x| x.as_f64().unwrap())
-            .collect()
-    };
+    let me = cfg.memory_effect.clone().unwrap();
+    let scan = MemoryScan::new(
+        &cfg.scene().unwrap(),
+        glam::DVec3::from_array(me.axis),
+        &me.angles_deg,
+    )
+    .unwrap();
+    let est = Covariance::with_pairs(&scan.scene, scan.pairs(), cfg.render.reversed).unwrap();
+    let plan = Plan::new(cfg.render.seed, cfg.render.samples, cfg.render.chunk);
+    let root = merge(
+        run(&est, &plan, 0..plan.chunks, &scan.kept_outputs(), &|_| {}),
+        plan.chunks,
+    )
+    .unwrap();
+    let curve = scan.curve(&root, &plan);
     let (ang, c, se, eq39) = (
-        get("angles_deg"),
-        get("correlation"),
-        get("correlation_stderr"),
-        get("diffusion_eq39"),
+        curve.angles_deg,
+        curve.correlation,
+        curve.stderr,
+        curve.diffusion,
     );
     let kl_eff = 2.0 * std::f64::consts::PI * (2000.0 + 2.0 * 0.7104 * 200.0);
     for i in 0..ang.len() {

@@ -2,7 +2,6 @@
 //! form) and agreement with the Monte Carlo estimators where the independent-scattering model holds.
 
 use glam::DVec3;
-use lightpath::io::Config;
 use lightpath::math::{C64, rotate, stream_rng, uniform};
 use lightpath::mc::{Estimate, Plan, merge, run};
 use lightpath::medium::{Geometry, Medium, PhaseFunction, Scattering};
@@ -165,35 +164,22 @@ fn mc_cov(scene: &Scene, samples: u64) -> Estimate {
     )
 }
 
-/// Mean and covariance over realisations (as `lightpath wave` computes them).
+/// Mean and covariance over realisations, as `lightpath wave` computes them: placements as an
+/// engine estimator (one per chunk, every field kept), reduced by `WaveStatistics`.
 fn wave_stats(scene: &Scene, reals: u64, seed: u64) -> (Vec<C64>, Vec<C64>, Vec<f64>) {
-    use rayon::prelude::*;
-    let fields: Vec<Vec<C64>> = (0..reals)
-        .into_par_iter()
-        .map(|r| {
-            let mut rng = stream_rng(seed, r);
-            solve(scene, &wave::place_scatterers(scene, &mut rng))
-        })
-        .collect();
-    let j = fields[0].len();
-    let r = reals as f64;
-    let mean: Vec<C64> = (0..j)
-        .map(|a| fields.iter().map(|u| u[a]).sum::<C64>() / r)
-        .collect();
-    let (mut cov, mut se) = (vec![C64::default(); j * j], vec![0.0; j * j]);
-    for a in 0..j {
-        for b in 0..j {
-            let p: Vec<C64> = fields
-                .iter()
-                .map(|u| (u[a] - mean[a]) * (u[b] - mean[b]).conj())
-                .collect();
-            let c = p.iter().sum::<C64>() / (r - 1.0);
-            cov[a * j + b] = c;
-            se[a * j + b] =
-                (p.iter().map(|x| (x - c).norm_sqr()).sum::<f64>() / (r - 1.0) / r).sqrt();
-        }
-    }
-    (mean, cov, se)
+    let est = wave::Realizations::new(scene);
+    let plan = Plan {
+        seed,
+        chunk_paths: 1,
+        chunks: reals,
+    };
+    let root = merge(
+        run(&est, &plan, 0..reals, &est.kept_outputs(), &|_| {}),
+        reals,
+    )
+    .unwrap();
+    let s = wave::WaveStatistics::from_fields(&root.kept, est.fields());
+    (s.mean, s.covariance, s.covariance_stderr)
 }
 
 /// Dilute limit (optical depth 0.1): the non-forward intensity is single scattering,
@@ -364,16 +350,25 @@ fn point_to_point_and_guard_rails() {
     }
     // guard rails
     let big = "wavelength = 1.0\n[medium]\nbox = [60.0, 60.0, 60.0]\nmfp = 10.0\n[[light]]\nkind = \"plane_wave\"\ndirection = [0.0, 0.0, 1.0]\n[[view]]\nkind = \"far_field\"\ndirection = [0.0, 0.0, 1.0]\n";
-    let limits = lightpath::jobs::WaveLimits {
+    let limits = lightpath::app::wave::WaveLimits {
         max_scatterers: 6000.0,
         max_memory_gb: 8.0,
         max_minutes: 240.0,
     };
     // the error `lightpath wave` gives for a config text
     let refused = |toml: &str, realizations: u64, limits| {
-        let cfg = Config::from_toml(toml, None).unwrap();
+        let task = lightpath::config::scene_from_text(toml).unwrap();
         let out = std::env::temp_dir().join("lp-wave-refused");
-        lightpath::jobs::wave_job(cfg, realizations, None, limits, false, &out).unwrap_err()
+        let opts = lightpath::app::wave::WaveOptions {
+            realizations,
+            seed: None,
+            shard: None,
+            limits,
+            progress: false,
+        };
+        lightpath::app::wave::run(task, &opts, &out)
+            .unwrap_err()
+            .to_string()
     };
     let err = refused(big, 10, limits);
     assert!(
@@ -391,7 +386,7 @@ fn point_to_point_and_guard_rails() {
     let long = big
         .replace("box = [60.0, 60.0, 60.0]", "box = [6.0, 6.0, 6.0]")
         .replace("mfp = 10.0", "mfp = 4.0");
-    let quick = lightpath::jobs::WaveLimits {
+    let quick = lightpath::app::wave::WaveLimits {
         max_minutes: 1.0,
         ..limits
     };
@@ -443,6 +438,43 @@ fn wave_cli_deterministic_and_compare_exit_status() {
         )
     };
     assert_eq!(strip(read("w1")), strip(read("w2")));
+    // three shards merged reproduce the single run bit for bit (every key but the timing)
+    for i in 0..3 {
+        let o = run(&[
+            "wave",
+            c,
+            "--out",
+            d.join(format!("ws{i}")).to_str().unwrap(),
+            "--realizations",
+            "40",
+            "--shard",
+            &format!("{i}/3"),
+            "--quiet",
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    let shards: Vec<String> = (0..3)
+        .map(|i| d.join(format!("ws{i}")).to_str().unwrap().to_string())
+        .collect();
+    let mut args = vec!["merge"];
+    args.extend(shards.iter().map(|s| s.as_str()));
+    let merged_dir = d.join("wm");
+    args.extend(["--out", merged_dir.to_str().unwrap()]);
+    let o = run(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let untimed = |n: &str| {
+        let mut v: serde_json::Value = serde_json::from_str(&read(n)).unwrap();
+        v.as_object_mut().unwrap().remove("seconds");
+        v
+    };
+    let merged = untimed("wm");
+    assert_eq!(
+        merged,
+        untimed("w1"),
+        "wave shards + merge differ from the single run"
+    );
+    assert_eq!(merged["realizations"], 40);
+    assert_eq!(merged["solver"], "foldy-lax");
     let (a, b) = (d.join("w1/covariance.json"), d.join("w2/covariance.json"));
     let o = run(&["compare", a.to_str().unwrap(), b.to_str().unwrap()]);
     assert!(o.status.success() && String::from_utf8_lossy(&o.stdout).contains("agree"));

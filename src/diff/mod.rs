@@ -10,9 +10,11 @@
 pub mod bridge;
 pub mod covariance;
 pub mod ops;
+pub mod trace_op;
 
 pub use covariance::{CovarianceGradient, Reweighted, ReweightedCovariance};
 pub use ops::{CovarianceOp, MeanOp, Proposal, medium_at};
+pub use trace_op::TraceOp;
 
 use crate::medium::{Medium, PhaseFunction};
 

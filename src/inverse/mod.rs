@@ -8,6 +8,8 @@
 //! the re-weighting variance small while the parameters move.
 
 pub mod adam;
+pub mod grin_design;
+pub mod grin_fit;
 pub mod shortcut;
 pub mod target;
 

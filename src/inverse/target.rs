@@ -74,7 +74,7 @@ impl Target {
             if v.get("entries").is_some() {
                 Self::entries_json(&v, path)?
             } else if v.get("re").is_some() && v.get("stderr").is_some() {
-                Self::covariance_json(&v, path)?
+                Self::covariance_json(path)?
             } else {
                 let angles_deg = floats(&v, "angles_deg", path)?;
                 let correlation = floats(&v, "correlation", path)?;
@@ -96,43 +96,15 @@ impl Target {
         Ok(t)
     }
 
-    fn covariance_json(v: &Value, path: &Path) -> Result<Target, String> {
-        let re = v["re"]
-            .as_array()
-            .ok_or_else(|| format!("{}: `re` is not an array", path.display()))?;
-        let nl = re.len();
-        let nv = re
-            .first()
-            .and_then(|x| x.get(0))
-            .and_then(|x| x.as_array())
-            .map_or(0, |x| x.len());
-        if nl == 0 || nv == 0 {
-            return Err(format!("{}: empty covariance", path.display()));
-        }
-        let j = nl * nv;
-        let mut value = vec![C64::default(); j * j];
-        let mut stderr = vec![0.0; j * j];
-        for l1 in 0..nl {
-            for l2 in 0..nl {
-                for v1 in 0..nv {
-                    for v2 in 0..nv {
-                        let g = |k: &str| {
-                            v[k][l1][l2][v1][v2].as_f64().ok_or_else(|| {
-                                format!("{}: {k}[{l1}][{l2}][{v1}][{v2}] missing", path.display())
-                            })
-                        };
-                        let i = (l1 * nv + v1) * j + l2 * nv + v2;
-                        value[i] = C64::new(g("re")?, g("im")?);
-                        stderr[i] = g("stderr")?;
-                    }
-                }
-            }
-        }
+    /// Our `covariance.json` (Monte Carlo or wave solver), read through its typed format.
+    fn covariance_json(path: &Path) -> Result<Target, String> {
+        use crate::io::results::{CovarianceFile, ResultFile};
+        let m = CovarianceFile::read(path)?.matrix(path)?;
         Ok(Target::Covariance {
-            lights: nl,
-            views: nv,
-            value,
-            stderr,
+            lights: m.lights,
+            views: m.views,
+            value: m.value,
+            stderr: m.stderr,
         })
     }
 

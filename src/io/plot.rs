@@ -1,6 +1,6 @@
 //! PNG plots (plotters with an embedded DejaVu font, so no system fonts are needed).
 
-use crate::jobs::MemoryCurve;
+use crate::speckle::memory::{MemoryCurve, diffusion_correlation};
 use plotters::prelude::*;
 use std::path::Path;
 use std::sync::Once;
@@ -61,7 +61,7 @@ pub fn memory_effect(path: &Path, c: &MemoryCurve) -> Result<(), String> {
     let theory: Vec<(f64, f64)> = (0..=200)
         .map(|i| {
             let a = xmax * i as f64 / 200.0;
-            (a, crate::jobs::diffusion_correlation(c.kl, a.to_radians()))
+            (a, diffusion_correlation(c.kl, a.to_radians()))
         })
         .collect();
     chart

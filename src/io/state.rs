@@ -16,10 +16,12 @@ const MAGIC: &[u8; 8] = b"LPSTATE1";
 /// What a shard computed and for which run.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct StateHeader {
-    /// `covariance`, `memory-effect` or `speckle`.
+    #[serde(default)]
+    pub format_version: u32,
+    /// `covariance`, `memory-effect`, `speckle` or `wave`.
     pub kind: String,
     /// The config the run used (after command-line overrides).
-    pub config: crate::io::Config,
+    pub config: crate::config::Config,
     pub seed: u64,
     pub chunk_paths: u64,
     pub chunks: u64,

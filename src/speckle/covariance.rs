@@ -151,6 +151,34 @@ impl Batch {
     }
 }
 
+/// The scattering orders a covariance output block counts: the estimator writes the blocks in
+/// this order (single, multiple, total).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Order {
+    /// Subpaths of one vertex (B = 1).
+    Single = 0,
+    /// Subpaths of two or more vertices (B ≥ 2).
+    Multiple = 1,
+    /// Their sum: the covariance.
+    Total = 2,
+}
+
+impl Order {
+    /// Every block, in output order.
+    pub const ALL: [Order; 3] = [Order::Single, Order::Multiple, Order::Total];
+
+    /// Index of entry `[a][b]` of this block among the outputs of a covariance of `j` fields.
+    pub fn index(self, j: usize, a: usize, b: usize) -> usize {
+        (self as usize * j + a) * j + b
+    }
+
+    /// The `J×J` block of this order in the outputs of a covariance of `j` fields.
+    pub fn block<T>(self, j: usize, outputs: &[T]) -> &[T] {
+        let jj = j * j;
+        &outputs[self as usize * jj..(self as usize + 1) * jj]
+    }
+}
+
 impl<'a> Covariance<'a> {
     /// Covariance over all light×view pairs (`j = l·V + v`).
     pub fn all_pairs(scene: &'a Scene, reversed: bool) -> Result<Self, String> {

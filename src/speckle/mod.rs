@@ -5,6 +5,7 @@ pub mod covariance;
 pub mod endpoint;
 pub mod field;
 pub mod mean;
+pub mod memory;
 pub mod paths;
 pub mod wave;
 

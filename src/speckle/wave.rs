@@ -218,3 +218,93 @@ pub fn exciting_fields(scene: &Scene, pos: &[DVec3]) -> Vec<Vec<C64>> {
         .map(|l| (0..pos.len()).map(|j| u[(j, l)]).collect())
         .collect()
 }
+
+/// Scatterer placements as an engine estimator: each sample is one placement drawn from the
+/// chunk's stream and solved; the outputs are the `J` fields `u[l·V + v]` and, last, the number
+/// of scatterers. Run with one placement per chunk and every field kept, so the engine's shards,
+/// merge and thread-count independence apply, and [`WaveStatistics::from_fields`] reduces the kept
+/// fields to the mean and the covariance.
+pub struct Realizations<'a> {
+    scene: &'a Scene,
+}
+
+impl<'a> Realizations<'a> {
+    pub fn new(scene: &'a Scene) -> Self {
+        Realizations { scene }
+    }
+
+    /// Number of fields `J`.
+    pub fn fields(&self) -> usize {
+        self.scene.lights.len() * self.scene.views.len()
+    }
+
+    /// The outputs kept per chunk: every field.
+    pub fn kept_outputs(&self) -> Vec<usize> {
+        (0..self.fields()).collect()
+    }
+}
+
+impl crate::mc::Estimator for Realizations<'_> {
+    type Scratch = ();
+
+    fn outputs(&self) -> usize {
+        self.fields() + 1
+    }
+
+    fn scratch(&self) {}
+
+    fn run_chunk(&self, rng: &mut Rng, placements: u64, _: &mut (), out: &mut [C64]) {
+        let j = self.fields();
+        for _ in 0..placements {
+            let pos = place_scatterers(self.scene, rng);
+            for (o, u) in out[..j].iter_mut().zip(solve(self.scene, &pos)) {
+                *o += u;
+            }
+            out[j] += pos.len() as f64;
+        }
+    }
+}
+
+/// Sample statistics over placements: mean field, covariance `E[(u − m)(u' − m')*]` (unbiased,
+/// `R − 1`) and their standard errors (of the mean over `R` placements).
+#[derive(Clone, Debug, PartialEq)]
+pub struct WaveStatistics {
+    pub mean: Vec<C64>,
+    pub mean_stderr: Vec<f64>,
+    /// `J×J` row-major.
+    pub covariance: Vec<C64>,
+    pub covariance_stderr: Vec<f64>,
+}
+
+impl WaveStatistics {
+    /// From `R` placements' fields, placement after placement (`R×J`, row-major).
+    pub fn from_fields(fields: &[C64], j: usize) -> Self {
+        let r = (fields.len() / j) as f64;
+        let rows = || fields.chunks_exact(j);
+        let mean: Vec<C64> = (0..j)
+            .map(|a| rows().map(|u| u[a]).sum::<C64>() / r)
+            .collect();
+        let mut covariance = vec![C64::default(); j * j];
+        let mut covariance_stderr = vec![0.0; j * j];
+        for a in 0..j {
+            for b in 0..j {
+                let prod = |u: &[C64]| (u[a] - mean[a]) * (u[b] - mean[b]).conj();
+                let c = rows().map(prod).sum::<C64>() / (r - 1.0);
+                let var = rows().map(|u| (prod(u) - c).norm_sqr()).sum::<f64>() / (r - 1.0);
+                covariance[a * j + b] = c;
+                covariance_stderr[a * j + b] = (var / r).sqrt();
+            }
+        }
+        let mean_stderr = (0..j)
+            .map(|a| {
+                (rows().map(|u| (u[a] - mean[a]).norm_sqr()).sum::<f64>() / (r - 1.0) / r).sqrt()
+            })
+            .collect();
+        WaveStatistics {
+            mean,
+            mean_stderr,
+            covariance,
+            covariance_stderr,
+        }
+    }
+}

@@ -1,11 +1,11 @@
 //! Configs of `lightpath design`: bounds and background of the index field, the designed grid
 //! (levels coarse to fine), collimated beams with their foci, and the optimiser settings.
 
-use crate::eikonal::design::{Beam, FocusDesign};
+use crate::config::ConfigError;
+use crate::config::trace::FieldConfig;
+use crate::config::{err, positive as pos, unit};
 use crate::eikonal::grid::Interp;
-use crate::io::ConfigError;
-use crate::io::config::{err, positive as pos, unit};
-use crate::io::trace_config::FieldConfig;
+use crate::inverse::grin_design::{Beam, FocusDesign};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
@@ -15,7 +15,7 @@ pub struct DesignConfig {
     pub field: FieldConfig,
     pub grid: GridConfig,
     pub beam: Vec<BeamConfig>,
-    pub trace: StepsConfig,
+    pub trace: crate::config::trace::TraceSettings,
     pub design: OptimiserConfig,
 }
 
@@ -120,18 +120,6 @@ pub fn beams(config: &[BeamConfig]) -> Result<Vec<Beam>, ConfigError> {
 
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
-pub struct StepsConfig {
-    pub step: f64,
-    /// Leapfrog steps per ray (fixed; rays must have left the bounds by then). Without it, rays are
-    /// traced to where they leave the bounds (refracting where `n` jumps), at most `max_steps`.
-    #[serde(default)]
-    pub steps: Option<u64>,
-    #[serde(default)]
-    pub max_steps: Option<u64>,
-}
-
-#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
-#[serde(deny_unknown_fields)]
 pub struct OptimiserConfig {
     /// Adam iterations per level.
     pub iterations: u64,
@@ -141,12 +129,6 @@ pub struct OptimiserConfig {
 }
 
 impl DesignConfig {
-    pub fn from_file(path: &std::path::Path) -> Result<DesignConfig, ConfigError> {
-        let mut cfg: DesignConfig = crate::io::config::read_toml(path)?;
-        cfg.field.resolve_paths(path);
-        Ok(cfg)
-    }
-
     /// The design problem, every value checked.
     pub fn problem(&self) -> Result<FocusDesign, ConfigError> {
         let background = self.field.build()?;
@@ -177,27 +159,7 @@ impl DesignConfig {
             return err(format!("grid.initial = {}: must be finite", g.initial));
         }
         let beams = beams(&self.beam)?;
-        let step = pos("trace.step", self.trace.step)?;
-        let (steps, to_exit) = match (self.trace.steps, self.trace.max_steps) {
-            (Some(_), Some(_)) => {
-                return err(
-                    "trace: give either steps (a fixed number per ray) or max_steps (trace to the exit), not both",
-                );
-            }
-            (Some(s), None) if (1..=100_000).contains(&s) => (s as usize, false),
-            (Some(s), None) => {
-                return err(format!("trace.steps = {s}: must be within [1, 100000]"));
-            }
-            (None, m) => {
-                let m = m.unwrap_or(1_000_000);
-                if !(1..=10_000_000).contains(&m) {
-                    return err(format!(
-                        "trace.max_steps = {m}: must be within [1, 10000000]"
-                    ));
-                }
-                (m as usize, true)
-            }
-        };
+        let (step, steps, to_exit) = self.trace.stepping()?;
         let o = &self.design;
         if !(1..=100_000).contains(&o.iterations) {
             return err(format!(
@@ -233,7 +195,7 @@ pub struct ParamFitConfig {
     pub field: FieldConfig,
     pub beam: Vec<BeamConfig>,
     #[serde(default)]
-    pub trace: crate::io::trace_config::TraceSettings,
+    pub trace: crate::config::trace::TraceSettings,
     pub parameters: ParametersConfig,
 }
 
@@ -254,20 +216,14 @@ pub struct ParamRef {
 }
 
 impl ParamFitConfig {
-    pub fn from_file(path: &std::path::Path) -> Result<ParamFitConfig, ConfigError> {
-        let mut cfg: ParamFitConfig = crate::io::config::read_toml(path)?;
-        cfg.field.resolve_paths(path);
-        Ok(cfg)
-    }
-
     /// The fit problem, every value checked.
-    pub fn problem(&self) -> Result<crate::eikonal::fit::ParamFit, ConfigError> {
+    pub fn problem(&self) -> Result<crate::inverse::grin_fit::ParamFit, ConfigError> {
         use crate::eikonal::FieldParam;
         if self.field.profiles.is_empty() {
             return err("field.profiles = []: give at least one profile");
         }
         let field = self.field.build()?;
-        crate::io::trace_config::check_positive(&field)?;
+        crate::config::trace::check_positive(&field)?;
         if matches!(field.bounds, crate::eikonal::Bounds::Everywhere) {
             return err(
                 "field.bounds: a fit traces rays to where they leave the field; give bounds (sphere, cylinder or box)",
@@ -301,26 +257,20 @@ impl ParamFitConfig {
             });
             names.push(format!("profiles[{}].{}", p.profile, p.name));
         }
-        let step = pos("trace.step", self.trace.step)?;
-        if !(1..=10_000_000).contains(&self.trace.max_steps) {
-            return err(format!(
-                "trace.max_steps = {}: must be within [1, 10000000]",
-                self.trace.max_steps
-            ));
-        }
+        let (step, max_steps) = self.trace.to_exit("a parameter fit")?;
         if !(1..=10_000).contains(&self.parameters.iterations) {
             return err(format!(
                 "parameters.iterations = {}: must be within [1, 10000]",
                 self.parameters.iterations
             ));
         }
-        Ok(crate::eikonal::fit::ParamFit {
+        Ok(crate::inverse::grin_fit::ParamFit {
             field,
             params,
             names,
             beams: beams(&self.beam)?,
             step,
-            max_steps: self.trace.max_steps as usize,
+            max_steps,
             iterations: self.parameters.iterations as usize,
         })
     }

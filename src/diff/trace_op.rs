@@ -3,8 +3,8 @@
 //! (accumulated over every coefficient) as the backward pass. A user writes the design loss and
 //! regularisers in burn and optimises the field with burn's Adam.
 
-use super::{BoundedField, GridAdjoint, Profile, Ray, Tracer};
 use crate::diff::bridge::{Differentiable, Pullback};
+use crate::eikonal::{BoundedField, GridAdjoint, Profile, Ray, Tracer};
 use glam::DVec3;
 use rayon::prelude::*;
 use std::sync::Arc;

@@ -8,9 +8,10 @@
 //! coefficients along each axis. Each level starts from the previous level's field sampled on a
 //! finer grid.
 
-use super::grid::{GridField, Interp};
-use super::{BoundedField, IndexField, Profile, Ray, TraceOp};
+use crate::diff::TraceOp;
 use crate::diff::bridge::{apply, device, tensor, values};
+use crate::eikonal::grid::{GridField, Interp};
+use crate::eikonal::{BoundedField, IndexField, Profile, Ray};
 use burn::module::{Module, Param as Variable};
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::tensor::Tensor;

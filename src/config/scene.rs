@@ -246,22 +246,6 @@ const INTEGER_KEYS: [&str; 14] = [
     "profile",
 ];
 
-/// Read a TOML config file into `T`: numbers normalised (see [`normalise_numbers`]), errors naming
-/// the file and the key.
-pub(crate) fn read_toml<T: serde::de::DeserializeOwned>(
-    path: &std::path::Path,
-) -> Result<T, ConfigError> {
-    let text = std::fs::read_to_string(path)
-        .map_err(|e| ConfigError(format!("cannot read config file {}: {e}", path.display())))?;
-    let mut value: toml::Value = toml::from_str(&text)
-        .map_err(|e| ConfigError(format!("{}: invalid TOML: {e}", path.display())))?;
-    normalise_numbers(&mut value, "");
-    serde_path_to_error::deserialize(value).map_err(|e| {
-        let key = e.path().to_string();
-        ConfigError(format!("{}: {key}: {}", path.display(), e.into_inner()))
-    })
-}
-
 /// Let `1` stand for `1.0` in float keys and `1e6` for `1000000` in integer keys.
 pub(crate) fn normalise_numbers(v: &mut toml::Value, key: &str) {
     match v {
@@ -280,7 +264,7 @@ pub(crate) fn normalise_numbers(v: &mut toml::Value, key: &str) {
 }
 
 impl Config {
-    /// Parse TOML text; `base` resolves relative file paths (tabulated phase functions).
+    /// Parse and validate TOML text; `base` resolves relative file paths (tabulated phase functions).
     pub fn from_toml(text: &str, base: Option<&Path>) -> Result<Config, ConfigError> {
         let mut value: toml::Value =
             toml::from_str(text).map_err(|e| ConfigError(format!("invalid TOML: {e}")))?;
@@ -301,15 +285,7 @@ impl Config {
         Ok(cfg)
     }
 
-    /// Read and parse a config file.
-    pub fn from_file(path: &Path) -> Result<Config, ConfigError> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| ConfigError(format!("cannot read config file {}: {e}", path.display())))?;
-        Config::from_toml(&text, path.parent())
-            .map_err(|e| ConfigError(format!("{}: {}", path.display(), e.0)))
-    }
-
-    fn resolve_paths(&mut self, base: &Path) {
+    pub(crate) fn resolve_paths(&mut self, base: &Path) {
         fn fix(p: &mut PhaseConfig, base: &Path) {
             match p {
                 PhaseConfig::Tabulated { file: Some(f), .. } if f.is_relative() => {
@@ -326,9 +302,21 @@ impl Config {
         }
     }
 
-    /// Check every value (the whole scene is built once to find all errors of substance).
+    /// Check every value and build the scene (once: callers keep it).
+    pub fn build(&self) -> Result<Scene, ConfigError> {
+        let scene = self.scene()?;
+        self.check_settings()?;
+        Ok(scene)
+    }
+
+    /// Check every value (builds the scene to find all errors of substance).
     pub fn validate(&self) -> Result<(), ConfigError> {
-        self.scene().map(|_| ())?;
+        self.build().map(|_| ())
+    }
+
+    /// Check the run settings (`[render]`, `[memory_effect]`, `[speckle]`), not the scene: what
+    /// command-line overrides can change.
+    pub fn check_settings(&self) -> Result<(), ConfigError> {
         let r = &self.render;
         if r.samples == 0 {
             return err("render.samples = 0: must be at least 1");

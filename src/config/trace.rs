@@ -1,8 +1,8 @@
 //! Configs of `lightpath trace`: an index field and a bundle of rays.
 
+use crate::config::ConfigError;
+use crate::config::{err, positive as pos, unit};
 use crate::eikonal::{BoundedField, Bounds, Profile};
-use crate::io::ConfigError;
-use crate::io::config::{err, positive as pos, unit};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
@@ -121,27 +121,67 @@ pub enum RaysConfig {
     },
 }
 
+/// The `[trace]` table of every GRIN config: the leapfrog step and when a ray stops.
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct TraceSettings {
     #[serde(default = "default_step")]
     pub step: f64,
-    #[serde(default = "default_max_steps")]
-    pub max_steps: u64,
+    /// Leapfrog steps per ray, fixed (grid designs only; rays must have left the bounds by then).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub steps: Option<u64>,
+    /// Without `steps`: rays are traced to where they leave the bounds (refracting where `n` jumps),
+    /// at most this many steps (default 1 000 000).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_steps: Option<u64>,
 }
 
 fn default_step() -> f64 {
     0.005
-}
-fn default_max_steps() -> u64 {
-    1_000_000
 }
 
 impl Default for TraceSettings {
     fn default() -> Self {
         TraceSettings {
             step: default_step(),
-            max_steps: default_max_steps(),
+            steps: None,
+            max_steps: None,
+        }
+    }
+}
+
+/// How rays are stepped: `(step, steps, to_exit)` — `steps` fixed, or at most `steps` to the exit.
+pub type Stepping = (f64, usize, bool);
+
+impl TraceSettings {
+    /// The checked stepping: a fixed count (`steps`) or to the exit (`max_steps`).
+    pub fn stepping(&self) -> Result<Stepping, ConfigError> {
+        let step = pos("trace.step", self.step)?;
+        match (self.steps, self.max_steps) {
+            (Some(_), Some(_)) => err(
+                "trace: give either steps (a fixed number per ray) or max_steps (trace to the exit), not both",
+            ),
+            (Some(s), None) if (1..=100_000).contains(&s) => Ok((step, s as usize, false)),
+            (Some(s), None) => err(format!("trace.steps = {s}: must be within [1, 100000]")),
+            (None, m) => {
+                let m = m.unwrap_or(1_000_000);
+                if !(1..=10_000_000).contains(&m) {
+                    return err(format!(
+                        "trace.max_steps = {m}: must be within [1, 10000000]"
+                    ));
+                }
+                Ok((step, m as usize, true))
+            }
+        }
+    }
+
+    /// The checked stepping of commands that trace every ray to its exit: `(step, max_steps)`.
+    pub fn to_exit(&self, command: &str) -> Result<(f64, usize), ConfigError> {
+        match self.stepping()? {
+            (step, max_steps, true) => Ok((step, max_steps)),
+            (_, s, false) => err(format!(
+                "trace.steps = {s}: {command} traces every ray to where it leaves the field; give max_steps instead"
+            )),
         }
     }
 }
@@ -294,36 +334,14 @@ fn grid_profile(
 
 /// The grid written by `lightpath design` to `design.json` (key `grid`).
 fn grid_file(key: &str, path: &str) -> Result<Profile, ConfigError> {
-    #[derive(Deserialize)]
-    struct Saved {
-        grid: SavedGrid,
-    }
-    #[derive(Deserialize)]
-    struct SavedGrid {
-        dims: [u64; 3],
-        origin: [f64; 3],
-        spacing: f64,
-        samples: Vec<f64>,
-        interp: String,
-    }
-    let text = std::fs::read_to_string(path)
-        .map_err(|e| ConfigError(format!("{key}.path = \"{path}\": cannot read: {e}")))?;
-    let saved: Saved = serde_json::from_str(&text).map_err(|e| {
-        ConfigError(format!(
-            "{key}.path = \"{path}\": not a design result with a grid: {e}"
-        ))
-    })?;
+    use crate::io::results::{DesignFile, ResultFile};
+    let saved = DesignFile::read(std::path::Path::new(path))
+        .map_err(|e| ConfigError(format!("{key}.path = \"{path}\": {e}")))?;
     let g = saved.grid;
     grid_profile(key, g.dims, g.origin, g.spacing, g.samples, &g.interp)
 }
 
 impl TraceConfig {
-    pub fn from_file(path: &std::path::Path) -> Result<TraceConfig, ConfigError> {
-        let mut cfg: TraceConfig = crate::io::config::read_toml(path)?;
-        cfg.field.resolve_paths(path);
-        Ok(cfg)
-    }
-
     /// The field, checked: `n > 0` at every sample of a coarse grid over the bounds (or where rays run).
     pub fn field(&self) -> Result<BoundedField, ConfigError> {
         if self.field.profiles.is_empty() {

@@ -373,9 +373,10 @@ fn ultrasonic_rates(quick: bool) -> String {
 /// 128³ grid (Luneburg samples), 128² rays × 10 (a collimated bundle), 400 leapfrog steps each,
 /// forward and backward of [`crate::eikonal::TraceOp`] (the gradient of every coefficient).
 pub fn design_iteration() -> Result<String, String> {
+    use crate::diff::TraceOp;
     use crate::diff::bridge::Differentiable;
     use crate::eikonal::grid::{GridField, Interp};
-    use crate::eikonal::{BoundedField, Bounds, IndexField, Profile, Ray, TraceOp};
+    use crate::eikonal::{BoundedField, Bounds, IndexField, Profile, Ray};
     let n = 128;
     let spacing = 2.0 / (n - 1) as f64;
     let origin = DVec3::splat(-1.0);

@@ -5,9 +5,9 @@
 //! Loss: the mean over rays of the squared distance from each beam's focus to the ray's exit line
 //! `x_exit + t d_exit` — a focus may lie on the exit face or beyond it.
 
-use super::adjoint::FieldParam;
-use super::design::Beam;
-use super::{BoundedField, Tracer};
+use super::grin_design::Beam;
+use crate::eikonal::FieldParam;
+use crate::eikonal::{BoundedField, Tracer};
 use argmin::core::{CostFunction, Error as ArgminError, Executor, Gradient, State};
 use argmin::solver::linesearch::MoreThuenteLineSearch;
 use argmin::solver::quasinewton::LBFGS;
@@ -16,6 +16,7 @@ use rayon::prelude::*;
 use std::sync::Mutex;
 
 /// A parameter fit: `params` of `field` (named for reports) start at their values in `field`.
+#[derive(Clone, Debug)]
 pub struct ParamFit {
     pub field: BoundedField,
     pub params: Vec<FieldParam>,

@@ -1,0 +1,318 @@
+//! `lightpath trace` (rays through a graded-index field → rays.json + rays.png) and `lightpath
+//! design`: a grid field shaped by Adam through the adjoint (→ design.json, loss.png, profile.png,
+//! grid_slice_z.exr), or analytic field parameters fitted by L-BFGS (→ fit.json, loss.png, rays.png).
+
+use super::{Outcome, create_out};
+use crate::config::{DesignTask, ParamFitTask, TraceTask};
+use crate::error::{Error, Result};
+use crate::io::ResultFile;
+use crate::io::results::{
+    DesignFile, DesignLogLine, GridRecord, GrinFitFile, GrinFitLogLine, RadialProfile, RayRecord,
+    RaysFile,
+};
+use glam::DVec3;
+use std::path::Path;
+use std::time::Instant;
+
+/// `lightpath design`: shape a grid index field so beams pass through their foci → design.json
+/// (loss history, final grid, radial profile), loss.png, profile.png and a central EXR slice.
+pub fn design(task: &DesignTask, show: bool, out: &Path) -> Result<Outcome> {
+    use crate::inverse::grin_design::radial_profile;
+    let (cfg, problem) = (&task.config, &task.problem);
+    create_out(out)?;
+    let t0 = Instant::now();
+    let res = problem.run(&|s| {
+        if show && (s.iteration % 10 == 0 || s.iteration + 1 == problem.iterations) {
+            eprintln!(
+                "level {} iteration {:>5} loss {:.5e} mean miss² {:.5e}",
+                s.level, s.iteration, s.loss, s.miss2
+            );
+        }
+    })?;
+    let seconds = t0.elapsed().as_secs_f64();
+    crate::config::trace::check_positive(&res.field)
+        .map_err(|e| Error::Numerical(format!("design result: {}", e.0)))?;
+    let r_max = match res.field.bounds {
+        crate::eikonal::Bounds::Sphere { radius } => radius,
+        crate::eikonal::Bounds::Cylinder { radius, .. } => radius,
+        crate::eikonal::Bounds::Box { half } => half.min_element(),
+        crate::eikonal::Bounds::Everywhere => 1.0,
+    };
+    let profile = radial_profile(&res.field, r_max * 0.999, 41);
+    let g = &res.grid;
+    let file = DesignFile {
+        format_version: crate::io::results::FORMAT_VERSION,
+        rms_miss_initial: res.rms_miss_initial,
+        rms_miss_final: res.rms_miss_final,
+        log: res
+            .log
+            .iter()
+            .map(|s| DesignLogLine {
+                level: s.level,
+                iteration: s.iteration,
+                loss: s.loss,
+                mean_miss2: s.miss2,
+            })
+            .collect(),
+        grid: GridRecord {
+            dims: g.dims.map(|d| d as u64),
+            origin: g.origin.to_array(),
+            spacing: g.spacing,
+            interp: format!("{:?}", g.interp).to_lowercase(),
+            samples: res.grid_samples.clone(),
+            coefficients: g.coef.clone(),
+        },
+        radial_profile: RadialProfile {
+            r: profile.iter().map(|p| p.0).collect(),
+            mean: profile.iter().map(|p| p.1).collect(),
+            min: profile.iter().map(|p| p.2).collect(),
+            max: profile.iter().map(|p| p.3).collect(),
+        },
+        seconds,
+        version: env!("CARGO_PKG_VERSION").into(),
+        config: cfg.clone(),
+    };
+    let path = out.join(DesignFile::NAME);
+    file.write(&path)?;
+    let loss_png = out.join("loss.png");
+    let levels = res.log.iter().map(|s| s.level).max().unwrap_or(0);
+    let series: Vec<(String, Vec<(f64, f64)>)> = (0..=levels)
+        .map(|l| {
+            let n = problem.levels[l];
+            (
+                format!("level {l} ({n}³)"),
+                res.log
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, s)| s.level == l)
+                    .map(|(i, s)| (i as f64, s.miss2))
+                    .collect(),
+            )
+        })
+        .collect();
+    crate::io::plot::lines(
+        &loss_png,
+        "Design: mean squared miss distance",
+        "iteration",
+        "mean miss²",
+        &series,
+        true,
+    )?;
+    let profile_png = out.join("profile.png");
+    crate::io::plot::lines(
+        &profile_png,
+        "Designed index along 26 radial directions",
+        "r",
+        "n",
+        &[
+            (
+                "mean".to_string(),
+                profile.iter().map(|p| (p.0, p.1)).collect(),
+            ),
+            (
+                "min".to_string(),
+                profile.iter().map(|p| (p.0, p.2)).collect(),
+            ),
+            (
+                "max".to_string(),
+                profile.iter().map(|p| (p.0, p.3)).collect(),
+            ),
+        ],
+        false,
+    )?;
+    let [nx, ny, nz] = g.dims;
+    let slice: Vec<f64> = res.grid_samples[nx * ny * (nz / 2)..nx * ny * (nz / 2 + 1)].to_vec();
+    let exr_path = out.join("grid_slice_z.exr");
+    crate::io::exr::write_scalar(&exr_path, &slice, nx, ny, "n")?;
+    let summary = format!(
+        "design in {seconds:.1} s ({} iterations over {} level(s)): RMS miss distance {:.4e} → {:.4e}",
+        res.log.len(),
+        problem.levels.len(),
+        res.rms_miss_initial,
+        res.rms_miss_final
+    );
+    Ok(Outcome {
+        files: vec![path, loss_png, profile_png, exr_path],
+        summary,
+    })
+}
+
+/// `lightpath design` with a `[parameters]` table: fit analytic field parameters by L-BFGS on
+/// exit-adjoint gradients → fit.json (values, log), loss.png and rays.png of the fitted field.
+pub fn param_fit(task: &ParamFitTask, show: bool, out: &Path) -> Result<Outcome> {
+    use crate::eikonal::Tracer;
+    let (cfg, problem) = (&task.config, &task.problem);
+    create_out(out)?;
+    let t0 = Instant::now();
+    let res = problem.run(&|s| {
+        if show {
+            eprintln!(
+                "evaluation {:>4} mean miss² {:.5e} parameters {:?}",
+                s.evaluation, s.mean_miss2, s.params
+            );
+        }
+    })?;
+    let seconds = t0.elapsed().as_secs_f64();
+    let file = GrinFitFile {
+        format_version: crate::io::results::FORMAT_VERSION,
+        parameters: problem.names.clone(),
+        initial: res.initial.clone(),
+        fitted: res.fitted.clone(),
+        rms_miss_initial: res.rms_miss_initial,
+        rms_miss_final: res.rms_miss_final,
+        log: res
+            .log
+            .iter()
+            .map(|s| GrinFitLogLine {
+                evaluation: s.evaluation,
+                parameters: s.params.clone(),
+                mean_miss2: s.mean_miss2,
+            })
+            .collect(),
+        seconds,
+        version: env!("CARGO_PKG_VERSION").into(),
+        config: cfg.clone(),
+    };
+    let path = out.join(GrinFitFile::NAME);
+    file.write(&path)?;
+    let loss_png = out.join("loss.png");
+    crate::io::plot::lines(
+        &loss_png,
+        "Fit: mean squared miss distance",
+        "evaluation",
+        "mean miss²",
+        &[(
+            "L-BFGS".to_string(),
+            res.log
+                .iter()
+                .map(|s| (s.evaluation as f64, s.mean_miss2))
+                .collect(),
+        )],
+        true,
+    )?;
+    let tracer = Tracer {
+        field: &res.field,
+        step: problem.step,
+        max_steps: problem.max_steps,
+    };
+    let paths: Vec<Vec<DVec3>> = problem
+        .beams
+        .iter()
+        .flat_map(|b| b.rays.iter().map(move |r| (r, b.focus)))
+        .map(|(&(o, d), focus)| {
+            let mut p = vec![o];
+            let mut k = 0usize;
+            let e = tracer.trace_with(o, d, |x| {
+                if k.is_multiple_of(16) {
+                    p.push(x);
+                }
+                k += 1;
+            });
+            p.push(e.x);
+            p.push(e.x + e.direction * (focus - e.x).length().max(0.2 * (e.x - o).length()));
+            p
+        })
+        .collect();
+    let rays_png = out.join("rays.png");
+    crate::io::plot::ray_paths(&rays_png, &paths)?;
+    let mut summary = format!(
+        "L-BFGS fit in {seconds:.1} s ({} evaluations): RMS miss distance {:.4e} → {:.4e}\n",
+        res.log.len(),
+        res.rms_miss_initial,
+        res.rms_miss_final
+    );
+    for (i, n) in problem.names.iter().enumerate() {
+        summary += &format!("  {n}: {:.6e} → {:.6e}\n", res.initial[i], res.fitted[i]);
+    }
+    Ok(Outcome {
+        files: vec![path, loss_png, rays_png],
+        summary: summary.trim_end().to_string(),
+    })
+}
+
+/// `lightpath trace`: trace a bundle of rays through an index field → rays.json and rays.png.
+pub fn trace(task: &TraceTask, out: &Path) -> Result<Outcome> {
+    use crate::eikonal::{IndexField, Tracer};
+    use rayon::prelude::*;
+    let (field, rays) = (&task.field, &task.rays);
+    let tracer = Tracer {
+        field,
+        step: task.step,
+        max_steps: task.max_steps,
+    };
+    let t0 = Instant::now();
+    let traced: Vec<(crate::eikonal::RayEnd, Vec<DVec3>, Option<DVec3>)> = rays
+        .par_iter()
+        .map(|&(o, d)| {
+            let mut path = vec![o];
+            let mut bad = None;
+            let mut k = 0usize;
+            let end = tracer.trace_with(o, d, |x| {
+                let n = field.n(x);
+                if bad.is_none() && !(n > 0.0 && n.is_finite()) {
+                    bad = Some(x);
+                }
+                if k.is_multiple_of(16) {
+                    path.push(x);
+                }
+                k += 1;
+            });
+            path.push(end.x);
+            (end, path, bad)
+        })
+        .collect();
+    if !traced.iter().any(|t| t.0.entered) {
+        return Err(Error::input(format!(
+            "rays: none of the {} rays meets the field's bounds: check rays.center / rays.origin and the direction",
+            traced.len()
+        )));
+    }
+    if let Some(x) = traced.iter().find_map(|t| t.2) {
+        return Err(Error::input(format!(
+            "field: n = {} at {x}: the refractive index must be positive and finite where rays run",
+            field.n(x)
+        )));
+    }
+    create_out(out)?;
+    let seconds = t0.elapsed().as_secs_f64();
+    let file = RaysFile {
+        format_version: crate::io::results::FORMAT_VERSION,
+        rays: rays
+            .iter()
+            .zip(&traced)
+            .map(|((o, d), (e, _, _))| RayRecord {
+                origin: o.to_array(),
+                direction: d.to_array(),
+                exit_position: e.x.to_array(),
+                exit_direction: e.direction.to_array(),
+                optical_path: e.optical_path,
+                steps: e.steps,
+                entered: e.entered,
+                exited: e.exited,
+            })
+            .collect(),
+        seconds,
+        version: env!("CARGO_PKG_VERSION").into(),
+        config: task.config.clone(),
+    };
+    let path = out.join(RaysFile::NAME);
+    file.write(&path)?;
+    let png = out.join("rays.png");
+    let paths: Vec<Vec<DVec3>> = traced
+        .iter()
+        .map(|(e, p, _)| {
+            let mut p = p.clone();
+            p.push(e.x + e.direction * 1.5 * (e.x - p[0]).length().max(1.0));
+            p
+        })
+        .collect();
+    crate::io::plot::ray_paths(&png, &paths)?;
+    let exited = traced.iter().filter(|t| t.0.exited && t.0.entered).count();
+    Ok(Outcome {
+        files: vec![path, png],
+        summary: format!(
+            "traced {} rays ({exited} through the field) in {seconds:.2} s",
+            rays.len()
+        ),
+    })
+}

@@ -1,0 +1,102 @@
+//! The commands: one file per command family. Each takes a loaded task (see [`crate::config`]),
+//! runs it on the library (the `mc` engine, the inverse drivers), and writes typed result files
+//! (see [`crate::io::results`]). This is the executor's side of the design: estimators never print,
+//! spawn threads or write files; the app layer does, and nothing below imports it.
+//!
+//! - [`run`]: `covariance`, `speckle`, `memory-effect` (Monte Carlo), shards and `merge`
+//! - [`wave`]: the Foldy–Lax wave solver, as an estimator under the same engine
+//! - [`compare`]: agreement of two `covariance.json`
+//! - [`fit`]: material and phase-function fits
+//! - [`grin`]: `trace`, `design` (grid designs and parameter fits)
+//! - [`check`]: validate a config without running it
+//! - [`bench`]: throughput figures
+
+pub mod bench;
+pub mod check;
+pub mod compare;
+pub mod fit;
+pub mod grin;
+pub mod run;
+pub mod wave;
+
+use crate::error::{Error, Result};
+use std::path::{Path, PathBuf};
+
+/// What a finished command reports to the user.
+#[derive(Clone, Debug)]
+pub struct Outcome {
+    pub files: Vec<PathBuf>,
+    pub summary: String,
+}
+
+impl Outcome {
+    /// A summary with no files.
+    pub fn text(summary: impl Into<String>) -> Self {
+        Outcome {
+            files: vec![],
+            summary: summary.into(),
+        }
+    }
+}
+
+/// Run `f` on a pool of `threads` workers (default: rayon's global pool, all cores). Results never
+/// depend on the count.
+pub fn with_threads<T: Send>(
+    threads: Option<usize>,
+    f: impl FnOnce() -> Result<T> + Send,
+) -> Result<T> {
+    match threads {
+        None => f(),
+        Some(0) => Err(Error::input("--threads 0: must be at least 1")),
+        Some(n) => rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()
+            .map_err(|e| Error::input(format!("--threads {n}: {e}")))?
+            .install(f),
+    }
+}
+
+/// Create the output folder `out` (and its parents), or say which one could not be made.
+pub fn create_out(out: &Path) -> Result<()> {
+    std::fs::create_dir_all(out).map_err(|source| Error::Io {
+        action: "create output folder",
+        path: out.to_path_buf(),
+        source,
+    })
+}
+
+/// A progress bar on a terminal; silent otherwise (the engine's progress observer).
+pub(crate) struct Progress {
+    bar: Option<indicatif::ProgressBar>,
+}
+
+impl Progress {
+    pub(crate) fn new(enabled: bool, total: u64, what: &str, unit: &str) -> Self {
+        use std::io::IsTerminal;
+        let bar = (enabled && std::io::stderr().is_terminal()).then(|| {
+            let b = indicatif::ProgressBar::new(total);
+            b.set_style(
+                indicatif::ProgressStyle::with_template(&format!(
+                    "{{msg}} [{{bar:40}}] {{pos}}/{{len}} {unit}, {{elapsed}} (eta {{eta}})"
+                ))
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
+                .progress_chars("=> "),
+            );
+            b.set_message(what.to_string());
+            b
+        });
+        Progress { bar }
+    }
+
+    pub(crate) fn set(&self, n: u64) {
+        if let Some(b) = &self.bar {
+            b.set_position(n);
+        }
+    }
+
+    pub(crate) fn finish(&self) {
+        if let Some(b) = &self.bar {
+            b.finish_and_clear();
+        }
+    }
+}

@@ -1,0 +1,534 @@
+//! `lightpath covariance | speckle | memory-effect | wave` runs on the engine, whole or as shards,
+//! and `lightpath merge`: a shard writes `state.bin` (the engine's blocks and the run's header);
+//! merging the shards reproduces the single run bit for bit.
+
+use super::{Outcome, Progress, create_out};
+use crate::config::{Config, SceneTask, SpeckleConfig};
+use crate::error::{Error, Result};
+use crate::io::ResultFile;
+use crate::io::results::{CovarianceFile, MemoryEffectFile, RunEcho, SpeckleFile, nest2, nest4};
+use crate::io::state::{StateHeader, read_state, write_state};
+use crate::math::{C64, splitmix64};
+use crate::mc::{Block, Estimate, Plan, merge, run};
+use crate::speckle::covariance::Order;
+use crate::speckle::endpoint::FOCUSED_UNSUPPORTED;
+use crate::speckle::mean::mean_field;
+use crate::speckle::memory::MemoryScan;
+use crate::speckle::paths::SubpathSampler;
+use crate::speckle::{Covariance, FieldSampler, Scene};
+use glam::DVec3;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// What a run computes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Kind {
+    Covariance,
+    MemoryEffect,
+    Speckle,
+    /// Foldy–Lax realisations (see [`super::wave`]).
+    Wave,
+}
+
+impl Kind {
+    pub fn name(self) -> &'static str {
+        match self {
+            Kind::Covariance => "covariance",
+            Kind::MemoryEffect => "memory-effect",
+            Kind::Speckle => "speckle",
+            Kind::Wave => "wave",
+        }
+    }
+
+    fn from_name(s: &str) -> Option<Kind> {
+        [
+            Kind::Covariance,
+            Kind::MemoryEffect,
+            Kind::Speckle,
+            Kind::Wave,
+        ]
+        .into_iter()
+        .find(|k| k.name() == s)
+    }
+}
+
+/// Command-line overrides and run options.
+#[derive(Clone, Debug, Default)]
+pub struct RunOptions {
+    pub samples: Option<u64>,
+    pub seed: Option<u64>,
+    /// `(i, n)`: run shard `i` of `n` and write `state.bin` instead of results.
+    pub shard: Option<(u64, u64)>,
+    /// Show a progress bar (only when stderr is a terminal).
+    pub progress: bool,
+}
+
+/// Run `kind` (not `Wave`: see [`super::wave::run`]) on `task` and write into `out`.
+pub fn run_scene(
+    kind: Kind,
+    mut task: SceneTask,
+    opts: &RunOptions,
+    out: &Path,
+) -> Result<Outcome> {
+    let cfg = &mut task.config;
+    if let Some(s) = opts.samples {
+        if s == 0 {
+            return Err(Error::input("--samples 0: must be at least 1"));
+        }
+        match kind {
+            Kind::Speckle => cfg.speckle.get_or_insert_with(default_speckle).paths = s,
+            _ => cfg.render.samples = s,
+        }
+    }
+    if let Some(s) = opts.seed {
+        cfg.render.seed = s;
+    }
+    if kind == Kind::MemoryEffect && cfg.memory_effect.is_none() {
+        return Err(Error::input(
+            "memory-effect needs a [memory_effect] table with angles_deg = [...]",
+        ));
+    }
+    cfg.check_settings()?;
+    let plan = plan_of(kind, cfg);
+    execute(kind, &task, plan, opts, out)
+}
+
+/// Run the units of work of `kind` in this shard (all of them without `--shard`); write the shard's
+/// state or the results.
+pub(crate) fn execute(
+    kind: Kind,
+    task: &SceneTask,
+    plan: Plan,
+    opts: &RunOptions,
+    out: &Path,
+) -> Result<Outcome> {
+    let cfg = &task.config;
+    let whole = match kind {
+        Kind::Speckle => realisations(cfg),
+        _ => plan.chunks,
+    };
+    let (range, shard) = match opts.shard {
+        Some((i, n)) => {
+            if n == 0 || i >= n {
+                return Err(Error::input(format!("--shard {i}/{n}: need 0 <= i < n")));
+            }
+            if n > whole {
+                return Err(Error::input(format!(
+                    "--shard {i}/{n}: the run has only {whole} units of work; use at most {whole} shards"
+                )));
+            }
+            ((whole * i / n)..(whole * (i + 1) / n), [i, n])
+        }
+        None => (0..whole, [0, 1]),
+    };
+    create_out(out)?;
+    let units = match kind {
+        Kind::Speckle => range.end.saturating_sub(range.start) * plan.chunks,
+        _ => range.end - range.start,
+    };
+    let unit = if kind == Kind::Wave {
+        "placements"
+    } else {
+        "chunks"
+    };
+    let t0 = Instant::now();
+    let bar = Progress::new(opts.progress, units, kind.name(), unit);
+    let blocks = compute(kind, task, &plan, range, &bar)?;
+    bar.finish();
+    if shard[1] > 1 {
+        let header = StateHeader {
+            format_version: crate::io::results::FORMAT_VERSION,
+            kind: kind.name().into(),
+            config: cfg.clone(),
+            seed: plan.seed,
+            chunk_paths: plan.chunk_paths,
+            chunks: plan.chunks,
+            shard,
+            version: env!("CARGO_PKG_VERSION").into(),
+        };
+        let path = out.join("state.bin");
+        write_state(&path, &header, &blocks).map_err(|source| Error::Io {
+            action: "write",
+            path: path.clone(),
+            source,
+        })?;
+        return Ok(Outcome {
+            summary: format!(
+                "shard {}/{} of {} done in {:.1} s; combine all shards with `lightpath merge`",
+                shard[0],
+                shard[1],
+                kind.name(),
+                t0.elapsed().as_secs_f64()
+            ),
+            files: vec![path],
+        });
+    }
+    finish(kind, task, &plan, blocks, t0.elapsed().as_secs_f64(), out)
+}
+
+/// Merge shard folders (each with `state.bin`) into the results of the single run.
+pub fn merge_shards(inputs: &[PathBuf], out: &Path) -> Result<Outcome> {
+    if inputs.is_empty() {
+        return Err(Error::input("merge: give at least one shard folder"));
+    }
+    let mut first: Option<StateHeader> = None;
+    let mut blocks = Vec::new();
+    let mut seen = Vec::new();
+    for dir in inputs {
+        let path = if dir.is_dir() {
+            dir.join("state.bin")
+        } else {
+            dir.clone()
+        };
+        let (h, b) = read_state(&path)?;
+        if first.as_ref().is_some_and(|f| !f.same_run(&h)) {
+            return Err(Error::input(format!(
+                "{}: this shard belongs to a different run than {} (config, seed, samples, shard count or version differ)",
+                path.display(),
+                inputs[0].display()
+            )));
+        }
+        if seen.contains(&h.shard[0]) {
+            return Err(Error::input(format!(
+                "{}: shard {}/{} is given twice",
+                path.display(),
+                h.shard[0],
+                h.shard[1]
+            )));
+        }
+        seen.push(h.shard[0]);
+        blocks.extend(b);
+        first.get_or_insert(h);
+    }
+    let h = first.expect("one input");
+    if seen.len() as u64 != h.shard[1] {
+        let missing: Vec<u64> = (0..h.shard[1]).filter(|i| !seen.contains(i)).collect();
+        return Err(Error::input(format!(
+            "merge: shards {missing:?} of {} are missing",
+            h.shard[1]
+        )));
+    }
+    let kind = Kind::from_name(&h.kind)
+        .ok_or_else(|| Error::input(format!("unknown run kind {:?}", h.kind)))?;
+    let plan = Plan {
+        seed: h.seed,
+        chunk_paths: h.chunk_paths,
+        chunks: h.chunks,
+    };
+    let scene = h.config.build()?;
+    let task = SceneTask {
+        config: h.config,
+        scene,
+    };
+    create_out(out)?;
+    finish(kind, &task, &plan, blocks, f64::NAN, out)
+}
+
+fn default_speckle() -> SpeckleConfig {
+    SpeckleConfig {
+        realisations: 1,
+        paths: 100_000,
+    }
+}
+
+fn realisations(cfg: &Config) -> u64 {
+    cfg.speckle.as_ref().map_or(1, |s| s.realisations)
+}
+
+fn plan_of(kind: Kind, cfg: &Config) -> Plan {
+    match kind {
+        Kind::Speckle => {
+            let paths = cfg.speckle.as_ref().map_or(100_000, |s| s.paths);
+            Plan::new(cfg.render.seed, paths, cfg.render.chunk)
+        }
+        _ => Plan::new(cfg.render.seed, cfg.render.samples, cfg.render.chunk),
+    }
+}
+
+/// The seed of speckle realisation `r` (independent streams per image).
+fn realisation_seed(seed: u64, r: u64) -> u64 {
+    splitmix64(seed ^ splitmix64(r.wrapping_add(0xF1E1D)))
+}
+
+/// The memory-effect scan of a scene task (its `[memory_effect]` table).
+pub(crate) fn memory_scan(task: &SceneTask) -> Result<MemoryScan> {
+    let me = task
+        .config
+        .memory_effect
+        .as_ref()
+        .ok_or_else(|| Error::input("missing [memory_effect]"))?;
+    Ok(MemoryScan::new(
+        &task.scene,
+        DVec3::from_array(me.axis),
+        &me.angles_deg,
+    )?)
+}
+
+fn compute(
+    kind: Kind,
+    task: &SceneTask,
+    plan: &Plan,
+    range: std::ops::Range<u64>,
+    bar: &Progress,
+) -> Result<Vec<Block>> {
+    let reversed = task.config.render.reversed;
+    let scene = &task.scene;
+    let progress = |n| bar.set(n);
+    Ok(match kind {
+        Kind::Covariance => {
+            let est = Covariance::all_pairs(scene, reversed)?;
+            run(&est, plan, range, &[], &progress)
+        }
+        Kind::MemoryEffect => {
+            let scan = memory_scan(task)?;
+            let est = Covariance::with_pairs(&scan.scene, scan.pairs(), reversed)?;
+            run(&est, plan, range, &scan.kept_outputs(), &progress)
+        }
+        Kind::Wave => {
+            let est = crate::speckle::wave::Realizations::new(scene);
+            run(&est, plan, range, &est.kept_outputs(), &progress)
+        }
+        Kind::Speckle => {
+            let est = FieldSampler::new(scene, SubpathSampler::all_pairs(scene), reversed)?;
+            let mut out = Vec::new();
+            for r in range.clone() {
+                let p = Plan {
+                    seed: realisation_seed(plan.seed, r),
+                    ..*plan
+                };
+                let done = (r - range.start) * plan.chunks;
+                let root = merge(
+                    run(&est, &p, 0..p.chunks, &[], &|c| bar.set(done + c)),
+                    p.chunks,
+                )?;
+                out.push(Block {
+                    start: r,
+                    len: 1,
+                    sum: root.sum,
+                    sq: vec![],
+                    kept: vec![],
+                });
+            }
+            out
+        }
+    })
+}
+
+fn finish(
+    kind: Kind,
+    task: &SceneTask,
+    plan: &Plan,
+    blocks: Vec<Block>,
+    seconds: f64,
+    out: &Path,
+) -> Result<Outcome> {
+    match kind {
+        Kind::Covariance => finish_covariance(task, plan, blocks, seconds, out),
+        Kind::MemoryEffect => finish_memory(task, plan, blocks, seconds, out),
+        Kind::Speckle => finish_speckle(task, plan, blocks, seconds, out),
+        Kind::Wave => super::wave::finish(task, plan, blocks, seconds, out),
+    }
+}
+
+/// The Monte Carlo run's echo (chunking and path reversal included).
+fn mc_echo(task: &SceneTask, scene: &Scene, plan: &Plan, seconds: f64) -> RunEcho {
+    let mut echo = RunEcho::new(&task.config, scene, plan.samples(), plan.seed, seconds);
+    echo.chunk = Some(plan.chunk_paths);
+    echo.reversed = Some(task.config.render.reversed);
+    echo
+}
+
+/// The mean fields `m[l][v]` of every pair (closed form, paper 001 Eq. 20).
+fn mean_fields(scene: &Scene) -> Result<Vec<C64>> {
+    scene
+        .lights
+        .iter()
+        .flat_map(|l| {
+            scene
+                .views
+                .iter()
+                .map(move |v| mean_field(scene, l, v).ok_or(Error::input(FOCUSED_UNSUPPORTED)))
+        })
+        .collect()
+}
+
+/// Refuse to write a result holding non-finite numbers.
+pub(crate) fn check_finite<'a>(
+    what: &str,
+    values: impl IntoIterator<Item = &'a C64>,
+) -> Result<()> {
+    if values
+        .into_iter()
+        .any(|z| !z.re.is_finite() || !z.im.is_finite())
+    {
+        return Err(Error::Numerical(format!(
+            "{what}: the estimate holds non-finite values; nothing was written"
+        )));
+    }
+    Ok(())
+}
+
+fn finish_covariance(
+    task: &SceneTask,
+    plan: &Plan,
+    blocks: Vec<Block>,
+    seconds: f64,
+    out: &Path,
+) -> Result<Outcome> {
+    let scene = &task.scene;
+    let root = merge(blocks, plan.chunks)?;
+    let e = Estimate::from_block(&root, plan);
+    check_finite("covariance", &e.mean)?;
+    let (nl, nv) = (scene.lights.len(), scene.views.len());
+    let j = nl * nv;
+    let part = |order: Order| {
+        let (m, s) = (order.block(j, &e.mean), order.block(j, &e.stderr));
+        (
+            nest4(nl, nv, |i| m[i].re),
+            nest4(nl, nv, |i| m[i].im),
+            nest4(nl, nv, |i| s[i]),
+        )
+    };
+    let (re, im, stderr) = part(Order::Total);
+    let (single_re, single_im, single_stderr) = part(Order::Single);
+    let (multiple_re, multiple_im, multiple_stderr) = part(Order::Multiple);
+    let means = mean_fields(scene)?;
+    let file = CovarianceFile {
+        run: mc_echo(task, scene, plan, seconds),
+        re,
+        im,
+        stderr,
+        single_re: Some(single_re),
+        single_im: Some(single_im),
+        single_stderr: Some(single_stderr),
+        multiple_re: Some(multiple_re),
+        multiple_im: Some(multiple_im),
+        multiple_stderr: Some(multiple_stderr),
+        mean_re: nest2(nl, nv, |a| means[a].re),
+        mean_im: nest2(nl, nv, |a| means[a].im),
+        mean_stderr: None,
+        realizations: None,
+        solver: None,
+        scatterers_mean: None,
+        scatterers_expected: None,
+    };
+    let path = out.join(CovarianceFile::NAME);
+    file.write(&path)?;
+    let diag: Vec<f64> = (0..j)
+        .map(|a| e.mean[Order::Total.index(j, a, a)].re)
+        .collect();
+    let summary = format!(
+        "covariance of {nl} light(s) × {nv} view(s) from {} paths; intensity range {:.4e} … {:.4e}",
+        plan.samples(),
+        diag.iter().cloned().fold(f64::INFINITY, f64::min),
+        diag.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
+    );
+    Ok(Outcome {
+        files: vec![path],
+        summary,
+    })
+}
+
+fn finish_memory(
+    task: &SceneTask,
+    plan: &Plan,
+    blocks: Vec<Block>,
+    seconds: f64,
+    out: &Path,
+) -> Result<Outcome> {
+    let scan = memory_scan(task)?;
+    let root = merge(blocks, plan.chunks)?;
+    let curve = scan.curve(&root, plan);
+    if curve
+        .correlation
+        .iter()
+        .chain(&curve.stderr)
+        .any(|x| !x.is_finite())
+    {
+        return Err(Error::Numerical(
+            "memory-effect: the curve holds non-finite values (no light reached the view?); nothing was written".into(),
+        ));
+    }
+    let file = MemoryEffectFile {
+        run: mc_echo(task, &scan.scene, plan, seconds),
+        angles_deg: curve.angles_deg.clone(),
+        correlation: curve.correlation.clone(),
+        correlation_stderr: curve.stderr.clone(),
+        field_correlation: curve.field_correlation.clone(),
+        diffusion_eq39: curve.diffusion.clone(),
+        thickness: curve.thickness,
+    };
+    let path = out.join(MemoryEffectFile::NAME);
+    file.write(&path)?;
+    let png = out.join("memory_effect.png");
+    crate::io::plot::memory_effect(&png, &curve)
+        .map_err(|e| Error::input(format!("cannot write {}: {e}", png.display())))?;
+    let mut summary = String::from("angle [deg]   correlation ± stderr   Eq. 39\n");
+    for i in 0..curve.angles_deg.len() {
+        summary += &format!(
+            "{:>10.5}   {:.4} ± {:.4}      {:.4}\n",
+            curve.angles_deg[i], curve.correlation[i], curve.stderr[i], curve.diffusion[i]
+        );
+    }
+    Ok(Outcome {
+        files: vec![path, png],
+        summary,
+    })
+}
+
+fn finish_speckle(
+    task: &SceneTask,
+    plan: &Plan,
+    mut blocks: Vec<Block>,
+    seconds: f64,
+    out: &Path,
+) -> Result<Outcome> {
+    let scene = &task.scene;
+    let reals = realisations(&task.config);
+    blocks.sort_by_key(|b| b.start);
+    let got: Vec<u64> = blocks.iter().map(|b| b.start).collect();
+    if got != (0..reals).collect::<Vec<_>>() {
+        return Err(Error::input(format!(
+            "speckle: realisations {got:?} do not cover 0..{reals} exactly (a shard is missing)"
+        )));
+    }
+    let (nl, nv) = (scene.lights.len(), scene.views.len());
+    let means = mean_fields(scene)?;
+    let norm = 1.0 / (plan.samples() as f64).sqrt();
+    let fields: Vec<Vec<C64>> = blocks
+        .iter()
+        .map(|b| {
+            b.sum
+                .iter()
+                .zip(&means)
+                .map(|(s, m)| m + s * norm)
+                .collect()
+        })
+        .collect();
+    check_finite("speckle", fields.iter().flatten())?;
+    let file = SpeckleFile {
+        run: mc_echo(task, scene, plan, seconds),
+        re: fields.iter().map(|u| nest2(nl, nv, |a| u[a].re)).collect(),
+        im: fields.iter().map(|u| nest2(nl, nv, |a| u[a].im)).collect(),
+        realisations: reals,
+        paths_per_image: plan.samples(),
+    };
+    let path = out.join(SpeckleFile::NAME);
+    file.write(&path)?;
+    let mut files = vec![path];
+    let (w, h) = crate::io::image_shape(&task.config, nv);
+    for (r, u) in fields.iter().enumerate() {
+        let p = out.join(format!("speckle_{r:04}.exr"));
+        files.extend(
+            crate::io::exr::write_fields(&p, u, nl, w, h)
+                .map_err(|e| Error::input(format!("cannot write {}: {e}", p.display())))?,
+        );
+    }
+    Ok(Outcome {
+        summary: format!(
+            "{reals} speckle image(s) of {nl} light(s) × {nv} view(s), {} paths each",
+            plan.samples()
+        ),
+        files,
+    })
+}

@@ -1,0 +1,465 @@
+//! Typed result files: one serde struct per file with its writer ([`ResultFile::write`]) and reader
+//! ([`ResultFile::read`]), each carrying `format_version` (documented in `docs/formats.md`).
+//! `compare`, fit targets and grid files read results through these types only.
+
+use crate::config::{Config, LightConfig, ViewConfig};
+use crate::math::C64;
+use crate::speckle::{Light, Scene, View};
+use serde::de::DeserializeOwned;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// The version of every result format written by this build. Files without the field (written
+/// before it existed) read as version 0, whose keys are the same.
+pub const FORMAT_VERSION: u32 = 1;
+
+/// A result file: written atomically as JSON, read back with its version checked.
+pub trait ResultFile: Serialize + DeserializeOwned {
+    /// The file name the commands use (`covariance.json`, …).
+    const NAME: &'static str;
+
+    fn format_version(&self) -> u32;
+
+    /// Write to `path` (atomically), or say which file could not be written.
+    fn write(&self, path: &Path) -> Result<(), String> {
+        super::write_json(path, self).map_err(|e| format!("cannot write {}: {e}", path.display()))
+    }
+
+    /// Read `path`, naming the file and the key in any error; refuses newer format versions.
+    fn read(path: &Path) -> Result<Self, String> {
+        let bytes =
+            std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+        let de = &mut serde_json::Deserializer::from_slice(&bytes);
+        let file: Self = serde_path_to_error::deserialize(de).map_err(|e| {
+            format!(
+                "{}: not a {} ({}: {})",
+                path.display(),
+                Self::NAME,
+                e.path(),
+                e.inner()
+            )
+        })?;
+        if file.format_version() > FORMAT_VERSION {
+            return Err(format!(
+                "{}: format_version = {}: this build reads {} up to version {FORMAT_VERSION}; update lightpath",
+                path.display(),
+                file.format_version(),
+                Self::NAME
+            ));
+        }
+        Ok(file)
+    }
+}
+
+macro_rules! result_file {
+    ($t:ty, $name:literal) => {
+        impl ResultFile for $t {
+            const NAME: &'static str = $name;
+            fn format_version(&self) -> u32 {
+                self.format_version
+            }
+        }
+    };
+}
+
+/// `[l][l'][v][v']` nested arrays (JSON's natural shape for a covariance).
+pub type Nested4 = Vec<Vec<Vec<Vec<f64>>>>;
+/// `[l][v]` nested arrays (mean fields).
+pub type Nested2 = Vec<Vec<f64>>;
+
+/// Nest a `J×J` row-major block (`j = l·V + v`) as `[l1][l2][v1][v2]`.
+pub fn nest4(nl: usize, nv: usize, f: impl Fn(usize) -> f64) -> Nested4 {
+    let j = nl * nv;
+    (0..nl)
+        .map(|l1| {
+            (0..nl)
+                .map(|l2| {
+                    (0..nv)
+                        .map(|v1| {
+                            (0..nv)
+                                .map(|v2| f((l1 * nv + v1) * j + l2 * nv + v2))
+                                .collect()
+                        })
+                        .collect()
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// Nest `J` values (`j = l·V + v`) as `[l][v]`.
+pub fn nest2(nl: usize, nv: usize, f: impl Fn(usize) -> f64) -> Nested2 {
+    (0..nl)
+        .map(|l| (0..nv).map(|v| f(l * nv + v)).collect())
+        .collect()
+}
+
+/// What every speckle result echoes: the scene's endpoints (expanded), the run and the config.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct RunEcho {
+    #[serde(default)]
+    pub format_version: u32,
+    pub wavelength: f64,
+    pub lights: Vec<LightConfig>,
+    pub views: Vec<ViewConfig>,
+    /// Paths (Monte Carlo) or realisations (wave solver).
+    pub samples: u64,
+    pub seed: u64,
+    /// Paths per chunk (Monte Carlo only).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub chunk: Option<u64>,
+    /// Whether reversed paths were included (Monte Carlo only).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reversed: Option<bool>,
+    /// Wall time; `null` for merged shards.
+    pub seconds: Option<f64>,
+    pub version: String,
+    pub config: Config,
+}
+
+impl RunEcho {
+    pub fn new(config: &Config, scene: &Scene, samples: u64, seed: u64, seconds: f64) -> Self {
+        RunEcho {
+            format_version: FORMAT_VERSION,
+            wavelength: config.wavelength,
+            lights: scene.lights.iter().map(light_record).collect(),
+            views: scene.views.iter().map(view_record).collect(),
+            samples,
+            seed,
+            chunk: None,
+            reversed: None,
+            seconds: seconds.is_finite().then_some(seconds),
+            version: env!("CARGO_PKG_VERSION").into(),
+            config: config.clone(),
+        }
+    }
+}
+
+fn light_record(l: &Light) -> LightConfig {
+    match *l {
+        Light::PlaneWave { direction } => LightConfig::PlaneWave {
+            direction: direction.to_array(),
+        },
+        Light::Point { position } => LightConfig::Point {
+            position: position.to_array(),
+        },
+        Light::Focused { focus, axis, gamma } => LightConfig::Focused {
+            focus: focus.to_array(),
+            axis: axis.to_array(),
+            aperture_sigma: 1.0 / gamma.sqrt(),
+        },
+    }
+}
+
+fn view_record(v: &View) -> ViewConfig {
+    match *v {
+        View::FarField { direction } => ViewConfig::FarField {
+            direction: direction.to_array(),
+        },
+        View::Point { position } => ViewConfig::Point {
+            position: position.to_array(),
+        },
+        View::Focused { focus, axis, gamma } => ViewConfig::Focused {
+            focus: focus.to_array(),
+            axis: axis.to_array(),
+            aperture_sigma: 1.0 / gamma.sqrt(),
+        },
+    }
+}
+
+/// `covariance.json`: `C[l1][l2][v1][v2] = E[u ū'] − m m̄'` with standard errors, the mean fields,
+/// and (Monte Carlo) the single- and multiple-scattering parts, or (wave solver) the placements.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct CovarianceFile {
+    #[serde(flatten)]
+    pub run: RunEcho,
+    pub re: Nested4,
+    pub im: Nested4,
+    pub stderr: Nested4,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub single_re: Option<Nested4>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub single_im: Option<Nested4>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub single_stderr: Option<Nested4>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub multiple_re: Option<Nested4>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub multiple_im: Option<Nested4>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub multiple_stderr: Option<Nested4>,
+    pub mean_re: Nested2,
+    pub mean_im: Nested2,
+    /// Standard error of the mean field (wave solver; the Monte Carlo mean is a closed form).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mean_stderr: Option<Nested2>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub realizations: Option<u64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub solver: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scatterers_mean: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scatterers_expected: Option<f64>,
+}
+
+impl ResultFile for CovarianceFile {
+    const NAME: &'static str = "covariance.json";
+    fn format_version(&self) -> u32 {
+        self.run.format_version
+    }
+}
+
+/// A covariance as one `J×J` row-major block (`j = l·V + v`) with its standard errors.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CovarianceMatrix {
+    pub lights: usize,
+    pub views: usize,
+    pub value: Vec<C64>,
+    pub stderr: Vec<f64>,
+}
+
+impl CovarianceFile {
+    /// The total covariance as a flat matrix; errors if the nested arrays are ragged.
+    pub fn matrix(&self, path: &Path) -> Result<CovarianceMatrix, String> {
+        let nl = self.re.len();
+        let nv = self
+            .re
+            .first()
+            .and_then(|r| r.first())
+            .map_or(0, |r| r.len());
+        if nl == 0 || nv == 0 {
+            return Err(format!("{}: empty covariance", path.display()));
+        }
+        let j = nl * nv;
+        let mut value = vec![C64::default(); j * j];
+        let mut stderr = vec![0.0; j * j];
+        for (name, arr) in [("re", &self.re), ("im", &self.im), ("stderr", &self.stderr)] {
+            let ok = arr.len() == nl
+                && arr.iter().all(|a| {
+                    a.len() == nl
+                        && a.iter()
+                            .all(|b| b.len() == nv && b.iter().all(|c| c.len() == nv))
+                });
+            if !ok {
+                return Err(format!(
+                    "{}: `{name}` is not a {nl}×{nl}×{nv}×{nv} array like `re`",
+                    path.display()
+                ));
+            }
+        }
+        for l1 in 0..nl {
+            for l2 in 0..nl {
+                for v1 in 0..nv {
+                    for v2 in 0..nv {
+                        let i = (l1 * nv + v1) * j + l2 * nv + v2;
+                        value[i] = C64::new(self.re[l1][l2][v1][v2], self.im[l1][l2][v1][v2]);
+                        stderr[i] = self.stderr[l1][l2][v1][v2];
+                    }
+                }
+            }
+        }
+        Ok(CovarianceMatrix {
+            lights: nl,
+            views: nv,
+            value,
+            stderr,
+        })
+    }
+}
+
+/// `memory_effect.json`: the memory-effect curve against Eq. 39.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct MemoryEffectFile {
+    #[serde(flatten)]
+    pub run: RunEcho,
+    pub angles_deg: Vec<f64>,
+    pub correlation: Vec<f64>,
+    pub correlation_stderr: Vec<f64>,
+    pub field_correlation: Vec<f64>,
+    pub diffusion_eq39: Vec<f64>,
+    pub thickness: f64,
+}
+
+impl ResultFile for MemoryEffectFile {
+    const NAME: &'static str = "memory_effect.json";
+    fn format_version(&self) -> u32 {
+        self.run.format_version
+    }
+}
+
+/// `speckle.json`: speckle fields `u[r][l][v]` of every realisation.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct SpeckleFile {
+    #[serde(flatten)]
+    pub run: RunEcho,
+    pub re: Vec<Nested2>,
+    pub im: Vec<Nested2>,
+    pub realisations: u64,
+    pub paths_per_image: u64,
+}
+
+impl ResultFile for SpeckleFile {
+    const NAME: &'static str = "speckle.json";
+    fn format_version(&self) -> u32 {
+        self.run.format_version
+    }
+}
+
+/// One line of a fit's log: an L-BFGS stage (`stage`) or an Adam iteration (`iteration`).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct FitLogLine {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stage: Option<usize>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub iteration: Option<usize>,
+    pub loss: f64,
+    pub params: Vec<f64>,
+    pub grad_norm: f64,
+}
+
+/// A single-scattering reading of the phase function (phase-function fits).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct ReadingRecord {
+    pub delta_deg: f64,
+    pub angle_deg: f64,
+    pub rho: f64,
+    pub stderr: f64,
+}
+
+/// `fit.json` of `lightpath fit`: fitted medium parameters with Gauss–Newton standard deviations.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct FitFile {
+    #[serde(default)]
+    pub format_version: u32,
+    /// `lbfgs` or `adam`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub optimizer: Option<String>,
+    pub params: Vec<String>,
+    pub initial: Vec<f64>,
+    pub fitted: Vec<f64>,
+    pub stddev: Vec<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub correlation: Option<Vec<Vec<f64>>>,
+    pub loss: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dof: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub phase_cos: Option<Vec<f64>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub phase_angle_deg: Option<Vec<f64>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub target_values: Option<Vec<f64>>,
+    pub model_initial: Vec<f64>,
+    pub model_fitted: Vec<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub single_scattering_reading: Option<Vec<ReadingRecord>>,
+    pub log: Vec<FitLogLine>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub learning_rate: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub smooth: Option<f64>,
+    pub samples: u64,
+    pub seed: u64,
+    pub seconds: f64,
+    pub version: String,
+    pub target: String,
+    pub config: Config,
+}
+result_file!(FitFile, "fit.json");
+
+/// One traced ray of `rays.json`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct RayRecord {
+    pub origin: [f64; 3],
+    pub direction: [f64; 3],
+    pub exit_position: [f64; 3],
+    pub exit_direction: [f64; 3],
+    pub optical_path: f64,
+    pub steps: usize,
+    pub entered: bool,
+    pub exited: bool,
+}
+
+/// `rays.json` of `lightpath trace`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct RaysFile {
+    #[serde(default)]
+    pub format_version: u32,
+    pub rays: Vec<RayRecord>,
+    pub seconds: f64,
+    pub version: String,
+    pub config: crate::config::TraceConfig,
+}
+result_file!(RaysFile, "rays.json");
+
+/// One line of a grid design's log.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct DesignLogLine {
+    pub level: usize,
+    pub iteration: usize,
+    pub loss: f64,
+    pub mean_miss2: f64,
+}
+
+/// The designed grid: its coefficients (what the optimiser moved) and its samples (what
+/// `grid_file` profiles read back).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct GridRecord {
+    pub dims: [u64; 3],
+    pub origin: [f64; 3],
+    pub spacing: f64,
+    pub interp: String,
+    pub samples: Vec<f64>,
+    pub coefficients: Vec<f64>,
+}
+
+/// The designed index along radial directions: mean, min and max over 26 directions.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct RadialProfile {
+    pub r: Vec<f64>,
+    pub mean: Vec<f64>,
+    pub min: Vec<f64>,
+    pub max: Vec<f64>,
+}
+
+/// `design.json` of `lightpath design` (grid designs).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct DesignFile {
+    #[serde(default)]
+    pub format_version: u32,
+    pub rms_miss_initial: f64,
+    pub rms_miss_final: f64,
+    pub log: Vec<DesignLogLine>,
+    pub grid: GridRecord,
+    pub radial_profile: RadialProfile,
+    pub seconds: f64,
+    pub version: String,
+    pub config: crate::config::DesignConfig,
+}
+result_file!(DesignFile, "design.json");
+
+/// One evaluation of a GRIN parameter fit.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct GrinFitLogLine {
+    pub evaluation: usize,
+    pub parameters: Vec<f64>,
+    pub mean_miss2: f64,
+}
+
+/// `fit.json` of `lightpath design` with a `[parameters]` table.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct GrinFitFile {
+    #[serde(default)]
+    pub format_version: u32,
+    pub parameters: Vec<String>,
+    pub initial: Vec<f64>,
+    pub fitted: Vec<f64>,
+    pub rms_miss_initial: f64,
+    pub rms_miss_final: f64,
+    pub log: Vec<GrinFitLogLine>,
+    pub seconds: f64,
+    pub version: String,
+    pub config: crate::config::ParamFitConfig,
+}
+result_file!(GrinFitFile, "fit.json");
