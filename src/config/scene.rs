@@ -556,7 +556,7 @@ impl MediumConfig {
                 if a == 0.0 {
                     return err("medium.albedo = 0: must be positive (nothing would scatter)");
                 }
-                (a / mfp, (1.0 - a) / mfp)
+                crate::medium::params::sigmas(mfp, a)
             }
             (None, None, Some(s), a) => {
                 positive("medium.sigma_s", s)?;

@@ -13,13 +13,13 @@ pub mod grin_fit;
 pub mod shortcut;
 pub mod target;
 
+pub use crate::medium::params::{FitParam, check_params, medium_with};
 pub use adam::{AdamFit, AdamResult, AdamSettings};
 pub use target::{Entry, Measured, Target};
 
 use crate::diff::{CovarianceGradient, Param, Reweighted, ReweightedCovariance};
 use crate::math::C64;
 use crate::mc::{Estimate, Plan, merge, run};
-use crate::medium::{Medium, PhaseFunction};
 use crate::speckle::Scene;
 use argmin::core::{CostFunction, Error as ArgminError, Executor, Gradient, State};
 use argmin::solver::linesearch::MoreThuenteLineSearch;
@@ -29,131 +29,6 @@ use std::sync::Mutex;
 /// Half-width of a stage's trust region in the unconstrained variables: re-weighting stays accurate
 /// only near the proposal (the weights multiply a phase-function ratio per interior vertex).
 const TRUST: f64 = 0.25;
-
-/// A parameter a user fits, in natural units, each mapped to an unconstrained variable `u`
-/// (constraints by reparameterisation: `mfp, σ = e^u`, `albedo = 1/(1+e^{-u})`, `g = tanh u`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum FitParam {
-    Mfp,
-    Albedo,
-    G,
-    SigmaS,
-    SigmaA,
-}
-
-impl FitParam {
-    pub fn parse(s: &str) -> Result<FitParam, String> {
-        match s.trim() {
-            "mfp" => Ok(FitParam::Mfp),
-            "albedo" => Ok(FitParam::Albedo),
-            "g" => Ok(FitParam::G),
-            "sigma_s" => Ok(FitParam::SigmaS),
-            "sigma_a" => Ok(FitParam::SigmaA),
-            other => Err(format!(
-                "--fit: unknown parameter {other:?}; allowed: mfp, albedo, g, sigma_s, sigma_a"
-            )),
-        }
-    }
-
-    pub fn name(&self) -> &'static str {
-        match self {
-            FitParam::Mfp => "mfp",
-            FitParam::Albedo => "albedo",
-            FitParam::G => "g",
-            FitParam::SigmaS => "sigma_s",
-            FitParam::SigmaA => "sigma_a",
-        }
-    }
-
-    /// Natural value in medium `m`.
-    pub fn value(&self, m: &Medium) -> f64 {
-        match self {
-            FitParam::Mfp => 1.0 / m.sigma_t(),
-            FitParam::Albedo => m.albedo(),
-            FitParam::G => Param::G(0).get(m).unwrap_or(0.0),
-            FitParam::SigmaS => m.sigma_s,
-            FitParam::SigmaA => m.sigma_a,
-        }
-    }
-
-    fn unconstrained(self, v: f64) -> f64 {
-        match self {
-            FitParam::Albedo => {
-                let a = v.clamp(1e-6, 1.0 - 1e-6);
-                (a / (1.0 - a)).ln()
-            }
-            FitParam::G => v.clamp(-0.999, 0.999).atanh(),
-            FitParam::SigmaA => v.max(1e-12).ln(),
-            _ => v.ln(),
-        }
-    }
-
-    fn natural(self, u: f64) -> f64 {
-        match self {
-            FitParam::Albedo => 1.0 / (1.0 + (-u).exp()),
-            FitParam::G => u.tanh(),
-            _ => u.exp(),
-        }
-    }
-
-    /// `d(natural)/du`.
-    fn dv_du(&self, v: f64) -> f64 {
-        match self {
-            FitParam::Albedo => v * (1.0 - v),
-            FitParam::G => 1.0 - v * v,
-            _ => v,
-        }
-    }
-}
-
-/// Check a parameter set against a medium.
-pub fn check_params(params: &[FitParam], m: &Medium) -> Result<(), String> {
-    let has = |p| params.contains(&p);
-    if (has(FitParam::Mfp) || has(FitParam::Albedo))
-        && (has(FitParam::SigmaS) || has(FitParam::SigmaA))
-    {
-        return Err("--fit: use either mfp/albedo or sigma_s/sigma_a, not both".into());
-    }
-    if has(FitParam::G) {
-        match m.scattering.components() {
-            [(_, PhaseFunction::HenyeyGreenstein { .. })] => {}
-            _ => return Err("--fit g needs medium.phase = { kind = \"hg\", g = ... } (a single Henyey–Greenstein type)".into()),
-        }
-    }
-    if has(FitParam::SigmaA) && m.sigma_a <= 0.0 {
-        return Err(
-            "--fit sigma_a: start from medium.sigma_a > 0 (it is fitted on a log scale)".into(),
-        );
-    }
-    for (i, p) in params.iter().enumerate() {
-        if params[..i].contains(p) {
-            return Err(format!("--fit: {} is given twice", p.name()));
-        }
-    }
-    Ok(())
-}
-
-/// The medium with the fitted parameters set to natural values `v`.
-pub fn medium_with(base: &Medium, params: &[FitParam], v: &[f64]) -> Medium {
-    let get = |p: FitParam| params.iter().position(|q| *q == p).map(|i| v[i]);
-    let mut m = base.clone();
-    if get(FitParam::Mfp).is_some() || get(FitParam::Albedo).is_some() {
-        let mfp = get(FitParam::Mfp).unwrap_or(1.0 / base.sigma_t());
-        let a = get(FitParam::Albedo).unwrap_or(base.albedo());
-        m.sigma_s = a / mfp;
-        m.sigma_a = (1.0 - a) / mfp;
-    }
-    if let Some(s) = get(FitParam::SigmaS) {
-        m.sigma_s = s;
-    }
-    if let Some(s) = get(FitParam::SigmaA) {
-        m.sigma_a = s;
-    }
-    if let Some(g) = get(FitParam::G) {
-        m = Param::G(0).set(&m, g);
-    }
-    m
-}
 
 /// Settings of the Monte Carlo inside the objective.
 #[derive(Clone, Copy, Debug)]
@@ -245,13 +120,13 @@ impl Fit<'_> {
         )?;
         let g = self.estimate(&CovarianceGradient::new(r, &adjoint)).mean;
         let (ds, da) = (g[0].re, g[1].re);
-        let mfp = 1.0 / m.sigma_t();
+        let jac = crate::medium::params::sigmas_jacobian(1.0 / m.sigma_t(), m.albedo());
         let grad = self
             .params
             .iter()
             .map(|p| match p {
-                FitParam::Mfp => -(ds * m.sigma_s + da * m.sigma_a) / mfp,
-                FitParam::Albedo => (ds - da) / mfp,
+                FitParam::Mfp => ds * jac[0][0] + da * jac[1][0],
+                FitParam::Albedo => ds * jac[0][1] + da * jac[1][1],
                 FitParam::SigmaS => ds,
                 FitParam::SigmaA => da,
                 FitParam::G => g[2].re,

@@ -1,9 +1,11 @@
 //! The scattering medium: geometry, bulk coefficients and the scattering law.
 
 pub mod geometry;
+pub mod params;
 pub mod phase;
 
 pub use geometry::Geometry;
+pub use params::{FitParam, Param};
 pub use phase::{Located, PhaseFunction, Scattering, Table, TableError};
 
 /// A homogeneous scattering medium (paper 001, Eqs. 7–8).

@@ -92,9 +92,9 @@ pub fn mean_field_gradient(
     scene: &Scene,
     light: &Light,
     view: &View,
-    params: &[crate::diff::Param],
+    params: &[crate::medium::Param],
 ) -> Option<(C64, Vec<C64>)> {
-    use crate::diff::Param;
+    use crate::medium::Param;
     let m = &scene.medium;
     if let (Light::PlaneWave { direction: d }, View::FarField { direction: v }) = (*light, *view) {
         return Some(far_far_gradient(m, scene.k, d, v, params));
@@ -130,9 +130,9 @@ fn far_far_gradient(
     k: f64,
     d: DVec3,
     v: DVec3,
-    params: &[crate::diff::Param],
+    params: &[crate::medium::Param],
 ) -> (C64, Vec<C64>) {
-    use crate::diff::Param;
+    use crate::medium::Param;
     let Geometry::Box { half } = m.geometry else {
         // a slab's off-specular mean per unit area is 0, and so are its derivatives
         return (C64::default(), vec![C64::default(); params.len()]);
