@@ -1,4 +1,4 @@
-//! `cargo bench`: the same figures as `lightpath bench` (reference scene of issue #2).
+//! `cargo bench`: the same figures as `lightpath bench` (reference scene (`lightpath bench`)).
 
 fn main() {
     let quick = std::env::args().any(|a| a == "--quick");

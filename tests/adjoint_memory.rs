@@ -1,4 +1,4 @@
-//! Memory of the eikonal adjoint (issue #5): the constant-memory pass (ray reconstructed by
+//! Memory of the eikonal adjoint: the constant-memory pass (ray reconstructed by
 //! reversing the integrator) must not allocate more for more steps; the stored-path (tape) pass
 //! grows linearly. Measured with a counting global allocator (bytes requested by this thread during
 //! the call, so tests running in parallel do not disturb each other).

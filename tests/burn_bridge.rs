@@ -1,4 +1,4 @@
-//! The burn bridge (issue #4): the covariance estimator as a burn autodiff operation whose backward
+//! The burn bridge: the covariance estimator as a burn autodiff operation whose backward
 //! is our path-space gradient. Checked against central finite differences of the same loss with
 //! common random numbers, for tabulated phase-function nodes (unnormalised), HG g, σ_s and
 //! particle-type shares at once, composed with ordinary burn operations.

@@ -1,4 +1,4 @@
-//! Ray tracing in graded-index media (issue #5): integrator order on an exact solution, Luneburg and
+//! Ray tracing in graded-index media: integrator order on an exact solution, Luneburg and
 //! Maxwell fish-eye imaging, exact time reversibility.
 
 use glam::DVec3;

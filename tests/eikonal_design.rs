@@ -1,4 +1,4 @@
-//! Graded-index design through the burn bridge (issue #5): tracing as a burn operation whose
+//! Graded-index design through the burn bridge: tracing as a burn operation whose
 //! backward is the constant-memory adjoint over every grid coefficient.
 
 use burn::module::{Module, Param as Variable};

@@ -1,4 +1,4 @@
-//! Fitting analytic index parameters by L-BFGS on exit-adjoint gradients (issue #5): the
+//! Fitting analytic index parameters by L-BFGS on exit-adjoint gradients: the
 //! ultrasonic lens's `n_max` for a requested focal depth against the paraxial closed form.
 
 use glam::DVec3;

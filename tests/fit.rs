@@ -1,4 +1,4 @@
-//! End-to-end fits (issue #4): recover (mfp, g) of a slab from a memory-effect curve rendered at
+//! End-to-end fits: recover (mfp, g) of a slab from a memory-effect curve rendered at
 //! another seed, within the uncertainty the fit reports; a malformed request is a clear error.
 
 use lightpath::app::fit::{FitOptions, fit};

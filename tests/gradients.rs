@@ -1,4 +1,4 @@
-//! Path-space gradients of the covariance (issue #4): re-weighting to the proposal reproduces
+//! Path-space gradients of the covariance: re-weighting to the proposal reproduces
 //! Algorithm 1; every gradient matches central finite differences with common random numbers; and the
 //! gradient is unbiased for the gradient of the expectation.
 

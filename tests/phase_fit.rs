@@ -1,4 +1,4 @@
-//! Fitting a tabulated phase function with burn's Adam (issue #4), and the single-scattering
+//! Fitting a tabulated phase function with burn's Adam, and the single-scattering
 //! reading of paper 004 (Claim 1) that such a fit is compared with.
 
 use glam::DVec3;

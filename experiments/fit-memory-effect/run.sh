@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Recover (mfp, g) of a slab from its memory-effect curve, rendered at another seed (issue #4).
+# Recover (mfp, g) of a slab from its memory-effect curve, rendered at another seed.
 set -euo pipefail
 cd "$(dirname "$0")"
 lp() { cargo run --release -q -- "$@"; }

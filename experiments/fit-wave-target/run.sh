@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Recover the mean free path from a wave-solver covariance (issue #4): the target is exact wave optics
+# Recover the mean free path from a wave-solver covariance: the target is exact wave optics
 # (Foldy–Lax, 8000 placements), the model is the Monte Carlo covariance.
 set -euo pipefail
 cd "$(dirname "$0")"

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Recover a Luneburg lens by design (issue #5): see README.md.
+# Recover a Luneburg lens by design: see README.md.
 set -euo pipefail
 cd "$(dirname "$0")"
 time cargo run --release -q -- design luneburg.toml --out out

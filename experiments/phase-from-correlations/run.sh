@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Recover a tabulated phase function from speckle intensity correlations of a slab at optical depth
-# 3 (paper 004's setup), next to the single-scattering reading of paper 004 (issue #4).
+# 3 (paper 004's setup), next to the single-scattering reading of paper 004.
 set -euo pipefail
 cd "$(dirname "$0")"
 lp() { cargo run --release -q -- "$@"; }

@@ -1,4 +1,4 @@
-//! `lightpath bench`: throughput of the estimators on the reference scene of issue #2 (box 10×10×10 λ,
+//! `lightpath bench`: throughput of the estimators on the reference scene (`lightpath bench`) (box 10×10×10 λ,
 //! mfp 5 λ, isotropic, 4 plane-wave lights, 72 far-field views, reversed paths) and the machine's
 //! matrix-multiply rates for comparison. Timings are measured, never asserted.
 

@@ -384,34 +384,21 @@ fn finish_covariance(
     let part = |order: Order| {
         let (m, s) = (order.block(j, &e.mean), order.block(j, &e.stderr));
         (
-            nest4(nl, nv, |i| m[i].re),
-            nest4(nl, nv, |i| m[i].im),
-            nest4(nl, nv, |i| s[i]),
+            Some(nest4(nl, nv, |i| m[i].re)),
+            Some(nest4(nl, nv, |i| m[i].im)),
+            Some(nest4(nl, nv, |i| s[i])),
         )
     };
-    let (re, im, stderr) = part(Order::Total);
-    let (single_re, single_im, single_stderr) = part(Order::Single);
-    let (multiple_re, multiple_im, multiple_stderr) = part(Order::Multiple);
-    let means = mean_fields(scene)?;
-    let file = CovarianceFile {
-        run: mc_echo(task, scene, plan, seconds),
-        re,
-        im,
-        stderr,
-        single_re: Some(single_re),
-        single_im: Some(single_im),
-        single_stderr: Some(single_stderr),
-        multiple_re: Some(multiple_re),
-        multiple_im: Some(multiple_im),
-        multiple_stderr: Some(multiple_stderr),
-        mean_re: nest2(nl, nv, |a| means[a].re),
-        mean_im: nest2(nl, nv, |a| means[a].im),
-        mean_stderr: None,
-        realizations: None,
-        solver: None,
-        scatterers_mean: None,
-        scatterers_expected: None,
-    };
+    let mut file = CovarianceFile::new(
+        mc_echo(task, scene, plan, seconds),
+        nl,
+        nv,
+        Order::Total.block(j, &e.mean),
+        Order::Total.block(j, &e.stderr),
+        &mean_fields(scene)?,
+    );
+    (file.single_re, file.single_im, file.single_stderr) = part(Order::Single);
+    (file.multiple_re, file.multiple_im, file.multiple_stderr) = part(Order::Multiple);
     let path = out.join(CovarianceFile::NAME);
     file.write(&path)?;
     let diag: Vec<f64> = (0..j)

@@ -8,7 +8,7 @@ use super::run::{Kind, RunOptions, execute};
 use crate::config::SceneTask;
 use crate::error::{Error, Result};
 use crate::io::ResultFile;
-use crate::io::results::{CovarianceFile, RunEcho, nest2, nest4};
+use crate::io::results::{CovarianceFile, RunEcho, nest2};
 use crate::mc::{Block, Plan, merge};
 use crate::speckle::wave::{self, WaveStatistics};
 use std::path::Path;
@@ -112,26 +112,19 @@ pub(crate) fn finish(
     let r = plan.chunks;
     let mut echo = RunEcho::new(&task.config, scene, r, plan.seed, seconds);
     echo.chunk = None;
-    let (cov, se) = (&stats.covariance, &stats.covariance_stderr);
-    let file = CovarianceFile {
-        run: echo,
-        re: nest4(nl, nv, |i| cov[i].re),
-        im: nest4(nl, nv, |i| cov[i].im),
-        stderr: nest4(nl, nv, |i| se[i]),
-        single_re: None,
-        single_im: None,
-        single_stderr: None,
-        multiple_re: None,
-        multiple_im: None,
-        multiple_stderr: None,
-        mean_re: nest2(nl, nv, |a| stats.mean[a].re),
-        mean_im: nest2(nl, nv, |a| stats.mean[a].im),
-        mean_stderr: Some(nest2(nl, nv, |a| stats.mean_stderr[a])),
-        realizations: Some(r),
-        solver: Some("foldy-lax".into()),
-        scatterers_mean: Some(root.sum[j].re / r as f64),
-        scatterers_expected: Some(wave::expected_scatterers(scene)),
-    };
+    let mut file = CovarianceFile::new(
+        echo,
+        nl,
+        nv,
+        &stats.covariance,
+        &stats.covariance_stderr,
+        &stats.mean,
+    );
+    file.mean_stderr = Some(nest2(nl, nv, |a| stats.mean_stderr[a]));
+    file.realizations = Some(r);
+    file.solver = Some("foldy-lax".into());
+    file.scatterers_mean = Some(root.sum[j].re / r as f64);
+    file.scatterers_expected = Some(wave::expected_scatterers(scene));
     let path = out.join(CovarianceFile::NAME);
     file.write(&path)?;
     let took = if seconds.is_finite() {

@@ -14,6 +14,7 @@
 //! e.g. `medium.albedo = 1.3: must be within [0, 1]`. Nothing here panics on user input.
 
 pub mod design;
+mod medium;
 mod scene;
 pub mod trace;
 

@@ -1,4 +1,4 @@
-//! The burn bridge (DESIGN.md, Derivatives): a lightpath estimator as a burn autodiff operation
+//! The burn bridge (ARCHITECTURE.md, Derivatives): a lightpath estimator as a burn autodiff operation
 //! whose backward pass is our own gradient (path-space gradients, adjoint ray equations).
 //!
 //! Users write losses and regularisers in burn tensors and optimise with burn's optimisers (Adam);

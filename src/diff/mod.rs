@@ -1,4 +1,4 @@
-//! Derivatives: path-space gradients of the speckle estimators (DESIGN.md, Derivatives).
+//! Derivatives: path-space gradients of the speckle estimators (ARCHITECTURE.md, Derivatives).
 //!
 //! Paths are drawn from a fixed *proposal* medium and re-weighted to the *target* parameters θ:
 //! an event contributes `w_θ a_θ a_θᴴ` with `w_θ = c_θ(x) / q_proposal(x)`. For fixed random numbers

@@ -1,4 +1,4 @@
-//! Refractive-index fields `n(x)` with analytic gradients and Hessians (issue #5), bounded by a
+//! Refractive-index fields `n(x)` with analytic gradients and Hessians, bounded by a
 //! geometry outside which `n` is the constant `n_out`.
 
 use glam::{DMat3, DVec3};

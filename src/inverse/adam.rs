@@ -1,4 +1,4 @@
-//! Many-parameter fits with burn's Adam through the burn bridge (issue #4): typically every node
+//! Many-parameter fits with burn's Adam through the burn bridge: typically every node
 //! value of a tabulated phase function, optionally with `mfp`, `albedo`, `g`.
 //!
 //! The loss is written in burn tensors: the covariance entries are a burn operation

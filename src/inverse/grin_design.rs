@@ -1,4 +1,4 @@
-//! Graded-index design (issue #5; lecture 003's GRIN optimisation targets): shape a grid index
+//! Graded-index design (lecture 003's GRIN optimisation targets): shape a grid index
 //! field so collimated beams pass through their foci, by burn's Adam through [`TraceOp`], coarse to
 //! fine.
 //!

@@ -1,4 +1,4 @@
-//! Fitting material parameters to measured speckle statistics (issue #4): losses on rendered vs
+//! Fitting material parameters to measured speckle statistics: losses on rendered vs
 //! target statistics, a deterministic objective from re-weighted proposal paths, L-BFGS (argmin), and
 //! a Gauss–Newton uncertainty estimate.
 //!

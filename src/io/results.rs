@@ -220,6 +220,37 @@ pub struct CovarianceMatrix {
 }
 
 impl CovarianceFile {
+    /// A covariance `cov` (`J×J`, `j = l·V + v`) with standard errors `stderr` and mean fields
+    /// `mean`; the optional parts (scattering orders, wave-solver statistics) empty.
+    pub fn new(
+        run: RunEcho,
+        nl: usize,
+        nv: usize,
+        cov: &[C64],
+        stderr: &[f64],
+        mean: &[C64],
+    ) -> Self {
+        CovarianceFile {
+            run,
+            re: nest4(nl, nv, |i| cov[i].re),
+            im: nest4(nl, nv, |i| cov[i].im),
+            stderr: nest4(nl, nv, |i| stderr[i]),
+            single_re: None,
+            single_im: None,
+            single_stderr: None,
+            multiple_re: None,
+            multiple_im: None,
+            multiple_stderr: None,
+            mean_re: nest2(nl, nv, |a| mean[a].re),
+            mean_im: nest2(nl, nv, |a| mean[a].im),
+            mean_stderr: None,
+            realizations: None,
+            solver: None,
+            scatterers_mean: None,
+            scatterers_expected: None,
+        }
+    }
+
     /// The total covariance as a flat matrix; errors if the nested arrays are ragged.
     pub fn matrix(&self, path: &Path) -> Result<CovarianceMatrix, String> {
         let nl = self.re.len();
