@@ -95,8 +95,9 @@ enum Command {
         seed: Option<u64>,
         #[arg(long)]
         threads: Option<usize>,
-        /// Proposal re-centring stages
-        #[arg(long, default_value_t = 3)]
+        /// At most this many trust-region stages (each re-centres the proposal); the fit stops
+        /// earlier when it has converged
+        #[arg(long, default_value_t = 30)]
         stages: usize,
         /// L-BFGS iterations per stage (default 15), or Adam iterations (default 150)
         #[arg(long)]
@@ -371,7 +372,13 @@ fn main() -> ExitCode {
             for f in o.files {
                 println!("wrote {}", f.display());
             }
-            ExitCode::SUCCESS
+            match o.not_converged {
+                Some(warning) => {
+                    eprintln!("{warning}");
+                    ExitCode::from(3)
+                }
+                None => ExitCode::SUCCESS,
+            }
         }
         Err(e) => {
             eprintln!("error: {e}");

@@ -177,6 +177,7 @@ pub fn fit(task: SceneTask, target_path: &Path, opts: &FitOptions, out: &Path) -
             .collect(),
         learning_rate: None,
         smooth: None,
+        convergence: Some(res.convergence),
         samples: cfg.render.samples,
         seed: cfg.render.seed,
         seconds,
@@ -193,7 +194,11 @@ pub fn fit(task: SceneTask, target_path: &Path, opts: &FitOptions, out: &Path) -
         &res.model_fitted,
         out,
     )?);
-    let mut summary = format!("fit in {seconds:.1} s, final loss {:.4e}\n", res.loss);
+    let mut summary = format!(
+        "fit in {seconds:.1} s, final loss {:.4e}; {}\n",
+        res.loss,
+        res.convergence.line()
+    );
     for (i, n) in names.iter().enumerate() {
         summary += &format!(
             "  {n:>8}: {:.5} → {:.5} ± {:.5}\n",
@@ -210,7 +215,11 @@ pub fn fit(task: SceneTask, target_path: &Path, opts: &FitOptions, out: &Path) -
             summary += "\n";
         }
     }
-    Ok(Outcome { files, summary })
+    Ok(Outcome {
+        files,
+        summary,
+        not_converged: res.convergence.warning(),
+    })
 }
 
 /// fit.png for a memory-curve target: the target with error bars, the initial and fitted model.
@@ -303,6 +312,7 @@ fn adam_fit(
             .collect(),
         learning_rate: Some(fit.settings.learning_rate),
         smooth: Some(fit.settings.smooth),
+        convergence: Some(res.convergence),
         samples: fit.settings.samples,
         seed: fit.settings.seed,
         seconds,
@@ -333,8 +343,9 @@ fn adam_fit(
         out,
     )?);
     let mut summary = format!(
-        "Adam fit in {seconds:.1} s ({} iterations), final loss {:.4e} over {:.0} degrees of freedom\n",
+        "Adam fit in {seconds:.1} s ({} iterations, {}), final loss {:.4e} over {:.0} degrees of freedom\n",
         res.log.len(),
+        res.convergence.line(),
         res.loss,
         res.dof
     );
@@ -344,5 +355,9 @@ fn adam_fit(
             res.initial[i], res.fitted[i], res.stddev[i]
         );
     }
-    Ok(Outcome { files, summary })
+    Ok(Outcome {
+        files,
+        summary,
+        not_converged: res.convergence.warning(),
+    })
 }

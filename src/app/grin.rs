@@ -68,6 +68,7 @@ pub fn design(task: &DesignTask, show: bool, out: &Path) -> Result<Outcome> {
             min: profile.iter().map(|p| p.2).collect(),
             max: profile.iter().map(|p| p.3).collect(),
         },
+        convergence: Some(res.convergence),
         seconds,
         version: env!("CARGO_PKG_VERSION").into(),
         config: cfg.clone(),
@@ -125,13 +126,15 @@ pub fn design(task: &DesignTask, show: bool, out: &Path) -> Result<Outcome> {
     let exr_path = out.join("grid_slice_z.exr");
     crate::io::exr::write_scalar(&exr_path, &slice, nx, ny, "n")?;
     let summary = format!(
-        "design in {seconds:.1} s ({} iterations over {} level(s)): RMS miss distance {:.4e} → {:.4e}",
+        "design in {seconds:.1} s ({} iterations over {} level(s); {}): RMS miss distance {:.4e} → {:.4e}",
         res.log.len(),
         problem.levels.len(),
+        res.convergence.line(),
         res.rms_miss_initial,
         res.rms_miss_final
     );
     Ok(Outcome {
+        not_converged: res.convergence.warning(),
         files: vec![path, loss_png, profile_png, exr_path],
         summary,
     })
@@ -169,6 +172,7 @@ pub fn param_fit(task: &ParamFitTask, show: bool, out: &Path) -> Result<Outcome>
                 mean_miss2: s.mean_miss2,
             })
             .collect(),
+        convergence: Some(res.convergence),
         seconds,
         version: env!("CARGO_PKG_VERSION").into(),
         config: cfg.clone(),
@@ -216,8 +220,8 @@ pub fn param_fit(task: &ParamFitTask, show: bool, out: &Path) -> Result<Outcome>
     let rays_png = out.join("rays.png");
     crate::io::plot::ray_paths(&rays_png, &paths)?;
     let mut summary = format!(
-        "L-BFGS fit in {seconds:.1} s ({} evaluations): RMS miss distance {:.4e} → {:.4e}\n",
-        res.log.len(),
+        "L-BFGS fit in {seconds:.1} s ({}): RMS miss distance {:.4e} → {:.4e}\n",
+        res.convergence.line(),
         res.rms_miss_initial,
         res.rms_miss_final
     );
@@ -225,6 +229,7 @@ pub fn param_fit(task: &ParamFitTask, show: bool, out: &Path) -> Result<Outcome>
         summary += &format!("  {n}: {:.6e} → {:.6e}\n", res.initial[i], res.fitted[i]);
     }
     Ok(Outcome {
+        not_converged: res.convergence.warning(),
         files: vec![path, loss_png, rays_png],
         summary: summary.trim_end().to_string(),
     })
@@ -309,6 +314,7 @@ pub fn trace(task: &TraceTask, out: &Path) -> Result<Outcome> {
     crate::io::plot::ray_paths(&png, &paths)?;
     let exited = traced.iter().filter(|t| t.0.exited && t.0.entered).count();
     Ok(Outcome {
+        not_converged: None,
         files: vec![path, png],
         summary: format!(
             "traced {} rays ({exited} through the field) in {seconds:.2} s",

@@ -27,6 +27,9 @@ use std::path::{Path, PathBuf};
 pub struct Outcome {
     pub files: Vec<PathBuf>,
     pub summary: String,
+    /// Set when a fit or design did not converge: printed on stderr, and the command exits with
+    /// status 3 (its files are written, marked `"converged": false`).
+    pub not_converged: Option<String>,
 }
 
 impl Outcome {
@@ -35,6 +38,7 @@ impl Outcome {
         Outcome {
             files: vec![],
             summary: summary.into(),
+            not_converged: None,
         }
     }
 }

@@ -153,6 +153,7 @@ pub(crate) fn execute(
             source,
         })?;
         return Ok(Outcome {
+            not_converged: None,
             summary: format!(
                 "shard {}/{} of {} done in {:.1} s; combine all shards with `lightpath merge`",
                 shard[0],
@@ -411,6 +412,7 @@ fn finish_covariance(
         diag.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
     );
     Ok(Outcome {
+        not_converged: None,
         files: vec![path],
         summary,
     })
@@ -458,6 +460,7 @@ fn finish_memory(
         );
     }
     Ok(Outcome {
+        not_converged: None,
         files: vec![path, png],
         summary,
     })
@@ -512,6 +515,7 @@ fn finish_speckle(
         );
     }
     Ok(Outcome {
+        not_converged: None,
         summary: format!(
             "{reals} speckle image(s) of {nl} light(s) × {nv} view(s), {} paths each",
             plan.samples()

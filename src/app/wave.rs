@@ -133,6 +133,7 @@ pub(crate) fn finish(
         "merged from shards".into()
     };
     Ok(Outcome {
+        not_converged: None,
         files: vec![path],
         summary: format!(
             "{r} placements, ~{:.0} scatterers each; {took}",

@@ -12,8 +12,6 @@ use crate::diff::TraceOp;
 use crate::diff::bridge::{apply, device, tensor, values};
 use crate::eikonal::grid::{GridField, Interp};
 use crate::eikonal::{BoundedField, IndexField, Profile, Ray};
-use burn::module::{Module, Param as Variable};
-use burn::optim::{AdamConfig, GradientsParams};
 use burn::tensor::Tensor;
 use glam::DVec3;
 
@@ -67,11 +65,9 @@ pub struct DesignResult {
     /// RMS miss distance of the starting and the final field.
     pub rms_miss_initial: f64,
     pub rms_miss_final: f64,
-}
-
-#[derive(Module, Debug)]
-struct Coefficients {
-    c: Variable<Tensor<1>>,
+    /// Adam runs a fixed number of iterations per level: converged when the last level's loss has
+    /// reached a plateau.
+    pub convergence: super::Convergence,
 }
 
 impl FocusDesign {
@@ -174,6 +170,7 @@ impl FocusDesign {
         let foci = tensor(&foci, &dev).reshape([rays_total, 3]);
         let mut grid = self.grid_at(self.levels[0], vec![self.initial; self.levels[0].pow(3)])?;
         let mut log = Vec::new();
+        let mut last_grad_norm = f64::NAN;
         let miss = |g: &GridField| -> Result<f64, String> {
             let field = self.field_with(g);
             let op = self.op(field);
@@ -192,37 +189,59 @@ impl FocusDesign {
                 grid = self.grid_at(n, samples)?;
             }
             let op = self.op(self.field_with(&grid));
-            let mut vars = Coefficients {
-                c: Variable::from_tensor(tensor(&grid.coef, &dev)),
-            };
-            let mut optimiser = AdamConfig::new().init();
-            for iteration in 0..self.iterations {
-                let c = vars.c.val();
-                let y = apply(&op, c.clone())
-                    .map_err(|e| format!("design level {level}, iteration {iteration}: {e}"))?;
-                let (miss2, loss) = self.loss(y, c, &foci, n);
-                let entry = DesignStep {
-                    level,
-                    iteration,
-                    miss2: values(&miss2)[0],
-                    loss: values(&loss)[0],
-                };
-                if !entry.loss.is_finite() {
-                    return Err(format!(
-                        "design level {level}, iteration {iteration}: the loss is not finite; try a smaller learning_rate"
-                    ));
-                }
-                progress(&entry);
-                log.push(entry);
-                let grads = GradientsParams::from_grads(loss.backward(), &vars);
-                vars = optimiser.step(self.learning_rate, vars, grads);
-            }
-            grid.coef = values(&vars.c.val());
+            grid.coef = super::adam::minimise(
+                &grid.coef,
+                self.iterations,
+                &|_| self.learning_rate,
+                &mut |iteration, c| {
+                    let y = apply(&op, c.clone())
+                        .map_err(|e| format!("design level {level}, iteration {iteration}: {e}"))?;
+                    let (miss2, loss) = self.loss(y, c, &foci, n);
+                    let entry = DesignStep {
+                        level,
+                        iteration,
+                        miss2: values(&miss2)[0],
+                        loss: values(&loss)[0],
+                    };
+                    Ok((loss, entry))
+                },
+                &mut |it| {
+                    let entry = it.observed;
+                    if !entry.loss.is_finite() {
+                        return Err(format!(
+                            "design level {level}, iteration {}: the loss is not finite; try a smaller learning_rate",
+                            entry.iteration
+                        ));
+                    }
+                    last_grad_norm = it.grad_norm;
+                    progress(&entry);
+                    log.push(entry);
+                    Ok(())
+                },
+            )?;
         }
         let grid_samples = (0..grid.coef.len())
             .map(|i| grid.eval(Self::node(&grid, i)).0)
             .collect();
+        let last_level: Vec<f64> = log
+            .iter()
+            .filter(|s| s.level + 1 == self.levels.len())
+            .map(|s| s.loss)
+            .collect();
+        let stop = if super::adam::plateaued(&last_level) {
+            super::FitStop::LossPlateau
+        } else {
+            super::FitStop::IterationLimit
+        };
+        let convergence = super::Convergence {
+            converged: stop.converged(),
+            stop,
+            grad_norm: last_grad_norm,
+            evaluations: log.len(),
+            iterations: log.len(),
+        };
         Ok(DesignResult {
+            convergence,
             field: self.field_with(&grid),
             rms_miss_final: miss(&grid)?,
             grid,

@@ -6,11 +6,9 @@
 //! `x_exit + t d_exit` — a focus may lie on the exit face or beyond it.
 
 use super::grin_design::Beam;
+use super::lbfgs;
 use crate::eikonal::FieldParam;
 use crate::eikonal::{BoundedField, Tracer};
-use argmin::core::{CostFunction, Error as ArgminError, Executor, Gradient, State};
-use argmin::solver::linesearch::MoreThuenteLineSearch;
-use argmin::solver::quasinewton::LBFGS;
 use glam::DVec3;
 use rayon::prelude::*;
 use std::sync::Mutex;
@@ -44,6 +42,7 @@ pub struct ParamFitResult {
     pub log: Vec<FitStep>,
     pub rms_miss_initial: f64,
     pub rms_miss_final: f64,
+    pub convergence: super::Convergence,
 }
 
 /// Squared distance of `focus` from the line `x + t d` (unit `d`) and its gradients in `x`, `d`.
@@ -147,29 +146,40 @@ impl ParamFit {
             .sum::<f64>()
             .sqrt();
         let log = Mutex::new(Vec::new());
-        let problem = Objective {
+        let objective = Scaled {
             fit: self,
             scale: scale.clone(),
             loss_scale: if gnorm > 0.0 { 1.0 / gnorm } else { 1.0 },
-            log: &log,
-            progress,
-            last: Mutex::new(None),
         };
-        let solver = LBFGS::new(MoreThuenteLineSearch::new(), 7)
-            .with_tolerance_grad(1e-12)
-            .map_err(|e| e.to_string())?
-            .with_tolerance_cost(1e-14)
-            .map_err(|e| e.to_string())?;
+        let observe = |e: &lbfgs::Evaluation| {
+            if let Ok(mut log) = log.lock() {
+                let step = FitStep {
+                    evaluation: e.index,
+                    params: e.x.iter().zip(&scale).map(|(u, s)| u * s).collect(),
+                    mean_miss2: e.loss / objective.loss_scale,
+                };
+                progress(&step);
+                log.push(step);
+            }
+        };
+        let settings = lbfgs::Settings {
+            max_iters: self.iterations,
+            grad_tol: 1e-12,
+            cost_tol: 1e-14,
+            bounds: None,
+        };
         let u0: Vec<f64> = initial.iter().zip(&scale).map(|(v, s)| v / s).collect();
-        let res = Executor::new(problem, solver)
-            .configure(|s| s.param(u0).max_iters(self.iterations as u64))
-            .run()
+        let out = lbfgs::minimise(&objective, &u0, &settings, &observe)
             .map_err(|e| format!("fit: {e}"))?;
-        let best = res
-            .state()
-            .get_best_param()
-            .cloned()
-            .ok_or("fit: no parameters evaluated")?;
+        let best = out.x.clone();
+        let stop = super::FitStop::from(&out.stop);
+        let convergence = super::Convergence {
+            converged: stop.converged(),
+            stop,
+            grad_norm: out.grad_norm / objective.loss_scale,
+            evaluations: out.evaluations,
+            iterations: out.iterations,
+        };
         let fitted: Vec<f64> = best.iter().zip(&scale).map(|(u, s)| u * s).collect();
         let (l1, _) = self.loss_and_gradient(&fitted)?;
         Ok(ParamFitResult {
@@ -179,70 +189,27 @@ impl ParamFit {
             log: log.into_inner().unwrap_or_default(),
             rms_miss_initial: l0.sqrt(),
             rms_miss_final: l1.sqrt(),
+            convergence,
         })
     }
 }
 
-/// `(u, loss, gradient)` in the scaled variables.
-type Evaluation = (Vec<f64>, f64, Vec<f64>);
-
-struct Objective<'a> {
+/// The loss in the scaled variables `u_i = θ_i / s_i`, scaled so the first gradient has unit norm.
+struct Scaled<'a> {
     fit: &'a ParamFit,
     scale: Vec<f64>,
-    /// Makes the first gradient (in `u`) of unit norm, so the first trial step is modest.
     loss_scale: f64,
-    log: &'a Mutex<Vec<FitStep>>,
-    progress: &'a (dyn Fn(&FitStep) + Sync),
-    /// The last evaluation (argmin asks for cost and gradient at the same point separately).
-    last: Mutex<Option<Evaluation>>,
 }
 
-impl Objective<'_> {
-    fn eval(&self, u: &[f64]) -> Result<(f64, Vec<f64>), ArgminError> {
-        if let Ok(last) = self.last.lock()
-            && let Some((lu, l, g)) = last.as_ref()
-            && lu.as_slice() == u
-        {
-            return Ok((*l, g.clone()));
-        }
+impl lbfgs::Objective for Scaled<'_> {
+    fn eval(&self, u: &[f64]) -> Result<(f64, Vec<f64>), String> {
         let theta: Vec<f64> = u.iter().zip(&self.scale).map(|(u, s)| u * s).collect();
-        let (l, g) = self
-            .fit
-            .loss_and_gradient(&theta)
-            .map_err(ArgminError::msg)?;
-        if let Ok(mut log) = self.log.lock() {
-            let step = FitStep {
-                evaluation: log.len(),
-                params: theta,
-                mean_miss2: l,
-            };
-            (self.progress)(&step);
-            log.push(step);
-        }
+        let (l, g) = self.fit.loss_and_gradient(&theta)?;
         let gu = g
             .iter()
             .zip(&self.scale)
             .map(|(g, s)| g * s * self.loss_scale)
-            .collect::<Vec<f64>>();
-        if let Ok(mut last) = self.last.lock() {
-            *last = Some((u.to_vec(), l * self.loss_scale, gu.clone()));
-        }
+            .collect();
         Ok((l * self.loss_scale, gu))
-    }
-}
-
-impl CostFunction for Objective<'_> {
-    type Param = Vec<f64>;
-    type Output = f64;
-    fn cost(&self, u: &Vec<f64>) -> Result<f64, ArgminError> {
-        self.eval(u).map(|r| r.0)
-    }
-}
-
-impl Gradient for Objective<'_> {
-    type Param = Vec<f64>;
-    type Gradient = Vec<f64>;
-    fn gradient(&self, u: &Vec<f64>) -> Result<Vec<f64>, ArgminError> {
-        self.eval(u).map(|r| r.1)
     }
 }

@@ -511,6 +511,49 @@ impl Target {
         }
     }
 
+    /// The residuals' vector–Jacobian product `Σ_i a_i ∂r_i/∂C` at `c`, as an adjoint in the
+    /// convention of [`Self::loss`] (`d(Σ a_i r_i) = Re Σ conj(Ā) dC`): the loss adjoint of the same
+    /// target with its values moved so that its residuals at `c` are `a`, halved.
+    pub fn residual_vjp(&self, c: &[C64], a: &[f64]) -> Vec<C64> {
+        let mut t = self.clone();
+        match &mut t {
+            Target::Memory {
+                correlation,
+                stderr,
+                ..
+            } => {
+                let m = self.model_values(c);
+                for (k, corr) in correlation.iter_mut().enumerate() {
+                    *corr = m[k] - a[k] * stderr.as_ref().map_or(1.0, |s| s[k]);
+                }
+            }
+            Target::Covariance { value, stderr, .. } => {
+                for (e, (v, s)) in value.iter_mut().zip(stderr.iter()).enumerate() {
+                    *v = c[e] - C64::new(a[2 * e], a[2 * e + 1]) * s.max(1e-300);
+                }
+            }
+            Target::Entries { entries, stderr } => {
+                let j = entry_pairs(entries).len();
+                let idx = self.entry_indices();
+                let mut r = 0;
+                for (i, (e, (p, q))) in entries.iter_mut().zip(idx).enumerate() {
+                    let (m, s) = (c[p * j + q], stderr.as_ref().map_or(1.0, |s| s[i]));
+                    e.value = match e.value {
+                        Measured::Field(_) => {
+                            r += 2;
+                            Measured::Field(m - C64::new(a[r - 2], a[r - 1]) * s)
+                        }
+                        Measured::Intensity(_) => {
+                            r += 1;
+                            Measured::Intensity(m.norm_sqr() - a[r - 1] * s)
+                        }
+                    };
+                }
+            }
+        }
+        t.loss(c).1.into_iter().map(|z| z * 0.5).collect()
+    }
+
     /// Loss `Σ residual²` and its adjoint `∂L/∂C` (`dL = Re Σ conj(Ā) dC`).
     pub fn loss(&self, c: &[C64]) -> (f64, Vec<C64>) {
         let mut adj = vec![C64::default(); c.len()];

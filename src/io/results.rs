@@ -390,6 +390,9 @@ pub struct FitFile {
     pub learning_rate: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub smooth: Option<f64>,
+    /// How the fit ended (absent in files written before it was recorded).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub convergence: Option<crate::inverse::Convergence>,
     pub samples: u64,
     pub seed: u64,
     pub seconds: f64,
@@ -462,6 +465,9 @@ pub struct DesignFile {
     pub rms_miss_initial: f64,
     pub rms_miss_final: f64,
     pub log: Vec<DesignLogLine>,
+    /// How the fit ended (absent in files written before it was recorded).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub convergence: Option<crate::inverse::Convergence>,
     pub grid: GridRecord,
     pub radial_profile: RadialProfile,
     pub seconds: f64,
@@ -489,6 +495,9 @@ pub struct GrinFitFile {
     pub rms_miss_initial: f64,
     pub rms_miss_final: f64,
     pub log: Vec<GrinFitLogLine>,
+    /// How the fit ended (absent in files written before it was recorded).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub convergence: Option<crate::inverse::Convergence>,
     pub seconds: f64,
     pub version: String,
     pub config: crate::config::ParamFitConfig,

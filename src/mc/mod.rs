@@ -216,6 +216,63 @@ pub fn estimate<E: Estimator>(est: &E, plan: &Plan) -> Estimate {
     Estimate::from_block(&root, plan)
 }
 
+/// Real linear functionals `x_k = Re Σ_e conj(w_ke) out_e` of another estimator's outputs, so that
+/// the chunk-to-chunk covariance of a few projections (e.g. how a fit's parameters respond to the
+/// model's Monte Carlo noise) is estimated without keeping every output of every chunk.
+pub struct Projected<'w, E> {
+    pub inner: E,
+    pub weights: &'w [Vec<C64>],
+}
+
+impl<E: Estimator> Estimator for Projected<'_, E> {
+    type Scratch = (E::Scratch, Vec<C64>);
+
+    fn outputs(&self) -> usize {
+        self.weights.len()
+    }
+
+    fn scratch(&self) -> Self::Scratch {
+        (
+            self.inner.scratch(),
+            vec![C64::default(); self.inner.outputs()],
+        )
+    }
+
+    fn run_chunk(&self, rng: &mut Rng, paths: u64, s: &mut Self::Scratch, out: &mut [C64]) {
+        s.1.iter_mut().for_each(|z| *z = C64::default());
+        self.inner.run_chunk(rng, paths, &mut s.0, &mut s.1);
+        for (o, w) in out.iter_mut().zip(self.weights) {
+            *o += w
+                .iter()
+                .zip(&s.1)
+                .map(|(w, z)| (w.conj() * z).re)
+                .sum::<f64>();
+        }
+    }
+}
+
+/// Covariance matrix of the means of the kept outputs' real parts, by batch means over the chunks
+/// of a root block (`kept`: chunk after chunk, `n` outputs each).
+pub fn kept_covariance(kept: &[C64], n: usize) -> Vec<Vec<f64>> {
+    let chunks = kept.len() / n.max(1);
+    let mean: Vec<f64> = (0..n)
+        .map(|k| (0..chunks).map(|c| kept[c * n + k].re).sum::<f64>() / chunks as f64)
+        .collect();
+    let norm = ((chunks as f64 - 1.0) * chunks as f64).max(1.0);
+    (0..n)
+        .map(|a| {
+            (0..n)
+                .map(|b| {
+                    (0..chunks)
+                        .map(|c| (kept[c * n + a].re - mean[a]) * (kept[c * n + b].re - mean[b]))
+                        .sum::<f64>()
+                        / norm
+                })
+                .collect()
+        })
+        .collect()
+}
+
 /// Mean and standard error (batch means over chunks) of every output.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Estimate {
