@@ -144,7 +144,26 @@ fn design_command_fits_parameters() {
     let c1 = v["fitted"][0].as_f64().unwrap();
     assert!((c1 / -0.1875 - 1.0).abs() < 1e-3, "c1 = {c1}");
     assert!(d.join("fit/loss.png").exists() && d.join("fit/rays.png").exists());
+    assert_eq!(v["convergence"]["converged"], true, "{}", v["convergence"]);
     let text = std::fs::read_to_string(cfg).unwrap();
+    // one L-BFGS iteration cannot converge: said in fit.json, on stderr and by exit status 3
+    let short = d.join("short.toml");
+    std::fs::write(&short, text.replace("iterations = 100", "iterations = 1")).unwrap();
+    let o = std::process::Command::new(bin)
+        .args(["design", short.to_str().unwrap(), "--quiet", "--out"])
+        .arg(d.join("short"))
+        .output()
+        .unwrap();
+    assert_eq!(
+        o.status.code(),
+        Some(3),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(String::from_utf8_lossy(&o.stderr).contains("iteration limit"));
+    let v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(d.join("short/fit.json")).unwrap()).unwrap();
+    assert_eq!(v["convergence"]["stop"], "iteration_limit");
     for (name, bad, needle) in [
         (
             "name.toml",

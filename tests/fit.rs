@@ -98,6 +98,56 @@ fn recovers_mfp_and_g_from_a_memory_effect_curve() {
     );
 }
 
+/// Adam on a memory-effect curve: the uncertainty counts the model's own Monte Carlo error
+/// (delta method over the chunks of a run at the fitted medium), the truth lies within 3 sd, and the
+/// fixed-length run reports whether its loss reached a plateau.
+#[test]
+fn adam_fits_a_memory_curve_with_model_errors() {
+    let d = std::env::temp_dir().join(format!("lightpath-fit-adam-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    run_scene(
+        Kind::MemoryEffect,
+        scene_from_text(TRUTH).unwrap(),
+        &RunOptions::default(),
+        &d.join("target"),
+    )
+    .unwrap();
+    let start = TRUTH
+        .replace("mfp = 20.0", "mfp = 28.0")
+        .replace("seed = 7", "seed = 1");
+    let opts = FitOptions {
+        fit: "mfp".into(),
+        samples: None,
+        seed: None,
+        stages: 1,
+        iterations: Some(80),
+        optimizer: Some("adam".into()),
+        learning_rate: 0.1,
+        smooth: 0.0,
+        progress: false,
+    };
+    let out = fit(
+        scene_from_text(&start).unwrap(),
+        &d.join("target/memory_effect.json"),
+        &opts,
+        &d.join("fit"),
+    )
+    .unwrap();
+    eprintln!("{}", out.summary);
+    let v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(d.join("fit/fit.json")).unwrap()).unwrap();
+    let (f, s) = (
+        v["fitted"][0].as_f64().unwrap(),
+        v["stddev"][0].as_f64().unwrap(),
+    );
+    assert!(
+        s > 0.0 && s.is_finite() && (f - 20.0).abs() < 3.0 * s,
+        "{f} ± {s}"
+    );
+    assert_eq!(v["convergence"]["converged"], true, "{}", out.summary);
+    assert_eq!(v["convergence"]["stop"], "loss_plateau");
+}
+
 #[test]
 fn bad_fit_requests_are_clear_errors() {
     let d = std::env::temp_dir().join(format!("lightpath-fit-bad-{}", std::process::id()));

@@ -157,27 +157,18 @@ impl Fit<'_> {
     fn uncertainty(&self, v: &[f64], proposal: &Scene) -> Result<Uncertainty, String> {
         // uncertainty: Gauss–Newton at the optimum, Jacobian of the residuals by central differences
         // of the smooth re-weighted objective (proposal at the optimum)
-        let (at_opt, kept) = {
-            let target = medium_with(&self.scene.medium, &self.params, v);
-            let r = Reweighted::new(
-                proposal,
-                target,
-                self.target.pairs(self.scene),
-                self.settings.reversed,
-                vec![],
-            )?;
-            let plan = Plan::new(
-                self.settings.seed,
+        let (at_opt, kept) = super::model_with_chunks(
+            proposal,
+            medium_with(&self.scene.medium, &self.params, v),
+            self.target,
+            self.scene,
+            (
                 self.settings.samples,
                 self.settings.chunk,
-            );
-            let est = ReweightedCovariance(r);
-            let root = merge(
-                run(&est, &plan, 0..plan.chunks, &self.target.keep(), &|_| {}),
-                plan.chunks,
-            )?;
-            (Estimate::from_block(&root, &plan), root.kept)
-        };
+                self.settings.seed,
+            ),
+            self.settings.reversed,
+        )?;
         let r0 = self.target.residuals(&at_opt.mean);
         // the model's per-residual Monte Carlo error (residual units) only sets the expected size
         // of the loss (the Birge ratio below); how the model noise moves the parameters, correlated

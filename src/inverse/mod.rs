@@ -164,3 +164,31 @@ pub(crate) fn standard_deviations(cov: &faer::Mat<f64>) -> (Vec<f64>, Vec<Vec<f6
         .collect();
     (sd, corr)
 }
+
+/// The model covariance of `target`'s pairs for `medium`, re-weighted from paths of `proposal`,
+/// with the per-chunk means of the outputs the target keeps (for its model errors):
+/// `(samples, chunk, seed)` as the fit's objective draws them.
+pub(crate) fn model_with_chunks(
+    proposal: &crate::speckle::Scene,
+    medium: crate::medium::Medium,
+    target: &Target,
+    scene: &crate::speckle::Scene,
+    (samples, chunk, seed): (u64, u64, u64),
+    reversed: bool,
+) -> Result<(crate::mc::Estimate, Vec<crate::math::C64>), String> {
+    use crate::diff::{Reweighted, ReweightedCovariance};
+    use crate::mc::{Estimate, Plan, merge, run};
+    let r = Reweighted::new(proposal, medium, target.pairs(scene), reversed, vec![])?;
+    let plan = Plan::new(seed, samples, chunk);
+    let root = merge(
+        run(
+            &ReweightedCovariance(r),
+            &plan,
+            0..plan.chunks,
+            &target.keep(),
+            &|_| {},
+        ),
+        plan.chunks,
+    )?;
+    Ok((Estimate::from_block(&root, &plan), root.kept))
+}

@@ -296,7 +296,7 @@ impl AdamFit<'_> {
         let nodes = cos.len();
         let (initial, _) = self.natural(u0, nodes)?;
         let (fitted, medium) = self.natural(u, nodes)?;
-        let fixed = self.op(nodes, Proposal::Fixed(medium), self.settings.seed)?;
+        let fixed = self.op(nodes, Proposal::Fixed(medium.clone()), self.settings.seed)?;
         let loss_op = TargetLoss {
             target: self.target,
             j: fixed.pairs.len(),
@@ -315,9 +315,28 @@ impl AdamFit<'_> {
         let (c, sd) = model(u)?;
         let r0 = self.target.residuals(&c);
         // the model's own Monte Carlo error damps each residual (as in the L-BFGS fit); a memory
-        // curve's needs per-chunk data and is left undamped here
+        // curve's comes from the per-chunk estimates of a run at the fitted medium (delta method)
         let damp: Vec<f64> = match self.target {
-            Target::Memory { .. } => vec![1.0; r0.len()],
+            Target::Memory { .. } => {
+                let scene = Scene {
+                    medium: medium.clone(),
+                    ..self.scene.clone()
+                };
+                let s = &self.settings;
+                let (est, kept) = super::model_with_chunks(
+                    &scene,
+                    medium.clone(),
+                    self.target,
+                    self.scene,
+                    (s.samples, s.chunk, s.seed),
+                    s.reversed,
+                )?;
+                self.target
+                    .model_stderr(&est, &kept)
+                    .iter()
+                    .map(|m| 1.0 / (1.0 + m * m).sqrt())
+                    .collect()
+            }
             _ => {
                 let est = crate::mc::Estimate {
                     mean: c.clone(),
