@@ -41,6 +41,22 @@ fn json(path: &Path) -> serde_json::Value {
     serde_json::from_slice(&std::fs::read(path).unwrap()).unwrap()
 }
 
+/// Render the target covariance of `truth` into `d/target`; returns its covariance.json.
+fn target(d: &Path, truth: &str) -> std::path::PathBuf {
+    std::fs::create_dir_all(d).unwrap();
+    std::fs::write(d.join("truth.toml"), truth).unwrap();
+    let out = d.join("target");
+    let o = lightpath(&[
+        "covariance",
+        d.join("truth.toml").to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    out.join("covariance.json")
+}
+
 /// A scene config that starts the fit at `mfp` with the model's own samples and seed.
 fn start(d: &Path, mfp: f64) -> String {
     let text = TRUTH
@@ -56,18 +72,7 @@ fn start(d: &Path, mfp: f64) -> String {
 fn starts_above_and_below_reach_one_optimum_and_the_truth() {
     let d = std::env::temp_dir().join(format!("lightpath-fitconv-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    std::fs::write(d.join("truth.toml"), TRUTH).unwrap();
-    let target = d.join("target");
-    let o = lightpath(&[
-        "covariance",
-        d.join("truth.toml").to_str().unwrap(),
-        "--out",
-        target.to_str().unwrap(),
-        "--quiet",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let target = target.join("covariance.json");
+    let target = target(&d, TRUTH);
     let mut fits = Vec::new();
     for mfp in [10.0, 2.5, 20.0] {
         let out = d.join(format!("fit_{mfp}"));
@@ -113,23 +118,13 @@ fn starts_above_and_below_reach_one_optimum_and_the_truth() {
 fn a_fit_that_hits_its_limit_says_so() {
     let d = std::env::temp_dir().join(format!("lightpath-fitlimit-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    std::fs::write(d.join("truth.toml"), TRUTH.replace("200000", "20000")).unwrap();
-    let target = d.join("target");
-    let o = lightpath(&[
-        "covariance",
-        d.join("truth.toml").to_str().unwrap(),
-        "--out",
-        target.to_str().unwrap(),
-        "--quiet",
-    ]);
-    assert!(o.status.success());
+    let target = target(&d, &TRUTH.replace("200000", "20000"));
     let out = d.join("fit");
     let o = lightpath(&[
         "fit",
         &start(&d, 10.0),
         "--target",
-        target.join("covariance.json").to_str().unwrap(),
+        target.to_str().unwrap(),
         "--fit",
         "mfp",
         "--stages",
