@@ -236,29 +236,37 @@ impl Fit<'_> {
         } else {
             (loss / dof, 1.0)
         };
-        let cov = faer::Mat::<f64>::from_fn(p, p, |i, j| {
-            let ama: f64 = (0..p)
+        let ama = |i: usize, j: usize| -> f64 {
+            (0..p)
                 .flat_map(|k| (0..p).map(move |l| (k, l)))
                 .map(|(k, l)| a[(i, k)] * m[k][l] * a[(l, j)])
-                .sum();
-            target_scale * a[(i, j)] + model_scale * ama
+                .sum()
+        };
+        let cov = faer::Mat::<f64>::from_fn(p, p, |i, j| {
+            target_scale * a[(i, j)] + model_scale * ama(i, j)
         });
         let (stddev, correlation) = super::standard_deviations(&cov);
-        // the Gauss–Newton decrement: the loss decrease a Gauss–Newton step would still bring,
-        // rᵀJ (JᵀJ)⁻¹ Jᵀr, in units of the errors (the squared Mahalanobis length of that step in
-        // standard deviations before any Birge inflation, which a poor point would earn itself)
+        // the Gauss–Newton step left, δ = (JᵀJ)⁻¹ Jᵀr, and its squared Mahalanobis length in the
+        // uncertainty before any Birge inflation (which a poor point would earn itself): target
+        // and model errors, so that Monte Carlo jitter between proposals does not look like a step
         let jtr: Vec<f64> = (0..p)
             .map(|k| jac.iter().zip(&r0).map(|(row, r)| row[k] * r).sum())
             .collect();
-        let decrement: f64 = (0..p)
-            .flat_map(|i| (0..p).map(move |j| (i, j)))
-            .map(|(i, j)| jtr[i] * a[(i, j)] * jtr[j])
-            .sum::<f64>()
-            / if self.target.has_errors() {
+        let delta =
+            faer::Mat::<f64>::from_fn(p, 1, |i, _| (0..p).map(|j| a[(i, j)] * jtr[j]).sum::<f64>());
+        let unscaled = faer::Mat::<f64>::from_fn(p, p, |i, j| {
+            let t = if self.target.has_errors() {
                 1.0
             } else {
                 loss / dof
             };
+            t * a[(i, j)] + ama(i, j)
+        });
+        let decrement = {
+            use faer::linalg::solvers::Solve;
+            let x = unscaled.partial_piv_lu().solve(&delta);
+            (0..p).map(|i| delta[(i, 0)] * x[(i, 0)]).sum::<f64>()
+        };
         Ok((stddev, correlation, loss, decrement))
     }
 
