@@ -34,7 +34,7 @@ pub fn fit(task: SceneTask, target_path: &Path, opts: &FitOptions, out: &Path) -
         scene,
     } = task;
     use crate::inverse::{Fit, FitParam, FitSettings, Target, check_params};
-    let target = Target::read(target_path)?;
+    let target = crate::io::targets::read(target_path)?;
     let phase = opts.fit.split(',').any(|p| p.trim() == "phase");
     let params: Vec<FitParam> = opts
         .fit

@@ -332,12 +332,33 @@ fn grid_profile(
         .map_err(|e| ConfigError(format!("{key}: {e}")))
 }
 
-/// The grid written by `lightpath design` to `design.json` (key `grid`).
+/// The designed grid: its coefficients (what the optimiser moved) and its samples (what
+/// `grid_file` profiles read back).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct GridRecord {
+    pub dims: [u64; 3],
+    pub origin: [f64; 3],
+    pub spacing: f64,
+    pub interp: String,
+    pub samples: Vec<f64>,
+    pub coefficients: Vec<f64>,
+}
+
+/// The grid written by `lightpath design` to `design.json` (its key `grid`, a [`GridRecord`]).
 fn grid_file(key: &str, path: &str) -> Result<Profile, ConfigError> {
-    use crate::io::results::{DesignFile, ResultFile};
-    let saved = DesignFile::read(std::path::Path::new(path))
-        .map_err(|e| ConfigError(format!("{key}.path = \"{path}\": {e}")))?;
-    let g = saved.grid;
+    #[derive(Deserialize)]
+    struct Design {
+        grid: GridRecord,
+    }
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| ConfigError(format!("{key}.path = \"{path}\": cannot read: {e}")))?;
+    let g = serde_json::from_str::<Design>(&text)
+        .map_err(|e| {
+            ConfigError(format!(
+                "{key}.path = \"{path}\": not a design result with a grid: {e}"
+            ))
+        })?
+        .grid;
     grid_profile(key, g.dims, g.origin, g.spacing, g.samples, &g.interp)
 }
 

@@ -5,6 +5,7 @@ pub mod exr;
 pub mod plot;
 pub mod results;
 pub mod state;
+pub mod targets;
 
 pub use results::ResultFile;
 pub use state::write_atomic;

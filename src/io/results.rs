@@ -436,17 +436,7 @@ pub struct DesignLogLine {
     pub mean_miss2: f64,
 }
 
-/// The designed grid: its coefficients (what the optimiser moved) and its samples (what
-/// `grid_file` profiles read back).
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
-pub struct GridRecord {
-    pub dims: [u64; 3],
-    pub origin: [f64; 3],
-    pub spacing: f64,
-    pub interp: String,
-    pub samples: Vec<f64>,
-    pub coefficients: Vec<f64>,
-}
+pub use crate::config::trace::GridRecord;
 
 /// The designed index along radial directions: mean, min and max over 26 directions.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]

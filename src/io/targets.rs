@@ -1,0 +1,167 @@
+//! Reading fit targets from files: our `covariance.json` (through its typed format) and
+//! `memory_effect.json`, a measured memory curve as JSON or CSV (`angle_deg,correlation[,stderr]`),
+//! or measured entries (`{"entries": [...]}`); see [`crate::inverse::target`] for what they mean.
+
+use crate::inverse::target::{Entry, Measured, Target};
+use crate::math::C64;
+use serde_json::Value;
+use std::path::Path;
+
+fn floats(v: &Value, key: &str, path: &Path) -> Result<Vec<f64>, String> {
+    v[key]
+        .as_array()
+        .ok_or_else(|| format!("{}: missing array {key:?}", path.display()))?
+        .iter()
+        .map(|x| {
+            x.as_f64()
+                .ok_or_else(|| format!("{}: {key} holds a non-number", path.display()))
+        })
+        .collect()
+}
+
+/// Read a target file (format by content: covariance.json, memory curve JSON, or CSV).
+pub fn read(path: &Path) -> Result<Target, String> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| format!("cannot read target {}: {e}", path.display()))?;
+    let t = if let Ok(v) = serde_json::from_str::<Value>(&text) {
+        if v.get("entries").is_some() {
+            entries_json(&v, path)?
+        } else if v.get("re").is_some() && v.get("stderr").is_some() {
+            covariance_json(path)?
+        } else {
+            let angles_deg = floats(&v, "angles_deg", path)?;
+            let correlation = floats(&v, "correlation", path)?;
+            let stderr = ["correlation_stderr", "stderr"]
+                .iter()
+                .find(|k| v.get(**k).is_some())
+                .map(|k| floats(&v, k, path))
+                .transpose()?;
+            Target::Memory {
+                angles_deg,
+                correlation,
+                stderr,
+            }
+        }
+    } else {
+        csv(&text, path)?
+    };
+    t.validate(path)?;
+    Ok(t)
+}
+
+/// Our `covariance.json` (Monte Carlo or wave solver), read through its typed format.
+fn covariance_json(path: &Path) -> Result<Target, String> {
+    use crate::io::results::{CovarianceFile, ResultFile};
+    let m = CovarianceFile::read(path)?.matrix(path)?;
+    Ok(Target::Covariance {
+        lights: m.lights,
+        views: m.views,
+        value: m.value,
+        stderr: m.stderr,
+    })
+}
+
+fn entries_json(v: &Value, path: &Path) -> Result<Target, String> {
+    let list = v["entries"]
+        .as_array()
+        .ok_or_else(|| format!("{}: `entries` is not an array", path.display()))?;
+    let (mut entries, mut stderr) = (Vec::new(), Vec::new());
+    for (i, e) in list.iter().enumerate() {
+        let at = |what: &str| format!("{}: entries[{i}]: {what}", path.display());
+        let index_pair = |key: &str| -> Result<[usize; 2], String> {
+            match e[key]
+                .as_array()
+                .map(|a| a.iter().map(Value::as_u64).collect::<Vec<_>>())
+            {
+                Some(a) if a.len() == 2 && a.iter().all(Option::is_some) => {
+                    Ok([a[0].unwrap_or(0) as usize, a[1].unwrap_or(0) as usize])
+                }
+                _ => Err(at(&format!("`{key}` must be two indices, e.g. [0, 1]"))),
+            }
+        };
+        let num = |key: &str| {
+            e.get(key).map(|x| {
+                x.as_f64()
+                    .ok_or_else(|| at(&format!("`{key}` is not a number")))
+            })
+        };
+        let value = match (num("re"), num("im"), num("intensity_correlation")) {
+            (Some(re), Some(im), None) => Measured::Field(C64::new(re?, im?)),
+            (None, None, Some(c)) => Measured::Intensity(c?),
+            _ => {
+                return Err(at(
+                    "give either `re` and `im` (field covariance) or `intensity_correlation`",
+                ));
+            }
+        };
+        if let Some(s) = num("stderr") {
+            stderr.push(s?);
+        }
+        entries.push(Entry {
+            light: index_pair("light")?,
+            view: index_pair("view")?,
+            value,
+        });
+    }
+    if entries.is_empty() {
+        return Err(format!("{}: `entries` is empty", path.display()));
+    }
+    let stderr = match stderr.len() {
+        0 => None,
+        n if n == entries.len() => Some(stderr),
+        _ => {
+            return Err(format!(
+                "{}: give a stderr on every entry or on none",
+                path.display()
+            ));
+        }
+    };
+    Ok(Target::Entries { entries, stderr })
+}
+
+fn csv(text: &str, path: &Path) -> Result<Target, String> {
+    let (mut a, mut c, mut s) = (Vec::new(), Vec::new(), Vec::new());
+    for (n, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let f: Vec<&str> = line
+            .split([',', ';', '\t', ' '])
+            .filter(|x| !x.is_empty())
+            .collect();
+        let nums: Result<Vec<f64>, _> = f.iter().map(|x| x.parse::<f64>()).collect();
+        match nums {
+            Ok(x) if x.len() == 2 || x.len() == 3 => {
+                a.push(x[0]);
+                c.push(x[1]);
+                if x.len() == 3 {
+                    s.push(x[2]);
+                }
+            }
+            Err(_) if a.is_empty() => continue, // header
+            _ => {
+                return Err(format!(
+                    "{}: line {}: expected angle_deg,correlation[,stderr]",
+                    path.display(),
+                    n + 1
+                ));
+            }
+        }
+    }
+    let stderr = if s.is_empty() {
+        None
+    } else if s.len() == a.len() {
+        Some(s)
+    } else {
+        return Err(format!(
+            "{}: give a stderr on every line or on none",
+            path.display()
+        ));
+    };
+    Ok(Target::Memory {
+        angles_deg: a,
+        correlation: c,
+        stderr,
+    })
+}
