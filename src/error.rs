@@ -1,9 +1,21 @@
 //! The one error type. Every message names what is wrong and what is allowed (a config key and its
 //! range, a flag and its values, a file and why it cannot be used); the command line prints it after
-//! `error: ` and exits with status 2.
+//! `error: ` and exits with status 2. It sits below every other module, so any layer can return it.
 
-use crate::config::ConfigError;
 use std::path::PathBuf;
+
+/// A config error: a message naming the key, the value and the allowed range, e.g.
+/// `medium.albedo = 1.3: must be within [0, 1]`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ConfigError(pub String);
+
+impl std::fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for ConfigError {}
 
 #[derive(Debug, thiserror::Error)]
 pub enum Error {

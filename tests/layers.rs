@@ -7,6 +7,7 @@ use std::path::Path;
 
 /// Layers from the bottom; a module may use modules of strictly lower rank.
 const RANKS: [(&str, u32); 11] = [
+    ("error", 0),
     ("math", 0),
     ("mc", 1),
     ("medium", 1),
@@ -16,7 +17,6 @@ const RANKS: [(&str, u32); 11] = [
     ("inverse", 4),
     ("config", 5),
     ("io", 6),
-    ("error", 6),
     ("app", 7),
 ];
 
