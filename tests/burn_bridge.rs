@@ -185,13 +185,13 @@ fn bad_parameter_values_are_errors() {
     let op = op(Proposal::AtTheta);
     let mut t = theta();
     t[2] = -1.0;
-    let e = op.evaluate(&t).unwrap_err();
+    let e = op.evaluate(&t).unwrap_err().to_string();
     assert!(e.contains("-1"), "{e}");
     let mut t = theta();
     t[7] = 1.2;
-    let e = op.evaluate(&t).unwrap_err();
+    let e = op.evaluate(&t).unwrap_err().to_string();
     assert!(e.contains("g[1] = 1.2") && e.contains("(-1, 1)"), "{e}");
-    let e = op.evaluate(&t[..3]).unwrap_err();
+    let e = op.evaluate(&t[..3]).unwrap_err().to_string();
     assert!(e.contains("3 parameter values for 9"), "{e}");
 }
 

@@ -117,7 +117,7 @@ fn gemm_rates(n: usize, reps: usize) -> (f64, f64) {
 }
 
 /// Run the benchmark and describe the figures.
-pub fn run(quick: bool) -> Result<String, String> {
+pub fn run(quick: bool) -> crate::Result<String> {
     let scene = reference_scene();
     let threads = rayon::current_num_threads();
     let j = scene.lights.len() * scene.views.len();
@@ -169,7 +169,8 @@ pub fn run(quick: bool) -> Result<String, String> {
             .map(|i| -1.0 + 2.0 * (i as f64 / 15.0).powi(2))
             .collect();
         let rho = cos.iter().map(|c| 1.0 / (1.25 - c).powf(1.5)).collect();
-        let table = Table::from_rho(Some(cos), rho).map_err(|e| e.to_string())?;
+        let table =
+            Table::from_rho(Some(cos), rho).map_err(|e| crate::Error::input(e.to_string()))?;
         let mut tab = scene.clone();
         tab.medium.scattering = Scattering::single(PhaseFunction::Tabulated(table));
         let cov_tab = Covariance::all_pairs(&tab, true)?;
@@ -372,7 +373,7 @@ fn ultrasonic_rates(quick: bool) -> String {
 /// One design iteration at the published GPU benchmark's scale, measured (not extrapolated): a
 /// 128³ grid (Luneburg samples), 128² rays × 10 (a collimated bundle), 400 leapfrog steps each,
 /// forward and backward of [`crate::eikonal::TraceOp`] (the gradient of every coefficient).
-pub fn design_iteration() -> Result<String, String> {
+pub fn design_iteration() -> crate::Result<String> {
     use crate::diff::TraceOp;
     use crate::diff::bridge::Differentiable;
     use crate::eikonal::grid::{GridField, Interp};

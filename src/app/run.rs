@@ -258,11 +258,7 @@ pub(crate) fn memory_scan(task: &SceneTask) -> Result<MemoryScan> {
         .memory_effect
         .as_ref()
         .ok_or_else(|| Error::input("missing [memory_effect]"))?;
-    Ok(MemoryScan::new(
-        &task.scene,
-        DVec3::from_array(me.axis),
-        &me.angles_deg,
-    )?)
+    MemoryScan::new(&task.scene, DVec3::from_array(me.axis), &me.angles_deg)
 }
 
 fn compute(

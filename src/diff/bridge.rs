@@ -18,7 +18,7 @@ use std::sync::Arc;
 /// A function `θ ↦ y` with a vector–Jacobian product: what the bridge needs of an estimator.
 pub trait Differentiable: Send + Sync {
     /// Evaluate at `θ`. The pullback maps `∂L/∂y` to `∂L/∂θ` for this evaluation.
-    fn forward(&self, theta: &[f64]) -> Result<(Vec<f64>, Arc<dyn Pullback>), String>;
+    fn forward(&self, theta: &[f64]) -> crate::Result<(Vec<f64>, Arc<dyn Pullback>)>;
 }
 
 /// The reverse-mode half of one evaluation of a [`Differentiable`].
@@ -47,7 +47,7 @@ pub fn values(t: &Tensor<1>) -> Vec<f64> {
 
 /// `y = op(θ)` as a burn operation: tracked on an autodiff device (backward = the op's pullback),
 /// a plain evaluation elsewhere.
-pub fn apply(op: &dyn Differentiable, theta: Tensor<1>) -> Result<Tensor<1>, String> {
+pub fn apply(op: &dyn Differentiable, theta: Tensor<1>) -> crate::Result<Tensor<1>> {
     let x = values(&theta);
     let (y, pullback) = op.forward(&x)?;
     let inner = tensor(&y, &Device::flex());
@@ -115,7 +115,7 @@ mod tests {
         }
     }
     impl Differentiable for Quadratic {
-        fn forward(&self, x: &[f64]) -> Result<(Vec<f64>, Arc<dyn Pullback>), String> {
+        fn forward(&self, x: &[f64]) -> crate::Result<(Vec<f64>, Arc<dyn Pullback>)> {
             Ok((
                 vec![x[0] * x[0] + x[1], x[0] * x[1]],
                 Arc::new(QuadraticPullback(x.to_vec())),

@@ -62,13 +62,13 @@ impl<'a> Reweighted<'a> {
         pairs: Vec<(usize, usize)>,
         reversed: bool,
         params: Vec<Param>,
-    ) -> Result<Self, String> {
+    ) -> crate::Result<Self> {
         for p in &params {
             if p.get(&target).is_none() {
                 return Err(format!(
                     "parameter {} does not exist in this medium (only Henyey–Greenstein components have g)",
                     p.name()
-                ));
+                ).into());
             }
         }
         if target.geometry != proposal.medium.geometry {

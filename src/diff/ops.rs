@@ -25,13 +25,14 @@ pub fn medium_at(
     base: &Medium,
     params: &[Param],
     theta: &[f64],
-) -> Result<(Medium, Vec<f64>), String> {
+) -> crate::Result<(Medium, Vec<f64>)> {
     if params.len() != theta.len() {
         return Err(format!(
             "{} parameter values for {} parameters",
             theta.len(),
             params.len()
-        ));
+        )
+        .into());
     }
     let mut m = base.clone();
     let mut factor = vec![1.0; params.len()];
@@ -40,12 +41,14 @@ pub fn medium_at(
     let mut phases: Vec<PhaseFunction> = comps.iter().map(|c| c.1.clone()).collect();
     let mut node_values: Vec<Option<Vec<f64>>> = vec![None; comps.len()];
     for (p, &v) in params.iter().zip(theta) {
-        let bad = |allowed: &str| Err(format!("{} = {v}: must be {allowed}", p.name()));
-        if p.get(base).is_none() {
-            return Err(format!(
-                "parameter {} does not exist in this medium",
+        let bad = |allowed: &str| {
+            Err(crate::Error::input(format!(
+                "{} = {v}: must be {allowed}",
                 p.name()
-            ));
+            )))
+        };
+        if p.get(base).is_none() {
+            return Err(format!("parameter {} does not exist in this medium", p.name()).into());
         }
         match *p {
             Param::SigmaS if !(v > 0.0 && v.is_finite()) => return bad("> 0"),
@@ -132,7 +135,7 @@ impl CovarianceOp {
         reversed: bool,
         (samples, chunk, seed): (u64, u64, u64),
         proposal: Proposal,
-    ) -> Result<Self, String> {
+    ) -> crate::Result<Self> {
         if let Some(&(a, b)) = entries
             .iter()
             .find(|(a, b)| *a >= pairs.len() || *b >= pairs.len())
@@ -140,7 +143,8 @@ impl CovarianceOp {
             return Err(format!(
                 "covariance entry ({a}, {b}) is outside the {} (light, view) pairs",
                 pairs.len()
-            ));
+            )
+            .into());
         }
         Ok(CovarianceOp {
             scene,
@@ -161,7 +165,7 @@ impl CovarianceOp {
         self.evaluations.load(Ordering::Relaxed)
     }
 
-    fn prepare(&self, theta: &[f64]) -> Result<Evaluation, String> {
+    fn prepare(&self, theta: &[f64]) -> crate::Result<Evaluation> {
         let (target, factor) = medium_at(&self.scene.medium, &self.params, theta)?;
         let n = self.evaluations.fetch_add(1, Ordering::Relaxed);
         let (proposal, seed) = match &self.proposal {
@@ -187,7 +191,7 @@ impl CovarianceOp {
     }
 
     /// The entries at `θ` with their standard errors (one evaluation, no pullback).
-    pub fn evaluate(&self, theta: &[f64]) -> Result<Entries, String> {
+    pub fn evaluate(&self, theta: &[f64]) -> crate::Result<Entries> {
         self.prepare(theta).and_then(|e| e.entries())
     }
 }
@@ -205,7 +209,7 @@ struct Evaluation {
 }
 
 impl Evaluation {
-    fn reweighted(&self, params: Vec<Param>) -> Result<Reweighted<'_>, String> {
+    fn reweighted(&self, params: Vec<Param>) -> crate::Result<Reweighted<'_>> {
         Reweighted::new(
             &self.proposal,
             self.target.clone(),
@@ -215,7 +219,7 @@ impl Evaluation {
         )
     }
 
-    fn entries(&self) -> Result<Entries, String> {
+    fn entries(&self) -> crate::Result<Entries> {
         let est: Estimate = estimate(&ReweightedCovariance(self.reweighted(vec![])?), &self.plan);
         let j = self.pairs.len();
         Ok(Entries {
@@ -254,7 +258,7 @@ impl Pullback for Evaluation {
 }
 
 impl Differentiable for CovarianceOp {
-    fn forward(&self, theta: &[f64]) -> Result<(Vec<f64>, Arc<dyn Pullback>), String> {
+    fn forward(&self, theta: &[f64]) -> crate::Result<(Vec<f64>, Arc<dyn Pullback>)> {
         let e = self.prepare(theta)?;
         let y = e
             .entries()?
@@ -296,7 +300,7 @@ impl Pullback for MeanPullback {
 }
 
 impl Differentiable for MeanOp {
-    fn forward(&self, theta: &[f64]) -> Result<(Vec<f64>, Arc<dyn Pullback>), String> {
+    fn forward(&self, theta: &[f64]) -> crate::Result<(Vec<f64>, Arc<dyn Pullback>)> {
         let (medium, factor) = medium_at(&self.scene.medium, &self.params, theta)?;
         let scene = Scene {
             medium,
@@ -307,9 +311,9 @@ impl Differentiable for MeanOp {
             let (light, view) = match (scene.lights.get(l), scene.views.get(v)) {
                 (Some(a), Some(b)) => (a, b),
                 _ => {
-                    return Err(format!(
-                        "mean of light {l}, view {v}: no such light or view"
-                    ));
+                    return Err(
+                        format!("mean of light {l}, view {v}: no such light or view").into(),
+                    );
                 }
             };
             let (m, g) =

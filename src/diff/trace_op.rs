@@ -39,20 +39,21 @@ struct TracePullback {
 
 impl TraceOp {
     /// The field with grid profile `profile` holding coefficients `c`.
-    pub fn field_with(&self, c: &[f64]) -> Result<BoundedField, String> {
+    pub fn field_with(&self, c: &[f64]) -> crate::Result<BoundedField> {
         let mut field = self.field.clone();
         let Some(Profile::Grid(g)) = field.profiles.get_mut(self.profile) else {
-            return Err(format!("profile {} is not a grid", self.profile));
+            return Err(format!("profile {} is not a grid", self.profile).into());
         };
         if c.len() != g.coef.len() {
             return Err(format!(
                 "{} grid coefficients given, the grid has {}",
                 c.len(),
                 g.coef.len()
-            ));
+            )
+            .into());
         }
         if let Some(i) = c.iter().position(|x| !x.is_finite()) {
-            return Err(format!("grid coefficient {i} is {}", c[i]));
+            return Err(format!("grid coefficient {i} is {}", c[i]).into());
         }
         g.coef.copy_from_slice(c);
         Ok(field)
@@ -60,7 +61,7 @@ impl TraceOp {
 }
 
 impl Differentiable for TraceOp {
-    fn forward(&self, c: &[f64]) -> Result<(Vec<f64>, Arc<dyn Pullback>), String> {
+    fn forward(&self, c: &[f64]) -> crate::Result<(Vec<f64>, Arc<dyn Pullback>)> {
         let field = self.field_with(c)?;
         let tracer = Tracer {
             field: &field,
@@ -77,13 +78,15 @@ impl Differentiable for TraceOp {
                 return Err(format!(
                     "ray {i} from {} never enters the field: check the beam's center and direction",
                     self.rays[i].x
-                ));
+                )
+                .into());
             }
             if let Some(i) = ends.iter().position(|e| !e.exited) {
                 return Err(format!(
                     "ray {i} did not leave the field within {} steps",
                     self.steps
-                ));
+                )
+                .into());
             }
             ends.iter()
                 .map(|e| Ray {
@@ -103,7 +106,8 @@ impl Differentiable for TraceOp {
         {
             return Err(format!(
                 "ray {i} left the finite numbers (n ≤ 0 or a diverging field on its path)"
-            ));
+            )
+            .into());
         }
         let y = ends
             .iter()

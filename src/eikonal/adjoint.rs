@@ -70,7 +70,7 @@ fn accumulate_grid(
 use super::trace::force_jacobian as jacobian;
 
 /// `∂F/∂θ = (∂n/∂θ)∇n + n ∇(∂n/∂θ)` at `x`, given `(n, ∇n)` there.
-fn dforce(f: &BoundedField, x: DVec3, n: f64, g: DVec3, p: &FieldParam) -> Result<DVec3, String> {
+fn dforce(f: &BoundedField, x: DVec3, n: f64, g: DVec3, p: &FieldParam) -> crate::Result<DVec3> {
     if !f.bounds.contains(x) {
         return Ok(DVec3::ZERO);
     }
@@ -103,7 +103,7 @@ impl Tracer<'_> {
         lx: DVec3,
         lv: DVec3,
         acc: &mut Accumulators,
-    ) -> Result<(DVec3, DVec3), String> {
+    ) -> crate::Result<(DVec3, DVec3)> {
         let Accumulators { params, dp, grid } = acc;
         let f = self.field;
         let (n0, g0, j0) = local(f, r.x);
@@ -137,7 +137,7 @@ impl Tracer<'_> {
         h: f64,
         params: &[FieldParam],
         loss_grad: impl FnOnce(Ray) -> (DVec3, DVec3),
-    ) -> Result<RayGradient, String> {
+    ) -> crate::Result<RayGradient> {
         self.adjoint_with_grid(r0, steps, h, params, None, loss_grad)
     }
 
@@ -150,7 +150,7 @@ impl Tracer<'_> {
         params: &[FieldParam],
         grid: Option<GridAdjoint>,
         loss_grad: impl FnOnce(Ray) -> (DVec3, DVec3),
-    ) -> Result<RayGradient, String> {
+    ) -> crate::Result<RayGradient> {
         let final_ray = self.steps(r0, steps, h);
         let (mut lx, mut lv) = loss_grad(final_ray);
         let mut acc = Accumulators {
@@ -180,7 +180,7 @@ impl Tracer<'_> {
         h: f64,
         params: &[FieldParam],
         loss_grad: impl FnOnce(Ray) -> (DVec3, DVec3),
-    ) -> Result<RayGradient, String> {
+    ) -> crate::Result<RayGradient> {
         self.adjoint_tape_with_grid(r0, steps, h, params, None, loss_grad)
     }
 
@@ -193,7 +193,7 @@ impl Tracer<'_> {
         params: &[FieldParam],
         grid: Option<GridAdjoint>,
         loss_grad: impl FnOnce(Ray) -> (DVec3, DVec3),
-    ) -> Result<RayGradient, String> {
+    ) -> crate::Result<RayGradient> {
         let mut tape = Vec::with_capacity(steps + 1);
         let mut r = r0;
         tape.push(r);
@@ -299,7 +299,7 @@ impl Tracer<'_> {
         params: &[FieldParam],
         grid: Option<GridAdjoint>,
         loss_grad: impl FnOnce(&RayEnd) -> (DVec3, DVec3),
-    ) -> Result<ExitGradient, String> {
+    ) -> crate::Result<ExitGradient> {
         let f = self.field;
         let mut segments: Vec<Segment> = Vec::new();
         let end = self.walk(origin, dir, |_| {}, |s| segments.push(s));
@@ -325,7 +325,8 @@ impl Tracer<'_> {
             return Err(format!(
                 "the ray did not leave the field within max_steps = {}",
                 self.max_steps
-            ));
+            )
+            .into());
         }
         let (mut lx, mut lv) = (DVec3::ZERO, DVec3::ZERO);
         for (i, seg) in segments.iter().enumerate().rev() {

@@ -50,7 +50,7 @@ impl GridField {
         dims: [usize; 3],
         samples: Vec<f64>,
         interp: Interp,
-    ) -> Result<Self, String> {
+    ) -> crate::Result<Self> {
         let count = dims[0] * dims[1] * dims[2];
         if samples.len() != count {
             return Err(format!(
@@ -59,12 +59,14 @@ impl GridField {
                 dims[0],
                 dims[1],
                 dims[2]
-            ));
+            )
+            .into());
         }
         if dims.iter().any(|&d| d < 2) || !(spacing > 0.0 && spacing.is_finite()) {
             return Err(format!(
                 "grid: dims {dims:?} must be ≥ 2 each and spacing {spacing} positive"
-            ));
+            )
+            .into());
         }
         let mut g = GridField {
             origin,

@@ -28,9 +28,9 @@ pub fn minimise<O>(
     x0: &[f64],
     iterations: usize,
     learning_rate: &dyn Fn(usize) -> f64,
-    loss: &mut dyn FnMut(usize, Tensor<1>) -> Result<(Tensor<1>, O), String>,
-    observe: &mut dyn FnMut(Iterate<'_, O>) -> Result<(), String>,
-) -> Result<Vec<f64>, String> {
+    loss: &mut dyn FnMut(usize, Tensor<1>) -> crate::Result<(Tensor<1>, O)>,
+    observe: &mut dyn FnMut(Iterate<'_, O>) -> crate::Result<()>,
+) -> crate::Result<Vec<f64>> {
     let mut vars = Variables {
         x: Variable::from_tensor(tensor(x0, &device())),
     };

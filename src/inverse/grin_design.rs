@@ -72,14 +72,14 @@ pub struct DesignResult {
 
 impl FocusDesign {
     /// Half extents of the bounds (the grid spans them, padded by two cells).
-    fn half(&self) -> Result<DVec3, String> {
+    fn half(&self) -> crate::Result<DVec3> {
         self.background
             .bounds
             .half_extent()
             .ok_or_else(|| "design: the field needs bounds (sphere, cylinder or box)".into())
     }
 
-    fn grid_at(&self, n: usize, samples: Vec<f64>) -> Result<GridField, String> {
+    fn grid_at(&self, n: usize, samples: Vec<f64>) -> crate::Result<GridField> {
         let half = self.half()?;
         let extent = half.max_element() * 2.0 * (1.0 + 2.0 / n as f64);
         let spacing = extent / (n - 1) as f64;
@@ -150,12 +150,13 @@ impl FocusDesign {
     }
 
     /// Run every level; `progress` sees each iteration.
-    pub fn run(&self, progress: &dyn Fn(&DesignStep)) -> Result<DesignResult, String> {
+    pub fn run(&self, progress: &dyn Fn(&DesignStep)) -> crate::Result<DesignResult> {
         if self.levels.is_empty() || self.levels.iter().any(|&n| n < 4) {
             return Err(format!(
                 "design: levels {:?} must be grid sizes of at least 4 nodes per side",
                 self.levels
-            ));
+            )
+            .into());
         }
         if self.beams.iter().all(|b| b.rays.is_empty()) {
             return Err("design: no rays".into());
@@ -171,7 +172,7 @@ impl FocusDesign {
         let mut grid = self.grid_at(self.levels[0], vec![self.initial; self.levels[0].pow(3)])?;
         let mut log = Vec::new();
         let mut last_grad_norm = f64::NAN;
-        let miss = |g: &GridField| -> Result<f64, String> {
+        let miss = |g: &GridField| -> crate::Result<f64> {
             let field = self.field_with(g);
             let op = self.op(field);
             let y = values(&apply(&op, tensor(&g.coef, &burn::tensor::Device::flex()))?);
@@ -211,7 +212,7 @@ impl FocusDesign {
                         return Err(format!(
                             "design level {level}, iteration {}: the loss is not finite; try a smaller learning_rate",
                             entry.iteration
-                        ));
+                        ).into());
                     }
                     last_grad_norm = it.grad_norm;
                     progress(&entry);

@@ -54,11 +54,11 @@ fn line_miss(focus: DVec3, x: DVec3, d: DVec3) -> (f64, DVec3, DVec3) {
 
 impl ParamFit {
     /// The field with the fitted parameters set to `theta`.
-    pub fn field_with(&self, theta: &[f64]) -> Result<BoundedField, String> {
+    pub fn field_with(&self, theta: &[f64]) -> crate::Result<BoundedField> {
         let mut f = self.field.clone();
         for ((p, v), name) in self.params.iter().zip(theta).zip(&self.names) {
             if !v.is_finite() {
-                return Err(format!("{name} = {v}"));
+                return Err(format!("{name} = {v}").into());
             }
             let slot = f
                 .profiles
@@ -71,7 +71,7 @@ impl ParamFit {
     }
 
     /// The parameters' values in the starting field.
-    pub fn initial(&self) -> Result<Vec<f64>, String> {
+    pub fn initial(&self) -> crate::Result<Vec<f64>> {
         let mut f = self.field.clone();
         self.params
             .iter()
@@ -81,14 +81,14 @@ impl ParamFit {
                     .get_mut(p.profile)
                     .and_then(|q| q.param_mut(p.which))
                     .map(|v| *v)
-                    .ok_or_else(|| format!("no parameter {name}"))
+                    .ok_or_else(|| crate::Error::input(format!("no parameter {name}")))
             })
             .collect()
     }
 
     /// Mean squared miss distance over all rays and its gradient in the parameters (rays in
     /// parallel, summed in ray order: deterministic).
-    pub fn loss_and_gradient(&self, theta: &[f64]) -> Result<(f64, Vec<f64>), String> {
+    pub fn loss_and_gradient(&self, theta: &[f64]) -> crate::Result<(f64, Vec<f64>)> {
         let field = self.field_with(theta)?;
         let tracer = Tracer {
             field: &field,
@@ -100,7 +100,7 @@ impl ParamFit {
             .iter()
             .flat_map(|b| b.rays.iter().map(|&(o, d)| (o, d, b.focus)))
             .collect();
-        let parts: Vec<Result<(f64, Vec<f64>), String>> = rays
+        let parts: Vec<crate::Result<(f64, Vec<f64>)>> = rays
             .par_iter()
             .enumerate()
             .map(|(i, &(o, d, focus))| {
@@ -111,11 +111,11 @@ impl ParamFit {
                         miss = m;
                         (dx, dd)
                     })
-                    .map_err(|e| format!("ray {i} from {o}: {e}"))?;
+                    .map_err(|e| crate::Error::input(format!("ray {i} from {o}: {e}")))?;
                 if !g.end.entered {
-                    return Err(format!(
+                    return Err(crate::Error::input(format!(
                         "ray {i} from {o} along {d} never enters the field: check the beam's center and direction"
-                    ));
+                    )));
                 }
                 Ok((miss, g.dparams))
             })
@@ -132,7 +132,7 @@ impl ParamFit {
 
     /// Run L-BFGS in the scaled variables `u_i = θ_i / s_i` (`s_i` the starting magnitude), so
     /// parameters of very different size (`n_max ~ 1e-4`, `k_r ~ 4`) are balanced.
-    pub fn run(&self, progress: &(dyn Fn(&FitStep) + Sync)) -> Result<ParamFitResult, String> {
+    pub fn run(&self, progress: &(dyn Fn(&FitStep) + Sync)) -> crate::Result<ParamFitResult> {
         let initial = self.initial()?;
         let scale: Vec<f64> = initial
             .iter()
@@ -202,7 +202,7 @@ struct Scaled<'a> {
 }
 
 impl lbfgs::Objective for Scaled<'_> {
-    fn eval(&self, u: &[f64]) -> Result<(f64, Vec<f64>), String> {
+    fn eval(&self, u: &[f64]) -> crate::Result<(f64, Vec<f64>)> {
         let theta: Vec<f64> = u.iter().zip(&self.scale).map(|(u, s)| u * s).collect();
         let (l, g) = self.fit.loss_and_gradient(&theta)?;
         let gu = g

@@ -18,7 +18,7 @@ use std::sync::Mutex;
 
 /// A smooth objective: value and gradient at `x` together.
 pub trait Objective: Sync {
-    fn eval(&self, x: &[f64]) -> Result<(f64, Vec<f64>), String>;
+    fn eval(&self, x: &[f64]) -> crate::Result<(f64, Vec<f64>)>;
 }
 
 /// A box `lower ≤ x ≤ upper`.
@@ -121,9 +121,9 @@ pub fn minimise(
     x0: &[f64],
     settings: &Settings,
     observe: &(dyn Fn(&Evaluation) + Sync),
-) -> Result<Outcome, String> {
+) -> crate::Result<Outcome> {
     if x0.iter().any(|x| !x.is_finite()) {
-        return Err(format!("the starting point {x0:?} is not finite"));
+        return Err(format!("the starting point {x0:?} is not finite").into());
     }
     let wrapped = Wrapped {
         objective,
@@ -143,12 +143,12 @@ pub fn minimise(
     let start = wrapped.project(x0);
     let line = MoreThuenteLineSearch::new()
         .with_bounds(1e-12, 4.0)
-        .map_err(|e| e.to_string())?;
+        .map_err(|e| crate::Error::input(e.to_string()))?;
     let solver = LBFGS::new(line, 7)
         .with_tolerance_grad(settings.grad_tol)
-        .map_err(|e| e.to_string())?
+        .map_err(|e| crate::Error::input(e.to_string()))?
         .with_tolerance_cost(settings.cost_tol)
-        .map_err(|e| e.to_string())?;
+        .map_err(|e| crate::Error::input(e.to_string()))?;
     let result = Executor::new(&wrapped, solver)
         .configure(|s| s.param(start).max_iters(settings.max_iters as u64))
         .run();
@@ -162,7 +162,7 @@ pub fn minimise(
     drop(result);
     let record = wrapped.state.into_inner().unwrap_or_default();
     if let Some(e) = record.error {
-        return Err(e);
+        return Err(crate::Error::input(e));
     }
     let best = record
         .best
@@ -259,6 +259,7 @@ impl Wrapped<'_> {
         let (loss, grad) = match self.objective.eval(&p) {
             Ok(r) => r,
             Err(e) => {
+                let e = e.to_string();
                 st.error.get_or_insert(e.clone());
                 return Err(ArgminError::msg(e));
             }
@@ -332,7 +333,7 @@ mod tests {
     /// minimiser on the bound, report the bound, and return a point it evaluated.
     struct Rosenbrock;
     impl Objective for Rosenbrock {
-        fn eval(&self, x: &[f64]) -> Result<(f64, Vec<f64>), String> {
+        fn eval(&self, x: &[f64]) -> crate::Result<(f64, Vec<f64>)> {
             let (a, b) = (x[0], x[1]);
             let f = (1.0 - a).powi(2) + 100.0 * (b - a * a).powi(2);
             let g = vec![

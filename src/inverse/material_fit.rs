@@ -91,7 +91,7 @@ impl Fit<'_> {
     }
 
     /// Covariance at natural values `v` from paths of `proposal`.
-    fn covariance(&self, proposal: &Scene, v: &[f64]) -> Result<Vec<C64>, String> {
+    fn covariance(&self, proposal: &Scene, v: &[f64]) -> crate::Result<Vec<C64>> {
         let target = medium_with(&self.scene.medium, &self.params, v);
         let r = Reweighted::new(
             proposal,
@@ -104,7 +104,7 @@ impl Fit<'_> {
     }
 
     /// Loss and its gradient with respect to the natural parameters.
-    fn loss_and_gradient(&self, proposal: &Scene, v: &[f64]) -> Result<(f64, Vec<f64>), String> {
+    fn loss_and_gradient(&self, proposal: &Scene, v: &[f64]) -> crate::Result<(f64, Vec<f64>)> {
         let c = self.covariance(proposal, v)?;
         let (loss, adjoint) = self.target.loss(&c);
         let m = medium_with(&self.scene.medium, &self.params, v);
@@ -154,7 +154,7 @@ impl Fit<'_> {
     /// Gauss–Newton standard deviations and correlations at natural values `v`, and the loss with
     /// each residual damped by its model error: the Jacobian of the residuals by central differences
     /// of the smooth re-weighted objective (proposal at `v`).
-    fn uncertainty(&self, v: &[f64], proposal: &Scene) -> Result<Uncertainty, String> {
+    fn uncertainty(&self, v: &[f64], proposal: &Scene) -> crate::Result<Uncertainty> {
         // uncertainty: Gauss–Newton at the optimum, Jacobian of the residuals by central differences
         // of the smooth re-weighted objective (proposal at the optimum)
         let (at_opt, kept) = super::model_with_chunks(
@@ -280,12 +280,12 @@ impl Fit<'_> {
         iterations: usize,
         radius: f64,
         record: &(dyn Fn(LogEntry) + Sync),
-    ) -> Result<(lbfgs::Outcome, f64), String> {
+    ) -> crate::Result<(lbfgs::Outcome, f64)> {
         let g0u = grad_u.iter().map(|g| g * g).sum::<f64>().sqrt();
         if !g0u.is_finite() {
-            return Err(format!(
-                "fit stage {stage}: the gradient is not finite at {centre:?}"
-            ));
+            return Err(
+                format!("fit stage {stage}: the gradient is not finite at {centre:?}").into(),
+            );
         }
         let proposal = self.proposal(centre);
         let u0: Vec<f64> = self
@@ -324,7 +324,7 @@ impl Fit<'_> {
     /// Run the fit from the scene's current parameter values: trust-region stages that re-centre
     /// the proposal until the Gauss–Newton step left is within a standard deviation, then a final
     /// stage with the proposal held fixed, minimised to convergence; or the stage limit.
-    pub fn run(&self, progress: &(dyn Fn(&LogEntry) + Sync)) -> Result<FitResult, String> {
+    pub fn run(&self, progress: &(dyn Fn(&LogEntry) + Sync)) -> crate::Result<FitResult> {
         let initial: Vec<f64> = self
             .params
             .iter()
@@ -342,7 +342,8 @@ impl Fit<'_> {
         if !loss_0.is_finite() {
             return Err(format!(
                 "fit: the loss is not finite at the start {current:?} (does light reach the views?)"
-            ));
+            )
+            .into());
         }
         let mut grad_u = self.unconstrained_gradient(&current, &g);
         let mut grad_norm = grad_u.iter().map(|g| g * g).sum::<f64>().sqrt();
@@ -453,7 +454,7 @@ impl StageObjective<'_, '_> {
 }
 
 impl lbfgs::Objective for StageObjective<'_, '_> {
-    fn eval(&self, u: &[f64]) -> Result<(f64, Vec<f64>), String> {
+    fn eval(&self, u: &[f64]) -> crate::Result<(f64, Vec<f64>)> {
         let v = self.natural(u);
         let (loss, g) = self.fit.loss_and_gradient(self.proposal, &v)?;
         let gu = self.fit.unconstrained_gradient(&v, &g);

@@ -175,7 +175,7 @@ pub(crate) fn model_with_chunks(
     scene: &crate::speckle::Scene,
     (samples, chunk, seed): (u64, u64, u64),
     reversed: bool,
-) -> Result<(crate::mc::Estimate, Vec<crate::math::C64>), String> {
+) -> crate::Result<(crate::mc::Estimate, Vec<crate::math::C64>)> {
     use crate::diff::{Reweighted, ReweightedCovariance};
     use crate::mc::{Estimate, Plan, merge, run};
     let r = Reweighted::new(proposal, medium, target.pairs(scene), reversed, vec![])?;

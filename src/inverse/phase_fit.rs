@@ -93,7 +93,7 @@ impl TargetLoss<'_> {
 }
 
 impl Differentiable for TargetLoss<'_> {
-    fn forward(&self, y: &[f64]) -> Result<(Vec<f64>, Arc<dyn Pullback>), String> {
+    fn forward(&self, y: &[f64]) -> crate::Result<(Vec<f64>, Arc<dyn Pullback>)> {
         let (loss, adj) = self.target.loss(&self.covariance(y));
         let grad = self
             .entries
@@ -108,7 +108,7 @@ impl Differentiable for TargetLoss<'_> {
 }
 
 impl AdamFit<'_> {
-    fn nodes(&self) -> Result<Vec<f64>, String> {
+    fn nodes(&self) -> crate::Result<Vec<f64>> {
         if !self.phase {
             return Ok(vec![]);
         }
@@ -174,7 +174,7 @@ impl AdamFit<'_> {
         Some((d2.clone() * d2).sum() * self.settings.smooth)
     }
 
-    fn op(&self, nodes: usize, proposal: Proposal, seed: u64) -> Result<CovarianceOp, String> {
+    fn op(&self, nodes: usize, proposal: Proposal, seed: u64) -> crate::Result<CovarianceOp> {
         let mut entries = self.target.needed();
         entries.sort_unstable();
         entries.dedup();
@@ -190,7 +190,7 @@ impl AdamFit<'_> {
     }
 
     /// Natural values (scalars, then normalised ρ at the nodes) and the medium at `u`.
-    fn natural(&self, u: &[f64], nodes: usize) -> Result<(Vec<f64>, Medium), String> {
+    fn natural(&self, u: &[f64], nodes: usize) -> crate::Result<(Vec<f64>, Medium)> {
         let theta = values(&self.theta(tensor(u, &Device::flex()), nodes));
         let (m, _) = medium_at(&self.scene.medium, &self.op_params(nodes), &theta)?;
         let mut v: Vec<f64> = self.params.iter().map(|p| p.value(&m)).collect();
@@ -203,7 +203,7 @@ impl AdamFit<'_> {
     }
 
     /// Run Adam from the scene's current values; `progress` sees every iteration.
-    pub fn run(&self, progress: &(dyn Fn(&LogEntry) + Sync)) -> Result<AdamResult, String> {
+    pub fn run(&self, progress: &(dyn Fn(&LogEntry) + Sync)) -> crate::Result<AdamResult> {
         let cos = self.nodes()?;
         let nodes = cos.len();
         let m = &self.scene.medium;
@@ -218,7 +218,7 @@ impl AdamFit<'_> {
             if let Some(k) = t.nodes().1.iter().position(|v| *v <= 0.0) {
                 return Err(format!(
                     "--fit phase: node {k} of the starting phase function is 0; start from positive values (they are fitted on a log scale)"
-                ));
+                ).into());
             }
             u0.extend(t.nodes().1.iter().map(|v| v.ln()));
         }
@@ -227,7 +227,8 @@ impl AdamFit<'_> {
             return Err(format!(
                 "Adam needs --iterations ≥ 1 and --learning-rate > 0 (got {} and {})",
                 s.iterations, s.learning_rate
-            ));
+            )
+            .into());
         }
         let stochastic = self.op(nodes, Proposal::AtTheta, s.seed)?;
         let loss_op = TargetLoss {
@@ -264,7 +265,7 @@ impl AdamFit<'_> {
                     return Err(format!(
                         "Adam iteration {}: the loss or its gradient is not finite (loss {loss}); try a smaller --learning-rate",
                         it.iteration
-                    ));
+                    ).into());
                 }
                 if it.iteration >= tail {
                     for (a, x) in average.iter_mut().zip(it.x) {
@@ -292,7 +293,7 @@ impl AdamFit<'_> {
         u: &[f64],
         cos: &[f64],
         log: Vec<LogEntry>,
-    ) -> Result<AdamResult, String> {
+    ) -> crate::Result<AdamResult> {
         let nodes = cos.len();
         let (initial, _) = self.natural(u0, nodes)?;
         let (fitted, medium) = self.natural(u, nodes)?;
@@ -302,7 +303,7 @@ impl AdamFit<'_> {
             j: fixed.pairs.len(),
             entries: fixed.entries.clone(),
         };
-        let model = |u: &[f64]| -> Result<(Vec<C64>, Vec<f64>), String> {
+        let model = |u: &[f64]| -> crate::Result<(Vec<C64>, Vec<f64>)> {
             let theta = values(&self.theta(tensor(u, &Device::flex()), nodes));
             let e = fixed.evaluate(&theta)?;
             let y: Vec<f64> = e.value.iter().flat_map(|z| [z.re, z.im]).collect();

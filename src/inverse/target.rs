@@ -55,7 +55,7 @@ pub enum Measured {
 impl Target {
     /// Check a target read from `path`: lengths agree, values and errors are finite and positive
     /// where they must be.
-    pub fn validate(&self, path: &Path) -> Result<(), String> {
+    pub fn validate(&self, path: &Path) -> crate::Result<()> {
         match self {
             Target::Memory {
                 angles_deg,
@@ -66,7 +66,8 @@ impl Target {
                     return Err(format!(
                         "{}: angles_deg and correlation must be non-empty and of equal length",
                         path.display()
-                    ));
+                    )
+                    .into());
                 }
                 if let Some(s) = stderr
                     && (s.len() != angles_deg.len()
@@ -75,18 +76,18 @@ impl Target {
                     return Err(format!(
                         "{}: stderr must have one positive value per angle",
                         path.display()
-                    ));
+                    )
+                    .into());
                 }
                 if angles_deg.iter().chain(correlation).any(|x| !x.is_finite()) {
-                    return Err(format!(
-                        "{}: non-finite angle or correlation",
-                        path.display()
-                    ));
+                    return Err(
+                        format!("{}: non-finite angle or correlation", path.display()).into(),
+                    );
                 }
             }
             Target::Covariance { value, .. } => {
                 if value.iter().any(|z| !z.re.is_finite() || !z.im.is_finite()) {
-                    return Err(format!("{}: non-finite covariance entries", path.display()));
+                    return Err(format!("{}: non-finite covariance entries", path.display()).into());
                 }
             }
             Target::Entries { entries, stderr } => {
@@ -96,7 +97,9 @@ impl Target {
                         Measured::Intensity(c) => c.is_finite(),
                     };
                     if !finite {
-                        return Err(format!("{}: entries[{i}] is not finite", path.display()));
+                        return Err(
+                            format!("{}: entries[{i}] is not finite", path.display()).into()
+                        );
                     }
                     if let Some(s) = stderr
                         && !(s[i] > 0.0 && s[i].is_finite())
@@ -105,7 +108,8 @@ impl Target {
                             "{}: entries[{i}].stderr = {}: must be > 0",
                             path.display(),
                             s[i]
-                        ));
+                        )
+                        .into());
                     }
                 }
             }
@@ -114,7 +118,7 @@ impl Target {
     }
 
     /// Check the target against the scene it is fitted with (light and view counts, indices).
-    pub fn check_scene(&self, scene: &Scene, path: &Path) -> Result<(), String> {
+    pub fn check_scene(&self, scene: &Scene, path: &Path) -> crate::Result<()> {
         let (nl, nv) = (scene.lights.len(), scene.views.len());
         match self {
             Target::Memory { .. } => Ok(()),
@@ -122,7 +126,7 @@ impl Target {
                 Err(format!(
                     "target {} has {lights} light(s) × {views} view(s) but the config has {nl} × {nv}",
                     path.display()
-                ))
+                ).into())
             }
             Target::Covariance { .. } => Ok(()),
             Target::Entries { entries, .. } => {
@@ -133,7 +137,7 @@ impl Target {
                             path.display(),
                             e.light,
                             e.view
-                        ));
+                        ).into());
                     }
                 }
                 Ok(())

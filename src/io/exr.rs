@@ -12,7 +12,7 @@ pub fn write_fields(
     lights: usize,
     width: usize,
     height: usize,
-) -> Result<Vec<std::path::PathBuf>, String> {
+) -> crate::Result<Vec<std::path::PathBuf>> {
     use exr::prelude::*;
     let views = width * height;
     let mut files = Vec::new();
@@ -34,7 +34,7 @@ pub fn write_fields(
         Image::from_channels((width, height), pixels)
             .write()
             .to_file(&file)
-            .map_err(|e| e.to_string())?;
+            .map_err(|e| crate::Error::input(e.to_string()))?;
         files.push(file);
     }
     Ok(files)
@@ -47,7 +47,7 @@ pub fn write_scalar(
     width: usize,
     height: usize,
     name: &str,
-) -> Result<(), String> {
+) -> crate::Result<()> {
     use exr::prelude::*;
     let pixels = SpecificChannels::build()
         .with_channel(name)
@@ -55,5 +55,5 @@ pub fn write_scalar(
     Image::from_channels((width, height), pixels)
         .write()
         .to_file(path)
-        .map_err(|e| e.to_string())
+        .map_err(|e| crate::Error::input(e.to_string()))
 }

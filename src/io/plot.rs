@@ -9,7 +9,7 @@ use std::sync::Once;
 fn legend<'a, DB: DrawingBackend + 'a, CT: plotters::coord::CoordTranslate>(
     chart: &mut ChartContext<'a, DB, CT>,
     size: u32,
-) -> Result<(), String>
+) -> crate::Result<()>
 where
     DB::ErrorType: 'static,
 {
@@ -19,7 +19,7 @@ where
         .border_style(BLACK)
         .label_font(("sans-serif", size))
         .draw()
-        .map_err(|x| x.to_string())
+        .map_err(|x| crate::Error::input(x.to_string()))
 }
 
 fn register_font() {
@@ -34,7 +34,7 @@ fn register_font() {
 }
 
 /// Memory-effect curve with error bars and the diffusion prediction (paper 001, Eq. 39).
-pub fn memory_effect(path: &Path, c: &MemoryCurve) -> Result<(), String> {
+pub fn memory_effect(path: &Path, c: &MemoryCurve) -> crate::Result<()> {
     register_font();
     let e = |e: &dyn std::fmt::Display| e.to_string();
     let root = BitMapBackend::new(path, (800, 560)).into_drawing_area();
@@ -133,7 +133,7 @@ pub fn compare(
     names: (&str, &str),
     pairs: &[PairBlock],
     nv: usize,
-) -> Result<Vec<std::path::PathBuf>, String> {
+) -> crate::Result<Vec<std::path::PathBuf>> {
     register_font();
     let e = |e: &dyn std::fmt::Display| e.to_string();
     let cols = (pairs.len() as f64).sqrt().ceil() as usize;
@@ -246,7 +246,7 @@ pub fn fit_curve(
     stderr: Option<&[f64]>,
     initial: &[f64],
     fitted: &[f64],
-) -> Result<(), String> {
+) -> crate::Result<()> {
     register_font();
     let e = |e: &dyn std::fmt::Display| e.to_string();
     let root = BitMapBackend::new(path, (800, 560)).into_drawing_area();
@@ -310,7 +310,7 @@ pub fn fit_curve(
 }
 
 /// Ray paths projected on the x-z plane.
-pub fn ray_paths(path: &Path, rays: &[Vec<glam::DVec3>]) -> Result<(), String> {
+pub fn ray_paths(path: &Path, rays: &[Vec<glam::DVec3>]) -> crate::Result<()> {
     register_font();
     let e = |e: &dyn std::fmt::Display| e.to_string();
     let pts = rays.iter().flatten();
@@ -365,7 +365,7 @@ pub fn phase_fit(
     fitted: &[f64],
     stddev: &[f64],
     readings: &[crate::inverse::shortcut::Reading],
-) -> Result<(), String> {
+) -> crate::Result<()> {
     register_font();
     let e = |e: &dyn std::fmt::Display| e.to_string();
     let root = BitMapBackend::new(path, (900, 600)).into_drawing_area();
@@ -463,7 +463,7 @@ pub fn lines(
     y_desc: &str,
     series: &[(String, Vec<(f64, f64)>)],
     log_y: bool,
-) -> Result<(), String> {
+) -> crate::Result<()> {
     register_font();
     let e = |e: &dyn std::fmt::Display| e.to_string();
     let pts = series.iter().flat_map(|s| s.1.iter());
@@ -477,7 +477,7 @@ pub fn lines(
         (x0, x1, y0, y1) = (x0.min(x), x1.max(x), y0.min(y), y1.max(y));
     }
     if !(x0.is_finite() && y0.is_finite()) {
-        return Err(format!("{title}: nothing to plot"));
+        return Err(format!("{title}: nothing to plot").into());
     }
     let root = BitMapBackend::new(path, (900, 600)).into_drawing_area();
     root.fill(&WHITE).map_err(|x| e(&x))?;

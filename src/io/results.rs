@@ -21,12 +21,16 @@ pub trait ResultFile: Serialize + DeserializeOwned {
     fn format_version(&self) -> u32;
 
     /// Write to `path` (atomically), or say which file could not be written.
-    fn write(&self, path: &Path) -> Result<(), String> {
-        super::write_json(path, self).map_err(|e| format!("cannot write {}: {e}", path.display()))
+    fn write(&self, path: &Path) -> crate::Result<()> {
+        super::write_json(path, self).map_err(|source| crate::Error::Io {
+            action: "write",
+            path: path.to_path_buf(),
+            source,
+        })
     }
 
     /// Read `path`, naming the file and the key in any error; refuses newer format versions.
-    fn read(path: &Path) -> Result<Self, String> {
+    fn read(path: &Path) -> crate::Result<Self> {
         let bytes =
             std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
         let de = &mut serde_json::Deserializer::from_slice(&bytes);
@@ -45,7 +49,7 @@ pub trait ResultFile: Serialize + DeserializeOwned {
                 path.display(),
                 file.format_version(),
                 Self::NAME
-            ));
+            ).into());
         }
         Ok(file)
     }
@@ -252,7 +256,7 @@ impl CovarianceFile {
     }
 
     /// The total covariance as a flat matrix; errors if the nested arrays are ragged.
-    pub fn matrix(&self, path: &Path) -> Result<CovarianceMatrix, String> {
+    pub fn matrix(&self, path: &Path) -> crate::Result<CovarianceMatrix> {
         let nl = self.re.len();
         let nv = self
             .re
@@ -260,7 +264,7 @@ impl CovarianceFile {
             .and_then(|r| r.first())
             .map_or(0, |r| r.len());
         if nl == 0 || nv == 0 {
-            return Err(format!("{}: empty covariance", path.display()));
+            return Err(format!("{}: empty covariance", path.display()).into());
         }
         let j = nl * nv;
         let mut value = vec![C64::default(); j * j];
@@ -276,7 +280,8 @@ impl CovarianceFile {
                 return Err(format!(
                     "{}: `{name}` is not a {nl}×{nl}×{nv}×{nv} array like `re`",
                     path.display()
-                ));
+                )
+                .into());
             }
         }
         for l1 in 0..nl {

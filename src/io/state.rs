@@ -90,7 +90,7 @@ struct Cursor<'a> {
 }
 
 impl Cursor<'_> {
-    fn take(&mut self, n: usize) -> Result<&[u8], String> {
+    fn take(&mut self, n: usize) -> crate::Result<&[u8]> {
         let end = self
             .pos
             .checked_add(n)
@@ -100,17 +100,17 @@ impl Cursor<'_> {
         self.pos = end;
         Ok(s)
     }
-    fn u64(&mut self) -> Result<u64, String> {
+    fn u64(&mut self) -> crate::Result<u64> {
         Ok(u64::from_le_bytes(
             self.take(8)?.try_into().expect("8 bytes"),
         ))
     }
-    fn f64(&mut self) -> Result<f64, String> {
+    fn f64(&mut self) -> crate::Result<f64> {
         Ok(f64::from_le_bytes(
             self.take(8)?.try_into().expect("8 bytes"),
         ))
     }
-    fn len(&mut self) -> Result<usize, String> {
+    fn len(&mut self) -> crate::Result<usize> {
         let n = self.u64()?;
         if n as usize > self.data.len() {
             return Err("file is corrupt (length field too large)".into());
@@ -119,12 +119,12 @@ impl Cursor<'_> {
     }
 }
 
-pub fn read_state(path: &Path) -> Result<(StateHeader, Vec<Block>), String> {
+pub fn read_state(path: &Path) -> crate::Result<(StateHeader, Vec<Block>)> {
     let mut data = Vec::new();
     std::fs::File::open(path)
         .and_then(|mut f| f.read_to_end(&mut data))
         .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
-    let parse = || -> Result<(StateHeader, Vec<Block>), String> {
+    let parse = || -> crate::Result<(StateHeader, Vec<Block>)> {
         let mut c = Cursor {
             data: &data,
             pos: 0,
@@ -162,7 +162,7 @@ pub fn read_state(path: &Path) -> Result<(StateHeader, Vec<Block>), String> {
         }
         Ok((header, blocks))
     };
-    parse().map_err(|e| format!("{}: {e}", path.display()))
+    parse().map_err(|e| crate::Error::input(format!("{}: {e}", path.display())))
 }
 
 /// Write `bytes` to `path` through a temporary file, so a reader never sees half a file.

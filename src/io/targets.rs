@@ -7,20 +7,21 @@ use crate::math::C64;
 use serde_json::Value;
 use std::path::Path;
 
-fn floats(v: &Value, key: &str, path: &Path) -> Result<Vec<f64>, String> {
+fn floats(v: &Value, key: &str, path: &Path) -> crate::Result<Vec<f64>> {
     v[key]
         .as_array()
         .ok_or_else(|| format!("{}: missing array {key:?}", path.display()))?
         .iter()
         .map(|x| {
-            x.as_f64()
-                .ok_or_else(|| format!("{}: {key} holds a non-number", path.display()))
+            x.as_f64().ok_or_else(|| {
+                crate::Error::input(format!("{}: {key} holds a non-number", path.display()))
+            })
         })
         .collect()
 }
 
 /// Read a target file (format by content: covariance.json, memory curve JSON, or CSV).
-pub fn read(path: &Path) -> Result<Target, String> {
+pub fn read(path: &Path) -> crate::Result<Target> {
     let text = std::fs::read_to_string(path)
         .map_err(|e| format!("cannot read target {}: {e}", path.display()))?;
     let t = if let Ok(v) = serde_json::from_str::<Value>(&text) {
@@ -50,7 +51,7 @@ pub fn read(path: &Path) -> Result<Target, String> {
 }
 
 /// Our `covariance.json` (Monte Carlo or wave solver), read through its typed format.
-fn covariance_json(path: &Path) -> Result<Target, String> {
+fn covariance_json(path: &Path) -> crate::Result<Target> {
     use crate::io::results::{CovarianceFile, ResultFile};
     let m = CovarianceFile::read(path)?.matrix(path)?;
     Ok(Target::Covariance {
@@ -61,14 +62,14 @@ fn covariance_json(path: &Path) -> Result<Target, String> {
     })
 }
 
-fn entries_json(v: &Value, path: &Path) -> Result<Target, String> {
+fn entries_json(v: &Value, path: &Path) -> crate::Result<Target> {
     let list = v["entries"]
         .as_array()
         .ok_or_else(|| format!("{}: `entries` is not an array", path.display()))?;
     let (mut entries, mut stderr) = (Vec::new(), Vec::new());
     for (i, e) in list.iter().enumerate() {
         let at = |what: &str| format!("{}: entries[{i}]: {what}", path.display());
-        let index_pair = |key: &str| -> Result<[usize; 2], String> {
+        let index_pair = |key: &str| -> crate::Result<[usize; 2]> {
             match e[key]
                 .as_array()
                 .map(|a| a.iter().map(Value::as_u64).collect::<Vec<_>>())
@@ -76,7 +77,7 @@ fn entries_json(v: &Value, path: &Path) -> Result<Target, String> {
                 Some(a) if a.len() == 2 && a.iter().all(Option::is_some) => {
                     Ok([a[0].unwrap_or(0) as usize, a[1].unwrap_or(0) as usize])
                 }
-                _ => Err(at(&format!("`{key}` must be two indices, e.g. [0, 1]"))),
+                _ => Err(at(&format!("`{key}` must be two indices, e.g. [0, 1]")).into()),
             }
         };
         let num = |key: &str| {
@@ -89,9 +90,9 @@ fn entries_json(v: &Value, path: &Path) -> Result<Target, String> {
             (Some(re), Some(im), None) => Measured::Field(C64::new(re?, im?)),
             (None, None, Some(c)) => Measured::Intensity(c?),
             _ => {
-                return Err(at(
+                return Err(crate::Error::input(at(
                     "give either `re` and `im` (field covariance) or `intensity_correlation`",
-                ));
+                )));
             }
         };
         if let Some(s) = num("stderr") {
@@ -104,7 +105,7 @@ fn entries_json(v: &Value, path: &Path) -> Result<Target, String> {
         });
     }
     if entries.is_empty() {
-        return Err(format!("{}: `entries` is empty", path.display()));
+        return Err(format!("{}: `entries` is empty", path.display()).into());
     }
     let stderr = match stderr.len() {
         0 => None,
@@ -113,13 +114,14 @@ fn entries_json(v: &Value, path: &Path) -> Result<Target, String> {
             return Err(format!(
                 "{}: give a stderr on every entry or on none",
                 path.display()
-            ));
+            )
+            .into());
         }
     };
     Ok(Target::Entries { entries, stderr })
 }
 
-fn csv(text: &str, path: &Path) -> Result<Target, String> {
+fn csv(text: &str, path: &Path) -> crate::Result<Target> {
     let (mut a, mut c, mut s) = (Vec::new(), Vec::new(), Vec::new());
     for (n, line) in text.lines().enumerate() {
         let line = line.trim();
@@ -145,7 +147,8 @@ fn csv(text: &str, path: &Path) -> Result<Target, String> {
                     "{}: line {}: expected angle_deg,correlation[,stderr]",
                     path.display(),
                     n + 1
-                ));
+                )
+                .into());
             }
         }
     }
@@ -154,10 +157,7 @@ fn csv(text: &str, path: &Path) -> Result<Target, String> {
     } else if s.len() == a.len() {
         Some(s)
     } else {
-        return Err(format!(
-            "{}: give a stderr on every line or on none",
-            path.display()
-        ));
+        return Err(format!("{}: give a stderr on every line or on none", path.display()).into());
     };
     Ok(Target::Memory {
         angles_deg: a,

@@ -175,7 +175,7 @@ pub fn run<E: Estimator>(
 
 /// Merge shard blocks (in any order) into the single-run root block; errors if they do not tile
 /// `[0, chunks)` exactly.
-pub fn merge(mut blocks: Vec<Block>, chunks: u64) -> Result<Block, String> {
+pub fn merge(mut blocks: Vec<Block>, chunks: u64) -> crate::Result<Block> {
     blocks.sort_by_key(|b| b.start);
     let mut expect = 0;
     for b in &blocks {
@@ -186,26 +186,26 @@ pub fn merge(mut blocks: Vec<Block>, chunks: u64) -> Result<Block, String> {
                     b.start,
                     expect.min(b.start + b.len)
                 )
+                .into()
             } else {
                 format!(
                     "chunks {expect}..{} are missing (a shard is missing)",
                     b.start
                 )
+                .into()
             });
         }
         expect = b.start + b.len;
     }
     if expect != chunks {
-        return Err(format!(
-            "chunks {expect}..{chunks} are missing (a shard is missing)"
-        ));
+        return Err(format!("chunks {expect}..{chunks} are missing (a shard is missing)").into());
     }
     let mut r = Reducer::default();
     for b in blocks {
         r.push(b);
     }
     r.finish()
-        .ok_or_else(|| "shard blocks are not contiguous".to_string())
+        .ok_or_else(|| crate::Error::input("shard blocks are not contiguous"))
 }
 
 /// Run every chunk of `plan` (no progress, nothing kept) and return the estimate: the whole-run
@@ -362,6 +362,11 @@ mod tests {
             assert_eq!(merge(blocks, plan.chunks).unwrap(), whole);
         }
         let missing = run(&Moments, &plan, plan.shard_range(0, 2), &[], &|_| {});
-        assert!(merge(missing, plan.chunks).unwrap_err().contains("missing"));
+        assert!(
+            merge(missing, plan.chunks)
+                .unwrap_err()
+                .to_string()
+                .contains("missing")
+        );
     }
 }

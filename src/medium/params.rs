@@ -136,7 +136,7 @@ pub enum FitParam {
 }
 
 impl FitParam {
-    pub fn parse(s: &str) -> Result<FitParam, String> {
+    pub fn parse(s: &str) -> crate::Result<FitParam> {
         match s.trim() {
             "mfp" => Ok(FitParam::Mfp),
             "albedo" => Ok(FitParam::Albedo),
@@ -145,7 +145,8 @@ impl FitParam {
             "sigma_a" => Ok(FitParam::SigmaA),
             other => Err(format!(
                 "--fit: unknown parameter {other:?}; allowed: mfp, albedo, g, sigma_s, sigma_a"
-            )),
+            )
+            .into()),
         }
     }
 
@@ -201,7 +202,7 @@ impl FitParam {
 }
 
 /// Check a parameter set against a medium.
-pub fn check_params(params: &[FitParam], m: &Medium) -> Result<(), String> {
+pub fn check_params(params: &[FitParam], m: &Medium) -> crate::Result<()> {
     let has = |p| params.contains(&p);
     if (has(FitParam::Mfp) || has(FitParam::Albedo))
         && (has(FitParam::SigmaS) || has(FitParam::SigmaA))
@@ -221,7 +222,7 @@ pub fn check_params(params: &[FitParam], m: &Medium) -> Result<(), String> {
     }
     for (i, p) in params.iter().enumerate() {
         if params[..i].contains(p) {
-            return Err(format!("--fit: {} is given twice", p.name()));
+            return Err(format!("--fit: {} is given twice", p.name()).into());
         }
     }
     Ok(())

@@ -181,7 +181,7 @@ impl Order {
 
 impl<'a> Covariance<'a> {
     /// Covariance over all light×view pairs (`j = l·V + v`).
-    pub fn all_pairs(scene: &'a Scene, reversed: bool) -> Result<Self, String> {
+    pub fn all_pairs(scene: &'a Scene, reversed: bool) -> crate::Result<Self> {
         Self::with_pairs(scene, SubpathSampler::all_pairs(scene), reversed)
     }
 
@@ -190,7 +190,7 @@ impl<'a> Covariance<'a> {
         scene: &'a Scene,
         pairs: Vec<(usize, usize)>,
         reversed: bool,
-    ) -> Result<Self, String> {
+    ) -> crate::Result<Self> {
         Ok(Covariance {
             sampler: SubpathSampler::new(scene, pairs, reversed)?,
         })

@@ -18,7 +18,7 @@ impl<'a> FieldSampler<'a> {
         scene: &'a Scene,
         pairs: Vec<(usize, usize)>,
         reversed: bool,
-    ) -> Result<Self, String> {
+    ) -> crate::Result<Self> {
         Ok(FieldSampler {
             sampler: SubpathSampler::new(scene, pairs, reversed)?,
         })

@@ -20,7 +20,7 @@ pub struct MemoryScan {
 
 impl MemoryScan {
     /// Tilt light 0 (a plane wave) and view 0 (far field) of `base` together about `axis`.
-    pub fn new(base: &Scene, axis: DVec3, angles_deg: &[f64]) -> Result<Self, String> {
+    pub fn new(base: &Scene, axis: DVec3, angles_deg: &[f64]) -> crate::Result<Self> {
         let Some(&Light::PlaneWave { direction: d }) = base.lights.first() else {
             return Err("memory-effect: light[0] must be a plane_wave".into());
         };

@@ -44,7 +44,7 @@ impl<'a> SubpathSampler<'a> {
         scene: &'a Scene,
         pairs: Vec<(usize, usize)>,
         reversed: bool,
-    ) -> Result<Self, String> {
+    ) -> crate::Result<Self> {
         let lights = scene
             .lights
             .iter()

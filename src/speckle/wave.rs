@@ -96,7 +96,7 @@ pub fn direct(light: &Light, view: &View, k: f64) -> C64 {
 }
 
 /// Why a scene cannot be given to the wave solver.
-pub fn check_scene(scene: &Scene) -> Result<(), String> {
+pub fn check_scene(scene: &Scene) -> crate::Result<()> {
     if !matches!(scene.medium.geometry, Geometry::Box { .. }) {
         return Err(
             "wave: the wave solver needs a bounded medium; use medium.box instead of medium.slab"
@@ -108,7 +108,7 @@ pub fn check_scene(scene: &Scene) -> Result<(), String> {
             "wave: medium absorbs (sigma_a = {}, albedo = {:.4}); the wave solver models lossless resonant point scatterers: set albedo = 1 (or sigma_a = 0)",
             scene.medium.sigma_a,
             scene.medium.albedo()
-        ));
+        ).into());
     }
     let comps = scene.medium.scattering.components();
     if comps.len() != 1 || comps[0].1 != PhaseFunction::Isotropic {
