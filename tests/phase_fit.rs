@@ -4,7 +4,7 @@
 use glam::DVec3;
 use lightpath::diff::{CovarianceOp, Proposal};
 use lightpath::inverse::shortcut::single_scattering_readings;
-use lightpath::inverse::{AdamFit, AdamSettings, Entry, Measured, Target};
+use lightpath::inverse::{AdamFit, AdamSettings, Entry, Measured, ModelSettings, Target};
 use lightpath::medium::{Geometry, Medium, PhaseFunction, Scattering, Table};
 use lightpath::speckle::{Light, Scene, View};
 
@@ -144,10 +144,12 @@ fn adam_recovers_a_tabulated_phase_function() {
         params: vec![],
         phase: true,
         settings: AdamSettings {
-            samples: 4000,
-            chunk: 500,
-            seed: 9,
-            reversed: true,
+            model: ModelSettings {
+                samples: 4000,
+                chunk: 500,
+                seed: 9,
+                reversed: true,
+            },
             iterations: 90,
             learning_rate: 0.15,
             smooth: 0.0,

@@ -95,12 +95,15 @@ pub fn fit(task: SceneTask, target_path: &Path, opts: &FitOptions, out: &Path) -
         return Err(Error::input("--stages and --iterations must be at least 1"));
     }
     create_out(out)?;
+    let model = crate::inverse::ModelSettings {
+        samples: cfg.render.samples,
+        chunk: cfg.render.chunk,
+        seed: cfg.render.seed,
+        reversed: cfg.render.reversed,
+    };
     if adam {
         let settings = crate::inverse::AdamSettings {
-            samples: cfg.render.samples,
-            chunk: cfg.render.chunk,
-            seed: cfg.render.seed,
-            reversed: cfg.render.reversed,
+            model,
             iterations,
             learning_rate: opts.learning_rate,
             smooth: opts.smooth,
@@ -115,10 +118,7 @@ pub fn fit(task: SceneTask, target_path: &Path, opts: &FitOptions, out: &Path) -
         return adam_fit(&cfg, &fit, target_path, opts.progress, out);
     }
     let settings = FitSettings {
-        samples: cfg.render.samples,
-        chunk: cfg.render.chunk,
-        seed: cfg.render.seed,
-        reversed: cfg.render.reversed,
+        model,
         stages: opts.stages,
         iterations,
     };
@@ -313,8 +313,8 @@ fn adam_fit(
         learning_rate: Some(fit.settings.learning_rate),
         smooth: Some(fit.settings.smooth),
         convergence: Some(res.convergence),
-        samples: fit.settings.samples,
-        seed: fit.settings.seed,
+        samples: fit.settings.model.samples,
+        seed: fit.settings.model.seed,
         seconds,
         version: env!("CARGO_PKG_VERSION").into(),
         target: target_path.display().to_string(),

@@ -16,7 +16,7 @@ use super::lbfgs::{self, Bounds};
 use super::{Convergence, FitParam, FitStop, LogEntry, Target, medium_with};
 use crate::diff::{CovarianceGradient, Param, Reweighted, ReweightedCovariance};
 use crate::math::C64;
-use crate::mc::{Estimate, Plan, Projected, kept_covariance, merge, run};
+use crate::mc::{Estimate, Projected, kept_covariance, merge, run};
 use crate::speckle::Scene;
 use std::sync::Mutex;
 
@@ -37,10 +37,7 @@ type Uncertainty = (Vec<f64>, Vec<Vec<f64>>, f64, f64);
 /// Settings of the Monte Carlo inside the objective.
 #[derive(Clone, Copy, Debug)]
 pub struct FitSettings {
-    pub samples: u64,
-    pub chunk: u64,
-    pub seed: u64,
-    pub reversed: bool,
+    pub model: super::ModelSettings,
     /// At most this many re-centring stages.
     pub stages: usize,
     /// L-BFGS iterations per stage.
@@ -74,11 +71,7 @@ pub struct FitResult {
 
 impl Fit<'_> {
     fn estimate<E: crate::mc::Estimator>(&self, e: &E) -> Estimate {
-        let plan = Plan::new(
-            self.settings.seed,
-            self.settings.samples,
-            self.settings.chunk,
-        );
+        let plan = self.settings.model.plan();
         crate::mc::estimate(e, &plan)
     }
 
@@ -97,7 +90,7 @@ impl Fit<'_> {
             proposal,
             target,
             self.target.pairs(self.scene),
-            self.settings.reversed,
+            self.settings.model.reversed,
             vec![],
         )?;
         Ok(self.estimate(&ReweightedCovariance(r)).mean)
@@ -113,7 +106,7 @@ impl Fit<'_> {
             proposal,
             m.clone(),
             self.target.pairs(self.scene),
-            self.settings.reversed,
+            self.settings.model.reversed,
             dp.clone(),
         )?;
         let g = self.estimate(&CovarianceGradient::new(r, &adjoint)).mean;
@@ -162,12 +155,7 @@ impl Fit<'_> {
             medium_with(&self.scene.medium, &self.params, v),
             self.target,
             self.scene,
-            (
-                self.settings.samples,
-                self.settings.chunk,
-                self.settings.seed,
-            ),
-            self.settings.reversed,
+            &self.settings.model,
         )?;
         let r0 = self.target.residuals(&at_opt.mean);
         // the model's per-residual Monte Carlo error (residual units) only sets the expected size
@@ -208,14 +196,10 @@ impl Fit<'_> {
                 proposal,
                 medium_with(&self.scene.medium, &self.params, v),
                 self.target.pairs(self.scene),
-                self.settings.reversed,
+                self.settings.model.reversed,
                 vec![],
             )?;
-            let plan = Plan::new(
-                self.settings.seed,
-                self.settings.samples,
-                self.settings.chunk,
-            );
+            let plan = self.settings.model.plan();
             let est = Projected {
                 inner: ReweightedCovariance(r),
                 weights: &weights,

@@ -165,21 +165,42 @@ pub(crate) fn standard_deviations(cov: &faer::Mat<f64>) -> (Vec<f64>, Vec<Vec<f6
     (sd, corr)
 }
 
+/// How every fit's model statistics are rendered: paths per evaluation, paths per chunk, seed, and
+/// whether reversed paths (coherent backscattering) are included.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ModelSettings {
+    pub samples: u64,
+    pub chunk: u64,
+    pub seed: u64,
+    pub reversed: bool,
+}
+
+impl ModelSettings {
+    /// The engine's plan of one evaluation.
+    pub fn plan(&self) -> crate::mc::Plan {
+        crate::mc::Plan::new(self.seed, self.samples, self.chunk)
+    }
+}
+
 /// The model covariance of `target`'s pairs for `medium`, re-weighted from paths of `proposal`,
-/// with the per-chunk means of the outputs the target keeps (for its model errors):
-/// `(samples, chunk, seed)` as the fit's objective draws them.
+/// with the per-chunk means of the outputs the target keeps (for its model errors).
 pub(crate) fn model_with_chunks(
     proposal: &crate::speckle::Scene,
     medium: crate::medium::Medium,
     target: &Target,
     scene: &crate::speckle::Scene,
-    (samples, chunk, seed): (u64, u64, u64),
-    reversed: bool,
+    model: &ModelSettings,
 ) -> crate::Result<(crate::mc::Estimate, Vec<crate::math::C64>)> {
     use crate::diff::{Reweighted, ReweightedCovariance};
-    use crate::mc::{Estimate, Plan, merge, run};
-    let r = Reweighted::new(proposal, medium, target.pairs(scene), reversed, vec![])?;
-    let plan = Plan::new(seed, samples, chunk);
+    use crate::mc::{Estimate, merge, run};
+    let r = Reweighted::new(
+        proposal,
+        medium,
+        target.pairs(scene),
+        model.reversed,
+        vec![],
+    )?;
+    let plan = model.plan();
     let root = merge(
         run(
             &ReweightedCovariance(r),

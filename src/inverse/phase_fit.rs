@@ -23,10 +23,7 @@ use std::sync::Arc;
 /// Settings of an Adam fit.
 #[derive(Clone, Copy, Debug)]
 pub struct AdamSettings {
-    pub samples: u64,
-    pub chunk: u64,
-    pub seed: u64,
-    pub reversed: bool,
+    pub model: super::ModelSettings,
     pub iterations: usize,
     pub learning_rate: f64,
     /// Weight of the smoothness prior `Σ (Δ² log ρ)²` over consecutive nodes.
@@ -183,8 +180,8 @@ impl AdamFit<'_> {
             self.op_params(nodes),
             self.target.pairs(self.scene),
             entries,
-            self.settings.reversed,
-            (self.settings.samples, self.settings.chunk, seed),
+            self.settings.model.reversed,
+            (self.settings.model.samples, self.settings.model.chunk, seed),
             proposal,
         )
     }
@@ -230,7 +227,7 @@ impl AdamFit<'_> {
             )
             .into());
         }
-        let stochastic = self.op(nodes, Proposal::AtTheta, s.seed)?;
+        let stochastic = self.op(nodes, Proposal::AtTheta, s.model.seed)?;
         let loss_op = TargetLoss {
             target: self.target,
             j: stochastic.pairs.len(),
@@ -297,7 +294,11 @@ impl AdamFit<'_> {
         let nodes = cos.len();
         let (initial, _) = self.natural(u0, nodes)?;
         let (fitted, medium) = self.natural(u, nodes)?;
-        let fixed = self.op(nodes, Proposal::Fixed(medium.clone()), self.settings.seed)?;
+        let fixed = self.op(
+            nodes,
+            Proposal::Fixed(medium.clone()),
+            self.settings.model.seed,
+        )?;
         let loss_op = TargetLoss {
             target: self.target,
             j: fixed.pairs.len(),
@@ -329,8 +330,7 @@ impl AdamFit<'_> {
                     medium.clone(),
                     self.target,
                     self.scene,
-                    (s.samples, s.chunk, s.seed),
-                    s.reversed,
+                    &s.model,
                 )?;
                 self.target
                     .model_stderr(&est, &kept)
@@ -342,7 +342,7 @@ impl AdamFit<'_> {
                 let est = crate::mc::Estimate {
                     mean: c.clone(),
                     stderr: sd,
-                    samples: self.settings.samples,
+                    samples: self.settings.model.samples,
                     chunks: 0,
                 };
                 self.target
@@ -426,7 +426,7 @@ impl AdamFit<'_> {
             let start = self.op(
                 nodes,
                 Proposal::Fixed(self.scene.medium.clone()),
-                self.settings.seed,
+                self.settings.model.seed,
             )?;
             let theta = values(&self.theta(tensor(u0, &Device::flex()), nodes));
             let e = start.evaluate(&theta)?;
