@@ -25,12 +25,9 @@ chunk = 500
 seed = 7
 "#;
 
-/// Fits from above and from below the truth converge (and say so), recover (mfp, g) within 3
-/// reported sd, and agree with each other within their sd. Would catch a fit that stops where it
-/// started, returns a point it never evaluated, or reports an error bar that misses the truth.
-#[test]
-fn recovers_mfp_and_g_from_a_memory_effect_curve() {
-    let d = std::env::temp_dir().join(format!("lightpath-fit-{}", std::process::id()));
+/// A fresh folder holding the memory-effect curve of `TRUTH` (the fit target) in `target/`.
+fn folder_with_target(name: &str) -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!("lightpath-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
     run_scene(
         Kind::MemoryEffect,
@@ -39,23 +36,42 @@ fn recovers_mfp_and_g_from_a_memory_effect_curve() {
         &d.join("target"),
     )
     .unwrap();
+    d
+}
+
+/// Fit options with the defaults a user gets, for `fit` with `optimizer` and its iterations.
+fn options(
+    fit: &str,
+    optimizer: Option<&str>,
+    iterations: usize,
+    learning_rate: f64,
+) -> FitOptions {
+    FitOptions {
+        fit: fit.into(),
+        samples: None,
+        seed: None,
+        stages: 30,
+        iterations: Some(iterations),
+        optimizer: optimizer.map(Into::into),
+        learning_rate,
+        smooth: 0.0,
+        progress: false,
+    }
+}
+
+/// Fits from above and from below the truth converge (and say so), recover (mfp, g) within 3
+/// reported sd, and agree with each other within their sd. Would catch a fit that stops where it
+/// started, returns a point it never evaluated, or reports an error bar that misses the truth.
+#[test]
+fn recovers_mfp_and_g_from_a_memory_effect_curve() {
+    let d = folder_with_target("fit");
     let mut fitted = Vec::new();
     for (name, mfp) in [("above", "28.0"), ("below", "10.0")] {
         let start = TRUTH
             .replace("mfp = 20.0", &format!("mfp = {mfp}"))
             .replace("g = 0.3", "g = 0.1")
             .replace("seed = 7", "seed = 1");
-        let opts = FitOptions {
-            fit: "mfp,g".into(),
-            samples: None,
-            seed: None,
-            stages: 30,
-            iterations: Some(5),
-            optimizer: None,
-            learning_rate: 0.05,
-            smooth: 0.0,
-            progress: false,
-        };
+        let opts = options("mfp,g", None, 5, 0.05);
         let out = fit(
             scene_from_text(&start).unwrap(),
             &d.join("target/memory_effect.json"),
@@ -103,29 +119,11 @@ fn recovers_mfp_and_g_from_a_memory_effect_curve() {
 /// fixed-length run reports whether its loss reached a plateau.
 #[test]
 fn adam_fits_a_memory_curve_with_model_errors() {
-    let d = std::env::temp_dir().join(format!("lightpath-fit-adam-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    run_scene(
-        Kind::MemoryEffect,
-        scene_from_text(TRUTH).unwrap(),
-        &RunOptions::default(),
-        &d.join("target"),
-    )
-    .unwrap();
+    let d = folder_with_target("fit-adam");
     let start = TRUTH
         .replace("mfp = 20.0", "mfp = 28.0")
         .replace("seed = 7", "seed = 1");
-    let opts = FitOptions {
-        fit: "mfp".into(),
-        samples: None,
-        seed: None,
-        stages: 1,
-        iterations: Some(80),
-        optimizer: Some("adam".into()),
-        learning_rate: 0.1,
-        smooth: 0.0,
-        progress: false,
-    };
+    let opts = options("mfp", Some("adam"), 80, 0.1);
     let out = fit(
         scene_from_text(&start).unwrap(),
         &d.join("target/memory_effect.json"),
