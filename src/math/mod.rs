@@ -2,6 +2,7 @@
 //! rotations and the deterministic per-chunk random streams of the Monte Carlo engine.
 
 pub mod polytope;
+pub mod vmf;
 
 use glam::DVec3;
 use rand::SeedableRng;
@@ -79,6 +80,116 @@ pub fn cis(phi: f64) -> C64 {
     C64::new(c, s)
 }
 
+/// A complex 3-vector `re + i im`.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct CVec3 {
+    pub re: DVec3,
+    pub im: DVec3,
+}
+
+impl CVec3 {
+    /// `re + i im`.
+    #[inline]
+    pub fn new(re: DVec3, im: DVec3) -> Self {
+        CVec3 { re, im }
+    }
+
+    /// `self · x` for a real vector `x`.
+    #[inline]
+    pub fn dot_real(&self, x: DVec3) -> C64 {
+        C64::new(self.re.dot(x), self.im.dot(x))
+    }
+
+    /// The bilinear (not Hermitian) square `self · self`.
+    #[inline]
+    pub fn dot_self(&self) -> C64 {
+        C64::new(
+            self.re.length_squared() - self.im.length_squared(),
+            2.0 * self.re.dot(self.im),
+        )
+    }
+
+    /// `|re|² + |im|²`.
+    #[inline]
+    pub fn norm_sqr(&self) -> f64 {
+        self.re.length_squared() + self.im.length_squared()
+    }
+
+    /// `conj(self) · x` for a real vector `x`.
+    #[inline]
+    pub fn conj_dot(&self, x: DVec3) -> C64 {
+        C64::new(self.re.dot(x), -self.im.dot(x))
+    }
+
+    /// Component orthogonal to the unit real vector `n`.
+    #[inline]
+    pub fn tangential(&self, n: DVec3) -> CVec3 {
+        CVec3 {
+            re: self.re - n * self.re.dot(n),
+            im: self.im - n * self.im.dot(n),
+        }
+    }
+
+    /// `self + x` for a real vector `x`.
+    #[inline]
+    pub fn add_real(&self, x: DVec3) -> CVec3 {
+        CVec3 {
+            re: self.re + x,
+            im: self.im,
+        }
+    }
+
+    /// `z · self` for a complex scalar `z`.
+    #[inline]
+    pub fn scale(&self, z: C64) -> CVec3 {
+        CVec3 {
+            re: self.re * z.re - self.im * z.im,
+            im: self.im * z.re + self.re * z.im,
+        }
+    }
+}
+
+impl std::ops::Add for CVec3 {
+    type Output = CVec3;
+    #[inline]
+    fn add(self, o: CVec3) -> CVec3 {
+        CVec3 {
+            re: self.re + o.re,
+            im: self.im + o.im,
+        }
+    }
+}
+
+/// Gauss–Legendre nodes and weights on `[-1, 1]` (Newton on `P_n`, exact for degree `2n − 1`).
+pub fn gauss_legendre(n: usize) -> (Vec<f64>, Vec<f64>) {
+    let mut x = vec![0.0; n];
+    let mut w = vec![0.0; n];
+    for i in 0..n.div_ceil(2) {
+        let mut z = (std::f64::consts::PI * (i as f64 + 0.75) / (n as f64 + 0.5)).cos();
+        let mut dp = 1.0;
+        for _ in 0..100 {
+            let (mut p0, mut p1) = (1.0, z);
+            for j in 2..=n {
+                let p2 = ((2 * j - 1) as f64 * z * p1 - (j - 1) as f64 * p0) / j as f64;
+                p0 = p1;
+                p1 = p2;
+            }
+            let p = if n == 0 { 1.0 } else { p1 };
+            dp = n as f64 * (z * p - p0) / (z * z - 1.0);
+            let dz = p / dp;
+            z -= dz;
+            if dz.abs() < 1e-15 {
+                break;
+            }
+        }
+        x[i] = -z;
+        x[n - 1 - i] = z;
+        w[i] = 2.0 / ((1.0 - z * z) * dp * dp);
+        w[n - 1 - i] = w[i];
+    }
+    (x, w)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -104,6 +215,20 @@ mod tests {
         assert!((v.length() - 1.0).abs() < 1e-12);
         assert!((v.dot(DVec3::Z) - 0.3f64.cos()).abs() < 1e-12);
         assert!(v.x > 0.0);
+    }
+
+    #[test]
+    fn gauss_legendre_integrates_polynomials_exactly() {
+        let (x, w) = gauss_legendre(7);
+        for d in 0..14 {
+            let q: f64 = x.iter().zip(&w).map(|(x, w)| w * x.powi(d)).sum();
+            let exact = if d % 2 == 1 {
+                0.0
+            } else {
+                2.0 / (d + 1) as f64
+            };
+            assert!((q - exact).abs() < 1e-14, "degree {d}: {q} vs {exact}");
+        }
     }
 
     #[test]

@@ -1,39 +1,8 @@
 //! Convex polyhedra: clipping by half-spaces and the exact integral of `exp(b·x)` (complex `b`)
 //! by the divergence theorem (volume → faces → edges). Used for closed-form speckle means.
 
-use crate::math::C64;
+use crate::math::{C64, CVec3};
 use glam::DVec3;
-
-/// A complex 3-vector `re + i im`.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct CVec3 {
-    pub re: DVec3,
-    pub im: DVec3,
-}
-
-impl CVec3 {
-    #[inline]
-    pub fn dot_real(&self, x: DVec3) -> C64 {
-        C64::new(self.re.dot(x), self.im.dot(x))
-    }
-
-    fn norm_sqr(&self) -> f64 {
-        self.re.length_squared() + self.im.length_squared()
-    }
-
-    /// `conj(self) · x` for a real vector `x`.
-    fn conj_dot(&self, x: DVec3) -> C64 {
-        C64::new(self.re.dot(x), -self.im.dot(x))
-    }
-
-    /// Component orthogonal to the unit real vector `n`.
-    fn tangential(&self, n: DVec3) -> CVec3 {
-        CVec3 {
-            re: self.re - n * self.re.dot(n),
-            im: self.im - n * self.im.dot(n),
-        }
-    }
-}
 
 /// A planar face: outward unit normal and its vertices in cyclic order.
 #[derive(Clone, Debug)]

@@ -1,6 +1,7 @@
 //! The scattering medium: geometry, bulk coefficients and the scattering law.
 
 pub mod geometry;
+pub mod lobes;
 pub mod params;
 pub mod phase;
 

@@ -14,7 +14,8 @@
 //! (exponentials integrated exactly over convex cells); for a slab the off-specular mean per unit
 //! area vanishes (the specular part is a delta) and 0 is returned.
 
-use crate::math::polytope::{CVec3, Polyhedron};
+use crate::math::CVec3;
+use crate::math::polytope::Polyhedron;
 use crate::math::{C64, INV_4PI, cis};
 use crate::medium::{Geometry, Medium};
 use crate::speckle::Scene;
