@@ -11,7 +11,6 @@ use crate::io::state::{StateHeader, read_state, write_state};
 use crate::math::{C64, splitmix64};
 use crate::mc::{Block, Estimate, Plan, merge, run};
 use crate::speckle::covariance::Order;
-use crate::speckle::endpoint::FOCUSED_UNSUPPORTED;
 use crate::speckle::mean::mean_field;
 use crate::speckle::memory::MemoryScan;
 use crate::speckle::paths::SubpathSampler;
@@ -336,16 +335,11 @@ fn mc_echo(task: &SceneTask, scene: &Scene, plan: &Plan, seconds: f64) -> RunEch
 }
 
 /// The mean fields `m[l][v]` of every pair (closed form, paper 001 Eq. 20).
-fn mean_fields(scene: &Scene) -> Result<Vec<C64>> {
+fn mean_fields(scene: &Scene) -> Vec<C64> {
     scene
         .lights
         .iter()
-        .flat_map(|l| {
-            scene
-                .views
-                .iter()
-                .map(move |v| mean_field(scene, l, v).ok_or(Error::input(FOCUSED_UNSUPPORTED)))
-        })
+        .flat_map(|l| scene.views.iter().map(move |v| mean_field(scene, l, v)))
         .collect()
 }
 
@@ -392,7 +386,7 @@ fn finish_covariance(
         nv,
         Order::Total.block(j, &e.mean),
         Order::Total.block(j, &e.stderr),
-        &mean_fields(scene)?,
+        &mean_fields(scene),
     );
     (file.single_re, file.single_im, file.single_stderr) = part(Order::Single);
     (file.multiple_re, file.multiple_im, file.multiple_stderr) = part(Order::Multiple);
@@ -479,7 +473,7 @@ fn finish_speckle(
         )));
     }
     let (nl, nv) = (scene.lights.len(), scene.views.len());
-    let means = mean_fields(scene)?;
+    let means = mean_fields(scene);
     let norm = 1.0 / (plan.samples() as f64).sqrt();
     let fields: Vec<Vec<C64>> = blocks
         .iter()

@@ -104,7 +104,7 @@ pub enum LightConfig {
         position: [f64; 3],
     },
     /// vMF-apodised beam focused at `focus`, mean propagation direction `axis`, mask
-    /// `exp((w·axis − 1) / aperture_sigma²)` (`lightpath wave` only).
+    /// `exp((w·axis − 1) / aperture_sigma²)`.
     Focused {
         focus: [f64; 3],
         axis: [f64; 3],
@@ -121,8 +121,7 @@ pub enum ViewConfig {
     Point {
         position: [f64; 3],
     },
-    /// vMF-apodised sensor focused at `focus` collecting light propagating along `axis`
-    /// (`lightpath wave` only).
+    /// vMF-apodised sensor focused at `focus` collecting light propagating along `axis`.
     Focused {
         focus: [f64; 3],
         axis: [f64; 3],

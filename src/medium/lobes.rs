@@ -23,7 +23,7 @@ pub struct Lobe {
 
 /// The lobes of an amplitude and how well they fit it. Henyey–Greenstein needs 3 lobes for
 /// `g = 0.3`, 5 for `g = 0.7`, 6 for `g = 0.9` and 8 for `g = 0.98` at the default tolerance.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct Lobes {
     pub lobes: Vec<Lobe>,
     /// Relative `L²` error over the sphere, `‖s − ŝ‖ / ‖s‖`.

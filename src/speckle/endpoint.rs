@@ -1,8 +1,11 @@
 //! Lights and views as path endpoints: the complex transmission `ξ` and attenuation `τ` of a
-//! connection from a vertex inside the medium (paper 001, Eqs. 13 and 19).
+//! connection from a vertex inside the medium (paper 001, Eqs. 13 and 19), and for focused lights
+//! and views the aperture integrals `Υ` of paper 000 (Eqs. 15–18) in closed form.
 
-use crate::math::{C64, cis};
-use crate::medium::Medium;
+use crate::math::vmf::{Vmf, log_sphere_integral};
+use crate::math::{C64, CVec3, cis};
+use crate::medium::lobes::Lobes;
+use crate::medium::{Medium, PhaseFunction};
 use glam::DVec3;
 
 /// A light (source) of unit amplitude.
@@ -14,7 +17,7 @@ pub enum Light {
     Point { position: DVec3 },
     /// Focused beam: plane waves apodised by the von Mises–Fisher mask `exp(γ (w·axis − 1))`,
     /// `u(x) = ∫ m(w) exp(i k w·(x − focus)) dw = 4π e^{-γ} sinh(q)/q`, `q² = μ·μ`,
-    /// `μ = γ axis + i k (x − focus)` (paper 000, Eq. 29). Wave solver only.
+    /// `μ = γ axis + i k (x − focus)` (paper 000, Eqs. 10, 24, 29).
     Focused {
         focus: DVec3,
         axis: DVec3,
@@ -31,7 +34,6 @@ pub enum View {
     Point { position: DVec3 },
     /// Focused sensor collecting far-field directions `w` with the mask `exp(γ (w·axis − 1))`,
     /// refocused at `focus`: `ξ(x → v) = 4π e^{-γ} sinh(q)/q`, `μ = γ axis − i k (x − focus)`.
-    /// Wave solver only.
     Focused {
         focus: DVec3,
         axis: DVec3,
@@ -39,8 +41,8 @@ pub enum View {
     },
 }
 
-/// The error for endpoints the Monte Carlo estimators do not support.
-pub const FOCUSED_UNSUPPORTED: &str = "focused lights and views are supported by `lightpath wave` only; the Monte Carlo estimators take plane_wave, point and far_field endpoints";
+/// The error for focused endpoints where only ray endpoints are supported.
+pub const FOCUSED_UNSUPPORTED: &str = "focused lights and views are not supported here yet: gradients (fit, grad) take plane_wave, point and far_field endpoints";
 
 /// An endpoint seen from a vertex: either "far" (a direction) or "near" (a point). By reciprocity a
 /// plane-wave light propagating along `d` is the far endpoint with outgoing direction `-d`.
@@ -109,6 +111,160 @@ impl Endpoint {
                     inside,
                 }
             }
+        }
+    }
+}
+
+/// A focused light or view as the Monte Carlo estimators see it (paper 000, Sec. 5.1).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Lens {
+    pub focus: DVec3,
+    pub axis: DVec3,
+    pub gamma: f64,
+    /// `+1` for a light (the aperture sends plane waves), `−1` for a view (it collects them).
+    pub sign: f64,
+}
+
+impl Lens {
+    /// The aperture function at vertex `x` as a vMF over propagation directions `ω` (Eqs. 17, 26–27):
+    /// `exp(−γ − σ_t d/2 + (γ a + i σ k (x − focus))·ω)`, `σ` the sign, with the attenuation `d`
+    /// taken along the axis for every direction (Eq. 25).
+    #[inline]
+    pub fn aperture(&self, x: DVec3, medium: &Medium, k: f64) -> Vmf {
+        let inside = medium.geometry.exit_distance(x, self.axis * -self.sign);
+        Vmf::new(
+            C64::new(-self.gamma - 0.5 * medium.sigma_t() * inside, 0.0),
+            CVec3::new(self.axis * self.gamma, (x - self.focus) * (self.sign * k)),
+        )
+    }
+}
+
+/// A light or view of any kind, as the path samplers connect to it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Terminal {
+    Ray(Endpoint),
+    Lens(Lens),
+}
+
+impl From<Light> for Terminal {
+    fn from(l: Light) -> Self {
+        match l {
+            Light::Focused { focus, axis, gamma } => Terminal::Lens(Lens {
+                focus,
+                axis,
+                gamma,
+                sign: 1.0,
+            }),
+            l => Terminal::Ray(Endpoint::try_from(l).expect("ray endpoint")),
+        }
+    }
+}
+
+impl From<View> for Terminal {
+    fn from(v: View) -> Self {
+        match v {
+            View::Focused { focus, axis, gamma } => Terminal::Lens(Lens {
+                focus,
+                axis,
+                gamma,
+                sign: -1.0,
+            }),
+            v => Terminal::Ray(Endpoint::try_from(v).expect("ray endpoint")),
+        }
+    }
+}
+
+/// A terminal seen from one vertex: a ray connection, or a lens's aperture function there.
+#[derive(Clone, Copy, Debug)]
+pub enum Seen {
+    Ray(Connection),
+    Aperture {
+        vmf: Vmf,
+        /// `μ·μ`, shared by every direction and lobe.
+        mu2: C64,
+        sign: f64,
+        axis: DVec3,
+    },
+}
+
+impl Default for Seen {
+    fn default() -> Self {
+        Seen::Ray(Connection::default())
+    }
+}
+
+impl Terminal {
+    /// What the terminal looks like from vertex `x`.
+    #[inline]
+    pub fn seen_from(&self, x: DVec3, medium: &Medium, k: f64) -> Seen {
+        match self {
+            Terminal::Ray(e) => Seen::Ray(e.connect(x, medium, k)),
+            Terminal::Lens(lens) => {
+                let vmf = lens.aperture(x, medium, k);
+                Seen::Aperture {
+                    mu2: vmf.mu.dot_self(),
+                    vmf,
+                    sign: lens.sign,
+                    axis: lens.axis,
+                }
+            }
+        }
+    }
+
+    pub fn is_lens(&self) -> bool {
+        matches!(self, Terminal::Lens(_))
+    }
+}
+
+impl Seen {
+    /// The amplitude joining the terminal to a path at this vertex, where the path's direction
+    /// there is given by `u` with scattering cosine `u·dir` for a ray terminal (`u = −w₁` at the
+    /// first vertex, `u = w_in` at the last). For a lens it is `Υ` (Eqs. 15–16): the aperture
+    /// convolved with the amplitude's vMF lobes, exactly (Eq. 29 applied per lobe).
+    #[inline]
+    pub fn amplitude(&self, u: DVec3, phase: &PhaseFunction, lobes: &Lobes) -> C64 {
+        match self {
+            Seen::Ray(c) => c.prop * phase.amplitude(u.dot(c.dir)),
+            Seen::Aperture { vmf, mu2, sign, .. } => {
+                // the path direction the aperture's plane waves scatter into (light) or from (view)
+                let w = u * -*sign;
+                let mw = vmf.mu.dot_real(w);
+                lobes
+                    .lobes
+                    .iter()
+                    .map(|l| {
+                        let q2 = mu2 + mw * (2.0 * l.kappa) + l.kappa * l.kappa;
+                        l.weight * (vmf.log_scale - l.kappa + log_sphere_integral(q2)).exp()
+                    })
+                    .sum()
+            }
+        }
+    }
+
+    /// The single-scattering amplitude of light `self` and view `view` at one vertex (Eq. 5 for
+    /// rays, Eq. 18 for lenses). Two lenses need the vMF convolution approximation (Eqs. 31–32)
+    /// about a direction near the peak of the product: the view's axis, corrected once.
+    #[inline]
+    pub fn single(&self, view: &Seen, phase: &PhaseFunction, lobes: &Lobes) -> C64 {
+        match (self, view) {
+            (l, Seen::Ray(cv)) => l.amplitude(-cv.dir, phase, lobes) * cv.prop,
+            (Seen::Ray(cl), v) => v.amplitude(-cl.dir, phase, lobes) * cl.prop,
+            (
+                Seen::Aperture { vmf: al, .. },
+                Seen::Aperture {
+                    vmf: av, axis: ax, ..
+                },
+            ) => lobes
+                .lobes
+                .iter()
+                .map(|l| {
+                    let mut lobe_l = *al;
+                    lobe_l.log_scale -= l.kappa;
+                    let first = lobe_l.convolve(l.kappa, *ax).product(av);
+                    let w_o = first.mu.re.normalize_or(*ax);
+                    l.weight * lobe_l.convolve(l.kappa, w_o).product(av).integral()
+                })
+                .sum(),
         }
     }
 }

@@ -22,11 +22,11 @@ use crate::speckle::Scene;
 use crate::speckle::endpoint::{Light, View};
 use glam::DVec3;
 
-/// Mean field of `light` seen by `view` (`None` for focused endpoints: the wave solver estimates it).
-pub fn mean_field(scene: &Scene, light: &Light, view: &View) -> Option<C64> {
+/// Mean field of `light` seen by `view`.
+pub fn mean_field(scene: &Scene, light: &Light, view: &View) -> C64 {
     let m = &scene.medium;
     let k = scene.k;
-    Some(match (*light, *view) {
+    match (*light, *view) {
         (Light::Point { position: p }, View::Point { position: q }) => {
             let r = (q - p).length();
             let len = chord(&m.geometry, p, (q - p) / r, r);
@@ -39,8 +39,56 @@ pub fn mean_field(scene: &Scene, light: &Light, view: &View) -> Option<C64> {
             cis(k * d.dot(q)) * m.amplitude_attenuation(chord(&m.geometry, q, -d, f64::INFINITY))
         }
         (Light::PlaneWave { direction: d }, View::FarField { direction: v }) => far_far(m, k, d, v),
-        (Light::Focused { .. }, _) | (_, View::Focused { .. }) => return None,
-    })
+        (Light::Focused { .. }, _) | (_, View::Focused { .. }) => focused(scene, light, view),
+    }
+}
+
+/// The mean field with a focused end: the unscattered field between the endpoints (as the wave
+/// solver defines it), every plane-wave component attenuated by the same `e^{−σ_t ℓ/2}` (paper 000,
+/// Eq. 25; App. A.1): `ℓ` is the chord of the medium along the beam through the focal region (the
+/// foci's midpoint, along the mean axis), or from a point endpoint back along the lens axis.
+fn focused(scene: &Scene, light: &Light, view: &View) -> C64 {
+    use crate::speckle::wave::{direct, incident, sensor};
+    let (m, k) = (&scene.medium, scene.k);
+    let g = &m.geometry;
+    let len = match (*light, *view) {
+        (Light::Focused { axis, .. }, View::Point { position }) => {
+            return incident(light, position, k)
+                * m.amplitude_attenuation(chord(g, position, -axis, f64::INFINITY));
+        }
+        (Light::Point { position }, View::Focused { axis, .. }) => {
+            return sensor(view, position, k)
+                * m.amplitude_attenuation(chord(g, position, axis, f64::INFINITY));
+        }
+        (Light::Focused { focus, .. }, View::FarField { direction }) => {
+            line_chord(g, focus, direction)
+        }
+        (Light::PlaneWave { direction }, View::Focused { focus, .. }) => {
+            line_chord(g, focus, direction)
+        }
+        (
+            Light::Focused {
+                focus: fl,
+                axis: al,
+                ..
+            },
+            View::Focused {
+                focus: fv,
+                axis: av,
+                ..
+            },
+        ) => line_chord(g, (fl + fv) * 0.5, (al + av).normalize_or(al)),
+        _ => 0.0,
+    };
+    direct(light, view, k) * m.amplitude_attenuation(len)
+}
+
+/// Length inside the medium of the whole line through `p` along `w`.
+fn line_chord(g: &Geometry, p: DVec3, w: DVec3) -> f64 {
+    match g.ray_interval(p, w) {
+        Some((t0, t1)) => (t1 - t0).max(0.0),
+        None => 0.0,
+    }
 }
 
 /// Length inside the medium of the segment `o + t w`, `t ∈ [0, t_max]`.
@@ -100,7 +148,7 @@ pub fn mean_field_gradient(
     if let (Light::PlaneWave { direction: d }, View::FarField { direction: v }) = (*light, *view) {
         return Some(far_far_gradient(m, scene.k, d, v, params));
     }
-    let value = mean_field(scene, light, view)?;
+    let value = mean_field(scene, light, view);
     let len = match (*light, *view) {
         (Light::Point { position: p }, View::Point { position: q }) => {
             let r = (q - p).length();
@@ -365,8 +413,7 @@ pub(super) mod tests {
             &View::FarField {
                 direction: DVec3::Z,
             },
-        )
-        .unwrap();
+        );
         let expect =
             C64::new(0.0, s.k * 0.2 * INV_4PI) * 12.0 * (2.0 / 0.2) * (1.0 - (-0.5f64).exp());
         assert!(
@@ -385,8 +432,7 @@ pub(super) mod tests {
             &s,
             &Light::PlaneWave { direction: d },
             &View::FarField { direction: v },
-        )
-        .unwrap();
+        );
         let q = (d - v) * s.k;
         let sinc = |qa: f64, l: f64| {
             if qa == 0.0 {
@@ -412,8 +458,7 @@ pub(super) mod tests {
             &s,
             &Light::Point { position: p },
             &View::Point { position: q },
-        )
-        .unwrap();
+        );
         let expect = cis(s.k * 7.0) * ((-0.5f64 * 0.5 * 2.0).exp() / 7.0);
         assert!((m - expect).norm() < 1e-12);
     }

@@ -8,8 +8,9 @@
 //! forward-only), and `V` for the single-scattering event `B = 1` (Algorithm 1).
 
 use crate::math::{C64, INV_4PI, Rng, uniform, uniform_sphere};
+use crate::medium::lobes::Lobes;
 use crate::speckle::Scene;
-use crate::speckle::endpoint::{Connection, Endpoint};
+use crate::speckle::endpoint::{Seen, Terminal};
 use glam::DVec3;
 
 /// Receives the events of a subpath.
@@ -21,16 +22,18 @@ pub trait EventSink {
 /// Samples subpaths of a scene for a list of (light, view) pairs.
 pub struct SubpathSampler<'a> {
     scene: &'a Scene,
-    lights: Vec<Endpoint>,
-    views: Vec<Endpoint>,
+    lights: Vec<Terminal>,
+    views: Vec<Terminal>,
+    /// vMF lobes of each particle type's amplitude (fitted only when a terminal is focused).
+    lobes: Vec<Lobes>,
     pairs: Vec<(usize, usize)>,
     reversed: bool,
 }
 
 /// Per-thread working memory of a [`SubpathSampler`].
 pub struct PathScratch {
-    first_l: Vec<Connection>,
-    first_v: Vec<Connection>,
+    first_l: Vec<Seen>,
+    first_v: Vec<Seen>,
     amp_first_l: Vec<C64>,
     amp_first_v: Vec<C64>,
     amp_last_l: Vec<C64>,
@@ -39,26 +42,38 @@ pub struct PathScratch {
 }
 
 impl<'a> SubpathSampler<'a> {
-    /// Errors if the scene has endpoints the Monte Carlo estimators do not support (focused).
+    /// Focused terminals get the vMF lobes of every particle type's amplitude (paper 000, Eq. 28).
     pub fn new(
         scene: &'a Scene,
         pairs: Vec<(usize, usize)>,
         reversed: bool,
     ) -> crate::Result<Self> {
-        let lights = scene
-            .lights
+        let lights: Vec<Terminal> = scene.lights.iter().map(|&l| l.into()).collect();
+        let views: Vec<Terminal> = scene.views.iter().map(|&v| v.into()).collect();
+        let focused = lights.iter().chain(&views).any(Terminal::is_lens);
+        if focused && matches!(scene.medium.geometry, crate::medium::Geometry::Slab { .. }) {
+            return Err(crate::Error::input(
+                "focused lights and views need a bounded medium: use medium.box (as wide as the defocused beams) instead of medium.slab",
+            ));
+        }
+        let lobes = scene
+            .medium
+            .scattering
+            .components()
             .iter()
-            .map(|&l| Endpoint::try_from(l))
-            .collect::<Result<_, _>>()?;
-        let views = scene
-            .views
-            .iter()
-            .map(|&v| Endpoint::try_from(v))
-            .collect::<Result<_, _>>()?;
+            .map(|(_, p)| {
+                if focused {
+                    Lobes::of(p)
+                } else {
+                    Lobes::default()
+                }
+            })
+            .collect();
         Ok(SubpathSampler {
             scene,
             lights,
             views,
+            lobes,
             pairs,
             reversed,
         })
@@ -78,8 +93,8 @@ impl<'a> SubpathSampler<'a> {
     pub fn scratch(&self) -> PathScratch {
         let (nl, nv) = (self.lights.len(), self.views.len());
         PathScratch {
-            first_l: vec![Connection::default(); nl],
-            first_v: vec![Connection::default(); nv],
+            first_l: vec![Seen::default(); nl],
+            first_v: vec![Seen::default(); nv],
             amp_first_l: vec![C64::default(); nl],
             amp_first_v: vec![C64::default(); nv],
             amp_last_l: vec![C64::default(); nl],
@@ -98,19 +113,19 @@ impl<'a> SubpathSampler<'a> {
         let volume = m.sigma_s * geo.sampling_volume() / geo.normalising_area();
 
         let x1 = geo.sample_volume([uniform(rng), uniform(rng), uniform(rng)]);
-        let phase1 = m.scattering.phase(m.scattering.pick(|| uniform(rng)));
+        let kind1 = m.scattering.pick(|| uniform(rng));
+        let (phase1, lobes1) = (m.scattering.phase(kind1), &self.lobes[kind1]);
         for (e, c) in self.lights.iter().zip(sc.first_l.iter_mut()) {
-            *c = e.connect(x1, m, s.k);
+            *c = e.seen_from(x1, m, s.k);
         }
         for (e, c) in self.views.iter().zip(sc.first_v.iter_mut()) {
-            *c = e.connect(x1, m, s.k);
+            *c = e.seen_from(x1, m, s.k);
         }
 
         // B = 1: a_j = sqrt(V) υ(i→x1) υ(i→x1→v).
         let root = volume.sqrt();
         for (a, &(l, v)) in sc.a.iter_mut().zip(&self.pairs) {
-            let (cl, cv) = (&sc.first_l[l], &sc.first_v[v]);
-            *a = cl.prop * cv.prop * phase1.amplitude(-cl.dir.dot(cv.dir)) * root;
+            *a = sc.first_l[l].single(&sc.first_v[v], phase1, lobes1) * root;
         }
         sink.event(false, &sc.a, rng);
 
@@ -121,18 +136,18 @@ impl<'a> SubpathSampler<'a> {
             return;
         }
         for (c, a) in sc.first_l.iter().zip(sc.amp_first_l.iter_mut()) {
-            *a = c.prop * phase1.amplitude(-w1.dot(c.dir));
+            *a = c.amplitude(-w1, phase1, lobes1);
         }
         for (c, a) in sc.first_v.iter().zip(sc.amp_first_v.iter_mut()) {
-            *a = c.prop * phase1.amplitude(-w1.dot(c.dir));
+            *a = c.amplitude(-w1, phase1, lobes1);
         }
         let scale = volume / INV_4PI * if self.reversed { 0.5 } else { 1.0 };
         let mut x = x1 + w1 * d;
         let mut w_in = w1;
         let mut throughput = albedo;
         loop {
-            let phase = m.scattering.phase(m.scattering.pick(|| uniform(rng)));
-            self.connect_all(x, w_in, phase, &mut sc.amp_last_l, &mut sc.amp_last_v);
+            let kind = m.scattering.pick(|| uniform(rng));
+            self.connect_all(x, w_in, kind, &mut sc.amp_last_l, &mut sc.amp_last_v);
             let root = (scale * throughput).sqrt();
             for (a, &(l, v)) in sc.a.iter_mut().zip(&self.pairs) {
                 let mut z = sc.amp_first_l[l] * sc.amp_last_v[v];
@@ -143,7 +158,10 @@ impl<'a> SubpathSampler<'a> {
             }
             sink.event(true, &sc.a, rng);
 
-            let w_out = phase.sample(w_in, uniform(rng), uniform(rng));
+            let w_out = m
+                .scattering
+                .phase(kind)
+                .sample(w_in, uniform(rng), uniform(rng));
             let d = -(1.0 - uniform(rng)).ln() / sigma_t;
             if d >= geo.exit_distance(x, w_out) {
                 return;
@@ -161,24 +179,17 @@ impl<'a> SubpathSampler<'a> {
         }
     }
 
-    /// `B_l = τ ξ s(w_in · dir)` to every light and view from vertex `x` reached along `w_in`.
+    /// `B_l = τ ξ s(w_in · dir)` (or `Υ` for a focused terminal) to every light and view from
+    /// vertex `x` reached along `w_in`, scattered by a particle of type `kind`.
     #[inline]
-    fn connect_all(
-        &self,
-        x: DVec3,
-        w_in: DVec3,
-        phase: &crate::medium::PhaseFunction,
-        al: &mut [C64],
-        av: &mut [C64],
-    ) {
+    fn connect_all(&self, x: DVec3, w_in: DVec3, kind: usize, al: &mut [C64], av: &mut [C64]) {
         let s = self.scene;
+        let (phase, lobes) = (s.medium.scattering.phase(kind), &self.lobes[kind]);
         for (e, a) in self.lights.iter().zip(al.iter_mut()) {
-            let c = e.connect(x, &s.medium, s.k);
-            *a = c.prop * phase.amplitude(w_in.dot(c.dir));
+            *a = e.seen_from(x, &s.medium, s.k).amplitude(w_in, phase, lobes);
         }
         for (e, a) in self.views.iter().zip(av.iter_mut()) {
-            let c = e.connect(x, &s.medium, s.k);
-            *a = c.prop * phase.amplitude(w_in.dot(c.dir));
+            *a = e.seen_from(x, &s.medium, s.k).amplitude(w_in, phase, lobes);
         }
     }
 }
