@@ -478,7 +478,7 @@ fn wave_cli_deterministic_and_compare_exit_status() {
     let (a, b) = (d.join("w1/covariance.json"), d.join("w2/covariance.json"));
     let o = run(&["compare", a.to_str().unwrap(), b.to_str().unwrap()]);
     assert!(o.status.success() && String::from_utf8_lossy(&o.stdout).contains("agree"));
-    // the Monte Carlo rejects the focused light with a clear message
+    // the Monte Carlo takes the same focused light (near-field speckle)
     let o = run(&[
         "covariance",
         c,
@@ -486,7 +486,7 @@ fn wave_cli_deterministic_and_compare_exit_status() {
         d.join("mc").to_str().unwrap(),
         "--quiet",
     ]);
-    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("focused"));
+    assert!(o.status.success() && d.join("mc/covariance.json").exists());
     // a wave run with another seed disagrees at a tight tolerance: exit status 1
     let o = run(&[
         "wave",

@@ -5,6 +5,7 @@
 
 use crate::math::rotate;
 use crate::medium::Geometry;
+use crate::speckle::first_vertex::Sampling;
 use crate::speckle::{Light, Scene, View};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -161,6 +162,46 @@ pub struct RenderConfig {
     /// Include reversed paths (coherent backscattering); `false` is the forward-only (CTE) variant.
     #[serde(default = "yes")]
     pub reversed: bool,
+    /// First vertices near focused lights: `"beam"` (their Gaussian beams) or `"uniform"`.
+    #[serde(default)]
+    pub first_vertex: FirstVertexConfig,
+    /// First directions: `"aperture"` (from `|Υ|²`, needs `first_vertex = "beam"`) or `"uniform"`.
+    #[serde(default)]
+    pub first_direction: FirstDirectionConfig,
+}
+
+/// `[render] first_vertex`.
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum FirstVertexConfig {
+    #[default]
+    Beam,
+    Uniform,
+}
+
+/// `[render] first_direction`.
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum FirstDirectionConfig {
+    #[default]
+    Aperture,
+    Uniform,
+}
+
+impl RenderConfig {
+    /// The importance sampling these settings ask for (paper 000, Sec. 6).
+    pub fn sampling(&self) -> Result<Sampling, ConfigError> {
+        Ok(match (self.first_vertex, self.first_direction) {
+            (FirstVertexConfig::Beam, FirstDirectionConfig::Aperture) => Sampling::BeamAndAperture,
+            (FirstVertexConfig::Beam, FirstDirectionConfig::Uniform) => Sampling::Beam,
+            (FirstVertexConfig::Uniform, FirstDirectionConfig::Uniform) => Sampling::Uniform,
+            (FirstVertexConfig::Uniform, FirstDirectionConfig::Aperture) => {
+                return err(
+                    "render.first_direction = \"aperture\" needs render.first_vertex = \"beam\": the direction is drawn from the beam the vertex came from; set first_direction = \"uniform\" or first_vertex = \"beam\"",
+                );
+            }
+        })
+    }
 }
 
 fn default_samples() -> u64 {
@@ -183,6 +224,8 @@ impl Default for RenderConfig {
             seed: default_seed(),
             chunk: default_chunk(),
             reversed: true,
+            first_vertex: FirstVertexConfig::default(),
+            first_direction: FirstDirectionConfig::default(),
         }
     }
 }
@@ -371,7 +414,9 @@ impl Config {
         for (i, v) in self.view.iter().enumerate() {
             expand_view(i, v, &medium.geometry, &mut views)?;
         }
-        Ok(Scene::new(self.wavelength, medium, lights, views))
+        let mut scene = Scene::new(self.wavelength, medium, lights, views);
+        scene.sampling = self.render.sampling()?;
+        Ok(scene)
     }
 }
 

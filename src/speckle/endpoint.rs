@@ -260,9 +260,21 @@ impl Seen {
                 .map(|l| {
                     let mut lobe_l = *al;
                     lobe_l.log_scale -= l.kappa;
+                    // |∫ ã_v Υ_l| ≤ max|Υ_l| ∫|ã_v|, with |Υ_l| ≤ e^{Re c} 4π sinh(γ+κ)/(γ+κ)
+                    let reach = al.mu.re.length() + l.kappa;
+                    let bound = lobe_l.log_scale.re
+                        + log_sphere_integral(C64::new(reach * reach, 0.0)).re
+                        + av.log_scale.re
+                        + log_sphere_integral(C64::new(av.mu.re.length_squared(), 0.0)).re;
                     let first = lobe_l.convolve(l.kappa, *ax).product(av);
                     let w_o = first.mu.re.normalize_or(*ax);
-                    l.weight * lobe_l.convolve(l.kappa, w_o).product(av).integral()
+                    let log = lobe_l.convolve(l.kappa, w_o).product(av).log_integral();
+                    // where the linearisation fails (|β| small: far off the beam, where the true
+                    // value is below e^{−30} of the peak) it can exceed the bound: drop it
+                    if log.re > bound || log.re < bound - 60.0 {
+                        return C64::default();
+                    }
+                    l.weight * log.exp()
                 })
                 .sum(),
         }

@@ -4,6 +4,7 @@
 pub mod covariance;
 pub mod endpoint;
 pub mod field;
+pub mod first_vertex;
 pub mod mean;
 pub mod memory;
 pub mod paths;
@@ -24,6 +25,8 @@ pub struct Scene {
     pub medium: Medium,
     pub lights: Vec<Light>,
     pub views: Vec<View>,
+    /// How subpaths start near focused lights (importance sampling, paper 000 Sec. 6).
+    pub sampling: first_vertex::Sampling,
 }
 
 impl Scene {
@@ -34,6 +37,7 @@ impl Scene {
             medium,
             lights,
             views,
+            sampling: first_vertex::Sampling::default(),
         }
     }
 }

@@ -1,16 +1,19 @@
 //! Subpath sampling shared by the covariance and field estimators (paper 001, Sec. 5.1).
 //!
 //! The first vertex `x1` is drawn with density `σ_s / V` (Eq. 35), the first direction uniformly, the
-//! rest by volume path tracing. Every vertex `xB` yields an event: the vector
+//! rest by volume path tracing; with focused lights the first vertex and direction are importance
+//! sampled from their beams instead (`first_vertex.rs`, paper 000 Sec. 6) and the weights below
+//! carry `1/p(x1)` and `1/p(w1)` in place of `V` and `4π`. Every vertex `xB` yields an event: the vector
 //! `a_j = A_l B'_v + B_l A'_v` over (light, view) pairs (Eq. 38; forward-only drops the second term),
 //! scaled by the square root of its Monte Carlo weight. With `q(x) = f(x) / (4π V)` and the reversed
 //! subpath equally likely, the weight is `4π V albedo^{B-1} / 2` for `B ≥ 2` (`4π V albedo^{B-1}`
 //! forward-only), and `V` for the single-scattering event `B = 1` (Algorithm 1).
 
-use crate::math::{C64, INV_4PI, Rng, uniform, uniform_sphere};
+use crate::math::{C64, Rng, uniform};
 use crate::medium::lobes::Lobes;
 use crate::speckle::Scene;
 use crate::speckle::endpoint::{Seen, Terminal};
+use crate::speckle::first_vertex::FirstVertex;
 use glam::DVec3;
 
 /// Receives the events of a subpath.
@@ -26,6 +29,8 @@ pub struct SubpathSampler<'a> {
     views: Vec<Terminal>,
     /// vMF lobes of each particle type's amplitude (fitted only when a terminal is focused).
     lobes: Vec<Lobes>,
+    /// Draws first vertices and directions (from the focused lights' beams when there are any).
+    first: FirstVertex,
     pairs: Vec<(usize, usize)>,
     reversed: bool,
 }
@@ -39,6 +44,7 @@ pub struct PathScratch {
     amp_last_l: Vec<C64>,
     amp_last_v: Vec<C64>,
     a: Vec<C64>,
+    proposal: Vec<(f64, DVec3, f64)>,
 }
 
 impl<'a> SubpathSampler<'a> {
@@ -68,12 +74,18 @@ impl<'a> SubpathSampler<'a> {
                     Lobes::default()
                 }
             })
-            .collect();
+            .collect::<Vec<_>>();
+        let lenses = lights.iter().filter_map(|t| match t {
+            Terminal::Lens(l) => Some(*l),
+            Terminal::Ray(_) => None,
+        });
+        let first = FirstVertex::new(scene.sampling, lenses, &scene.medium, &lobes[0], scene.k);
         Ok(SubpathSampler {
             scene,
             lights,
             views,
             lobes,
+            first,
             pairs,
             reversed,
         })
@@ -100,6 +112,7 @@ impl<'a> SubpathSampler<'a> {
             amp_last_l: vec![C64::default(); nl],
             amp_last_v: vec![C64::default(); nv],
             a: vec![C64::default(); self.pairs.len()],
+            proposal: Vec::new(),
         }
     }
 
@@ -110,9 +123,13 @@ impl<'a> SubpathSampler<'a> {
         let geo = &m.geometry;
         let sigma_t = m.sigma_t();
         let albedo = m.albedo();
-        let volume = m.sigma_s * geo.sampling_volume() / geo.normalising_area();
-
-        let x1 = geo.sample_volume([uniform(rng), uniform(rng), uniform(rng)]);
+        let drawn = self.first.draw(geo, rng);
+        if !geo.contains(drawn.x) {
+            return;
+        }
+        let x1 = drawn.x;
+        // σ_s / p(x₁): σ_s V for a uniform first vertex (V per unit area for a slab)
+        let volume = m.sigma_s * drawn.inv_pdf;
         let kind1 = m.scattering.pick(|| uniform(rng));
         let (phase1, lobes1) = (m.scattering.phase(kind1), &self.lobes[kind1]);
         for (e, c) in self.lights.iter().zip(sc.first_l.iter_mut()) {
@@ -129,8 +146,11 @@ impl<'a> SubpathSampler<'a> {
         }
         sink.event(false, &sc.a, rng);
 
-        // B ≥ 2: uniform first direction, then volume path tracing with next-event connections.
-        let w1 = uniform_sphere(uniform(rng), uniform(rng));
+        // B ≥ 2: the first direction (uniform, or from |Υ|²), then volume path tracing with
+        // next-event connections.
+        let (w1, inv_pdf_w1) = self
+            .first
+            .direction(x1, m, &self.lobes[0], rng, &mut sc.proposal);
         let d = -(1.0 - uniform(rng)).ln() / sigma_t;
         if d >= geo.exit_distance(x1, w1) {
             return;
@@ -141,7 +161,7 @@ impl<'a> SubpathSampler<'a> {
         for (c, a) in sc.first_v.iter().zip(sc.amp_first_v.iter_mut()) {
             *a = c.amplitude(-w1, phase1, lobes1);
         }
-        let scale = volume / INV_4PI * if self.reversed { 0.5 } else { 1.0 };
+        let scale = volume * inv_pdf_w1 * if self.reversed { 0.5 } else { 1.0 };
         let mut x = x1 + w1 * d;
         let mut w_in = w1;
         let mut throughput = albedo;
