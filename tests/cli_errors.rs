@@ -292,3 +292,44 @@ fn bad_flags() {
         assert!(err.contains(args[0]), "{args:?}: {err}");
     }
 }
+
+#[test]
+fn bad_near_field_settings() {
+    let vmf = GOOD.replace(
+        r#"phase = { kind = "hg", g = 0.3 }"#,
+        r#"phase = { kind = "vmf_mixture", weights = [1.0, 0.3], kappas = [20.0, 2.0] }"#,
+    );
+    let (ok, err, wrote) = run_config("vmf-good", &vmf);
+    assert!(ok && wrote, "{err}");
+    expect_error(
+        "vmf-weight",
+        &vmf.replace("weights = [1.0, 0.3]", "weights = [1.0, -0.3]"),
+        &["medium.phase.weights[1]", "-0.3", "positive"],
+    );
+    expect_error(
+        "vmf-len",
+        &vmf.replace("weights = [1.0, 0.3]", "weights = [1.0]"),
+        &["medium.phase.weights", "kappas"],
+    );
+    expect_error(
+        "first-direction",
+        &GOOD.replace(
+            "chunk = 500",
+            "chunk = 500\nfirst_vertex = \"uniform\"\nfirst_direction = \"aperture\"",
+        ),
+        &["render.first_direction", "aperture", "first_vertex"],
+    );
+    let focused_slab = GOOD.replace("box = [4.0, 4.0, 4.0]", "slab = 4.0").replace(
+        "kind = \"plane_wave\"\ndirection = [0.0, 0.0, 1.0]",
+        "kind = \"focused\"\nfocus = [0.0, 0.0, 2.0]\naxis = [0.0, 0.0, 1.0]\naperture_sigma = 0.4",
+    );
+    expect_error("focused-slab", &focused_slab, &["focused", "medium.box"]);
+    expect_error(
+        "focused-grid",
+        &GOOD.replace(
+            "kind = \"far_field\"\ndirection = [0.0, 0.0, 1.0]",
+            "kind = \"focused_grid\"\ncenter = [0.0, 0.0, 2.0]\naxis = [0.0, 0.0, 1.0]\naperture_sigma = 0.4\nspacing = 0.0\npixels = [4, 4]",
+        ),
+        &["view[0].spacing", "0", "positive"],
+    );
+}

@@ -142,6 +142,11 @@ impl PhaseConfig {
                     .map(PhaseFunction::Tabulated)
                     .map_err(|e| ConfigError(format!("{key}: {e}")))
             }
+            PhaseConfig::VmfMixture { weights, kappas } => {
+                crate::medium::lobes::VmfMixture::new(weights, kappas)
+                    .map(PhaseFunction::VmfMixture)
+                    .map_err(|e| ConfigError(format!("{key}.{e}")))
+            }
             PhaseConfig::Mixture { .. } => err(format!("{key}: mixtures cannot be nested")),
         }
     }

@@ -82,6 +82,11 @@ pub enum PhaseConfig {
         #[serde(default, skip_serializing_if = "Option::is_none")]
         file: Option<PathBuf>,
     },
+    /// Amplitude as vMF lobes `s(μ) ∝ Σ w_m exp(κ_m (μ − 1))` (paper 000, Eq. 28), normalised here.
+    VmfMixture {
+        weights: Vec<f64>,
+        kappas: Vec<f64>,
+    },
     /// Several particle types; `weight` is each type's share of `σ_s` (paper 001, App. 9.1).
     Mixture {
         components: Vec<ComponentConfig>,
@@ -127,6 +132,16 @@ pub enum ViewConfig {
         focus: [f64; 3],
         axis: [f64; 3],
         aperture_sigma: f64,
+    },
+    /// A `pixels[0] × pixels[1]` image of sensor foci `spacing` apart on the plane through `center`
+    /// across `axis` (row-major, x along the frame's first axis), each a focused view: a
+    /// near-field speckle image (paper 000, Sec. 7).
+    FocusedGrid {
+        center: [f64; 3],
+        axis: [f64; 3],
+        aperture_sigma: f64,
+        spacing: f64,
+        pixels: [u64; 2],
     },
     /// `count` far-field directions: `start` rotated about `axis` by `i · span_deg / count` degrees.
     FarFieldRing {
@@ -496,6 +511,38 @@ fn expand_view(
             let (focus, axis, gamma) =
                 focused(&format!("view[{i}]"), *focus, *axis, *aperture_sigma)?;
             out.push(View::Focused { focus, axis, gamma })
+        }
+        ViewConfig::FocusedGrid {
+            center,
+            axis,
+            aperture_sigma,
+            spacing,
+            pixels,
+        } => {
+            let (c, a, gamma) = focused(&format!("view[{i}]"), *center, *axis, *aperture_sigma)?;
+            if !spacing.is_finite() || *spacing <= 0.0 {
+                return err(format!(
+                    "view[{i}].spacing = {spacing}: must be a positive distance between foci"
+                ));
+            }
+            let [nx, ny] = *pixels;
+            if nx == 0 || ny == 0 || nx * ny > 1_000_000 {
+                return err(format!(
+                    "view[{i}].pixels = {pixels:?}: each must be at least 1 and nx·ny at most 1000000"
+                ));
+            }
+            let (ex, ey) = crate::math::orthonormal_basis(a);
+            for iy in 0..ny {
+                for ix in 0..nx {
+                    let dx = (ix as f64 - 0.5 * (nx as f64 - 1.0)) * spacing;
+                    let dy = (iy as f64 - 0.5 * (ny as f64 - 1.0)) * spacing;
+                    out.push(View::Focused {
+                        focus: c + ex * dx + ey * dy,
+                        axis: a,
+                        gamma,
+                    });
+                }
+            }
         }
         ViewConfig::FarFieldRing {
             start,

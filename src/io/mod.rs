@@ -22,7 +22,8 @@ pub fn write_json<T: serde::Serialize + ?Sized>(
 /// Image shape for `views` fields: the pixel grid when the config's only view is a grid, else a row.
 pub fn image_shape(cfg: &crate::config::Config, views: usize) -> (usize, usize) {
     match cfg.view.as_slice() {
-        [crate::config::ViewConfig::FarFieldGrid { pixels, .. }] => {
+        [crate::config::ViewConfig::FarFieldGrid { pixels, .. }]
+        | [crate::config::ViewConfig::FocusedGrid { pixels, .. }] => {
             (pixels[0] as usize, pixels[1] as usize)
         }
         _ => (views, 1),

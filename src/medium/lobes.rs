@@ -45,18 +45,179 @@ impl Lobes {
             .sum()
     }
 
-    /// The lobes of `p`'s amplitude: exact for isotropic scattering, fitted otherwise.
+    /// The lobes of `p`'s amplitude: exact for isotropic scattering and vMF mixtures, fitted
+    /// otherwise. Fits are cached for the life of the process (fits and scans rebuild samplers for
+    /// the same phase function many times).
     pub fn of(p: &PhaseFunction) -> Lobes {
-        if let PhaseFunction::Isotropic = p {
-            return Lobes {
+        match p {
+            PhaseFunction::Isotropic => Lobes {
                 lobes: vec![Lobe {
                     weight: C64::new((0.25 / PI).sqrt(), 0.0),
                     kappa: 0.0,
                 }],
                 error: 0.0,
-            };
+            },
+            PhaseFunction::VmfMixture(v) => Lobes {
+                lobes: v
+                    .lobes
+                    .iter()
+                    .map(|&(w, kappa)| Lobe {
+                        weight: C64::new(w, 0.0),
+                        kappa,
+                    })
+                    .collect(),
+                error: 0.0,
+            },
+            _ => {
+                use std::collections::HashMap;
+                use std::sync::{Mutex, OnceLock};
+                static CACHE: OnceLock<Mutex<HashMap<String, Lobes>>> = OnceLock::new();
+                let key = format!("{p:?}");
+                let cache = CACHE.get_or_init(|| Mutex::new(HashMap::new()));
+                if let Some(l) = cache.lock().ok().and_then(|c| c.get(&key).cloned()) {
+                    return l;
+                }
+                let l = fit(|mu| p.amplitude(mu), TOLERANCE);
+                if let Ok(mut c) = cache.lock() {
+                    if c.len() > 256 {
+                        c.clear();
+                    }
+                    c.insert(key, l.clone());
+                }
+                l
+            }
         }
-        fit(|mu| p.amplitude(mu), TOLERANCE)
+    }
+}
+
+/// A phase function given by its amplitude as real vMF lobes about the forward direction,
+/// `s(μ) = Σ w_m exp(κ_m (μ − 1))` normalised to `∫ s² dω = 1` (paper 000, Eq. 28; config
+/// `kind = "vmf_mixture"`). Its `ρ = s²` is itself a mixture of vMF distributions with
+/// concentrations `κ_m + κ_n`, so it is sampled exactly.
+#[derive(Clone, Debug, PartialEq)]
+pub struct VmfMixture {
+    /// `(w_m, κ_m)`, normalised.
+    lobes: Vec<(f64, f64)>,
+    /// `ρ`'s components `(cumulative probability, concentration κ_m + κ_n)`.
+    components: Vec<(f64, f64)>,
+}
+
+/// `∫ exp(K (μ − 1)) dω = 2π (1 − e^{−2K})/K` (4π at `K = 0`), for any real `K`.
+fn lobe_mass(k: f64) -> f64 {
+    if k.abs() < 1e-8 {
+        4.0 * PI
+    } else {
+        2.0 * PI * -(-2.0 * k).exp_m1() / k
+    }
+}
+
+impl VmfMixture {
+    /// From positive weights and finite concentrations (`|κ| ≤ 1e5`; negative ones are backward
+    /// lobes); the message names the offending entry.
+    pub fn new(weights: &[f64], kappas: &[f64]) -> Result<Self, String> {
+        if weights.is_empty() || weights.len() != kappas.len() {
+            return Err(format!(
+                "weights has {} entries and kappas {}: give the same, at least one",
+                weights.len(),
+                kappas.len()
+            ));
+        }
+        for (i, w) in weights.iter().enumerate() {
+            if !w.is_finite() || *w <= 0.0 {
+                return Err(format!("weights[{i}] = {w}: must be positive"));
+            }
+        }
+        for (i, k) in kappas.iter().enumerate() {
+            if !k.is_finite() || k.abs() > 1e5 {
+                return Err(format!(
+                    "kappas[{i}] = {k}: must be finite, within [-1e5, 1e5]"
+                ));
+            }
+        }
+        // ∫ s² dω = Σ_mn w_m w_n ∫ e^{(κ_m+κ_n)(μ−1)} dω
+        let mut masses = Vec::new();
+        let mut total = 0.0;
+        for (wm, km) in weights.iter().zip(kappas) {
+            for (wn, kn) in weights.iter().zip(kappas) {
+                let m = wm * wn * lobe_mass(km + kn);
+                masses.push((m, km + kn));
+                total += m;
+            }
+        }
+        let scale = 1.0 / total.sqrt();
+        let mut acc = 0.0;
+        let components = masses
+            .into_iter()
+            .map(|(m, k)| {
+                acc += m / total;
+                (acc, k)
+            })
+            .collect();
+        Ok(VmfMixture {
+            lobes: weights
+                .iter()
+                .zip(kappas)
+                .map(|(w, k)| (w * scale, *k))
+                .collect(),
+            components,
+        })
+    }
+
+    /// `s(μ)`, real and positive.
+    pub fn amplitude(&self, mu: f64) -> f64 {
+        self.lobes
+            .iter()
+            .map(|(w, k)| w * (k * (mu - 1.0)).exp())
+            .sum()
+    }
+
+    /// `ρ(μ) = s(μ)²`.
+    pub fn eval(&self, mu: f64) -> f64 {
+        self.amplitude(mu).powi(2)
+    }
+
+    /// `μ` with density `2π ρ(μ)` from one uniform number: a component of `ρ`, then its vMF.
+    pub fn sample_mu(&self, u: f64) -> f64 {
+        let i = self
+            .components
+            .partition_point(|c| c.0 <= u)
+            .min(self.components.len() - 1);
+        let lo = if i == 0 {
+            0.0
+        } else {
+            self.components[i - 1].0
+        };
+        let v = ((u - lo) / (self.components[i].0 - lo)).clamp(0.0, 1.0);
+        let k = self.components[i].1;
+        if k.abs() < 1e-8 {
+            return 1.0 - 2.0 * v;
+        }
+        // about the pole the lobe points to, so e^{−2|K|} never overflows
+        let a = k.abs();
+        let t = (1.0 + (v + (1.0 - v) * (-2.0 * a).exp()).ln() / a).clamp(-1.0, 1.0);
+        if k > 0.0 { t } else { -t }
+    }
+
+    /// Mean cosine: `Σ p_mn (coth K − 1/K)`.
+    pub fn mean_cosine(&self) -> f64 {
+        let mut prev = 0.0;
+        self.components
+            .iter()
+            .map(|&(c, k)| {
+                let p = c - prev;
+                prev = c;
+                p * if k.abs() < 1e-4 {
+                    k / 3.0
+                } else {
+                    1.0 / k.tanh() - 1.0 / k
+                }
+            })
+            .sum()
+    }
+
+    /// `(w_m, κ_m)` after normalisation.
+    pub fn lobes(&self) -> &[(f64, f64)] {
+        &self.lobes
     }
 }
 
@@ -406,6 +567,53 @@ mod tests {
             den += jac * s.norm_sqr();
         }
         (num / den).sqrt()
+    }
+
+    #[test]
+    fn vmf_mixture_is_normalised_sampled_and_has_its_mean_cosine() {
+        let v = VmfMixture::new(&[1.0, 0.2, 0.05], &[40.0, 3.0, -2.0]).unwrap();
+        // ∫ ρ dω = 1 and g by independent quadrature
+        let (x, w) = gauss_legendre(2000);
+        let norm: f64 = x
+            .iter()
+            .zip(&w)
+            .map(|(m, w)| 2.0 * PI * w * v.eval(*m))
+            .sum();
+        let g: f64 = x
+            .iter()
+            .zip(&w)
+            .map(|(m, w)| 2.0 * PI * w * m * v.eval(*m))
+            .sum();
+        assert!((norm - 1.0).abs() < 1e-10, "∫ρ = {norm}");
+        assert!(
+            (v.mean_cosine() - g).abs() < 1e-10,
+            "{} vs {g}",
+            v.mean_cosine()
+        );
+        // the sampler's mean cosine and the fraction backwards
+        let n = 400_000;
+        let samples: Vec<f64> = (0..n)
+            .map(|i| v.sample_mu((i as f64 + 0.5) / n as f64))
+            .collect();
+        let mean = samples.iter().sum::<f64>() / n as f64;
+        assert!((mean - g).abs() < 2e-3, "sampled g {mean} vs {g}");
+        let back: f64 = x
+            .iter()
+            .zip(&w)
+            .filter(|(m, _)| **m < 0.0)
+            .map(|(m, w)| 2.0 * PI * w * v.eval(*m))
+            .sum();
+        let sampled_back = samples.iter().filter(|m| **m < 0.0).count() as f64 / n as f64;
+        assert!(
+            (back - sampled_back).abs() < 2e-3,
+            "{back} vs {sampled_back}"
+        );
+        assert!(
+            VmfMixture::new(&[1.0, -1.0], &[1.0, 2.0])
+                .unwrap_err()
+                .contains("weights[1]")
+        );
+        assert!(VmfMixture::new(&[1.0], &[1.0, 2.0]).is_err());
     }
 
     #[test]

@@ -18,6 +18,8 @@ pub enum PhaseFunction {
     },
     /// Piecewise-linear `ρ` (and linearly interpolated amplitude phase) on a grid of cosines.
     Tabulated(Table),
+    /// Amplitude as real vMF lobes (paper 000, Eq. 28).
+    VmfMixture(crate::medium::lobes::VmfMixture),
 }
 
 /// A tabulated phase function on nodes `cos[0] = -1 < … < cos[n-1] = 1`, normalised to `∫ρ dω = 1`.
@@ -296,6 +298,7 @@ impl PhaseFunction {
                 INV_4PI * (1.0 - g * g) / (d * d.sqrt())
             }
             PhaseFunction::Tabulated(t) => t.rho(mu),
+            PhaseFunction::VmfMixture(v) => v.eval(mu),
         }
     }
 
@@ -304,6 +307,7 @@ impl PhaseFunction {
     pub fn amplitude(&self, mu: f64) -> C64 {
         match self {
             PhaseFunction::Tabulated(t) => cis(t.arg(mu)) * t.rho(mu).sqrt(),
+            PhaseFunction::VmfMixture(v) => C64::new(v.amplitude(mu), 0.0),
             _ => C64::new(self.eval(mu).sqrt(), 0.0),
         }
     }
@@ -334,6 +338,7 @@ impl PhaseFunction {
                 }
             }
             PhaseFunction::Tabulated(t) => t.sample_mu(u),
+            PhaseFunction::VmfMixture(v) => v.sample_mu(u),
         }
     }
 
@@ -348,6 +353,7 @@ impl PhaseFunction {
         match self {
             PhaseFunction::Isotropic => 0.0,
             PhaseFunction::HenyeyGreenstein { g } => *g,
+            PhaseFunction::VmfMixture(v) => v.mean_cosine(),
             PhaseFunction::Tabulated(t) => {
                 // exact integral of μ·(linear ρ) on each segment
                 let mut acc = 0.0;

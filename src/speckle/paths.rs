@@ -12,7 +12,9 @@
 use crate::math::{C64, Rng, uniform};
 use crate::medium::lobes::Lobes;
 use crate::speckle::Scene;
-use crate::speckle::endpoint::{Seen, Terminal};
+use crate::speckle::endpoint::{
+    ConvolvedLobe, Seen, Terminal, convolve_lobe, lens_pair_term, log_aperture_mass,
+};
 use crate::speckle::first_vertex::FirstVertex;
 use glam::DVec3;
 
@@ -31,6 +33,11 @@ pub struct SubpathSampler<'a> {
     lobes: Vec<Lobes>,
     /// Draws first vertices and directions (from the focused lights' beams when there are any).
     first: FirstVertex,
+    /// The axis all focused views share, if they do (an image of foci): single scattering between
+    /// two lenses then convolves each light's aperture once per vertex, not once per view.
+    view_axis: Option<DVec3>,
+    /// Most amplitude lobes of any particle type.
+    max_lobes: usize,
     pairs: Vec<(usize, usize)>,
     reversed: bool,
 }
@@ -45,6 +52,8 @@ pub struct PathScratch {
     amp_last_v: Vec<C64>,
     a: Vec<C64>,
     proposal: Vec<(f64, DVec3, f64)>,
+    convolved: Vec<ConvolvedLobe>,
+    view_bound: Vec<f64>,
 }
 
 impl<'a> SubpathSampler<'a> {
@@ -80,12 +89,26 @@ impl<'a> SubpathSampler<'a> {
             Terminal::Ray(_) => None,
         });
         let first = FirstVertex::new(scene.sampling, lenses, &scene.medium, &lobes[0], scene.k);
+        let view_axes: Vec<DVec3> = views
+            .iter()
+            .filter_map(|t| match t {
+                Terminal::Lens(l) => Some(l.axis),
+                Terminal::Ray(_) => None,
+            })
+            .collect();
+        let view_axis = view_axes
+            .first()
+            .filter(|a| view_axes.iter().all(|b| a.dot(*b) > 1.0 - 1e-12))
+            .copied();
+        let max_lobes = lobes.iter().map(|l| l.lobes.len()).max().unwrap_or(0);
         Ok(SubpathSampler {
             scene,
             lights,
             views,
             lobes,
             first,
+            view_axis,
+            max_lobes,
             pairs,
             reversed,
         })
@@ -113,6 +136,8 @@ impl<'a> SubpathSampler<'a> {
             amp_last_v: vec![C64::default(); nv],
             a: vec![C64::default(); self.pairs.len()],
             proposal: Vec::new(),
+            convolved: vec![ConvolvedLobe::default(); nl * self.max_lobes],
+            view_bound: vec![0.0; nv],
         }
     }
 
@@ -141,8 +166,30 @@ impl<'a> SubpathSampler<'a> {
 
         // B = 1: a_j = sqrt(V) υ(i→x1) υ(i→x1→v).
         let root = volume.sqrt();
+        let nlobes = lobes1.lobes.len();
+        if let Some(axis) = self.view_axis {
+            for (l, seen) in sc.first_l.iter().enumerate() {
+                if let Seen::Aperture { vmf, .. } = seen {
+                    for (m, lobe) in lobes1.lobes.iter().enumerate() {
+                        sc.convolved[l * self.max_lobes + m] = convolve_lobe(vmf, lobe, axis);
+                    }
+                }
+            }
+            for (seen, b) in sc.first_v.iter().zip(sc.view_bound.iter_mut()) {
+                if let Seen::Aperture { vmf, .. } = seen {
+                    *b = log_aperture_mass(vmf);
+                }
+            }
+        }
         for (a, &(l, v)) in sc.a.iter_mut().zip(&self.pairs) {
-            *a = sc.first_l[l].single(&sc.first_v[v], phase1, lobes1) * root;
+            *a = match (&sc.first_l[l], &sc.first_v[v], self.view_axis) {
+                (Seen::Aperture { .. }, Seen::Aperture { vmf: av, .. }, Some(_)) => sc.convolved
+                    [l * self.max_lobes..l * self.max_lobes + nlobes]
+                    .iter()
+                    .map(|c| lens_pair_term(c, av, sc.view_bound[v]))
+                    .sum(),
+                (sl, sv, _) => sl.single(sv, phase1, lobes1),
+            } * root;
         }
         sink.event(false, &sc.a, rng);
 
