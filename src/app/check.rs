@@ -13,14 +13,33 @@ pub fn check(path: &Path) -> Result<Outcome> {
     let what = match config::load(path)? {
         Task::Scene(t) => {
             let s = &t.scene;
-            format!(
+            let mut what = format!(
                 "{} light(s), {} view(s), σ_s = {}, σ_a = {}, k = {:.6}",
                 s.lights.len(),
                 s.views.len(),
                 s.medium.sigma_s,
                 s.medium.sigma_a,
                 s.k
-            )
+            );
+            // focused endpoints see the amplitude through its vMF lobes: say how well they fit
+            let focused = s
+                .lights
+                .iter()
+                .any(|l| matches!(l, crate::speckle::Light::Focused { .. }))
+                || s.views
+                    .iter()
+                    .any(|v| matches!(v, crate::speckle::View::Focused { .. }));
+            if focused {
+                for (i, (_, p)) in s.medium.scattering.components().iter().enumerate() {
+                    let l = crate::medium::lobes::Lobes::of(p);
+                    what += &format!(
+                        "; particle type {i}: amplitude as {} vMF lobe(s), relative L² error {:.1e}",
+                        l.lobes.len(),
+                        l.error
+                    );
+                }
+            }
+            what
         }
         Task::Trace(t) => format!("trace config, {} ray(s)", t.rays.len()),
         Task::Design(t) => format!(

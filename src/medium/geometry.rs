@@ -114,6 +114,23 @@ impl Geometry {
         }
     }
 
+    /// Whether `x` lies in the region [`Geometry::sample_volume`] draws from (the box, or the
+    /// slab's window).
+    #[inline]
+    pub fn in_sampling_volume(&self, x: DVec3) -> bool {
+        match self {
+            Geometry::Box { half } => x.abs().cmple(*half).all(),
+            Geometry::Slab {
+                half_thickness,
+                window,
+            } => {
+                x.z.abs() <= *half_thickness
+                    && x.x.abs() <= 0.5 * window
+                    && x.y.abs() <= 0.5 * window
+            }
+        }
+    }
+
     /// Uniform point in the sampling volume from three uniform numbers.
     #[inline]
     pub fn sample_volume(&self, u: [f64; 3]) -> DVec3 {

@@ -48,7 +48,10 @@ struct Beam {
 pub struct FirstVertex {
     beams: Vec<Beam>,
     directions: bool,
+    /// Volume of the uniform draw: absolute with beams (their results are absolute, in a slab
+    /// too), per unit area of a slab without.
     volume: f64,
+    geometry: Geometry,
     k: f64,
 }
 
@@ -95,10 +98,16 @@ impl FirstVertex {
                 })
                 .collect()
         };
+        let g = &medium.geometry;
         FirstVertex {
+            volume: if beams.is_empty() {
+                g.sampling_volume() / g.normalising_area()
+            } else {
+                g.sampling_volume()
+            },
             beams,
             directions: sampling == Sampling::BeamAndAperture,
-            volume: medium.geometry.sampling_volume() / medium.geometry.normalising_area(),
+            geometry: g.clone(),
             k,
         }
     }
@@ -122,7 +131,12 @@ impl FirstVertex {
     /// `p(x₁)`: the defensive mixture of the uniform density and the beams.
     fn pdf(&self, x: DVec3) -> f64 {
         let beams: f64 = self.beams.iter().map(|b| self.beam_pdf(b, x)).sum();
-        DEFENSIVE / self.volume + (1.0 - DEFENSIVE) * beams / self.beams.len() as f64
+        let uniform = if self.geometry.in_sampling_volume(x) {
+            DEFENSIVE / self.volume
+        } else {
+            0.0
+        };
+        uniform + (1.0 - DEFENSIVE) * beams / self.beams.len() as f64
     }
 
     /// Draw `x₁` (it may fall outside the medium: the caller then has an empty path).
