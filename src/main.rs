@@ -29,6 +29,8 @@ enum Command {
     Speckle(RunArgs),
     /// Intensity correlation vs tilt angle, against Eq. 39 → memory_effect.json + PNG
     MemoryEffect(RunArgs),
+    /// Near-field correlation maps C(Δ, τ) of focused lights and views (paper 000, Eq. 48) → correlation_map.json + PNG
+    CorrelationMap(RunArgs),
     /// Merge the shards of one run (folders holding state.bin) into the single run's results
     Merge {
         /// Shard folders (or state.bin files)
@@ -234,6 +236,7 @@ fn dispatch(command: Option<Command>) -> Result<Outcome> {
         Some(Command::Covariance(a)) => run(Kind::Covariance, a),
         Some(Command::Speckle(a)) => run(Kind::Speckle, a),
         Some(Command::MemoryEffect(a)) => run(Kind::MemoryEffect, a),
+        Some(Command::CorrelationMap(a)) => run(Kind::CorrelationMap, a),
         Some(Command::Merge { shards, out }) => app::run::merge_shards(&shards, &out),
         Some(Command::Wave {
             config,

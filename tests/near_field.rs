@@ -417,3 +417,59 @@ fn focused_fields_match_the_covariance() {
     let cross = 2 * j * j + 4 * j + 1; // (light 1, view 0) × (light 0, view 1)
     assert!(cov.mean[cross].norm() > 10.0 * cov.stderr[cross]);
 }
+
+/// The correlation-map estimator accumulates exactly the covariance entries `C(Δ, τ)` of Eq. 48
+/// (same paths, same seed), and the memory effect shows in it: `|C|` falls as `Δ` grows.
+#[test]
+fn correlation_map_equals_the_covariance_entries() {
+    use lightpath::speckle::correlation_map::{CorrelationMap, MapEstimator};
+    let m = Medium {
+        geometry: Geometry::boxed([8.0, 8.0, 4.0]),
+        sigma_s: 0.25,
+        sigma_a: 0.0,
+        scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g: 0.8 }),
+    };
+    let base = Scene::new(
+        1.0,
+        m,
+        vec![focused_light(0.0, 2.0, 0.3)],
+        vec![focused_view(0.0, 0.0, 2.0, 0.3)],
+    );
+    let map = CorrelationMap::new(&base, &[[0.5, 0.0], [2.0, 0.0]], 1.0, [3, 3]).unwrap();
+    let (k, t) = (map.deltas.len(), map.taus.len());
+    let plan = Plan::new(4, 20_000, 1000);
+    let est = MapEstimator::new(&map, true).unwrap();
+    let got = Estimate::from_block(
+        &merge(run(&est, &plan, 0..plan.chunks, &[], &|_| {}), plan.chunks).unwrap(),
+        &plan,
+    );
+    let cov = Covariance::with_pairs(&map.scene, map.pairs(), true).unwrap();
+    let want = Estimate::from_block(
+        &merge(run(&cov, &plan, 0..plan.chunks, &[], &|_| {}), plan.chunks).unwrap(),
+        &plan,
+    );
+    let j = k * t;
+    for d in 0..k {
+        for p in 0..t {
+            let c = got.mean[d * t + p];
+            let w = want.mean[2 * j * j + p * j + d * t + p];
+            assert!((c - w).norm() < 1e-9 * w.norm(), "Δ {d}, τ {p}: {c} vs {w}");
+            let i = got.mean[k * t + d * t + p].re;
+            let wi = want.mean[2 * j * j + (d * t + p) * (j + 1)].re;
+            assert!(
+                (i - wi).abs() < 1e-9 * wi,
+                "intensity Δ {d}, τ {p}: {i} vs {wi}"
+            );
+        }
+    }
+    let centre = t / 2;
+    let (c0, c1, c2) = (
+        got.mean[centre].norm(),
+        got.mean[t + centre].norm(),
+        got.mean[2 * t + centre].norm(),
+    );
+    assert!(
+        c0 > c1 && c1 > c2,
+        "|C| at τ = 0 for Δ = 0, 0.5, 2: {c0} {c1} {c2}"
+    );
+}

@@ -14,6 +14,7 @@
 pub mod bench;
 pub mod check;
 pub mod compare;
+pub mod correlation_map;
 pub mod fit;
 pub mod grin;
 pub mod run;

@@ -25,6 +25,8 @@ pub enum Kind {
     Covariance,
     MemoryEffect,
     Speckle,
+    /// Near-field `C(Δ, τ)` maps (see [`super::correlation_map`]).
+    CorrelationMap,
     /// Foldy–Lax realisations (see [`super::wave`]).
     Wave,
 }
@@ -35,6 +37,7 @@ impl Kind {
             Kind::Covariance => "covariance",
             Kind::MemoryEffect => "memory-effect",
             Kind::Speckle => "speckle",
+            Kind::CorrelationMap => "correlation-map",
             Kind::Wave => "wave",
         }
     }
@@ -44,6 +47,7 @@ impl Kind {
             Kind::Covariance,
             Kind::MemoryEffect,
             Kind::Speckle,
+            Kind::CorrelationMap,
             Kind::Wave,
         ]
         .into_iter()
@@ -85,6 +89,11 @@ pub fn run_scene(
     if kind == Kind::MemoryEffect && cfg.memory_effect.is_none() {
         return Err(Error::input(
             "memory-effect needs a [memory_effect] table with angles_deg = [...]",
+        ));
+    }
+    if kind == Kind::CorrelationMap && cfg.correlation_map.is_none() {
+        return Err(Error::input(
+            "correlation-map needs a [correlation_map] table with deltas = [[x, y], ...], tau_width and pixels",
         ));
     }
     cfg.check_settings()?;
@@ -280,6 +289,11 @@ fn compute(
             let est = Covariance::with_pairs(&scan.scene, scan.pairs(), reversed)?;
             run(&est, plan, range, &scan.kept_outputs(), &progress)
         }
+        Kind::CorrelationMap => {
+            let map = super::correlation_map::map_of(task)?;
+            let est = crate::speckle::correlation_map::MapEstimator::new(&map, reversed)?;
+            run(&est, plan, range, &[], &progress)
+        }
         Kind::Wave => {
             let est = crate::speckle::wave::Realizations::new(scene);
             run(&est, plan, range, &est.kept_outputs(), &progress)
@@ -322,6 +336,7 @@ fn finish(
         Kind::Covariance => finish_covariance(task, plan, blocks, seconds, out),
         Kind::MemoryEffect => finish_memory(task, plan, blocks, seconds, out),
         Kind::Speckle => finish_speckle(task, plan, blocks, seconds, out),
+        Kind::CorrelationMap => super::correlation_map::finish(task, plan, blocks, seconds, out),
         Kind::Wave => super::wave::finish(task, plan, blocks, seconds, out),
     }
 }

@@ -34,6 +34,18 @@ pub struct Config {
     pub memory_effect: Option<MemoryEffectConfig>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub speckle: Option<SpeckleConfig>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub correlation_map: Option<CorrelationMapConfig>,
+}
+
+/// `C(Δ, τ)` map (paper 000, Eq. 48): light 0 and view 0 (both focused) shifted by each `Δ`
+/// (`[x, y]` across the light's axis) and the view by a `pixels` grid of `τ`, `tau_width` wide.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct CorrelationMapConfig {
+    pub deltas: Vec<[f64; 2]>,
+    pub tau_width: f64,
+    pub pixels: [u64; 2],
 }
 
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq, Default)]
@@ -383,6 +395,34 @@ impl Config {
                 }
             }
             unit("memory_effect.axis", me.axis)?;
+        }
+        if let Some(m) = &self.correlation_map {
+            if m.deltas.is_empty() || m.deltas.len() > 64 {
+                return err(format!(
+                    "correlation_map.deltas has {} entries: give 1 to 64 shifts [x, y]",
+                    m.deltas.len()
+                ));
+            }
+            for (i, d) in m.deltas.iter().enumerate() {
+                if !d[0].is_finite() || !d[1].is_finite() {
+                    return err(format!(
+                        "correlation_map.deltas[{i}] = {d:?}: must be finite"
+                    ));
+                }
+            }
+            if !m.tau_width.is_finite() || m.tau_width < 0.0 {
+                return err(format!(
+                    "correlation_map.tau_width = {}: must be a finite width ≥ 0",
+                    m.tau_width
+                ));
+            }
+            let [nx, ny] = m.pixels;
+            if nx == 0 || ny == 0 || nx * ny * (m.deltas.len() as u64 + 1) > 1_000_000 {
+                return err(format!(
+                    "correlation_map.pixels = {:?}: each must be at least 1 and pixels × (deltas + 1) at most 1000000",
+                    m.pixels
+                ));
+            }
         }
         if let Some(s) = &self.speckle {
             if s.realisations == 0 {

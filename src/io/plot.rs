@@ -33,6 +33,43 @@ fn register_font() {
     });
 }
 
+/// Heat maps side by side, one per panel title, values in `[0, 1]` (row-major `ny × nx`), with
+/// a grey scale from black (0) to white (1).
+pub fn heat_maps(
+    path: &Path,
+    title: &str,
+    panels: &[(String, Vec<f64>)],
+    nx: usize,
+    ny: usize,
+) -> crate::Result<()> {
+    register_font();
+    let e = |e: &dyn std::fmt::Display| e.to_string();
+    let side = 260u32;
+    let width = side * panels.len().max(1) as u32 + 20;
+    let root = BitMapBackend::new(path, (width, side + 70)).into_drawing_area();
+    root.fill(&WHITE).map_err(|x| e(&x))?;
+    let root = root.titled(title, ("sans-serif", 20)).map_err(|x| e(&x))?;
+    let areas = root.split_evenly((1, panels.len().max(1)));
+    for ((name, values), area) in panels.iter().zip(areas) {
+        let mut chart = ChartBuilder::on(&area)
+            .caption(name, ("sans-serif", 15))
+            .margin(8)
+            .build_cartesian_2d(0..nx, 0..ny)
+            .map_err(|x| e(&x))?;
+        chart
+            .draw_series((0..ny).flat_map(|y| {
+                (0..nx).map(move |x| {
+                    let v = values[y * nx + x].clamp(0.0, 1.0);
+                    let g = (255.0 * v) as u8;
+                    Rectangle::new([(x, y), (x + 1, y + 1)], RGBColor(g, g, g).filled())
+                })
+            }))
+            .map_err(|x| e(&x))?;
+    }
+    root.present().map_err(|x| e(&x))?;
+    Ok(())
+}
+
 /// Memory-effect curve with error bars and the diffusion prediction (paper 001, Eq. 39).
 pub fn memory_effect(path: &Path, c: &MemoryCurve) -> crate::Result<()> {
     register_font();

@@ -324,6 +324,29 @@ impl ResultFile for MemoryEffectFile {
     }
 }
 
+/// `correlation_map.json`: near-field `C(Δ, τ)` maps (paper 000, Eq. 48), `[delta][y][x]`, with
+/// `delta` 0 the unshifted pair (its `C` is the intensity), and `|C| / √(I(0, τ) I(Δ, τ + Δ))`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct CorrelationMapFile {
+    #[serde(flatten)]
+    pub run: RunEcho,
+    /// Shifts `Δ` (3-vectors in the scene's frame), the first 0.
+    pub deltas: Vec<[f64; 3]>,
+    /// `τ` of pixel `[y][x]`.
+    pub taus: Vec<Vec<[f64; 3]>>,
+    pub re: Vec<Vec<Vec<f64>>>,
+    pub im: Vec<Vec<Vec<f64>>>,
+    pub stderr: Vec<Vec<Vec<f64>>>,
+    pub normalised: Vec<Vec<Vec<f64>>>,
+}
+
+impl ResultFile for CorrelationMapFile {
+    const NAME: &'static str = "correlation_map.json";
+    fn format_version(&self) -> u32 {
+        self.run.format_version
+    }
+}
+
 /// `speckle.json`: speckle fields `u[r][l][v]` of every realisation.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct SpeckleFile {

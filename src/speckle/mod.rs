@@ -1,6 +1,7 @@
 //! Speckle statistics: the mean, the covariance (Algorithm 1) and speckle fields (Algorithm 2) of
 //! coherent light scattered by a random medium (paper 001).
 
+pub mod correlation_map;
 pub mod covariance;
 pub mod endpoint;
 pub mod field;

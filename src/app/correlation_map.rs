@@ -1,0 +1,101 @@
+//! `lightpath correlation-map`: near-field `C(Δ, τ)` maps (paper 000, Eq. 48) → JSON + PNG.
+
+use super::Outcome;
+use crate::config::SceneTask;
+use crate::error::{Error, Result};
+use crate::io::results::{CorrelationMapFile, ResultFile, RunEcho};
+use crate::mc::{Block, Estimate, Plan, merge};
+use crate::speckle::correlation_map::CorrelationMap;
+use std::path::Path;
+
+/// The map a scene task asks for (its `[correlation_map]` table).
+pub(crate) fn map_of(task: &SceneTask) -> Result<CorrelationMap> {
+    let m = task
+        .config
+        .correlation_map
+        .as_ref()
+        .ok_or_else(|| Error::input("correlation-map needs a [correlation_map] table with deltas = [[x, y], ...], tau_width and pixels"))?;
+    CorrelationMap::new(
+        &task.scene,
+        &m.deltas,
+        m.tau_width,
+        [m.pixels[0] as usize, m.pixels[1] as usize],
+    )
+}
+
+pub(crate) fn finish(
+    task: &SceneTask,
+    plan: &Plan,
+    blocks: Vec<Block>,
+    seconds: f64,
+    out: &Path,
+) -> Result<Outcome> {
+    let map = map_of(task)?;
+    let root = merge(blocks, plan.chunks)?;
+    let e = Estimate::from_block(&root, plan);
+    super::run::check_finite("correlation-map", &e.mean)?;
+    let (k, t) = (map.deltas.len(), map.taus.len());
+    let [nx, ny] = map.pixels;
+    let grid = |f: &dyn Fn(usize, usize) -> f64| -> Vec<Vec<Vec<f64>>> {
+        (0..k)
+            .map(|d| {
+                (0..ny)
+                    .map(|y| (0..nx).map(|x| f(d, y * nx + x)).collect())
+                    .collect()
+            })
+            .collect()
+    };
+    let c = |d: usize, p: usize| e.mean[d * t + p];
+    let intensity = |d: usize, p: usize| e.mean[k * t + d * t + p].re;
+    let normalised = |d: usize, p: usize| {
+        let n = (intensity(0, p) * intensity(d, p)).sqrt();
+        if n > 0.0 { c(d, p).norm() / n } else { 0.0 }
+    };
+    let mut echo = RunEcho::new(&task.config, &map.scene, plan.samples(), plan.seed, seconds);
+    echo.chunk = Some(plan.chunk_paths);
+    echo.reversed = Some(task.config.render.reversed);
+    let file = CorrelationMapFile {
+        run: echo,
+        deltas: map.deltas.iter().map(|d| d.to_array()).collect(),
+        taus: (0..ny)
+            .map(|y| (0..nx).map(|x| map.taus[y * nx + x].to_array()).collect())
+            .collect(),
+        re: grid(&|d, p| c(d, p).re),
+        im: grid(&|d, p| c(d, p).im),
+        stderr: grid(&|d, p| e.stderr[d * t + p]),
+        normalised: grid(&normalised),
+    };
+    let path = out.join(CorrelationMapFile::NAME);
+    file.write(&path)?;
+    let png = out.join("correlation_map.png");
+    // one scale for all panels: the peak intensity of the unshifted map
+    let peak = (0..t).map(|p| intensity(0, p)).fold(0.0, f64::max);
+    let panels: Vec<(String, Vec<f64>)> = (0..k)
+        .map(|d| {
+            let m = map.deltas[d];
+            (
+                format!("Δ = ({:.2}, {:.2}, {:.2})", m.x, m.y, m.z),
+                (0..t)
+                    .map(|p| {
+                        if peak > 0.0 {
+                            c(d, p).norm() / peak
+                        } else {
+                            0.0
+                        }
+                    })
+                    .collect(),
+            )
+        })
+        .collect();
+    crate::io::plot::heat_maps(&png, "|C(Δ, τ)| / max I over τ", &panels, nx, ny)
+        .map_err(|err| Error::input(format!("cannot write {}: {err}", png.display())))?;
+    Ok(Outcome {
+        not_converged: None,
+        summary: format!(
+            "C(Δ, τ) for {} shift(s) over {nx} × {ny} τ from {} paths",
+            k - 1,
+            plan.samples()
+        ),
+        files: vec![path, png],
+    })
+}
