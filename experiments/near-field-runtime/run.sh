@@ -9,6 +9,8 @@ for s in small medium large; do
     "$bin" correlation-map "$s.toml" --out "out/$s" --quiet
     ./analyse.py "out/$s"
 done
-# the small scene against a reference with 20× the paths
-"$bin" correlation-map small.toml --samples 400000 --out out/small-reference --quiet
-./analyse.py out/small out/small-reference
+# each against a reference with 20× the paths
+for s in small medium large; do
+    "$bin" correlation-map "$s.toml" --samples 400000 --out "out/$s-reference" --quiet
+    ./analyse.py "out/$s" "out/$s-reference"
+done
