@@ -6,23 +6,31 @@
 //! product over interior vertices; `V = Vol/Area`, halved with reversed paths, times any Russian
 //! roulette factor), and `w = σ_s V` for single scattering (paper 001, Eqs. 31–36). Every endpoint
 //! amplitude `A = ξ e^{-σ_t ℓ/2} s(μ)` has `∂A/∂θ = A λ` with `λ = -ℓ/2` for `σ_s, σ_a` and
-//! `λ = ½ ∂log ρ/∂g` for HG `g`, so `∂a/∂θ` and `∂log w/∂θ` are cheap per event.
+//! `λ = ½ ∂log ρ/∂g` for HG `g`, so `∂a/∂θ` and `∂log w/∂θ` are cheap per event. A focused
+//! endpoint's aperture integral `Υ` (paper 000) carries `e^{-σ_t d/2}` along its axis, so it has the
+//! same `λ = -d/2` for `σ_s, σ_a`; its dependence on the phase function goes through the fitted vMF
+//! lobes, which are not differentiated: `g`, table nodes and shares are refused with focused
+//! endpoints.
 
 use super::Param;
 use crate::math::{C64, INV_4PI, Rng, uniform, uniform_sphere};
 use crate::mc::Estimator;
+use crate::medium::lobes::Lobes;
 use crate::medium::{Medium, PhaseFunction};
 use crate::speckle::Scene;
 use crate::speckle::covariance::Batch;
-use crate::speckle::endpoint::{Connection, Endpoint};
+use crate::speckle::endpoint::{Connection, Seen, Terminal};
+use glam::DVec3;
 
 /// Paths from `proposal`, contributions evaluated for the medium `target` with derivatives with
 /// respect to `params`.
 pub struct Reweighted<'a> {
     proposal: &'a Scene,
     target: Medium,
-    lights: Vec<Endpoint>,
-    views: Vec<Endpoint>,
+    lights: Vec<Terminal>,
+    views: Vec<Terminal>,
+    /// vMF lobes of each particle type's amplitude (fitted only when an endpoint is focused).
+    lobes: Vec<Lobes>,
     pairs: Vec<(usize, usize)>,
     reversed: bool,
     params: Vec<Param>,
@@ -35,8 +43,8 @@ trait DiffSink {
 
 /// Per-thread working memory.
 pub struct DiffScratch {
-    first_l: Vec<Connection>,
-    first_v: Vec<Connection>,
+    first_l: Vec<Seen>,
+    first_v: Vec<Seen>,
     /// Endpoint amplitudes at the first and current vertex, and their λ factors (P per endpoint).
     amp1_l: Vec<C64>,
     amp1_v: Vec<C64>,
@@ -74,21 +82,48 @@ impl<'a> Reweighted<'a> {
         if target.geometry != proposal.medium.geometry {
             return Err("the target medium must have the proposal's geometry".into());
         }
-        let lights = proposal
-            .lights
+        let lights: Vec<Terminal> = proposal.lights.iter().map(|&l| l.into()).collect();
+        let views: Vec<Terminal> = proposal.views.iter().map(|&v| v.into()).collect();
+        let focused = lights.iter().chain(&views).any(Terminal::is_lens);
+        if focused {
+            if matches!(target.geometry, crate::medium::Geometry::Slab { .. }) {
+                return Err(crate::Error::input(
+                    "focused lights and views need a bounded medium: use medium.box instead of medium.slab",
+                ));
+            }
+            if let Some(p) = params
+                .iter()
+                .find(|p| matches!(p, Param::G(_) | Param::Bin(..)))
+            {
+                return Err(crate::Error::input(format!(
+                    "the gradient with respect to {} is not available with focused lights or views (their aperture integrals use a fitted vMF form of the phase function); fit sigma_s, sigma_a, mfp, albedo or shares",
+                    p.name()
+                )));
+            }
+            if proposal.medium.scattering != target.scattering {
+                return Err(crate::Error::input(
+                    "with focused lights or views the target must have the proposal's phase functions",
+                ));
+            }
+        }
+        let lobes = target
+            .scattering
+            .components()
             .iter()
-            .map(|&l| Endpoint::try_from(l))
-            .collect::<Result<_, _>>()?;
-        let views = proposal
-            .views
-            .iter()
-            .map(|&v| Endpoint::try_from(v))
-            .collect::<Result<_, _>>()?;
+            .map(|(_, p)| {
+                if focused {
+                    Lobes::of(p)
+                } else {
+                    Lobes::default()
+                }
+            })
+            .collect();
         Ok(Reweighted {
             proposal,
             target,
             lights,
             views,
+            lobes,
             pairs,
             reversed,
             params,
@@ -111,8 +146,8 @@ impl<'a> Reweighted<'a> {
             self.params.len(),
         );
         DiffScratch {
-            first_l: vec![Connection::default(); nl],
-            first_v: vec![Connection::default(); nv],
+            first_l: vec![Seen::default(); nl],
+            first_v: vec![Seen::default(); nv],
             amp1_l: vec![C64::default(); nl],
             amp1_v: vec![C64::default(); nv],
             lam1_l: vec![0.0; nl * p],
@@ -130,11 +165,23 @@ impl<'a> Reweighted<'a> {
     }
 
     /// Target amplitude `A = prop e^{-Δσ_t ℓ/2} s_θ(μ)` of a connection at a vertex of type `kind`,
-    /// and its λ factors.
+    /// with the path direction `u` (scattering cosine `u·dir`), and its λ factors; for a focused
+    /// endpoint `Υ e^{-Δσ_t d/2}`.
     #[inline]
-    fn amplitude(&self, c: &Connection, mu: f64, kind: usize, lam: &mut [f64]) -> C64 {
+    fn amplitude(&self, c: &Seen, u: DVec3, kind: usize, lam: &mut [f64]) -> C64 {
         let d_sigma_t = self.target.sigma_t() - self.proposal.medium.sigma_t();
         let phase = self.target.scattering.phase(kind);
+        let inside = c.inside();
+        let Seen::Ray(ray) = c else {
+            for (l, p) in lam.iter_mut().zip(&self.params) {
+                *l = match p {
+                    Param::SigmaS | Param::SigmaA => -0.5 * inside,
+                    _ => 0.0,
+                };
+            }
+            return c.amplitude(u, phase, &self.lobes[kind]) * (-0.5 * d_sigma_t * inside).exp();
+        };
+        let mu = u.dot(ray.dir);
         // a tabulated law is located once for all its node parameters (hot: every connection)
         let located = match phase {
             PhaseFunction::Tabulated(t) => Some((t, t.locate(mu))),
@@ -142,14 +189,38 @@ impl<'a> Reweighted<'a> {
         };
         for (l, p) in lam.iter_mut().zip(&self.params) {
             *l = match (p, located) {
-                (Param::SigmaS | Param::SigmaA, _) => -0.5 * c.inside,
+                (Param::SigmaS | Param::SigmaA, _) => -0.5 * inside,
                 (Param::Bin(pc, k), Some((t, at))) if *pc == kind => {
                     0.5 * t.dlog_rho_dnode_at(at, *k)
                 }
                 (p, _) => 0.5 * p.dlog_phase(kind, phase, mu),
             };
         }
-        c.prop * (-0.5 * d_sigma_t * c.inside).exp() * phase.amplitude(mu)
+        ray.prop * (-0.5 * d_sigma_t * inside).exp() * phase.amplitude(mu)
+    }
+
+    /// The single-scattering amplitude of light `cl` and view `cv` at a vertex of type `kind`
+    /// and its λ factors.
+    #[inline]
+    fn single(&self, cl: &Seen, cv: &Seen, kind: usize, lam: &mut [f64]) -> C64 {
+        if let (Seen::Ray(rl), Seen::Ray(rv)) = (cl, cv) {
+            let both = Seen::Ray(Connection {
+                prop: rl.prop * rv.prop,
+                dir: rv.dir,
+                inside: rl.inside + rv.inside,
+            });
+            return self.amplitude(&both, -rl.dir, kind, lam);
+        }
+        let d_sigma_t = self.target.sigma_t() - self.proposal.medium.sigma_t();
+        let inside = cl.inside() + cv.inside();
+        for (l, p) in lam.iter_mut().zip(&self.params) {
+            *l = match p {
+                Param::SigmaS | Param::SigmaA => -0.5 * inside,
+                _ => 0.0,
+            };
+        }
+        let phase = self.target.scattering.phase(kind);
+        cl.single(cv, phase, &self.lobes[kind]) * (-0.5 * d_sigma_t * inside).exp()
     }
 
     fn trace<S: DiffSink>(&self, rng: &mut Rng, sc: &mut DiffScratch, sink: &mut S) {
@@ -164,22 +235,16 @@ impl<'a> Reweighted<'a> {
         let x1 = geo.sample_volume([uniform(rng), uniform(rng), uniform(rng)]);
         let kind1 = m0.scattering.pick(|| uniform(rng));
         for (e, c) in self.lights.iter().zip(sc.first_l.iter_mut()) {
-            *c = e.connect(x1, m0, s.k);
+            *c = e.seen_from(x1, m0, s.k);
         }
         for (e, c) in self.views.iter().zip(sc.first_v.iter_mut()) {
-            *c = e.connect(x1, m0, s.k);
+            *c = e.seen_from(x1, m0, s.k);
         }
 
         // single scattering: a_j = υ(i→x1) υ(i→x1→v), w = σ_s V
         for (n, &(l, v)) in self.pairs.iter().enumerate() {
             let (cl, cv) = (&sc.first_l[l], &sc.first_v[v]);
-            let mu = -cl.dir.dot(cv.dir);
-            let both = Connection {
-                prop: cl.prop * cv.prop,
-                dir: cv.dir,
-                inside: cl.inside + cv.inside,
-            };
-            sc.a[n] = self.amplitude(&both, mu, kind1, &mut sc.lam);
+            sc.a[n] = self.single(cl, cv, kind1, &mut sc.lam);
             for p in 0..np {
                 sc.da[p * self.pairs.len() + n] = sc.a[n] * sc.lam[p];
             }
@@ -212,20 +277,10 @@ impl<'a> Reweighted<'a> {
             return;
         }
         for (i, c) in sc.first_l.iter().enumerate() {
-            sc.amp1_l[i] = self.amplitude(
-                c,
-                -w1.dot(c.dir),
-                kind1,
-                &mut sc.lam1_l[i * np..(i + 1) * np],
-            );
+            sc.amp1_l[i] = self.amplitude(c, -w1, kind1, &mut sc.lam1_l[i * np..(i + 1) * np]);
         }
         for (i, c) in sc.first_v.iter().enumerate() {
-            sc.amp1_v[i] = self.amplitude(
-                c,
-                -w1.dot(c.dir),
-                kind1,
-                &mut sc.lam1_v[i * np..(i + 1) * np],
-            );
+            sc.amp1_v[i] = self.amplitude(c, -w1, kind1, &mut sc.lam1_v[i * np..(i + 1) * np]);
         }
         let base = vol / INV_4PI * if self.reversed { 0.5 } else { 1.0 };
         let mut x = x1 + w1 * d;
@@ -239,22 +294,12 @@ impl<'a> Reweighted<'a> {
         loop {
             let kind = m0.scattering.pick(|| uniform(rng));
             for (i, e) in self.lights.iter().enumerate() {
-                let c = e.connect(x, m0, s.k);
-                sc.ampb_l[i] = self.amplitude(
-                    &c,
-                    w_in.dot(c.dir),
-                    kind,
-                    &mut sc.lamb_l[i * np..(i + 1) * np],
-                );
+                let c = e.seen_from(x, m0, s.k);
+                sc.ampb_l[i] = self.amplitude(&c, w_in, kind, &mut sc.lamb_l[i * np..(i + 1) * np]);
             }
             for (i, e) in self.views.iter().enumerate() {
-                let c = e.connect(x, m0, s.k);
-                sc.ampb_v[i] = self.amplitude(
-                    &c,
-                    w_in.dot(c.dir),
-                    kind,
-                    &mut sc.lamb_v[i * np..(i + 1) * np],
-                );
+                let c = e.seen_from(x, m0, s.k);
+                sc.ampb_v[i] = self.amplitude(&c, w_in, kind, &mut sc.lamb_v[i * np..(i + 1) * np]);
             }
             let b = bounces as f64;
             let log_w = b * m.sigma_s.ln() - m.sigma_t() * hops - (b - 1.0) * sigma_t0.ln()

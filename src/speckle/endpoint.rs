@@ -42,7 +42,7 @@ pub enum View {
 }
 
 /// The error for focused endpoints where only ray endpoints are supported.
-pub const FOCUSED_UNSUPPORTED: &str = "focused lights and views are not supported here yet: gradients (fit, grad) take plane_wave, point and far_field endpoints";
+pub const FOCUSED_UNSUPPORTED: &str = "the gradient of the mean field is not available for focused lights and views; fit covariance or memory-effect statistics instead";
 
 /// An endpoint seen from a vertex: either "far" (a direction) or "near" (a point). By reciprocity a
 /// plane-wave light propagating along `d` is the far endpoint with outgoing direction `-d`.
@@ -131,10 +131,19 @@ impl Lens {
     /// taken along the axis for every direction (Eq. 25).
     #[inline]
     pub fn aperture(&self, x: DVec3, medium: &Medium, k: f64) -> Vmf {
+        self.aperture_and_path(x, medium, k).0
+    }
+
+    /// The aperture and the length `d` of the axis path inside the medium (its attenuation).
+    #[inline]
+    pub fn aperture_and_path(&self, x: DVec3, medium: &Medium, k: f64) -> (Vmf, f64) {
         let inside = medium.geometry.exit_distance(x, self.axis * -self.sign);
-        Vmf::new(
-            C64::new(-self.gamma - 0.5 * medium.sigma_t() * inside, 0.0),
-            CVec3::new(self.axis * self.gamma, (x - self.focus) * (self.sign * k)),
+        (
+            Vmf::new(
+                C64::new(-self.gamma - 0.5 * medium.sigma_t() * inside, 0.0),
+                CVec3::new(self.axis * self.gamma, (x - self.focus) * (self.sign * k)),
+            ),
+            inside,
         )
     }
 }
@@ -184,6 +193,8 @@ pub enum Seen {
         mu2: C64,
         sign: f64,
         axis: DVec3,
+        /// Length of the axis path inside the medium (attenuated as `e^{−σ_t d/2}`).
+        inside: f64,
     },
 }
 
@@ -200,12 +211,13 @@ impl Terminal {
         match self {
             Terminal::Ray(e) => Seen::Ray(e.connect(x, medium, k)),
             Terminal::Lens(lens) => {
-                let vmf = lens.aperture(x, medium, k);
+                let (vmf, inside) = lens.aperture_and_path(x, medium, k);
                 Seen::Aperture {
                     mu2: vmf.mu.dot_self(),
                     vmf,
                     sign: lens.sign,
                     axis: lens.axis,
+                    inside,
                 }
             }
         }
@@ -234,6 +246,15 @@ fn sphere_integral_scaled(c: C64, q2: C64) -> C64 {
 }
 
 impl Seen {
+    /// Length inside the medium over which this connection is attenuated.
+    #[inline]
+    pub fn inside(&self) -> f64 {
+        match self {
+            Seen::Ray(c) => c.inside,
+            Seen::Aperture { inside, .. } => *inside,
+        }
+    }
+
     /// The amplitude joining the terminal to a path at this vertex, where the path's direction
     /// there is given by `u` with scattering cosine `u·dir` for a ray terminal (`u = −w₁` at the
     /// first vertex, `u = w_in` at the last). For a lens it is `Υ` (Eqs. 15–16): the aperture
