@@ -474,7 +474,7 @@ fn correlation_map_equals_the_covariance_entries() {
     );
 }
 
-fn gradient_scene() -> Scene {
+fn gradient_scene(sampling: lightpath::speckle::first_vertex::Sampling) -> Scene {
     let m = Medium {
         geometry: Geometry::boxed([6.0, 6.0, 4.0]),
         sigma_s: 0.3,
@@ -498,18 +498,25 @@ fn gradient_scene() -> Scene {
             },
         ],
     );
-    s.sampling = lightpath::speckle::first_vertex::Sampling::Uniform;
+    s.sampling = sampling;
     s
 }
 
 /// Path-space gradients with focused lights and views (σ_s, σ_a through the aperture attenuation
 /// and the path throughput): re-weighting at the proposal is the covariance estimator, and the
-/// gradient of a random loss matches central differences on the same paths to 1e-5.
+/// gradient of a random loss matches central differences on the same paths to 1e-5, with uniform
+/// and with beam + aperture first vertices.
 #[test]
 fn focused_gradients_match_finite_differences() {
+    use lightpath::speckle::first_vertex::Sampling;
+    for sampling in [Sampling::Uniform, Sampling::BeamAndAperture] {
+        focused_gradients(gradient_scene(sampling));
+    }
+}
+
+fn focused_gradients(s: Scene) {
     use lightpath::diff::{CovarianceGradient, Param, Reweighted, ReweightedCovariance};
     use lightpath::math::{stream_rng, uniform};
-    let s = gradient_scene();
     let pairs = lightpath::speckle::paths::SubpathSampler::all_pairs(&s);
     let j = pairs.len();
     let est = |e: &dyn Fn(&Plan) -> Estimate| e(&Plan::new(8, 4000, 500));

@@ -13,13 +13,14 @@
 //! endpoints.
 
 use super::Param;
-use crate::math::{C64, INV_4PI, Rng, uniform, uniform_sphere};
+use crate::math::{C64, Rng, uniform};
 use crate::mc::Estimator;
 use crate::medium::lobes::Lobes;
 use crate::medium::{Medium, PhaseFunction};
 use crate::speckle::Scene;
 use crate::speckle::covariance::Batch;
 use crate::speckle::endpoint::{Connection, Seen, Terminal};
+use crate::speckle::first_vertex::FirstVertex;
 use glam::DVec3;
 
 /// Paths from `proposal`, contributions evaluated for the medium `target` with derivatives with
@@ -31,6 +32,9 @@ pub struct Reweighted<'a> {
     views: Vec<Terminal>,
     /// vMF lobes of each particle type's amplitude (fitted only when an endpoint is focused).
     lobes: Vec<Lobes>,
+    /// First vertices and directions, drawn as the covariance estimator draws them (from the
+    /// focused lights' beams when there are any); their density does not depend on `θ`.
+    first: FirstVertex,
     pairs: Vec<(usize, usize)>,
     reversed: bool,
     params: Vec<Param>,
@@ -60,6 +64,7 @@ pub struct DiffScratch {
     /// Σ ∂log ρ/∂g over interior vertices, per parameter.
     interior: Vec<f64>,
     lam: Vec<f64>,
+    proposal: Vec<(f64, DVec3, f64)>,
 }
 
 impl<'a> Reweighted<'a> {
@@ -117,13 +122,25 @@ impl<'a> Reweighted<'a> {
                     Lobes::default()
                 }
             })
-            .collect();
+            .collect::<Vec<_>>();
+        let lenses = lights.iter().filter_map(|t| match t {
+            Terminal::Lens(l) => Some(*l),
+            Terminal::Ray(_) => None,
+        });
+        let first = FirstVertex::new(
+            proposal.sampling,
+            lenses,
+            &proposal.medium,
+            &lobes[0],
+            proposal.k,
+        );
         Ok(Reweighted {
             proposal,
             target,
             lights,
             views,
             lobes,
+            first,
             pairs,
             reversed,
             params,
@@ -161,6 +178,7 @@ impl<'a> Reweighted<'a> {
             dlogw: vec![0.0; p],
             interior: vec![0.0; p],
             lam: vec![0.0; p],
+            proposal: Vec::new(),
         }
     }
 
@@ -230,9 +248,13 @@ impl<'a> Reweighted<'a> {
         let geo = &m0.geometry;
         let np = self.params.len();
         let (sigma_t0, albedo0) = (m0.sigma_t(), m0.albedo());
-        let vol = geo.sampling_volume() / geo.normalising_area();
-
-        let x1 = geo.sample_volume([uniform(rng), uniform(rng), uniform(rng)]);
+        let drawn = self.first.draw(geo, rng);
+        if !geo.contains(drawn.x) {
+            return;
+        }
+        let x1 = drawn.x;
+        // 1/p(x₁): the volume (per unit area of a slab) for a uniform first vertex
+        let vol = drawn.inv_pdf;
         let kind1 = m0.scattering.pick(|| uniform(rng));
         for (e, c) in self.lights.iter().zip(sc.first_l.iter_mut()) {
             *c = e.seen_from(x1, m0, s.k);
@@ -271,7 +293,9 @@ impl<'a> Reweighted<'a> {
         );
 
         // multiple scattering
-        let w1 = uniform_sphere(uniform(rng), uniform(rng));
+        let (w1, inv_pdf_w1) = self
+            .first
+            .direction(x1, m0, &self.lobes[0], rng, &mut sc.proposal);
         let d = -(1.0 - uniform(rng)).ln() / sigma_t0;
         if d >= geo.exit_distance(x1, w1) {
             return;
@@ -282,7 +306,7 @@ impl<'a> Reweighted<'a> {
         for (i, c) in sc.first_v.iter().enumerate() {
             sc.amp1_v[i] = self.amplitude(c, -w1, kind1, &mut sc.lam1_v[i * np..(i + 1) * np]);
         }
-        let base = vol / INV_4PI * if self.reversed { 0.5 } else { 1.0 };
+        let base = vol * inv_pdf_w1 * if self.reversed { 0.5 } else { 1.0 };
         let mut x = x1 + w1 * d;
         let mut w_in = w1;
         let mut hops = d;
