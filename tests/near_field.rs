@@ -597,3 +597,39 @@ fn focused_gradients(s: Scene) {
         .to_string();
     assert!(e.contains("focused") && e.contains(" g"), "{e}");
 }
+
+/// The constant-attenuation mean field of focused pairs and its derivatives (σ_s, σ_a; the phase
+/// function does not enter) against central differences.
+#[test]
+fn focused_mean_gradient_matches_finite_differences() {
+    use lightpath::medium::Param;
+    use lightpath::speckle::mean::mean_field_gradient;
+    let s = gradient_scene(lightpath::speckle::first_vertex::Sampling::default());
+    let params = [Param::SigmaS, Param::SigmaA, Param::G(0)];
+    for l in &s.lights {
+        for v in &s.views {
+            let (m, g) = mean_field_gradient(&s, l, v, &params).unwrap();
+            assert_eq!(m, mean_field(&s, l, v));
+            for (p, gp) in params.iter().zip(&g) {
+                let x = p.get(&s.medium).unwrap();
+                let h = 1e-6;
+                let at = |x: f64| {
+                    let t = Scene {
+                        medium: p.set(&s.medium, x),
+                        ..s.clone()
+                    };
+                    mean_field(&t, l, v)
+                };
+                let fd = (at(x + h) - at(x - h)) / (2.0 * h);
+                if matches!(l, Light::PlaneWave { .. }) && matches!(v, View::FarField { .. }) {
+                    continue; // the far-field pair has its own closed form, tested elsewhere
+                }
+                assert!(
+                    (gp - fd).norm() < 1e-6 * fd.norm().max(1e-9),
+                    "{}: {gp} vs {fd}",
+                    p.name()
+                );
+            }
+        }
+    }
+}

@@ -48,23 +48,27 @@ pub fn mean_field(scene: &Scene, light: &Light, view: &View) -> C64 {
 /// Eq. 25; App. A.1): `ℓ` is the chord of the medium along the beam through the focal region (the
 /// foci's midpoint, along the mean axis), or from a point endpoint back along the lens axis.
 fn focused(scene: &Scene, light: &Light, view: &View) -> C64 {
+    let (unattenuated, len) = focused_parts(scene, light, view);
+    unattenuated * scene.medium.amplitude_attenuation(len)
+}
+
+/// The unscattered field of a pair with a focused end and the length `ℓ` it is attenuated over.
+fn focused_parts(scene: &Scene, light: &Light, view: &View) -> (C64, f64) {
     use crate::speckle::wave::{direct, incident, sensor};
-    let (m, k) = (&scene.medium, scene.k);
-    let g = &m.geometry;
-    let len = match (*light, *view) {
-        (Light::Focused { axis, .. }, View::Point { position }) => {
-            return incident(light, position, k)
-                * m.amplitude_attenuation(chord(g, position, -axis, f64::INFINITY));
-        }
-        (Light::Point { position }, View::Focused { axis, .. }) => {
-            return sensor(view, position, k)
-                * m.amplitude_attenuation(chord(g, position, axis, f64::INFINITY));
-        }
-        (Light::Focused { focus, .. }, View::FarField { direction }) => {
-            line_chord(g, focus, direction)
-        }
-        (Light::PlaneWave { direction }, View::Focused { focus, .. }) => {
-            line_chord(g, focus, direction)
+    let k = scene.k;
+    let g = &scene.medium.geometry;
+    match (*light, *view) {
+        (Light::Focused { axis, .. }, View::Point { position }) => (
+            incident(light, position, k),
+            chord(g, position, -axis, f64::INFINITY),
+        ),
+        (Light::Point { position }, View::Focused { axis, .. }) => (
+            sensor(view, position, k),
+            chord(g, position, axis, f64::INFINITY),
+        ),
+        (Light::Focused { focus, .. }, View::FarField { direction })
+        | (Light::PlaneWave { direction }, View::Focused { focus, .. }) => {
+            (direct(light, view, k), line_chord(g, focus, direction))
         }
         (
             Light::Focused {
@@ -77,10 +81,12 @@ fn focused(scene: &Scene, light: &Light, view: &View) -> C64 {
                 axis: av,
                 ..
             },
-        ) => line_chord(g, (fl + fv) * 0.5, (al + av).normalize_or(al)),
-        _ => 0.0,
-    };
-    direct(light, view, k) * m.amplitude_attenuation(len)
+        ) => (
+            direct(light, view, k),
+            line_chord(g, (fl + fv) * 0.5, (al + av).normalize_or(al)),
+        ),
+        _ => (direct(light, view, k), 0.0),
+    }
 }
 
 /// Length inside the medium of the whole line through `p` along `w`.
@@ -129,7 +135,7 @@ fn far_far(m: &Medium, k: f64, d: DVec3, v: DVec3) -> C64 {
     nf * box_integral(half, k, C64::new(m.sigma_t(), 0.0), d, v)
 }
 
-/// The mean field and its derivatives with respect to `params` (`None` for focused endpoints).
+/// The mean field and its derivatives with respect to `params` (every pair of endpoints).
 ///
 /// Closed form like [`mean_field`], differentiated factor by factor: a point endpoint's
 /// attenuation `e^{−σ_t ℓ/2}` gives `−ℓ/2`; for plane wave → far field, `m = n f(μ) B(σ_t)` with
@@ -159,6 +165,10 @@ pub fn mean_field_gradient(
         }
         (Light::PlaneWave { direction: d }, View::Point { position: q }) => {
             chord(&m.geometry, q, -d, f64::INFINITY)
+        }
+        // a focused end: the unscattered field attenuated along the beam (no phase function)
+        (Light::Focused { .. }, _) | (_, View::Focused { .. }) => {
+            focused_parts(scene, light, view).1
         }
         _ => return None,
     };
