@@ -1,6 +1,9 @@
 //! Near-field speckle (paper 000): focused lights and views in the Monte Carlo covariance, checked
 //! against the Foldy–Lax wave solver and against quadrature of the aperture integrals.
 
+mod common;
+
+use common::{estimate, wave_statistics};
 use glam::DVec3;
 use lightpath::math::vmf::Vmf;
 use lightpath::math::{C64, gauss_legendre, orthonormal_basis};
@@ -9,7 +12,6 @@ use lightpath::medium::lobes::Lobes;
 use lightpath::medium::{Geometry, Medium, PhaseFunction, Scattering};
 use lightpath::speckle::endpoint::{Lens, Seen, Terminal};
 use lightpath::speckle::mean::mean_field;
-use lightpath::speckle::wave;
 use lightpath::speckle::{Covariance, Light, Scene, View};
 use std::f64::consts::PI;
 
@@ -41,26 +43,7 @@ fn focused_view(x: f64, y: f64, z: f64, sigma: f64) -> View {
 
 fn mc_cov(scene: &Scene, samples: u64, seed: u64) -> Estimate {
     let est = Covariance::all_pairs(scene, true).unwrap();
-    let plan = Plan::new(seed, samples, 2000);
-    Estimate::from_block(
-        &merge(run(&est, &plan, 0..plan.chunks, &[], &|_| {}), plan.chunks).unwrap(),
-        &plan,
-    )
-}
-
-fn wave_stats(scene: &Scene, reals: u64, seed: u64) -> wave::WaveStatistics {
-    let est = wave::Realizations::new(scene);
-    let plan = Plan {
-        seed,
-        chunk_paths: 1,
-        chunks: reals,
-    };
-    let root = merge(
-        run(&est, &plan, 0..reals, &est.kept_outputs(), &|_| {}),
-        reals,
-    )
-    .unwrap();
-    wave::WaveStatistics::from_fields(&root.kept, est.fields())
+    estimate(&est, &Plan::new(seed, samples, 2000))
 }
 
 /// The lights and views of the comparisons: two lights focused at the centre and 0.6 λ beside it,
@@ -95,7 +78,7 @@ fn compare(s: &Scene, paths: u64, reals: u64) -> (f64, f64) {
     let (nl, nv) = (s.lights.len(), s.views.len());
     let j = nl * nv;
     let mc = mc_cov(s, paths, 7);
-    let w = wave_stats(s, reals, 3);
+    let w = wave_statistics(s, reals, 3);
     let total = |i: usize| (mc.mean[2 * j * j + i], mc.stderr[2 * j * j + i]);
     let (mut worst, mut ratio, mut n) = (0.0f64, 0.0, 0.0);
     for a in 0..j {
@@ -149,10 +132,11 @@ fn dilute_focused_agrees_with_wave_solver() {
 /// Optical depth 1: the intensities of focused lights exceed the wave solver's by the bias of the
 /// constant-attenuation assumption (Eq. 25), which grows with the aperture: measured +9 % at
 /// `σ_a = 0.5` and +3 % at `σ_a = 0.25` (the far-field estimator is 5 % *below* the wave solver at
-/// this depth). The test pins those residuals so that a change in either is seen.
+/// this depth). The test pins those residuals to ±3 % (about 3 combined standard errors of the
+/// per-entry ratios) so that a change in either is seen.
 #[test]
 fn optical_depth_one_residual_is_the_attenuation_bias() {
-    for (sigma, lo, hi) in [(0.5, 1.04, 1.14), (0.25, 0.99, 1.07)] {
+    for (sigma, lo, hi) in [(0.5, 1.055, 1.12), (0.25, 0.995, 1.06)] {
         let (l, v) = endpoints(sigma);
         let s = scene(6.0, l, v);
         let (_, ratio) = compare(&s, 300_000, 12_000);
@@ -339,7 +323,7 @@ fn shift_correlation_matches_wave_solver() {
     );
     let (nv, j) = (4, 8);
     let mc = mc_cov(&s, 100_000, 9);
-    let w = wave_stats(&s, 4000, 13);
+    let w = wave_statistics(&s, 4000, 13);
     let at = |l1: usize, l2: usize, v1: usize, v2: usize| (l1 * nv + v1) * j + l2 * nv + v2;
     let mut shape = Vec::new();
     for v2 in 0..nv {
@@ -439,15 +423,9 @@ fn correlation_map_equals_the_covariance_entries() {
     let (k, t) = (map.deltas.len(), map.taus.len());
     let plan = Plan::new(4, 20_000, 1000);
     let est = MapEstimator::new(&map, true).unwrap();
-    let got = Estimate::from_block(
-        &merge(run(&est, &plan, 0..plan.chunks, &[], &|_| {}), plan.chunks).unwrap(),
-        &plan,
-    );
+    let got = estimate(&est, &plan);
     let cov = Covariance::with_pairs(&map.scene, map.pairs(), true).unwrap();
-    let want = Estimate::from_block(
-        &merge(run(&cov, &plan, 0..plan.chunks, &[], &|_| {}), plan.chunks).unwrap(),
-        &plan,
-    );
+    let want = estimate(&cov, &plan);
     let j = k * t;
     for d in 0..k {
         for p in 0..t {
@@ -519,22 +497,15 @@ fn focused_gradients(s: Scene) {
     use lightpath::math::{stream_rng, uniform};
     let pairs = lightpath::speckle::paths::SubpathSampler::all_pairs(&s);
     let j = pairs.len();
-    let est = |e: &dyn Fn(&Plan) -> Estimate| e(&Plan::new(8, 4000, 500));
-    let at_proposal = est(&|plan| {
-        let r = Reweighted::new(&s, s.medium.clone(), pairs.clone(), true, vec![]).unwrap();
-        let e = ReweightedCovariance(r);
-        Estimate::from_block(
-            &merge(run(&e, plan, 0..plan.chunks, &[], &|_| {}), plan.chunks).unwrap(),
-            plan,
-        )
-    });
-    let cov = est(&|plan| {
-        let c = Covariance::all_pairs(&s, true).unwrap();
-        Estimate::from_block(
-            &merge(run(&c, plan, 0..plan.chunks, &[], &|_| {}), plan.chunks).unwrap(),
-            plan,
-        )
-    });
+    let plan = Plan::new(8, 4000, 500);
+    let reweighted = |target: Medium, params: Vec<Param>| {
+        Reweighted::new(&s, target, pairs.clone(), true, params).unwrap()
+    };
+    let at_proposal = estimate(
+        &ReweightedCovariance(reweighted(s.medium.clone(), vec![])),
+        &plan,
+    );
+    let cov = estimate(&Covariance::all_pairs(&s, true).unwrap(), &plan);
     for i in 0..j * j {
         let (x, y) = (at_proposal.mean[i], cov.mean[2 * j * j + i]);
         assert!(
@@ -552,33 +523,16 @@ fn focused_gradients(s: Scene) {
     for (p, v) in params.iter().zip([0.35, 0.04]) {
         target = p.set(&target, v);
     }
-    let grad = est(&|plan| {
-        let r = Reweighted::new(&s, target.clone(), pairs.clone(), true, params.clone()).unwrap();
-        let e = CovarianceGradient::new(r, &adj);
-        Estimate::from_block(
-            &merge(run(&e, plan, 0..plan.chunks, &[], &|_| {}), plan.chunks).unwrap(),
-            plan,
-        )
-    });
+    let grad = estimate(
+        &CovarianceGradient::new(reweighted(target.clone(), params.clone()), &adj),
+        &plan,
+    );
     for (i, p) in params.iter().enumerate() {
         let v = p.get(&target).unwrap();
         let h = 1e-4 * v.abs().max(0.1);
         let at = |x: f64| {
-            est(&|plan| {
-                let r =
-                    Reweighted::new(&s, p.set(&target, x), pairs.clone(), true, vec![]).unwrap();
-                let e = ReweightedCovariance(r);
-                let b = Estimate::from_block(
-                    &merge(run(&e, plan, 0..plan.chunks, &[], &|_| {}), plan.chunks).unwrap(),
-                    plan,
-                );
-                Estimate {
-                    mean: vec![C64::new(loss(&b.mean), 0.0)],
-                    ..b
-                }
-            })
-            .mean[0]
-                .re
+            let e = ReweightedCovariance(reweighted(p.set(&target, x), vec![]));
+            loss(&estimate(&e, &plan).mean)
         };
         let fd = (at(v + h) - at(v - h)) / (2.0 * h);
         let g = grad.mean[i].re;
@@ -608,7 +562,7 @@ fn focused_mean_gradient_matches_finite_differences() {
     let params = [Param::SigmaS, Param::SigmaA, Param::G(0)];
     for l in &s.lights {
         for v in &s.views {
-            let (m, g) = mean_field_gradient(&s, l, v, &params).unwrap();
+            let (m, g) = mean_field_gradient(&s, l, v, &params);
             assert_eq!(m, mean_field(&s, l, v));
             for (p, gp) in params.iter().zip(&g) {
                 let x = p.get(&s.medium).unwrap();

@@ -1,11 +1,13 @@
 //! The Foldy–Lax wave solver: exact identities (reciprocity, optical theorem, the focused-beam closed
 //! form) and agreement with the Monte Carlo estimators where the independent-scattering model holds.
 
+mod common;
+
 use glam::DVec3;
 use lightpath::math::{C64, rotate, stream_rng, uniform};
-use lightpath::mc::{Estimate, Plan, merge, run};
+use lightpath::mc::{Estimate, Plan};
 use lightpath::medium::{Geometry, Medium, PhaseFunction, Scattering};
-use lightpath::speckle::wave::{self, exciting_fields, incident, sensor, solve, vmf_integral};
+use lightpath::speckle::wave::{exciting_fields, incident, sensor, solve, vmf_integral};
 use lightpath::speckle::{Covariance, Light, Scene, View};
 use std::f64::consts::PI;
 
@@ -157,28 +159,11 @@ fn optical_theorem_one_and_many() {
 
 fn mc_cov(scene: &Scene, samples: u64) -> Estimate {
     let est = Covariance::all_pairs(scene, true).unwrap();
-    let plan = Plan::new(3, samples, 2000);
-    Estimate::from_block(
-        &merge(run(&est, &plan, 0..plan.chunks, &[], &|_| {}), plan.chunks).unwrap(),
-        &plan,
-    )
+    common::estimate(&est, &Plan::new(3, samples, 2000))
 }
 
-/// Mean and covariance over realisations, as `lightpath wave` computes them: placements as an
-/// engine estimator (one per chunk, every field kept), reduced by `WaveStatistics`.
 fn wave_stats(scene: &Scene, reals: u64, seed: u64) -> (Vec<C64>, Vec<C64>, Vec<f64>) {
-    let est = wave::Realizations::new(scene);
-    let plan = Plan {
-        seed,
-        chunk_paths: 1,
-        chunks: reals,
-    };
-    let root = merge(
-        run(&est, &plan, 0..reals, &est.kept_outputs(), &|_| {}),
-        reals,
-    )
-    .unwrap();
-    let s = wave::WaveStatistics::from_fields(&root.kept, est.fields());
+    let s = common::wave_statistics(scene, reals, seed);
     (s.mean, s.covariance, s.covariance_stderr)
 }
 

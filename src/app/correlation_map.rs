@@ -3,10 +3,13 @@
 use super::Outcome;
 use crate::config::SceneTask;
 use crate::error::{Error, Result};
-use crate::io::results::{CorrelationMapFile, ResultFile, RunEcho};
+use crate::io::results::{CorrelationMapFile, ResultFile};
 use crate::mc::{Block, Estimate, Plan, merge};
 use crate::speckle::correlation_map::CorrelationMap;
 use std::path::Path;
+
+/// The error for a config without the map's table.
+pub(crate) const NEEDS_TABLE: &str = "correlation-map needs a [correlation_map] table with deltas = [[x, y], ...], tau_width and pixels";
 
 /// The map a scene task asks for (its `[correlation_map]` table).
 pub(crate) fn map_of(task: &SceneTask) -> Result<CorrelationMap> {
@@ -14,7 +17,7 @@ pub(crate) fn map_of(task: &SceneTask) -> Result<CorrelationMap> {
         .config
         .correlation_map
         .as_ref()
-        .ok_or_else(|| Error::input("correlation-map needs a [correlation_map] table with deltas = [[x, y], ...], tau_width and pixels"))?;
+        .ok_or_else(|| Error::input(NEEDS_TABLE))?;
     CorrelationMap::new(
         &task.scene,
         &m.deltas,
@@ -51,11 +54,8 @@ pub(crate) fn finish(
         let n = (intensity(0, p) * intensity(d, p)).sqrt();
         if n > 0.0 { c(d, p).norm() / n } else { 0.0 }
     };
-    let mut echo = RunEcho::new(&task.config, &map.scene, plan.samples(), plan.seed, seconds);
-    echo.chunk = Some(plan.chunk_paths);
-    echo.reversed = Some(task.config.render.reversed);
     let file = CorrelationMapFile {
-        run: echo,
+        run: super::run::mc_echo(task, &map.scene, plan, seconds),
         deltas: map.deltas.iter().map(|d| d.to_array()).collect(),
         taus: (0..ny)
             .map(|y| (0..nx).map(|x| map.taus[y * nx + x].to_array()).collect())

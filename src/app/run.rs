@@ -92,9 +92,7 @@ pub fn run_scene(
         ));
     }
     if kind == Kind::CorrelationMap && cfg.correlation_map.is_none() {
-        return Err(Error::input(
-            "correlation-map needs a [correlation_map] table with deltas = [[x, y], ...], tau_width and pixels",
-        ));
+        return Err(Error::input(super::correlation_map::NEEDS_TABLE));
     }
     cfg.check_settings()?;
     let plan = plan_of(kind, cfg);
@@ -342,7 +340,7 @@ fn finish(
 }
 
 /// The Monte Carlo run's echo (chunking and path reversal included).
-fn mc_echo(task: &SceneTask, scene: &Scene, plan: &Plan, seconds: f64) -> RunEcho {
+pub(crate) fn mc_echo(task: &SceneTask, scene: &Scene, plan: &Plan, seconds: f64) -> RunEcho {
     let mut echo = RunEcho::new(&task.config, scene, plan.samples(), plan.seed, seconds);
     echo.chunk = Some(plan.chunk_paths);
     echo.reversed = Some(task.config.render.reversed);

@@ -9,18 +9,16 @@
 //! `λ = ½ ∂log ρ/∂g` for HG `g`, so `∂a/∂θ` and `∂log w/∂θ` are cheap per event. A focused
 //! endpoint's aperture integral `Υ` (paper 000) carries `e^{-σ_t d/2}` along its axis, so it has the
 //! same `λ = -d/2` for `σ_s, σ_a`; its dependence on the phase function goes through the fitted vMF
-//! lobes, which are not differentiated: `g`, table nodes and shares are refused with focused
-//! endpoints.
+//! lobes, which are not differentiated: `g` and table nodes are refused with focused endpoints.
 
 use super::Param;
 use crate::math::{C64, Rng, uniform};
 use crate::mc::Estimator;
-use crate::medium::lobes::Lobes;
 use crate::medium::{Medium, PhaseFunction};
 use crate::speckle::Scene;
 use crate::speckle::covariance::Batch;
-use crate::speckle::endpoint::{Connection, Seen, Terminal};
-use crate::speckle::first_vertex::FirstVertex;
+use crate::speckle::endpoint::{Connection, Seen};
+use crate::speckle::paths::Terminals;
 use glam::DVec3;
 
 /// Paths from `proposal`, contributions evaluated for the medium `target` with derivatives with
@@ -28,13 +26,9 @@ use glam::DVec3;
 pub struct Reweighted<'a> {
     proposal: &'a Scene,
     target: Medium,
-    lights: Vec<Terminal>,
-    views: Vec<Terminal>,
-    /// vMF lobes of each particle type's amplitude (fitted only when an endpoint is focused).
-    lobes: Vec<Lobes>,
-    /// First vertices and directions, drawn as the covariance estimator draws them (from the
-    /// focused lights' beams when there are any); their density does not depend on `θ`.
-    first: FirstVertex,
+    /// Lights, views, lobes and first-vertex sampling, as the covariance estimator has them (the
+    /// first-vertex density does not depend on `θ`).
+    terminals: Terminals,
     pairs: Vec<(usize, usize)>,
     reversed: bool,
     params: Vec<Param>,
@@ -87,15 +81,8 @@ impl<'a> Reweighted<'a> {
         if target.geometry != proposal.medium.geometry {
             return Err("the target medium must have the proposal's geometry".into());
         }
-        let lights: Vec<Terminal> = proposal.lights.iter().map(|&l| l.into()).collect();
-        let views: Vec<Terminal> = proposal.views.iter().map(|&v| v.into()).collect();
-        let focused = lights.iter().chain(&views).any(Terminal::is_lens);
-        if focused {
-            if matches!(target.geometry, crate::medium::Geometry::Slab { .. }) {
-                return Err(crate::Error::input(
-                    "focused lights and views need a bounded medium: use medium.box instead of medium.slab",
-                ));
-            }
+        let terminals = Terminals::new(proposal)?;
+        if terminals.focused() {
             if let Some(p) = params
                 .iter()
                 .find(|p| matches!(p, Param::G(_) | Param::Bin(..)))
@@ -105,42 +92,24 @@ impl<'a> Reweighted<'a> {
                     p.name()
                 )));
             }
-            if proposal.medium.scattering != target.scattering {
+            // the lobes are the proposal's: the target may differ in shares, not in phase functions
+            let phases = |m: &Medium| -> Vec<PhaseFunction> {
+                m.scattering
+                    .components()
+                    .iter()
+                    .map(|c| c.1.clone())
+                    .collect()
+            };
+            if phases(&proposal.medium) != phases(&target) {
                 return Err(crate::Error::input(
                     "with focused lights or views the target must have the proposal's phase functions",
                 ));
             }
         }
-        let lobes = target
-            .scattering
-            .components()
-            .iter()
-            .map(|(_, p)| {
-                if focused {
-                    Lobes::of(p)
-                } else {
-                    Lobes::default()
-                }
-            })
-            .collect::<Vec<_>>();
-        let lenses = lights.iter().filter_map(|t| match t {
-            Terminal::Lens(l) => Some(*l),
-            Terminal::Ray(_) => None,
-        });
-        let first = FirstVertex::new(
-            proposal.sampling,
-            lenses,
-            &proposal.medium,
-            &lobes[0],
-            proposal.k,
-        );
         Ok(Reweighted {
             proposal,
             target,
-            lights,
-            views,
-            lobes,
-            first,
+            terminals,
             pairs,
             reversed,
             params,
@@ -157,8 +126,8 @@ impl<'a> Reweighted<'a> {
 
     fn scratch(&self) -> DiffScratch {
         let (nl, nv, j, p) = (
-            self.lights.len(),
-            self.views.len(),
+            self.terminals.lights.len(),
+            self.terminals.views.len(),
             self.pairs.len(),
             self.params.len(),
         );
@@ -197,7 +166,8 @@ impl<'a> Reweighted<'a> {
                     _ => 0.0,
                 };
             }
-            return c.amplitude(u, phase, &self.lobes[kind]) * (-0.5 * d_sigma_t * inside).exp();
+            return c.amplitude(u, phase, &self.terminals.lobes[kind])
+                * (-0.5 * d_sigma_t * inside).exp();
         };
         let mu = u.dot(ray.dir);
         // a tabulated law is located once for all its node parameters (hot: every connection)
@@ -238,7 +208,7 @@ impl<'a> Reweighted<'a> {
             };
         }
         let phase = self.target.scattering.phase(kind);
-        cl.single(cv, phase, &self.lobes[kind]) * (-0.5 * d_sigma_t * inside).exp()
+        cl.single(cv, phase, &self.terminals.lobes[kind]) * (-0.5 * d_sigma_t * inside).exp()
     }
 
     fn trace<S: DiffSink>(&self, rng: &mut Rng, sc: &mut DiffScratch, sink: &mut S) {
@@ -248,7 +218,7 @@ impl<'a> Reweighted<'a> {
         let geo = &m0.geometry;
         let np = self.params.len();
         let (sigma_t0, albedo0) = (m0.sigma_t(), m0.albedo());
-        let drawn = self.first.draw(geo, rng);
+        let drawn = self.terminals.first.draw(geo, rng);
         if !geo.contains(drawn.x) {
             return;
         }
@@ -256,10 +226,10 @@ impl<'a> Reweighted<'a> {
         // 1/p(x₁): the volume (per unit area of a slab) for a uniform first vertex
         let vol = drawn.inv_pdf;
         let kind1 = m0.scattering.pick(|| uniform(rng));
-        for (e, c) in self.lights.iter().zip(sc.first_l.iter_mut()) {
+        for (e, c) in self.terminals.lights.iter().zip(sc.first_l.iter_mut()) {
             *c = e.seen_from(x1, m0, s.k);
         }
-        for (e, c) in self.views.iter().zip(sc.first_v.iter_mut()) {
+        for (e, c) in self.terminals.views.iter().zip(sc.first_v.iter_mut()) {
             *c = e.seen_from(x1, m0, s.k);
         }
 
@@ -293,9 +263,10 @@ impl<'a> Reweighted<'a> {
         );
 
         // multiple scattering
-        let (w1, inv_pdf_w1) = self
+        let t = &self.terminals;
+        let (w1, inv_pdf_w1) = t
             .first
-            .direction(x1, m0, &self.lobes[0], rng, &mut sc.proposal);
+            .direction(x1, m0, &t.lobes[0], rng, &mut sc.proposal);
         let d = -(1.0 - uniform(rng)).ln() / sigma_t0;
         if d >= geo.exit_distance(x1, w1) {
             return;
@@ -317,11 +288,11 @@ impl<'a> Reweighted<'a> {
         sc.interior.iter_mut().for_each(|v| *v = 0.0);
         loop {
             let kind = m0.scattering.pick(|| uniform(rng));
-            for (i, e) in self.lights.iter().enumerate() {
+            for (i, e) in self.terminals.lights.iter().enumerate() {
                 let c = e.seen_from(x, m0, s.k);
                 sc.ampb_l[i] = self.amplitude(&c, w_in, kind, &mut sc.lamb_l[i * np..(i + 1) * np]);
             }
-            for (i, e) in self.views.iter().enumerate() {
+            for (i, e) in self.terminals.views.iter().enumerate() {
                 let c = e.seen_from(x, m0, s.k);
                 sc.ampb_v[i] = self.amplitude(&c, w_in, kind, &mut sc.lamb_v[i * np..(i + 1) * np]);
             }

@@ -317,8 +317,7 @@ impl Differentiable for MeanOp {
                 }
             };
             let (m, g) =
-                crate::speckle::mean::mean_field_gradient(&scene, light, view, &self.params)
-                    .ok_or(crate::speckle::endpoint::FOCUSED_UNSUPPORTED)?;
+                crate::speckle::mean::mean_field_gradient(&scene, light, view, &self.params);
             y.extend([m.re, m.im]);
             jacobian.push(g.iter().zip(&factor).map(|(g, f)| g * f).collect());
         }

@@ -68,17 +68,22 @@ fn log_sinhc_slope(beta: C64) -> C64 {
     ((one + e) / denominator - one / beta) / beta
 }
 
+/// A cosine `μ` about the mean direction of the real vMF distribution of concentration `κ`
+/// (density `∝ e^{κμ}`, any sign of `κ`) from one uniform number, by inverting its CDF.
+#[inline]
+pub fn sample_cosine(kappa: f64, u: f64) -> f64 {
+    if kappa.abs() < 1e-8 {
+        return 1.0 - 2.0 * u;
+    }
+    // about the pole the lobe points to, so e^{−2|κ|} never overflows
+    let a = kappa.abs();
+    let t = (1.0 + (u + (1.0 - u) * (-2.0 * a).exp()).ln() / a).clamp(-1.0, 1.0);
+    if kappa > 0.0 { t } else { -t }
+}
+
 impl Vmf {
     pub fn new(log_scale: C64, mu: CVec3) -> Self {
         Vmf { log_scale, mu }
-    }
-
-    /// A real, normalisable lobe `exp(log_scale + κ (axis·ω))`.
-    pub fn lobe(log_scale: f64, kappa: f64, axis: DVec3) -> Self {
-        Vmf {
-            log_scale: C64::new(log_scale, 0.0),
-            mu: CVec3::new(axis * kappa, DVec3::ZERO),
-        }
     }
 
     /// `h(ω)`.
@@ -223,7 +228,7 @@ mod tests {
     #[test]
     fn product_adds_parameters() {
         let a = aperture(3.0, DVec3::new(1.0, 2.0, 0.5));
-        let b = Vmf::lobe(-0.5, 4.0, DVec3::X);
+        let b = Vmf::new(C64::new(-0.5, 0.0), CVec3::new(DVec3::X * 4.0, DVec3::ZERO));
         let w = DVec3::new(0.3, 0.5, -0.2).normalize();
         assert!(rel(a.product(&b).eval(w), a.eval(w) * b.eval(w)) < 1e-14);
     }

@@ -188,14 +188,7 @@ impl VmfMixture {
             self.components[i - 1].0
         };
         let v = ((u - lo) / (self.components[i].0 - lo)).clamp(0.0, 1.0);
-        let k = self.components[i].1;
-        if k.abs() < 1e-8 {
-            return 1.0 - 2.0 * v;
-        }
-        // about the pole the lobe points to, so e^{−2|K|} never overflows
-        let a = k.abs();
-        let t = (1.0 + (v + (1.0 - v) * (-2.0 * a).exp()).ln() / a).clamp(-1.0, 1.0);
-        if k > 0.0 { t } else { -t }
+        crate::math::vmf::sample_cosine(self.components[i].1, v)
     }
 
     /// Mean cosine: `Σ p_mn (coth K − 1/K)`.
@@ -206,18 +199,9 @@ impl VmfMixture {
             .map(|&(c, k)| {
                 let p = c - prev;
                 prev = c;
-                p * if k.abs() < 1e-4 {
-                    k / 3.0
-                } else {
-                    1.0 / k.tanh() - 1.0 / k
-                }
+                p * mean_cosine(k)
             })
             .sum()
-    }
-
-    /// `(w_m, κ_m)` after normalisation.
-    pub fn lobes(&self) -> &[(f64, f64)] {
-        &self.lobes
     }
 }
 

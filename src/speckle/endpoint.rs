@@ -41,9 +41,6 @@ pub enum View {
     },
 }
 
-/// The error for focused endpoints where only ray endpoints are supported.
-pub const FOCUSED_UNSUPPORTED: &str = "the gradient of the mean field is not available for focused lights and views; fit covariance or memory-effect statistics instead";
-
 /// An endpoint seen from a vertex: either "far" (a direction) or "near" (a point). By reciprocity a
 /// plane-wave light propagating along `d` is the far endpoint with outgoing direction `-d`.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -52,28 +49,6 @@ pub enum Endpoint {
     Far { dir: DVec3 },
     /// Near endpoint at `pos`.
     Near { pos: DVec3 },
-}
-
-impl TryFrom<Light> for Endpoint {
-    type Error = &'static str;
-    fn try_from(l: Light) -> Result<Self, Self::Error> {
-        match l {
-            Light::PlaneWave { direction } => Ok(Endpoint::Far { dir: -direction }),
-            Light::Point { position } => Ok(Endpoint::Near { pos: position }),
-            Light::Focused { .. } => Err(FOCUSED_UNSUPPORTED),
-        }
-    }
-}
-
-impl TryFrom<View> for Endpoint {
-    type Error = &'static str;
-    fn try_from(v: View) -> Result<Self, Self::Error> {
-        match v {
-            View::FarField { direction } => Ok(Endpoint::Far { dir: direction }),
-            View::Point { position } => Ok(Endpoint::Near { pos: position }),
-            View::Focused { .. } => Err(FOCUSED_UNSUPPORTED),
-        }
-    }
 }
 
 /// A connection from a vertex to an endpoint: `prop = τ ξ` and the unit direction `dir` in which the
@@ -158,13 +133,15 @@ pub enum Terminal {
 impl From<Light> for Terminal {
     fn from(l: Light) -> Self {
         match l {
+            // by reciprocity a plane wave along `d` is the far endpoint left along `-d`
+            Light::PlaneWave { direction } => Terminal::Ray(Endpoint::Far { dir: -direction }),
+            Light::Point { position } => Terminal::Ray(Endpoint::Near { pos: position }),
             Light::Focused { focus, axis, gamma } => Terminal::Lens(Lens {
                 focus,
                 axis,
                 gamma,
                 sign: 1.0,
             }),
-            l => Terminal::Ray(Endpoint::try_from(l).expect("ray endpoint")),
         }
     }
 }
@@ -172,13 +149,14 @@ impl From<Light> for Terminal {
 impl From<View> for Terminal {
     fn from(v: View) -> Self {
         match v {
+            View::FarField { direction } => Terminal::Ray(Endpoint::Far { dir: direction }),
+            View::Point { position } => Terminal::Ray(Endpoint::Near { pos: position }),
             View::Focused { focus, axis, gamma } => Terminal::Lens(Lens {
                 focus,
                 axis,
                 gamma,
                 sign: -1.0,
             }),
-            v => Terminal::Ray(Endpoint::try_from(v).expect("ray endpoint")),
         }
     }
 }

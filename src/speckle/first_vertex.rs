@@ -112,11 +112,6 @@ impl FirstVertex {
         }
     }
 
-    /// Whether any beam is importance sampled.
-    pub fn beams(&self) -> bool {
-        !self.beams.is_empty()
-    }
-
     fn beam_pdf(&self, b: &Beam, x: DVec3) -> f64 {
         let d = x - b.lens.focus;
         let z = d.dot(b.lens.axis);
@@ -183,11 +178,12 @@ impl FirstVertex {
         // the proposal: real vMF lobes (weight, mean direction, concentration) over all beams,
         // each beam weighted by its share of p(x₁)
         scratch.clear();
-        let shares: Vec<f64> = self.beams.iter().map(|b| self.beam_pdf(b, x)).collect();
-        let total_share: f64 = shares.iter().sum();
+        let total_share: f64 = self.beams.iter().map(|b| self.beam_pdf(b, x)).sum();
         if total_share > 0.0 {
-            for (b, share) in self.beams.iter().zip(&shares) {
-                if *share == 0.0 {
+            for b in &self.beams {
+                // recomputed rather than collected: no allocation per path
+                let share = self.beam_pdf(b, x);
+                if share == 0.0 {
                     continue;
                 }
                 let start = scratch.len();
@@ -272,11 +268,11 @@ fn vmf_pdf(dir: DVec3, kappa: f64, w: DVec3) -> f64 {
 
 /// Draw from the real vMF of mean `dir` and concentration `kappa`.
 fn sample_vmf(dir: DVec3, kappa: f64, u1: f64, u2: f64) -> DVec3 {
-    if kappa < 1e-8 {
-        return uniform_sphere(u1, u2);
-    }
-    let mu = 1.0 + (u1 + (1.0 - u1) * (-2.0 * kappa).exp()).ln() / kappa;
-    direction_about(dir, mu.clamp(-1.0, 1.0), 2.0 * PI * u2)
+    direction_about(
+        dir,
+        crate::math::vmf::sample_cosine(kappa, u1),
+        2.0 * PI * u2,
+    )
 }
 
 #[cfg(test)]

@@ -148,11 +148,11 @@ pub fn mean_field_gradient(
     light: &Light,
     view: &View,
     params: &[crate::medium::Param],
-) -> Option<(C64, Vec<C64>)> {
+) -> (C64, Vec<C64>) {
     use crate::medium::Param;
     let m = &scene.medium;
     if let (Light::PlaneWave { direction: d }, View::FarField { direction: v }) = (*light, *view) {
-        return Some(far_far_gradient(m, scene.k, d, v, params));
+        return far_far_gradient(m, scene.k, d, v, params);
     }
     let value = mean_field(scene, light, view);
     let len = match (*light, *view) {
@@ -166,11 +166,9 @@ pub fn mean_field_gradient(
         (Light::PlaneWave { direction: d }, View::Point { position: q }) => {
             chord(&m.geometry, q, -d, f64::INFINITY)
         }
-        // a focused end: the unscattered field attenuated along the beam (no phase function)
-        (Light::Focused { .. }, _) | (_, View::Focused { .. }) => {
-            focused_parts(scene, light, view).1
-        }
-        _ => return None,
+        // a focused end: the unscattered field attenuated along the beam (no phase function);
+        // plane wave → far field returned above
+        _ => focused_parts(scene, light, view).1,
     };
     // the attenuated direct field e^{−σ_t ℓ/2}: only σ_s and σ_a enter
     let grad = params
@@ -180,7 +178,7 @@ pub fn mean_field_gradient(
             _ => C64::default(),
         })
         .collect();
-    Some((value, grad))
+    (value, grad)
 }
 
 /// Plane wave → far field: `m = n f(μ) B(σ_t)` and its derivatives (see [`mean_field_gradient`]).

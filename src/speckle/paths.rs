@@ -27,12 +27,7 @@ pub trait EventSink {
 /// Samples subpaths of a scene for a list of (light, view) pairs.
 pub struct SubpathSampler<'a> {
     scene: &'a Scene,
-    lights: Vec<Terminal>,
-    views: Vec<Terminal>,
-    /// vMF lobes of each particle type's amplitude (fitted only when a terminal is focused).
-    lobes: Vec<Lobes>,
-    /// Draws first vertices and directions (from the focused lights' beams when there are any).
-    first: FirstVertex,
+    terminals: Terminals,
     /// The axis all focused views share, if they do (an image of foci): single scattering between
     /// two lenses then convolves each light's aperture once per vertex, not once per view.
     view_axis: Option<DVec3>,
@@ -40,6 +35,63 @@ pub struct SubpathSampler<'a> {
     max_lobes: usize,
     pairs: Vec<(usize, usize)>,
     reversed: bool,
+}
+
+/// The lights and views of a scene as the path samplers connect to them, with what focused ones
+/// need: the vMF lobes of every particle type's amplitude (paper 000, Eq. 28) and the first-vertex
+/// sampler of their beams. Shared by the covariance/field sampler and the gradient estimator.
+pub struct Terminals {
+    pub lights: Vec<Terminal>,
+    pub views: Vec<Terminal>,
+    /// Lobes per particle type (empty unless a terminal is focused).
+    pub lobes: Vec<Lobes>,
+    /// Draws first vertices and directions (from the focused lights' beams when there are any).
+    pub first: FirstVertex,
+}
+
+impl Terminals {
+    /// Errors for focused terminals in a slab.
+    pub fn new(scene: &Scene) -> crate::Result<Self> {
+        let lights: Vec<Terminal> = scene.lights.iter().map(|&l| l.into()).collect();
+        let views: Vec<Terminal> = scene.views.iter().map(|&v| v.into()).collect();
+        let focused = lights.iter().chain(&views).any(Terminal::is_lens);
+        if focused && matches!(scene.medium.geometry, crate::medium::Geometry::Slab { .. }) {
+            // the vMF aperture's side lobes (amplitude e^{−γ} at 90°) are not attenuated across
+            // the medium under Eq. 25, so their share grows with the lateral extent without bound
+            return Err(crate::Error::input(
+                "focused lights and views need a bounded medium: use medium.box instead of medium.slab, a few defocused beam widths wide (the results converge with the box width for aperture_sigma ≤ 0.2)",
+            ));
+        }
+        let lobes: Vec<Lobes> = scene
+            .medium
+            .scattering
+            .components()
+            .iter()
+            .map(|(_, p)| {
+                if focused {
+                    Lobes::of(p)
+                } else {
+                    Lobes::default()
+                }
+            })
+            .collect();
+        let lenses = lights.iter().filter_map(|t| match t {
+            Terminal::Lens(l) => Some(*l),
+            Terminal::Ray(_) => None,
+        });
+        let first = FirstVertex::new(scene.sampling, lenses, &scene.medium, &lobes[0], scene.k);
+        Ok(Terminals {
+            lights,
+            views,
+            lobes,
+            first,
+        })
+    }
+
+    /// Whether any light or view is focused.
+    pub fn focused(&self) -> bool {
+        self.lights.iter().chain(&self.views).any(Terminal::is_lens)
+    }
 }
 
 /// Per-thread working memory of a [`SubpathSampler`].
@@ -63,35 +115,9 @@ impl<'a> SubpathSampler<'a> {
         pairs: Vec<(usize, usize)>,
         reversed: bool,
     ) -> crate::Result<Self> {
-        let lights: Vec<Terminal> = scene.lights.iter().map(|&l| l.into()).collect();
-        let views: Vec<Terminal> = scene.views.iter().map(|&v| v.into()).collect();
-        let focused = lights.iter().chain(&views).any(Terminal::is_lens);
-        if focused && matches!(scene.medium.geometry, crate::medium::Geometry::Slab { .. }) {
-            // the vMF aperture's side lobes (amplitude e^{−γ} at 90°) are not attenuated across
-            // the medium under Eq. 25, so their share grows with the lateral extent without bound
-            return Err(crate::Error::input(
-                "focused lights and views need a bounded medium: use medium.box instead of medium.slab, a few defocused beam widths wide (the results converge with the box width for aperture_sigma ≤ 0.2)",
-            ));
-        }
-        let lobes = scene
-            .medium
-            .scattering
-            .components()
-            .iter()
-            .map(|(_, p)| {
-                if focused {
-                    Lobes::of(p)
-                } else {
-                    Lobes::default()
-                }
-            })
-            .collect::<Vec<_>>();
-        let lenses = lights.iter().filter_map(|t| match t {
-            Terminal::Lens(l) => Some(*l),
-            Terminal::Ray(_) => None,
-        });
-        let first = FirstVertex::new(scene.sampling, lenses, &scene.medium, &lobes[0], scene.k);
-        let view_axes: Vec<DVec3> = views
+        let terminals = Terminals::new(scene)?;
+        let view_axes: Vec<DVec3> = terminals
+            .views
             .iter()
             .filter_map(|t| match t {
                 Terminal::Lens(l) => Some(l.axis),
@@ -102,13 +128,15 @@ impl<'a> SubpathSampler<'a> {
             .first()
             .filter(|a| view_axes.iter().all(|b| a.dot(*b) > 1.0 - 1e-12))
             .copied();
-        let max_lobes = lobes.iter().map(|l| l.lobes.len()).max().unwrap_or(0);
+        let max_lobes = terminals
+            .lobes
+            .iter()
+            .map(|l| l.lobes.len())
+            .max()
+            .unwrap_or(0);
         Ok(SubpathSampler {
             scene,
-            lights,
-            views,
-            lobes,
-            first,
+            terminals,
             view_axis,
             max_lobes,
             pairs,
@@ -128,7 +156,7 @@ impl<'a> SubpathSampler<'a> {
     }
 
     pub fn scratch(&self) -> PathScratch {
-        let (nl, nv) = (self.lights.len(), self.views.len());
+        let (nl, nv) = (self.terminals.lights.len(), self.terminals.views.len());
         PathScratch {
             first_l: vec![Seen::default(); nl],
             first_v: vec![Seen::default(); nv],
@@ -150,7 +178,8 @@ impl<'a> SubpathSampler<'a> {
         let geo = &m.geometry;
         let sigma_t = m.sigma_t();
         let albedo = m.albedo();
-        let drawn = self.first.draw(geo, rng);
+        let t = &self.terminals;
+        let drawn = t.first.draw(geo, rng);
         if !geo.contains(drawn.x) {
             return;
         }
@@ -158,11 +187,11 @@ impl<'a> SubpathSampler<'a> {
         // σ_s / p(x₁): σ_s V for a uniform first vertex (V per unit area for a slab)
         let volume = m.sigma_s * drawn.inv_pdf;
         let kind1 = m.scattering.pick(|| uniform(rng));
-        let (phase1, lobes1) = (m.scattering.phase(kind1), &self.lobes[kind1]);
-        for (e, c) in self.lights.iter().zip(sc.first_l.iter_mut()) {
+        let (phase1, lobes1) = (m.scattering.phase(kind1), &t.lobes[kind1]);
+        for (e, c) in t.lights.iter().zip(sc.first_l.iter_mut()) {
             *c = e.seen_from(x1, m, s.k);
         }
-        for (e, c) in self.views.iter().zip(sc.first_v.iter_mut()) {
+        for (e, c) in t.views.iter().zip(sc.first_v.iter_mut()) {
             *c = e.seen_from(x1, m, s.k);
         }
 
@@ -197,9 +226,7 @@ impl<'a> SubpathSampler<'a> {
 
         // B ≥ 2: the first direction (uniform, or from |Υ|²), then volume path tracing with
         // next-event connections.
-        let (w1, inv_pdf_w1) = self
-            .first
-            .direction(x1, m, &self.lobes[0], rng, &mut sc.proposal);
+        let (w1, inv_pdf_w1) = t.first.direction(x1, m, &t.lobes[0], rng, &mut sc.proposal);
         let d = -(1.0 - uniform(rng)).ln() / sigma_t;
         if d >= geo.exit_distance(x1, w1) {
             return;
@@ -252,12 +279,12 @@ impl<'a> SubpathSampler<'a> {
     /// vertex `x` reached along `w_in`, scattered by a particle of type `kind`.
     #[inline]
     fn connect_all(&self, x: DVec3, w_in: DVec3, kind: usize, al: &mut [C64], av: &mut [C64]) {
-        let s = self.scene;
-        let (phase, lobes) = (s.medium.scattering.phase(kind), &self.lobes[kind]);
-        for (e, a) in self.lights.iter().zip(al.iter_mut()) {
+        let (s, t) = (self.scene, &self.terminals);
+        let (phase, lobes) = (s.medium.scattering.phase(kind), &t.lobes[kind]);
+        for (e, a) in t.lights.iter().zip(al.iter_mut()) {
             *a = e.seen_from(x, &s.medium, s.k).amplitude(w_in, phase, lobes);
         }
-        for (e, a) in self.views.iter().zip(av.iter_mut()) {
+        for (e, a) in t.views.iter().zip(av.iter_mut()) {
             *a = e.seen_from(x, &s.medium, s.k).amplitude(w_in, phase, lobes);
         }
     }
