@@ -8,16 +8,21 @@
 //! amplitude `A = ξ e^{-σ_t ℓ/2} s(μ)` has `∂A/∂θ = A λ` with `λ = -ℓ/2` for `σ_s, σ_a` and
 //! `λ = ½ ∂log ρ/∂g` for HG `g`, so `∂a/∂θ` and `∂log w/∂θ` are cheap per event. A focused
 //! endpoint's aperture integral `Υ` (paper 000) carries `e^{-σ_t d/2}` along its axis, so it has the
-//! same `λ = -d/2` for `σ_s, σ_a`; its dependence on the phase function goes through the fitted vMF
-//! lobes, which are not differentiated: `g` and table nodes are refused with focused endpoints.
+//! same `λ = -d/2` for `σ_s, σ_a`. `Υ` is linear in the amplitude's vMF lobes (paper 000, Eq. 28):
+//! at the target it is `Σ_l w_l(θ) Υ_{κ_l}`, with a vMF mixture's own lobes (whose weights and
+//! concentrations are differentiated exactly), and for other phase functions the target amplitude
+//! projected onto the proposal's lobe concentrations (least squares on the fit's quadrature:
+//! exactly the fitted lobes at the proposal, and linear in `s`, so `∂w/∂θ` is the projection of
+//! `∂s/∂θ = s ½ ∂log ρ/∂θ`).
 
 use super::Param;
 use crate::math::{C64, Rng, uniform};
 use crate::mc::Estimator;
+use crate::medium::lobes::Lobes;
 use crate::medium::{Medium, PhaseFunction};
 use crate::speckle::Scene;
 use crate::speckle::covariance::Batch;
-use crate::speckle::endpoint::{Connection, Seen};
+use crate::speckle::endpoint::{Connection, Seen, lens_pair_lobe, log_aperture_mass};
 use crate::speckle::paths::Terminals;
 use glam::DVec3;
 
@@ -32,6 +37,82 @@ pub struct Reweighted<'a> {
     pairs: Vec<(usize, usize)>,
     reversed: bool,
     params: Vec<Param>,
+    /// Per particle type, the target's amplitude lobes for focused terminals and their derivatives.
+    target_lobes: Vec<TargetLobes>,
+}
+
+/// The target's amplitude lobes of one particle type, as focused terminals use them, with the
+/// derivatives of every lobe's weight and concentration with respect to each parameter
+/// (`[p · lobes + l]`; zero for parameters of other types).
+#[derive(Clone, Debug, Default)]
+struct TargetLobes {
+    lobes: Lobes,
+    dweight: Vec<C64>,
+    dkappa: Vec<f64>,
+    /// Whether any concentration moves (then `∂Υ/∂κ` is needed).
+    moves_kappa: bool,
+}
+
+impl TargetLobes {
+    /// `proposal`: the proposal's lobes of this type (empty without focused terminals).
+    fn new(
+        proposal: &Lobes,
+        proposal_phase: &PhaseFunction,
+        target: &PhaseFunction,
+        kind: usize,
+        params: &[Param],
+    ) -> Self {
+        let n = proposal.lobes.len();
+        if n == 0 {
+            return TargetLobes::default();
+        }
+        let ours = |p: &Param| p.phase_component() == Some(kind);
+        if let PhaseFunction::VmfMixture(v) = target {
+            let lobes = Lobes::of(target);
+            let n = lobes.lobes.len();
+            let mut dweight = vec![C64::default(); params.len() * n];
+            let mut dkappa = vec![0.0; params.len() * n];
+            for (i, p) in params.iter().enumerate() {
+                if let Some((dw, dk)) = p.vmf_lobe_derivatives(v).filter(|_| ours(p)) {
+                    for l in 0..n {
+                        dweight[i * n + l] = C64::new(dw[l], 0.0);
+                        dkappa[i * n + l] = dk[l];
+                    }
+                }
+            }
+            let moves_kappa = dkappa.iter().any(|&d| d != 0.0);
+            return TargetLobes {
+                lobes,
+                dweight,
+                dkappa,
+                moves_kappa,
+            };
+        }
+        let lobes = if target == proposal_phase {
+            proposal.clone()
+        } else {
+            proposal.project(|mu| target.amplitude(mu))
+        };
+        let mut dweight = vec![C64::default(); params.len() * n];
+        for (i, p) in params.iter().enumerate().filter(|(_, p)| ours(p)) {
+            let d = proposal.project(|mu| {
+                let s = target.amplitude(mu);
+                if s == C64::default() {
+                    return s;
+                }
+                s * (0.5 * p.dlog_phase(kind, target, mu))
+            });
+            for (l, lobe) in d.lobes.iter().enumerate() {
+                dweight[i * n + l] = lobe.weight;
+            }
+        }
+        TargetLobes {
+            lobes,
+            dweight,
+            dkappa: vec![0.0; params.len() * n],
+            moves_kappa: false,
+        }
+    }
 }
 
 /// Receives weighted events with derivatives: `w`, `∂log w/∂θ_p`, `a` (J) and `∂a/∂θ_p` (P×J).
@@ -43,21 +124,21 @@ trait DiffSink {
 pub struct DiffScratch {
     first_l: Vec<Seen>,
     first_v: Vec<Seen>,
-    /// Endpoint amplitudes at the first and current vertex, and their λ factors (P per endpoint).
+    /// Endpoint amplitudes at the first and current vertex, and their derivatives (P per endpoint).
     amp1_l: Vec<C64>,
     amp1_v: Vec<C64>,
-    lam1_l: Vec<f64>,
-    lam1_v: Vec<f64>,
+    d1_l: Vec<C64>,
+    d1_v: Vec<C64>,
     ampb_l: Vec<C64>,
     ampb_v: Vec<C64>,
-    lamb_l: Vec<f64>,
-    lamb_v: Vec<f64>,
+    db_l: Vec<C64>,
+    db_v: Vec<C64>,
     a: Vec<C64>,
     da: Vec<C64>,
     dlogw: Vec<f64>,
     /// Σ ∂log ρ/∂g over interior vertices, per parameter.
     interior: Vec<f64>,
-    lam: Vec<f64>,
+    dsingle: Vec<C64>,
     proposal: Vec<(f64, DVec3, f64)>,
 }
 
@@ -82,30 +163,19 @@ impl<'a> Reweighted<'a> {
             return Err("the target medium must have the proposal's geometry".into());
         }
         let terminals = Terminals::new(proposal)?;
-        if terminals.focused() {
-            if let Some(p) = params
-                .iter()
-                .find(|p| matches!(p, Param::G(_) | Param::Bin(..)))
-            {
-                return Err(crate::Error::input(format!(
-                    "the gradient with respect to {} is not available with focused lights or views (their aperture integrals use a fitted vMF form of the phase function); fit sigma_s, sigma_a, mfp, albedo or shares",
-                    p.name()
-                )));
-            }
-            // the lobes are the proposal's: the target may differ in shares, not in phase functions
-            let phases = |m: &Medium| -> Vec<PhaseFunction> {
-                m.scattering
-                    .components()
-                    .iter()
-                    .map(|c| c.1.clone())
-                    .collect()
-            };
-            if phases(&proposal.medium) != phases(&target) {
-                return Err(crate::Error::input(
-                    "with focused lights or views the target must have the proposal's phase functions",
-                ));
-            }
+        let (from, to) = (
+            proposal.medium.scattering.components(),
+            target.scattering.components(),
+        );
+        if from.len() != to.len() {
+            return Err("the target medium must have the proposal's particle types".into());
         }
+        let target_lobes = terminals
+            .lobes
+            .iter()
+            .enumerate()
+            .map(|(kind, lobes)| TargetLobes::new(lobes, &from[kind].1, &to[kind].1, kind, &params))
+            .collect();
         Ok(Reweighted {
             proposal,
             target,
@@ -113,6 +183,7 @@ impl<'a> Reweighted<'a> {
             pairs,
             reversed,
             params,
+            target_lobes,
         })
     }
 
@@ -136,38 +207,55 @@ impl<'a> Reweighted<'a> {
             first_v: vec![Seen::default(); nv],
             amp1_l: vec![C64::default(); nl],
             amp1_v: vec![C64::default(); nv],
-            lam1_l: vec![0.0; nl * p],
-            lam1_v: vec![0.0; nv * p],
+            d1_l: vec![C64::default(); nl * p],
+            d1_v: vec![C64::default(); nv * p],
             ampb_l: vec![C64::default(); nl],
             ampb_v: vec![C64::default(); nv],
-            lamb_l: vec![0.0; nl * p],
-            lamb_v: vec![0.0; nv * p],
+            db_l: vec![C64::default(); nl * p],
+            db_v: vec![C64::default(); nv * p],
             a: vec![C64::default(); j],
             da: vec![C64::default(); j * p],
             dlogw: vec![0.0; p],
             interior: vec![0.0; p],
-            lam: vec![0.0; p],
+            dsingle: vec![C64::default(); p],
             proposal: Vec::new(),
         }
     }
 
-    /// Target amplitude `A = prop e^{-Δσ_t ℓ/2} s_θ(μ)` of a connection at a vertex of type `kind`,
-    /// with the path direction `u` (scattering cosine `u·dir`), and its λ factors; for a focused
-    /// endpoint `Υ e^{-Δσ_t d/2}`.
+    /// `∂ log A/∂θ_p` of the attenuation `e^{-σ_t ℓ/2}` over length `inside`.
     #[inline]
-    fn amplitude(&self, c: &Seen, u: DVec3, kind: usize, lam: &mut [f64]) -> C64 {
+    fn attenuation_lambda(p: &Param, inside: f64) -> f64 {
+        match p {
+            Param::SigmaS | Param::SigmaA => -0.5 * inside,
+            _ => 0.0,
+        }
+    }
+
+    /// Target amplitude `A = prop e^{-Δσ_t ℓ/2} s_θ(μ)` of a connection at a vertex of type `kind`,
+    /// with the path direction `u` (scattering cosine `u·dir`), and its derivatives `dA`; for a
+    /// focused endpoint `Σ_l w_l Υ_{κ_l} e^{-Δσ_t d/2}` with the target's lobes.
+    #[inline]
+    fn amplitude(&self, c: &Seen, u: DVec3, kind: usize, da: &mut [C64]) -> C64 {
         let d_sigma_t = self.target.sigma_t() - self.proposal.medium.sigma_t();
         let phase = self.target.scattering.phase(kind);
         let inside = c.inside();
+        let attenuation = (-0.5 * d_sigma_t * inside).exp();
         let Seen::Ray(ray) = c else {
-            for (l, p) in lam.iter_mut().zip(&self.params) {
-                *l = match p {
-                    Param::SigmaS | Param::SigmaA => -0.5 * inside,
-                    _ => 0.0,
-                };
+            let t = &self.target_lobes[kind];
+            let n = t.lobes.lobes.len();
+            da.iter_mut().for_each(|d| *d = C64::default());
+            let mut a = C64::default();
+            for (l, lobe) in t.lobes.lobes.iter().enumerate() {
+                let (y, dy) = c.aperture_lobe(u, lobe.kappa, t.moves_kappa);
+                a += lobe.weight * y;
+                for (p, d) in da.iter_mut().enumerate() {
+                    *d += t.dweight[p * n + l] * y + lobe.weight * dy * t.dkappa[p * n + l];
+                }
             }
-            return c.amplitude(u, phase, &self.terminals.lobes[kind])
-                * (-0.5 * d_sigma_t * inside).exp();
+            for (d, p) in da.iter_mut().zip(&self.params) {
+                *d = (*d + a * Self::attenuation_lambda(p, inside)) * attenuation;
+            }
+            return a * attenuation;
         };
         let mu = u.dot(ray.dir);
         // a tabulated law is located once for all its node parameters (hot: every connection)
@@ -175,40 +263,66 @@ impl<'a> Reweighted<'a> {
             PhaseFunction::Tabulated(t) => Some((t, t.locate(mu))),
             _ => None,
         };
-        for (l, p) in lam.iter_mut().zip(&self.params) {
-            *l = match (p, located) {
+        let a = ray.prop * attenuation * phase.amplitude(mu);
+        for (d, p) in da.iter_mut().zip(&self.params) {
+            let lambda = match (p, located) {
                 (Param::SigmaS | Param::SigmaA, _) => -0.5 * inside,
                 (Param::Bin(pc, k), Some((t, at))) if *pc == kind => {
                     0.5 * t.dlog_rho_dnode_at(at, *k)
                 }
                 (p, _) => 0.5 * p.dlog_phase(kind, phase, mu),
             };
+            *d = a * lambda;
         }
-        ray.prop * (-0.5 * d_sigma_t * inside).exp() * phase.amplitude(mu)
+        a
     }
 
     /// The single-scattering amplitude of light `cl` and view `cv` at a vertex of type `kind`
-    /// and its λ factors.
+    /// and its derivatives.
     #[inline]
-    fn single(&self, cl: &Seen, cv: &Seen, kind: usize, lam: &mut [f64]) -> C64 {
-        if let (Seen::Ray(rl), Seen::Ray(rv)) = (cl, cv) {
-            let both = Seen::Ray(Connection {
-                prop: rl.prop * rv.prop,
-                dir: rv.dir,
-                inside: rl.inside + rv.inside,
-            });
-            return self.amplitude(&both, -rl.dir, kind, lam);
+    fn single(&self, cl: &Seen, cv: &Seen, kind: usize, da: &mut [C64]) -> C64 {
+        match (cl, cv) {
+            (Seen::Ray(rl), Seen::Ray(rv)) => {
+                let both = Seen::Ray(Connection {
+                    prop: rl.prop * rv.prop,
+                    dir: rv.dir,
+                    inside: rl.inside + rv.inside,
+                });
+                self.amplitude(&both, -rl.dir, kind, da)
+            }
+            // a lens and a ray: the lens's Υ toward the ray times the ray's connection
+            (lens, Seen::Ray(ray)) | (Seen::Ray(ray), lens) => {
+                let d_sigma_t = self.target.sigma_t() - self.proposal.medium.sigma_t();
+                let factor = ray.prop * (-0.5 * d_sigma_t * ray.inside).exp();
+                let a = self.amplitude(lens, -ray.dir, kind, da) * factor;
+                for (d, p) in da.iter_mut().zip(&self.params) {
+                    *d = *d * factor + a * Self::attenuation_lambda(p, ray.inside);
+                }
+                a
+            }
+            (Seen::Aperture { vmf: al, .. }, Seen::Aperture { vmf: av, axis, .. }) => {
+                let d_sigma_t = self.target.sigma_t() - self.proposal.medium.sigma_t();
+                let inside = cl.inside() + cv.inside();
+                let attenuation = (-0.5 * d_sigma_t * inside).exp();
+                let t = &self.target_lobes[kind];
+                let n = t.lobes.lobes.len();
+                let view_bound = log_aperture_mass(av);
+                da.iter_mut().for_each(|d| *d = C64::default());
+                let mut a = C64::default();
+                for (l, lobe) in t.lobes.lobes.iter().enumerate() {
+                    let (y, dy) =
+                        lens_pair_lobe(al, lobe.kappa, *axis, av, view_bound, t.moves_kappa);
+                    a += lobe.weight * y;
+                    for (p, d) in da.iter_mut().enumerate() {
+                        *d += t.dweight[p * n + l] * y + lobe.weight * dy * t.dkappa[p * n + l];
+                    }
+                }
+                for (d, p) in da.iter_mut().zip(&self.params) {
+                    *d = (*d + a * Self::attenuation_lambda(p, inside)) * attenuation;
+                }
+                a * attenuation
+            }
         }
-        let d_sigma_t = self.target.sigma_t() - self.proposal.medium.sigma_t();
-        let inside = cl.inside() + cv.inside();
-        for (l, p) in lam.iter_mut().zip(&self.params) {
-            *l = match p {
-                Param::SigmaS | Param::SigmaA => -0.5 * inside,
-                _ => 0.0,
-            };
-        }
-        let phase = self.target.scattering.phase(kind);
-        cl.single(cv, phase, &self.terminals.lobes[kind]) * (-0.5 * d_sigma_t * inside).exp()
     }
 
     fn trace<S: DiffSink>(&self, rng: &mut Rng, sc: &mut DiffScratch, sink: &mut S) {
@@ -236,9 +350,9 @@ impl<'a> Reweighted<'a> {
         // single scattering: a_j = υ(i→x1) υ(i→x1→v), w = σ_s V
         for (n, &(l, v)) in self.pairs.iter().enumerate() {
             let (cl, cv) = (&sc.first_l[l], &sc.first_v[v]);
-            sc.a[n] = self.single(cl, cv, kind1, &mut sc.lam);
+            sc.a[n] = self.single(cl, cv, kind1, &mut sc.dsingle);
             for p in 0..np {
-                sc.da[p * self.pairs.len() + n] = sc.a[n] * sc.lam[p];
+                sc.da[p * self.pairs.len() + n] = sc.dsingle[p];
             }
         }
         // particle types are drawn with the proposal's shares β⁰; the target's β enters as a ratio
@@ -272,10 +386,10 @@ impl<'a> Reweighted<'a> {
             return;
         }
         for (i, c) in sc.first_l.iter().enumerate() {
-            sc.amp1_l[i] = self.amplitude(c, -w1, kind1, &mut sc.lam1_l[i * np..(i + 1) * np]);
+            sc.amp1_l[i] = self.amplitude(c, -w1, kind1, &mut sc.d1_l[i * np..(i + 1) * np]);
         }
         for (i, c) in sc.first_v.iter().enumerate() {
-            sc.amp1_v[i] = self.amplitude(c, -w1, kind1, &mut sc.lam1_v[i * np..(i + 1) * np]);
+            sc.amp1_v[i] = self.amplitude(c, -w1, kind1, &mut sc.d1_v[i * np..(i + 1) * np]);
         }
         let base = vol * inv_pdf_w1 * if self.reversed { 0.5 } else { 1.0 };
         let mut x = x1 + w1 * d;
@@ -290,11 +404,11 @@ impl<'a> Reweighted<'a> {
             let kind = m0.scattering.pick(|| uniform(rng));
             for (i, e) in self.terminals.lights.iter().enumerate() {
                 let c = e.seen_from(x, m0, s.k);
-                sc.ampb_l[i] = self.amplitude(&c, w_in, kind, &mut sc.lamb_l[i * np..(i + 1) * np]);
+                sc.ampb_l[i] = self.amplitude(&c, w_in, kind, &mut sc.db_l[i * np..(i + 1) * np]);
             }
             for (i, e) in self.terminals.views.iter().enumerate() {
                 let c = e.seen_from(x, m0, s.k);
-                sc.ampb_v[i] = self.amplitude(&c, w_in, kind, &mut sc.lamb_v[i * np..(i + 1) * np]);
+                sc.ampb_v[i] = self.amplitude(&c, w_in, kind, &mut sc.db_v[i * np..(i + 1) * np]);
             }
             let b = bounces as f64;
             let log_w = b * m.sigma_s.ln() - m.sigma_t() * hops - (b - 1.0) * sigma_t0.ln()
@@ -307,7 +421,9 @@ impl<'a> Reweighted<'a> {
                 sc.dlogw[i] = match p {
                     Param::SigmaS => b / m.sigma_s - hops,
                     Param::SigmaA => -hops,
-                    Param::G(_) | Param::Bin(..) => sc.interior[i],
+                    Param::G(_) | Param::Bin(..) | Param::VmfWeight(..) | Param::VmfKappa(..) => {
+                        sc.interior[i]
+                    }
                     Param::Weight(_) => sc.interior[i] + dlog_beta(p, kind1) + dlog_beta(p, kind),
                 };
             }
@@ -321,9 +437,11 @@ impl<'a> Reweighted<'a> {
                 };
                 sc.a[n] = fwd + rev;
                 for p in 0..np {
-                    let mut z = fwd * (sc.lam1_l[l * np + p] + sc.lamb_v[v * np + p]);
+                    let mut z =
+                        sc.d1_l[l * np + p] * sc.ampb_v[v] + sc.amp1_l[l] * sc.db_v[v * np + p];
                     if self.reversed {
-                        z += rev * (sc.lamb_l[l * np + p] + sc.lam1_v[v * np + p]);
+                        z +=
+                            sc.db_l[l * np + p] * sc.amp1_v[v] + sc.ampb_l[l] * sc.d1_v[v * np + p];
                     }
                     sc.da[p * j + n] = z;
                 }

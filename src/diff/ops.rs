@@ -40,6 +40,8 @@ pub fn medium_at(
     let mut weights: Vec<f64> = comps.iter().map(|c| c.0).collect();
     let mut phases: Vec<PhaseFunction> = comps.iter().map(|c| c.1.clone()).collect();
     let mut node_values: Vec<Option<Vec<f64>>> = vec![None; comps.len()];
+    // vMF-mixture lobes (weights, concentrations) being set, per component
+    let mut vmf_lobes: Vec<Option<(Vec<f64>, Vec<f64>)>> = vec![None; comps.len()];
     for (p, &v) in params.iter().zip(theta) {
         let bad = |allowed: &str| {
             Err(crate::Error::input(format!(
@@ -59,6 +61,21 @@ pub fn medium_at(
             Param::G(c) => phases[c] = PhaseFunction::HenyeyGreenstein { g: v },
             Param::Weight(_) if !(v > 0.0 && v.is_finite()) => return bad("> 0"),
             Param::Weight(c) => weights[c] = v,
+            Param::VmfWeight(..) if !(v > 0.0 && v.is_finite()) => return bad("> 0"),
+            Param::VmfKappa(..) if !(v.is_finite() && v.abs() <= 1e5) => {
+                return bad("within [-1e5, 1e5]");
+            }
+            Param::VmfWeight(c, l) | Param::VmfKappa(c, l) => {
+                let PhaseFunction::VmfMixture(x) = &comps[c].1 else {
+                    unreachable!("Param::get checked the component is a vMF mixture")
+                };
+                let (w, k) = vmf_lobes[c].get_or_insert_with(|| x.lobes().iter().copied().unzip());
+                if matches!(p, Param::VmfWeight(..)) {
+                    w[l] = v;
+                } else {
+                    k[l] = v;
+                }
+            }
             Param::Bin(c, k) => {
                 let PhaseFunction::Tabulated(t) = &comps[c].1 else {
                     unreachable!("Param::get checked the component is tabulated")
@@ -79,6 +96,21 @@ pub fn medium_at(
                 }
             }
             phases[c] = PhaseFunction::Tabulated(table);
+        }
+    }
+    for (c, lobes) in vmf_lobes.iter().enumerate() {
+        if let Some((w, k)) = lobes {
+            let mixture = crate::medium::lobes::VmfMixture::new(w, k)
+                .map_err(|e| crate::Error::input(format!("vMF-mixture lobes: {e}")))?;
+            // the gradient is taken at the normalised weights; s is invariant to their scale, so
+            // the derivative at the unnormalised ones is 1/scale of it
+            let scale = w[0] / mixture.lobes()[0].0;
+            for (p, f) in params.iter().zip(factor.iter_mut()) {
+                if matches!(p, Param::VmfWeight(pc, _) if *pc == c) {
+                    *f = 1.0 / scale;
+                }
+            }
+            phases[c] = PhaseFunction::VmfMixture(mixture);
         }
     }
     let total: f64 = weights.iter().sum();

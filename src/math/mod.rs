@@ -109,6 +109,15 @@ impl CVec3 {
         )
     }
 
+    /// The bilinear (not Hermitian) product `self · o`.
+    #[inline]
+    pub fn dot(&self, o: &CVec3) -> C64 {
+        C64::new(
+            self.re.dot(o.re) - self.im.dot(o.im),
+            self.re.dot(o.im) + self.im.dot(o.re),
+        )
+    }
+
     /// `|re|² + |im|²`.
     #[inline]
     pub fn norm_sqr(&self) -> f64 {

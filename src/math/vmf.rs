@@ -54,7 +54,7 @@ pub fn log_sphere_integral(q2: C64) -> C64 {
 /// Where `sinh β` vanishes (nearly imaginary `β`, far outside a focused beam) it falls back to the
 /// large-`β` slope `1/β` of Eq. 32.
 #[inline]
-fn log_sinhc_slope(beta: C64) -> C64 {
+pub fn log_sinhc_slope(beta: C64) -> C64 {
     let one = C64::new(1.0, 0.0);
     if beta.norm() < 1e-2 {
         let b2 = beta * beta;
@@ -66,6 +66,25 @@ fn log_sinhc_slope(beta: C64) -> C64 {
         return one / beta;
     }
     ((one + e) / denominator - one / beta) / beta
+}
+
+/// `d/dβ` of [`log_sinhc_slope`] on the same branches: `(1 + 1/β² − coth²β)/β − S/β` with
+/// `S = (coth β − 1/β)/β`; `−2β/45 + 8β³/945` near 0 and `−1/β²` where the fallback `1/β` is taken.
+#[inline]
+pub fn log_sinhc_slope_derivative(beta: C64) -> C64 {
+    let one = C64::new(1.0, 0.0);
+    if beta.norm() < 1e-2 {
+        let b2 = beta * beta;
+        return beta * (-2.0 / 45.0) + beta * b2 * (8.0 / 945.0);
+    }
+    let e = (-2.0 * beta).exp();
+    let denominator = one - e;
+    if denominator.norm() < 1e-8 {
+        return -one / (beta * beta);
+    }
+    let coth = (one + e) / denominator;
+    let s = (coth - one / beta) / beta;
+    (one + one / (beta * beta) - coth * coth) / beta - s / beta
 }
 
 /// A cosine `μ` about the mean direction of the real vMF distribution of concentration `κ`
@@ -187,6 +206,25 @@ mod tests {
             let q = quadrature(h.mu.re.normalize_or(DVec3::Z), 160, 160, |w| h.eval(w));
             let e = rel(h.integral(), q);
             assert!(e < 1e-10, "γ = {gamma}, kd = {kd}: rel. error {e:e}");
+        }
+    }
+
+    #[test]
+    fn slope_derivative_matches_differences() {
+        for beta in [
+            C64::new(0.005, 0.003),
+            C64::new(0.02, -0.01),
+            C64::new(1.3, 0.4),
+            C64::new(12.0, -30.0),
+            C64::new(0.2, 5.0),
+        ] {
+            let h = 1e-6 * beta.norm().max(1e-2);
+            let fd = (log_sinhc_slope(beta + h) - log_sinhc_slope(beta - h)) / (2.0 * h);
+            let d = log_sinhc_slope_derivative(beta);
+            assert!(
+                (d - fd).norm() < 1e-6 * fd.norm().max(1e-3),
+                "β = {beta}: {d} vs {fd}"
+            );
         }
     }
 

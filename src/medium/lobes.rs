@@ -111,6 +111,24 @@ fn lobe_mass(k: f64) -> f64 {
     }
 }
 
+/// `dM/dK` of [`lobe_mass`]: `2π (2K e^{−2K} − 1 + e^{−2K})/K²` (`−4π` at `K = 0`).
+fn lobe_mass_slope(k: f64) -> f64 {
+    if k.abs() < 1e-4 {
+        // M(K) = 4π (1 − K + 2K²/3 − K³/3 + …)
+        4.0 * PI * (-1.0 + 4.0 * k / 3.0 - k * k)
+    } else {
+        let e = (-2.0 * k).exp();
+        2.0 * PI * (2.0 * k * e + (-2.0 * k).exp_m1()) / (k * k)
+    }
+}
+
+/// Which parameter of a vMF-mixture lobe.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum VmfParam {
+    Weight,
+    Kappa,
+}
+
 impl VmfMixture {
     /// From positive weights and finite concentrations (`|κ| ≤ 1e5`; negative ones are backward
     /// lobes); the message names the offending entry.
@@ -163,6 +181,82 @@ impl VmfMixture {
         })
     }
 
+    /// The normalised lobes `(w_m, κ_m)` of the amplitude.
+    pub fn lobes(&self) -> &[(f64, f64)] {
+        &self.lobes
+    }
+
+    /// A copy with lobe `m`'s (unnormalised) weight or concentration replaced by `v`, normalised
+    /// again.
+    pub fn with(&self, m: usize, which: VmfParam, v: f64) -> Result<Self, String> {
+        let (mut w, mut k): (Vec<f64>, Vec<f64>) = self.lobes.iter().copied().unzip();
+        match which {
+            VmfParam::Weight => w[m] = v,
+            VmfParam::Kappa => k[m] = v,
+        }
+        VmfMixture::new(&w, &k)
+    }
+
+    /// `∂(w_n, κ_n)/∂θ` of the normalised lobes for `θ` lobe `m`'s unnormalised weight (at the
+    /// normalised point, where `N = ∫ s² dω = 1`) or its concentration: with `N = Σ w_i w_j
+    /// M(κ_i + κ_j)`, `M(K) = ∫ e^{K(μ−1)} dω`, the weights are `w/√N`, so
+    /// `∂w_n/∂w_m = δ_nm − w_n Σ_j w_j M(κ_m + κ_j)` and
+    /// `∂w_n/∂κ_m = −w_n w_m Σ_j w_j M'(κ_m + κ_j)`.
+    pub fn lobe_derivatives(&self, m: usize, which: VmfParam) -> (Vec<f64>, Vec<f64>) {
+        let n = self.lobes.len();
+        let (wm, km) = self.lobes[m];
+        let mut dw = vec![0.0; n];
+        let mut dk = vec![0.0; n];
+        match which {
+            VmfParam::Weight => {
+                let half_dn: f64 = self.lobes.iter().map(|(w, k)| w * lobe_mass(km + k)).sum();
+                for (i, (d, (w, _))) in dw.iter_mut().zip(&self.lobes).enumerate() {
+                    *d = f64::from(u8::from(i == m)) - w * half_dn;
+                }
+            }
+            VmfParam::Kappa => {
+                let half_dn: f64 = wm
+                    * self
+                        .lobes
+                        .iter()
+                        .map(|(w, k)| w * lobe_mass_slope(km + k))
+                        .sum::<f64>();
+                for (d, (w, _)) in dw.iter_mut().zip(&self.lobes) {
+                    *d = -w * half_dn;
+                }
+                dk[m] = 1.0;
+            }
+        }
+        (dw, dk)
+    }
+
+    /// `∂ log ρ(μ)/∂θ = 2 ∂s/∂θ / s` for `θ` lobe `m`'s weight or concentration, without
+    /// allocating (the derivatives of [`VmfMixture::lobe_derivatives`] summed in place):
+    /// `∂s/∂w_m = e_m − s Σ_j w_j M(κ_m+κ_j)`, `∂s/∂κ_m = w_m ((μ−1) e_m − s Σ_j w_j M'(κ_m+κ_j))`
+    /// with `e_m = e^{κ_m(μ−1)}`.
+    #[inline]
+    pub fn dlog_rho(&self, mu: f64, m: usize, which: VmfParam) -> f64 {
+        let Some(&(wm, km)) = self.lobes.get(m) else {
+            return 0.0;
+        };
+        let s = self.amplitude(mu);
+        let em = (km * (mu - 1.0)).exp();
+        match which {
+            VmfParam::Weight => {
+                let h: f64 = self.lobes.iter().map(|(w, k)| w * lobe_mass(km + k)).sum();
+                2.0 * (em / s - h)
+            }
+            VmfParam::Kappa => {
+                let h: f64 = self
+                    .lobes
+                    .iter()
+                    .map(|(w, k)| w * lobe_mass_slope(km + k))
+                    .sum();
+                2.0 * wm * ((mu - 1.0) * em / s - h)
+            }
+        }
+    }
+
     /// `s(μ)`, real and positive.
     pub fn amplitude(&self, mu: f64) -> f64 {
         self.lobes
@@ -202,6 +296,35 @@ impl VmfMixture {
                 p * mean_cosine(k)
             })
             .sum()
+    }
+}
+
+impl Lobes {
+    /// The least-squares weights of `s` on these lobes' concentrations (the fit's last step, on
+    /// its quadrature): linear in `s`, so the projection of `∂s/∂θ` is the derivative of the
+    /// projected weights. Projecting the fitted amplitude reproduces the fit's weights.
+    pub fn project(&self, s: impl Fn(f64) -> C64) -> Lobes {
+        let (mus, ws) = nodes();
+        let values: Vec<C64> = mus.iter().map(|&m| s(m)).collect();
+        let kappas: Vec<f64> = self.lobes.iter().map(|l| l.kappa).collect();
+        let lobes = least_squares(&mus, &ws, &values, &kappas);
+        let (mut resid, mut norm2) = (0.0, 0.0);
+        for ((&m, w), v) in mus.iter().zip(&ws).zip(&values) {
+            let fit: C64 = lobes
+                .iter()
+                .map(|l| l.weight * (l.kappa * (m - 1.0)).exp())
+                .sum();
+            resid += w * (v - fit).norm_sqr();
+            norm2 += w * v.norm_sqr();
+        }
+        Lobes {
+            lobes,
+            error: if norm2 > 0.0 {
+                (resid / norm2).sqrt()
+            } else {
+                0.0
+            },
+        }
     }
 }
 
@@ -598,6 +721,49 @@ mod tests {
                 .contains("weights[1]")
         );
         assert!(VmfMixture::new(&[1.0], &[1.0, 2.0]).is_err());
+    }
+
+    /// `∂ log ρ/∂θ` and the lobe derivatives of a vMF mixture (normalisation included) against
+    /// central differences of the renormalised mixture.
+    #[test]
+    fn vmf_mixture_derivatives_match_differences() {
+        let v = VmfMixture::new(&[1.0, 0.3, 0.1], &[8.0, 1.5, -0.5]).unwrap();
+        for m in 0..3 {
+            for which in [VmfParam::Weight, VmfParam::Kappa] {
+                let x = match which {
+                    VmfParam::Weight => v.lobes()[m].0,
+                    VmfParam::Kappa => v.lobes()[m].1,
+                };
+                let h = 1e-6 * x.abs().max(0.1);
+                let (up, down) = (
+                    v.with(m, which, x + h).unwrap(),
+                    v.with(m, which, x - h).unwrap(),
+                );
+                let (dw, dk) = v.lobe_derivatives(m, which);
+                for n in 0..3 {
+                    let fd = (up.lobes()[n].0 - down.lobes()[n].0) / (2.0 * h);
+                    assert!(
+                        (dw[n] - fd).abs() < 1e-7,
+                        "{which:?} {m}: dw[{n}] {} vs {fd}",
+                        dw[n]
+                    );
+                    let fd = (up.lobes()[n].1 - down.lobes()[n].1) / (2.0 * h);
+                    assert!(
+                        (dk[n] - fd).abs() < 1e-7,
+                        "{which:?} {m}: dκ[{n}] {} vs {fd}",
+                        dk[n]
+                    );
+                }
+                for mu in [-0.9, 0.0, 0.7, 0.99] {
+                    let fd = (up.eval(mu).ln() - down.eval(mu).ln()) / (2.0 * h);
+                    let d = v.dlog_rho(mu, m, which);
+                    assert!(
+                        (d - fd).abs() < 1e-6 * fd.abs().max(1.0),
+                        "{which:?} {m} μ {mu}: {d} vs {fd}"
+                    );
+                }
+            }
+        }
     }
 
     #[test]

@@ -33,6 +33,11 @@ pub enum Param {
     /// Share `β_c` of σ_s of particle type `c` (paper 001, Eq. 44); the shares stay normalised, so
     /// this is the derivative with respect to `c`'s unnormalised weight at `Σ = 1`.
     Weight(usize),
+    /// Unnormalised weight of lobe `m` of the vMF-mixture amplitude of component `c` (the
+    /// mixture stays normalised; derivative at the normalised point).
+    VmfWeight(usize, usize),
+    /// Concentration `κ` of lobe `m` of the vMF-mixture amplitude of component `c`.
+    VmfKappa(usize, usize),
 }
 
 impl Param {
@@ -44,6 +49,10 @@ impl Param {
             Param::G(c) => format!("g[{c}]"),
             Param::Bin(c, k) => format!("bin[{c}][{k}]"),
             Param::Weight(c) => format!("weight[{c}]"),
+            Param::VmfWeight(0, m) => format!("vmf_weight[{m}]"),
+            Param::VmfWeight(c, m) => format!("vmf_weight[{c}][{m}]"),
+            Param::VmfKappa(0, m) => format!("vmf_kappa[{m}]"),
+            Param::VmfKappa(c, m) => format!("vmf_kappa[{c}][{m}]"),
         }
     }
 
@@ -61,6 +70,18 @@ impl Param {
                 _ => None,
             },
             Param::Weight(c) => m.scattering.components().get(*c).map(|x| x.0),
+            Param::VmfWeight(c, l) | Param::VmfKappa(c, l) => {
+                match m.scattering.components().get(*c).map(|x| &x.1) {
+                    Some(PhaseFunction::VmfMixture(v)) => v.lobes().get(*l).map(|&(w, k)| {
+                        if matches!(self, Param::VmfWeight(..)) {
+                            w
+                        } else {
+                            k
+                        }
+                    }),
+                    _ => None,
+                }
+            }
         }
     }
 
@@ -74,13 +95,49 @@ impl Param {
             (Param::Bin(c, k), PhaseFunction::Tabulated(t)) if *c == kind => {
                 t.dlog_rho_dnode(mu, *k)
             }
+            (Param::VmfWeight(c, m), PhaseFunction::VmfMixture(v)) if *c == kind => {
+                v.dlog_rho(mu, *m, crate::medium::lobes::VmfParam::Weight)
+            }
+            (Param::VmfKappa(c, m), PhaseFunction::VmfMixture(v)) if *c == kind => {
+                v.dlog_rho(mu, *m, crate::medium::lobes::VmfParam::Kappa)
+            }
             _ => 0.0,
         }
     }
 
     /// Whether this is a phase-function parameter (enters at vertices, not through coefficients).
     pub fn is_phase(&self) -> bool {
-        matches!(self, Param::G(_) | Param::Bin(..))
+        matches!(
+            self,
+            Param::G(_) | Param::Bin(..) | Param::VmfWeight(..) | Param::VmfKappa(..)
+        )
+    }
+
+    /// The particle type whose phase function this parameter belongs to.
+    pub fn phase_component(&self) -> Option<usize> {
+        match *self {
+            Param::G(c) | Param::Bin(c, _) | Param::VmfWeight(c, _) | Param::VmfKappa(c, _) => {
+                Some(c)
+            }
+            _ => None,
+        }
+    }
+
+    /// For a vMF-mixture parameter, `∂(w_n, κ_n)/∂θ` of the mixture's normalised lobes.
+    pub fn vmf_lobe_derivatives(
+        &self,
+        v: &crate::medium::lobes::VmfMixture,
+    ) -> Option<(Vec<f64>, Vec<f64>)> {
+        use crate::medium::lobes::VmfParam;
+        match *self {
+            Param::VmfWeight(_, m) if m < v.lobes().len() => {
+                Some(v.lobe_derivatives(m, VmfParam::Weight))
+            }
+            Param::VmfKappa(_, m) if m < v.lobes().len() => {
+                Some(v.lobe_derivatives(m, VmfParam::Kappa))
+            }
+            _ => None,
+        }
     }
 
     /// A copy of `m` with this parameter set to `v`.
@@ -99,7 +156,7 @@ impl Param {
                     .collect();
                 out.scattering = crate::medium::Scattering::mixture(comps);
             }
-            Param::G(c) | Param::Bin(c, _) => {
+            Param::G(c) | Param::Bin(c, _) | Param::VmfWeight(c, _) | Param::VmfKappa(c, _) => {
                 let comps = m
                     .scattering
                     .components()
@@ -112,6 +169,19 @@ impl Param {
                                 .with_node_value(*k, v)
                                 .map(PhaseFunction::Tabulated)
                                 .unwrap_or_else(|_| p.clone()),
+                            (
+                                Param::VmfWeight(_, l) | Param::VmfKappa(_, l),
+                                PhaseFunction::VmfMixture(x),
+                            ) if i == *c => {
+                                let which = if matches!(self, Param::VmfWeight(..)) {
+                                    crate::medium::lobes::VmfParam::Weight
+                                } else {
+                                    crate::medium::lobes::VmfParam::Kappa
+                                };
+                                x.with(*l, which, v)
+                                    .map(PhaseFunction::VmfMixture)
+                                    .unwrap_or_else(|_| p.clone())
+                            }
                             _ => p.clone(),
                         };
                         (*w, q)

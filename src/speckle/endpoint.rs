@@ -2,7 +2,9 @@
 //! connection from a vertex inside the medium (paper 001, Eqs. 13 and 19), and for focused lights
 //! and views the aperture integrals `Υ` of paper 000 (Eqs. 15–18) in closed form.
 
-use crate::math::vmf::{Vmf, csqrt, log_sphere_integral};
+use crate::math::vmf::{
+    Vmf, csqrt, log_sinhc_slope, log_sinhc_slope_derivative, log_sphere_integral,
+};
 use crate::math::{C64, CVec3, cis};
 use crate::medium::lobes::Lobes;
 use crate::medium::{Medium, PhaseFunction};
@@ -257,6 +259,25 @@ impl Seen {
         }
     }
 
+    /// One unit-weight lobe `exp(κ(μ − 1))` of `Υ` for a lens (Eq. 29) and, when `slope` is set,
+    /// its derivative with respect to `κ`: with `q² = μ·μ + 2κ μ·w + κ²`,
+    /// `∂ ln Υ_κ/∂κ = −1 + S(q) (μ·w + κ)`, `S` the log-slope of `sinh q/q` in `q²/2`. Zero for a
+    /// ray terminal.
+    #[inline]
+    pub fn aperture_lobe(&self, u: DVec3, kappa: f64, slope: bool) -> (C64, C64) {
+        let Seen::Aperture { vmf, mu2, sign, .. } = self else {
+            return (C64::default(), C64::default());
+        };
+        let mw = vmf.mu.dot_real(u * -*sign);
+        let q2 = mu2 + mw * (2.0 * kappa) + kappa * kappa;
+        let value = sphere_integral_scaled(vmf.log_scale - kappa, q2);
+        if !slope {
+            return (value, C64::default());
+        }
+        let dlog = log_sinhc_slope(csqrt(q2)) * (mw + kappa) - 1.0;
+        (value, value * dlog)
+    }
+
     /// The single-scattering amplitude of light `self` and view `view` at one vertex (Eq. 5 for
     /// rays, Eq. 18 for lenses). Two lenses need the vMF convolution approximation (Eqs. 31–32),
     /// taken about the view's axis (see [`convolve_lobe`]).
@@ -314,6 +335,40 @@ pub fn log_aperture_mass(av: &Vmf) -> f64 {
     av.log_scale.re + log_sphere_integral(C64::new(av.mu.re.length_squared(), 0.0)).re
 }
 
+/// One unit-weight lobe's term of Eq. 18 for the light aperture `al` and view aperture `av`
+/// (about the view's `axis`), and, when `slope` is set, its derivative with respect to the lobe's
+/// concentration `κ` through the convolution approximation (Eqs. 31–32 with the exact slope):
+/// `β² = (μ_l + κ a)²`, slope `t = κ S(β)`, product `μ_p = t μ_l + μ_v`, so
+/// `∂ ln P/∂κ = −1 + S(β)(μ_l·a + κ) − t′ μ_l·a + S(q)(μ_p·μ_l) t′` with
+/// `t′ = S(β) + κ S′(β)(μ_l·a + κ)/β`. Dropped terms (see [`lens_pair_term`]) have zero slope.
+pub fn lens_pair_lobe(
+    al: &Vmf,
+    kappa: f64,
+    axis: DVec3,
+    av: &Vmf,
+    view_bound: f64,
+    slope: bool,
+) -> (C64, C64) {
+    let lobe = crate::medium::lobes::Lobe {
+        weight: C64::new(1.0, 0.0),
+        kappa,
+    };
+    let value = lens_pair_term(&convolve_lobe(al, &lobe, axis), av, view_bound);
+    if !slope || value == C64::default() {
+        return (value, C64::default());
+    }
+    let mw = al.mu.dot_real(axis);
+    let m = mw + kappa;
+    let beta = csqrt(al.mu.add_real(axis * kappa).dot_self());
+    let s_beta = log_sinhc_slope(beta);
+    let t = s_beta * kappa;
+    let dt = s_beta + log_sinhc_slope_derivative(beta) * kappa * m / beta;
+    let p_mu = al.mu.scale(t) + av.mu;
+    let q = csqrt(p_mu.dot_self());
+    let dlog = s_beta * m - 1.0 - dt * mw + log_sinhc_slope(q) * p_mu.dot(&al.mu) * dt;
+    (value, value * dlog)
+}
+
 /// One lobe's term of Eq. 18: `w ∫ ã_v(ω) Υ_l(ω) dω` with `Υ_l` the convolved vMF. Where the
 /// linearisation fails (`|β|` small, far off the beam, where the true value is below `e^{−30}` of
 /// the peak) it can exceed the bound `max|Υ_l| ∫|ã_v|`: the term is dropped there.
@@ -327,4 +382,68 @@ pub fn lens_pair_term(c: &ConvolvedLobe, av: &Vmf, view_bound: f64) -> C64 {
         return C64::default();
     }
     c.weight * value
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::medium::{Geometry, Scattering};
+
+    fn lens(focus: DVec3, axis: DVec3, sigma: f64, sign: f64) -> Lens {
+        Lens {
+            focus,
+            axis: axis.normalize(),
+            gamma: 1.0 / (sigma * sigma),
+            sign,
+        }
+    }
+
+    /// The κ-derivatives of one lobe's `Υ` (Eq. 29) and of its two-lens term (Eqs. 18, 31–32)
+    /// match central differences, on and off the beams.
+    #[test]
+    fn lobe_slopes_match_differences() {
+        let medium = Medium {
+            geometry: Geometry::boxed([6.0, 6.0, 4.0]),
+            sigma_s: 0.3,
+            sigma_a: 0.05,
+            scattering: Scattering::single(PhaseFunction::Isotropic),
+        };
+        let k = 2.0 * std::f64::consts::PI;
+        let light = lens(DVec3::new(0.0, 0.0, 2.0), DVec3::Z, 0.4, 1.0);
+        let view = lens(
+            DVec3::new(0.5, 0.0, 1.0),
+            DVec3::new(0.1, 0.0, 1.0),
+            0.3,
+            -1.0,
+        );
+        for x in [
+            DVec3::new(0.1, 0.2, -1.0),
+            DVec3::new(1.5, -0.7, 0.5),
+            DVec3::new(0.0, 0.0, 1.9),
+        ] {
+            let (al, _) = light.aperture_and_path(x, &medium, k);
+            let (av, _) = view.aperture_and_path(x, &medium, k);
+            let seen = Terminal::Lens(light).seen_from(x, &medium, k);
+            let u = DVec3::new(0.2, -0.1, 1.0).normalize();
+            let bound = log_aperture_mass(&av);
+            for kappa in [0.5, 4.0, 30.0] {
+                let h = 1e-5 * kappa;
+                let (_, d) = seen.aperture_lobe(u, kappa, true);
+                let fd = (seen.aperture_lobe(u, kappa + h, false).0
+                    - seen.aperture_lobe(u, kappa - h, false).0)
+                    / (2.0 * h);
+                assert!(
+                    (d - fd).norm() <= 1e-6 * fd.norm() + 1e-300,
+                    "Υ at {x}, κ = {kappa}: {d} vs {fd}"
+                );
+                let pair = |kappa| lens_pair_lobe(&al, kappa, view.axis, &av, bound, false).0;
+                let (_, d) = lens_pair_lobe(&al, kappa, view.axis, &av, bound, true);
+                let fd = (pair(kappa + h) - pair(kappa - h)) / (2.0 * h);
+                assert!(
+                    (d - fd).norm() <= 1e-6 * fd.norm() + 1e-300,
+                    "pair at {x}, κ = {kappa}: {d} vs {fd}"
+                );
+            }
+        }
+    }
 }

@@ -208,7 +208,7 @@ fn far_far_gradient(
         .map(|p| match *p {
             Param::SigmaS => nf / m.sigma_s * b + nf * db,
             Param::SigmaA => nf * db,
-            Param::G(c) | Param::Bin(c, _) => {
+            Param::G(c) | Param::Bin(c, _) | Param::VmfWeight(c, _) | Param::VmfKappa(c, _) => {
                 let ph = &comps[c].1;
                 let dlog = 0.5 * (p.dlog_phase(c, ph, mu) - p.dlog_phase(c, ph, 1.0));
                 coefficient * m.sigma_s * comps[c].0 * ratio(c) * dlog * b
