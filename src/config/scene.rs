@@ -195,6 +195,33 @@ pub struct RenderConfig {
     /// First directions: `"aperture"` (from `|Υ|²`, needs `first_vertex = "beam"`) or `"uniform"`.
     #[serde(default)]
     pub first_direction: FirstDirectionConfig,
+    /// Focused apertures: `"vmf"` (closed forms, the default), `"quadrature"` (far-field
+    /// connections summed over the aperture, each direction attenuated over its own length: the
+    /// reference of paper 000, Eq. 11) or `"quadrature_axis"` (the same with the axis attenuation
+    /// of Eq. 25).
+    #[serde(default)]
+    pub aperture: ApertureConfig,
+}
+
+/// `[render] aperture`.
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum ApertureConfig {
+    #[default]
+    Vmf,
+    Quadrature,
+    QuadratureAxis,
+}
+
+impl ApertureConfig {
+    pub fn model(self) -> crate::speckle::aperture_quadrature::ApertureModel {
+        use crate::speckle::aperture_quadrature::{ApertureModel, Attenuation};
+        match self {
+            ApertureConfig::Vmf => ApertureModel::Vmf,
+            ApertureConfig::Quadrature => ApertureModel::Quadrature(Attenuation::Exact),
+            ApertureConfig::QuadratureAxis => ApertureModel::Quadrature(Attenuation::Axis),
+        }
+    }
 }
 
 /// `[render] first_vertex`.
@@ -253,6 +280,7 @@ impl Default for RenderConfig {
             reversed: true,
             first_vertex: FirstVertexConfig::default(),
             first_direction: FirstDirectionConfig::default(),
+            aperture: ApertureConfig::default(),
         }
     }
 }
@@ -471,6 +499,7 @@ impl Config {
         }
         let mut scene = Scene::new(self.wavelength, medium, lights, views);
         scene.sampling = self.render.sampling()?;
+        scene.aperture = self.render.aperture.model();
         Ok(scene)
     }
 }

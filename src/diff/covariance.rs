@@ -162,6 +162,11 @@ impl<'a> Reweighted<'a> {
         if target.geometry != proposal.medium.geometry {
             return Err("the target medium must have the proposal's geometry".into());
         }
+        if proposal.aperture != crate::speckle::aperture_quadrature::ApertureModel::Vmf {
+            return Err(crate::Error::input(
+                "gradients use the vMF closed forms of focused apertures: render.aperture = \"quadrature\" is a reference for covariance, speckle and correlation-map runs; use aperture = \"vmf\"",
+            ));
+        }
         let terminals = Terminals::new(proposal)?;
         let (from, to) = (
             proposal.medium.scattering.components(),

@@ -1,6 +1,7 @@
 //! Speckle statistics: the mean, the covariance (Algorithm 1) and speckle fields (Algorithm 2) of
 //! coherent light scattered by a random medium (paper 001).
 
+pub mod aperture_quadrature;
 pub mod correlation_map;
 pub mod covariance;
 pub mod endpoint;
@@ -28,6 +29,8 @@ pub struct Scene {
     pub views: Vec<View>,
     /// How subpaths start near focused lights (importance sampling, paper 000 Sec. 6).
     pub sampling: first_vertex::Sampling,
+    /// How focused apertures are integrated: vMF closed forms, or quadrature (a reference).
+    pub aperture: aperture_quadrature::ApertureModel,
 }
 
 impl Scene {
@@ -39,6 +42,7 @@ impl Scene {
             lights,
             views,
             sampling: first_vertex::Sampling::default(),
+            aperture: aperture_quadrature::ApertureModel::default(),
         }
     }
 }

@@ -10,8 +10,12 @@
 //! forward-only), and `V` for the single-scattering event `B = 1` (Algorithm 1).
 
 use crate::math::{C64, Rng, uniform};
+use crate::medium::PhaseFunction;
 use crate::medium::lobes::Lobes;
 use crate::speckle::Scene;
+use crate::speckle::aperture_quadrature::{
+    ApertureModel, Quadrature, lens_pair, upsilon, weighted_aperture,
+};
 use crate::speckle::endpoint::{
     ConvolvedLobe, Seen, Terminal, convolve_lobe, lens_pair_term, log_aperture_mass,
 };
@@ -47,6 +51,8 @@ pub struct Terminals {
     pub lobes: Vec<Lobes>,
     /// Draws first vertices and directions (from the focused lights' beams when there are any).
     pub first: FirstVertex,
+    /// Quadrature grids of the focused terminals when the scene asks for the quadrature reference.
+    pub quadrature: Option<Quadrature>,
 }
 
 impl Terminals {
@@ -80,11 +86,35 @@ impl Terminals {
             Terminal::Ray(_) => None,
         });
         let first = FirstVertex::new(scene.sampling, lenses, &scene.medium, &lobes[0], scene.k);
+        let quadrature = match scene.aperture {
+            ApertureModel::Quadrature(attenuation) if focused => {
+                let lens = |t: &Terminal| match t {
+                    Terminal::Lens(l) => Some(*l),
+                    Terminal::Ray(_) => None,
+                };
+                let lens_l: Vec<_> = lights.iter().map(lens).collect();
+                let lens_v: Vec<_> = views.iter().map(lens).collect();
+                let sharpest = lobes
+                    .iter()
+                    .flat_map(|l| l.lobes.iter().map(|l| l.kappa.abs()))
+                    .fold(0.0, f64::max);
+                Some(Quadrature::new(
+                    attenuation,
+                    &lens_l,
+                    &lens_v,
+                    &scene.medium,
+                    scene.k,
+                    sharpest,
+                ))
+            }
+            _ => None,
+        };
         Ok(Terminals {
             lights,
             views,
             lobes,
             first,
+            quadrature,
         })
     }
 
@@ -106,6 +136,10 @@ pub struct PathScratch {
     proposal: Vec<(f64, DVec3, f64)>,
     convolved: Vec<ConvolvedLobe>,
     view_bound: Vec<f64>,
+    /// Quadrature aperture weights at the first vertex (per light and view) and at the current one.
+    quad_first_l: Vec<Vec<C64>>,
+    quad_first_v: Vec<Vec<C64>>,
+    quad_here: Vec<C64>,
 }
 
 impl<'a> SubpathSampler<'a> {
@@ -168,6 +202,9 @@ impl<'a> SubpathSampler<'a> {
             proposal: Vec::new(),
             convolved: vec![ConvolvedLobe::default(); nl * self.max_lobes],
             view_bound: vec![0.0; nv],
+            quad_first_l: vec![Vec::new(); nl],
+            quad_first_v: vec![Vec::new(); nv],
+            quad_here: Vec::new(),
         }
     }
 
@@ -212,7 +249,18 @@ impl<'a> SubpathSampler<'a> {
                 }
             }
         }
+        if let Some(q) = &t.quadrature {
+            self.quadrature_first(q, x1, sc);
+        }
+        if let Some(q) = &t.quadrature {
+            for (n, &(l, v)) in self.pairs.iter().enumerate() {
+                sc.a[n] = self.quadrature_single(q, l, v, sc, phase1, lobes1) * root;
+            }
+        }
         for (a, &(l, v)) in sc.a.iter_mut().zip(&self.pairs) {
+            if t.quadrature.is_some() {
+                break;
+            }
             *a = match (&sc.first_l[l], &sc.first_v[v], self.view_axis) {
                 (Seen::Aperture { .. }, Seen::Aperture { vmf: av, .. }, Some(_)) => sc.convolved
                     [l * self.max_lobes..l * self.max_lobes + nlobes]
@@ -237,6 +285,18 @@ impl<'a> SubpathSampler<'a> {
         for (c, a) in sc.first_v.iter().zip(sc.amp_first_v.iter_mut()) {
             *a = c.amplitude(-w1, phase1, lobes1);
         }
+        if let Some(q) = &t.quadrature {
+            for (i, grid) in q.lights.iter().enumerate() {
+                if let (Some(g), Terminal::Lens(lens)) = (grid, &t.lights[i]) {
+                    sc.amp_first_l[i] = upsilon(lens, g, &sc.quad_first_l[i], -w1, phase1);
+                }
+            }
+            for (i, grid) in q.views.iter().enumerate() {
+                if let (Some(g), Terminal::Lens(lens)) = (grid, &t.views[i]) {
+                    sc.amp_first_v[i] = upsilon(lens, g, &sc.quad_first_v[i], -w1, phase1);
+                }
+            }
+        }
         let scale = volume * inv_pdf_w1 * if self.reversed { 0.5 } else { 1.0 };
         let mut x = x1 + w1 * d;
         let mut w_in = w1;
@@ -244,6 +304,9 @@ impl<'a> SubpathSampler<'a> {
         loop {
             let kind = m.scattering.pick(|| uniform(rng));
             self.connect_all(x, w_in, kind, &mut sc.amp_last_l, &mut sc.amp_last_v);
+            if let Some(q) = &t.quadrature {
+                self.quadrature_connect(q, x, w_in, kind, sc);
+            }
             let root = (scale * throughput).sqrt();
             for (a, &(l, v)) in sc.a.iter_mut().zip(&self.pairs) {
                 let mut z = sc.amp_first_l[l] * sc.amp_last_v[v];
@@ -271,6 +334,74 @@ impl<'a> SubpathSampler<'a> {
                     return;
                 }
                 throughput *= 10.0;
+            }
+        }
+    }
+
+    /// The quadrature aperture weights of every focused terminal at the first vertex.
+    fn quadrature_first(&self, q: &Quadrature, x: DVec3, sc: &mut PathScratch) {
+        let (s, t) = (self.scene, &self.terminals);
+        for ((grid, term), out) in q.lights.iter().zip(&t.lights).zip(&mut sc.quad_first_l) {
+            if let (Some(g), Terminal::Lens(lens)) = (grid, term) {
+                weighted_aperture(lens, g, q.attenuation, x, &s.medium, s.k, out);
+            }
+        }
+        for ((grid, term), out) in q.views.iter().zip(&t.views).zip(&mut sc.quad_first_v) {
+            if let (Some(g), Terminal::Lens(lens)) = (grid, term) {
+                weighted_aperture(lens, g, q.attenuation, x, &s.medium, s.k, out);
+            }
+        }
+    }
+
+    /// Single scattering of pair `(l, v)` at the first vertex with quadrature apertures.
+    fn quadrature_single(
+        &self,
+        q: &Quadrature,
+        l: usize,
+        v: usize,
+        sc: &PathScratch,
+        phase: &PhaseFunction,
+        lobes: &Lobes,
+    ) -> C64 {
+        let t = &self.terminals;
+        match (&t.lights[l], &t.views[v], &sc.first_l[l], &sc.first_v[v]) {
+            (Terminal::Lens(_), Terminal::Lens(_), _, seen_v) => {
+                let grid = q.lights[l].as_ref().expect("a grid per focused light");
+                lens_pair(grid, &sc.quad_first_l[l], seen_v, lobes)
+            }
+            (Terminal::Lens(lens), _, _, Seen::Ray(cv)) => {
+                let grid = q.lights[l].as_ref().expect("a grid per focused light");
+                upsilon(lens, grid, &sc.quad_first_l[l], -cv.dir, phase) * cv.prop
+            }
+            (_, Terminal::Lens(lens), Seen::Ray(cl), _) => {
+                let grid = q.views[v].as_ref().expect("a grid per focused view");
+                upsilon(lens, grid, &sc.quad_first_v[v], -cl.dir, phase) * cl.prop
+            }
+            (_, _, sl, sv) => sl.single(sv, phase, lobes),
+        }
+    }
+
+    /// Replace the focused terminals' amplitudes at vertex `x` by their quadrature values.
+    fn quadrature_connect(
+        &self,
+        q: &Quadrature,
+        x: DVec3,
+        w_in: DVec3,
+        kind: usize,
+        sc: &mut PathScratch,
+    ) {
+        let (s, t) = (self.scene, &self.terminals);
+        let phase = s.medium.scattering.phase(kind);
+        for (i, grid) in q.lights.iter().enumerate() {
+            if let (Some(g), Terminal::Lens(lens)) = (grid, &t.lights[i]) {
+                weighted_aperture(lens, g, q.attenuation, x, &s.medium, s.k, &mut sc.quad_here);
+                sc.amp_last_l[i] = upsilon(lens, g, &sc.quad_here, w_in, phase);
+            }
+        }
+        for (i, grid) in q.views.iter().enumerate() {
+            if let (Some(g), Terminal::Lens(lens)) = (grid, &t.views[i]) {
+                weighted_aperture(lens, g, q.attenuation, x, &s.medium, s.k, &mut sc.quad_here);
+                sc.amp_last_v[i] = upsilon(lens, g, &sc.quad_here, w_in, phase);
             }
         }
     }
