@@ -31,6 +31,8 @@ enum Command {
     MemoryEffect(RunArgs),
     /// Near-field correlation maps C(Δ, τ) of focused lights and views (paper 000, Eq. 48) → correlation_map.json + PNG
     CorrelationMap(RunArgs),
+    /// Tilt-shift memory-effect correlations C(Δa, Δb, θ) of two focused beams (paper 000, Eq. 49) beside the model of Eq. 50 → tilt_shift.json + PNG
+    TiltShift(RunArgs),
     /// Merge the shards of one run (folders holding state.bin) into the single run's results
     Merge {
         /// Shard folders (or state.bin files)
@@ -237,6 +239,7 @@ fn dispatch(command: Option<Command>) -> Result<Outcome> {
         Some(Command::Speckle(a)) => run(Kind::Speckle, a),
         Some(Command::MemoryEffect(a)) => run(Kind::MemoryEffect, a),
         Some(Command::CorrelationMap(a)) => run(Kind::CorrelationMap, a),
+        Some(Command::TiltShift(a)) => run(Kind::TiltShift, a),
         Some(Command::Merge { shards, out }) => app::run::merge_shards(&shards, &out),
         Some(Command::Wave {
             config,

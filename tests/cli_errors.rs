@@ -333,3 +333,35 @@ fn bad_near_field_settings() {
         &["view[0].spacing", "0", "positive"],
     );
 }
+
+/// A `[tilt_shift]` table with two forms of cells, a tilt beyond 45°, no τ, or a
+/// `[render] aperture` that does not exist is refused with the key and what is allowed.
+#[test]
+fn bad_tilt_shift_and_aperture_settings() {
+    let table = |body: &str| format!("{GOOD}\n[tilt_shift]\ntau_width = 1.0\n{body}\n");
+    expect_error(
+        "ts-two-forms",
+        &table("taus = 3\nrefocus = [0.0, 1.0]\ncells = [[0.0, 1.0]]"),
+        &["tilt_shift", "exactly one of"],
+    );
+    expect_error(
+        "ts-angle",
+        &table("taus = 3\nshifts = [0.0]\nangles_deg = [0.0, 60.0]"),
+        &["tilt_shift.angles_deg[1]", "60", "[-45, 45]"],
+    );
+    expect_error(
+        "ts-taus",
+        &table("taus = 0\nrefocus = [0.0]"),
+        &["tilt_shift.taus", "at least 1"],
+    );
+    expect_error(
+        "ts-none",
+        &table("taus = 3"),
+        &["tilt_shift", "exactly one of"],
+    );
+    expect_error(
+        "aperture",
+        &GOOD.replace("chunk = 500", "chunk = 500\naperture = \"gauss\""),
+        &["render.aperture", "gauss", "vmf", "quadrature"],
+    );
+}

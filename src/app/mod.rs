@@ -18,6 +18,7 @@ pub mod correlation_map;
 pub mod fit;
 pub mod grin;
 pub mod run;
+pub mod tilt_shift;
 pub mod wave;
 
 use crate::error::{Error, Result};

@@ -27,6 +27,8 @@ pub enum Kind {
     Speckle,
     /// Near-field `C(Δ, τ)` maps (see [`super::correlation_map`]).
     CorrelationMap,
+    /// Tilt-shift correlations (see [`super::tilt_shift`]).
+    TiltShift,
     /// Foldy–Lax realisations (see [`super::wave`]).
     Wave,
 }
@@ -38,6 +40,7 @@ impl Kind {
             Kind::MemoryEffect => "memory-effect",
             Kind::Speckle => "speckle",
             Kind::CorrelationMap => "correlation-map",
+            Kind::TiltShift => "tilt-shift",
             Kind::Wave => "wave",
         }
     }
@@ -48,6 +51,7 @@ impl Kind {
             Kind::MemoryEffect,
             Kind::Speckle,
             Kind::CorrelationMap,
+            Kind::TiltShift,
             Kind::Wave,
         ]
         .into_iter()
@@ -93,6 +97,9 @@ pub fn run_scene(
     }
     if kind == Kind::CorrelationMap && cfg.correlation_map.is_none() {
         return Err(Error::input(super::correlation_map::NEEDS_TABLE));
+    }
+    if kind == Kind::TiltShift && cfg.tilt_shift.is_none() {
+        return Err(Error::input(super::tilt_shift::NEEDS_TABLE));
     }
     cfg.check_settings()?;
     let plan = plan_of(kind, cfg);
@@ -292,6 +299,13 @@ fn compute(
             let est = crate::speckle::correlation_map::MapEstimator::new(&map, reversed)?;
             run(&est, plan, range, &[], &progress)
         }
+        Kind::TiltShift => {
+            let scan = super::tilt_shift::scan_of(task)?;
+            let est = crate::speckle::tilt_shift::TiltShiftEstimator::new(&scan, reversed)?;
+            // every output per chunk: the normalised correlations' errors by batch means
+            let keep: Vec<usize> = (0..crate::mc::Estimator::outputs(&est)).collect();
+            run(&est, plan, range, &keep, &progress)
+        }
         Kind::Wave => {
             let est = crate::speckle::wave::Realizations::new(scene);
             run(&est, plan, range, &est.kept_outputs(), &progress)
@@ -335,6 +349,7 @@ fn finish(
         Kind::MemoryEffect => finish_memory(task, plan, blocks, seconds, out),
         Kind::Speckle => finish_speckle(task, plan, blocks, seconds, out),
         Kind::CorrelationMap => super::correlation_map::finish(task, plan, blocks, seconds, out),
+        Kind::TiltShift => super::tilt_shift::finish(task, plan, blocks, seconds, out),
         Kind::Wave => super::wave::finish(task, plan, blocks, seconds, out),
     }
 }

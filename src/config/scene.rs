@@ -36,6 +36,29 @@ pub struct Config {
     pub speckle: Option<SpeckleConfig>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub correlation_map: Option<CorrelationMapConfig>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tilt_shift: Option<TiltShiftConfig>,
+}
+
+/// Tilt-shift scan (paper 000, Eq. 49): light 0 focused on the input plane and view 0 on the
+/// output plane; each cell shifts and tilts a pair of beams and sums the fields' products over
+/// `taus` positions `tau_width` wide. The cells are one of: the grid `shifts` (output `Δb`) ×
+/// `angles_deg` (`θ` between the beams); a list `cells = [[Δb, θ_deg], ...]`; or `refocus = [Δ,
+/// ...]`, the adaptive-optics refocusing of Sec. 9.1: for each focus displacement `Δ` (the input
+/// shift) a shift-only cell and a shift + tilt cell with Eq. 50's best tilt.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct TiltShiftConfig {
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub shifts: Vec<f64>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub angles_deg: Vec<f64>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub cells: Vec<[f64; 2]>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub refocus: Vec<f64>,
+    pub tau_width: f64,
+    pub taus: u64,
 }
 
 /// `C(Δ, τ)` map (paper 000, Eq. 48): light 0 and view 0 (both focused) shifted by each `Δ`
@@ -316,7 +339,7 @@ fn default_paths() -> u64 {
 }
 
 /// Keys that hold whole numbers; everything else numeric is read as a float.
-const INTEGER_KEYS: [&str; 14] = [
+const INTEGER_KEYS: [&str; 15] = [
     "samples",
     "seed",
     "chunk",
@@ -324,6 +347,7 @@ const INTEGER_KEYS: [&str; 14] = [
     "pixels",
     "realisations",
     "paths",
+    "taus",
     "max_steps",
     "levels",
     "steps",
@@ -449,6 +473,75 @@ impl Config {
                 return err(format!(
                     "correlation_map.pixels = {:?}: each must be at least 1 and pixels × (deltas + 1) at most 1000000",
                     m.pixels
+                ));
+            }
+        }
+        if let Some(t) = &self.tilt_shift {
+            let grid = !t.shifts.is_empty() || !t.angles_deg.is_empty();
+            let forms = [grid, !t.cells.is_empty(), !t.refocus.is_empty()];
+            if forms.iter().filter(|f| **f).count() != 1 {
+                return err(
+                    "tilt_shift: give exactly one of shifts + angles_deg (a grid), cells = [[shift, angle_deg], ...] or refocus = [displacement, ...]",
+                );
+            }
+            let (cell_shifts, cell_angles): (Vec<f64>, Vec<f64>) =
+                t.cells.iter().map(|c| (c[0], c[1])).unzip();
+            for (key, list, limit, used) in [
+                ("tilt_shift.shifts", &t.shifts, f64::INFINITY, grid),
+                ("tilt_shift.angles_deg", &t.angles_deg, 45.0, grid),
+                (
+                    "tilt_shift.cells (shift)",
+                    &cell_shifts,
+                    f64::INFINITY,
+                    !t.cells.is_empty(),
+                ),
+                (
+                    "tilt_shift.cells (angle_deg)",
+                    &cell_angles,
+                    45.0,
+                    !t.cells.is_empty(),
+                ),
+                (
+                    "tilt_shift.refocus",
+                    &t.refocus,
+                    f64::INFINITY,
+                    !t.refocus.is_empty(),
+                ),
+            ] {
+                if !used {
+                    continue;
+                }
+                if list.is_empty() || list.len() > 256 {
+                    return err(format!(
+                        "{key} has {} entries: give 1 to 256 values",
+                        list.len()
+                    ));
+                }
+                for (i, v) in list.iter().enumerate() {
+                    if !v.is_finite() || v.abs() > limit {
+                        return err(format!(
+                            "{key}[{i}] = {v}: must be finite{}",
+                            if limit.is_finite() {
+                                format!(", within [-{limit}, {limit}]")
+                            } else {
+                                String::new()
+                            }
+                        ));
+                    }
+                }
+            }
+            if !t.tau_width.is_finite() || t.tau_width < 0.0 {
+                return err(format!(
+                    "tilt_shift.tau_width = {}: must be a finite width ≥ 0",
+                    t.tau_width
+                ));
+            }
+            let cells =
+                (t.shifts.len() * t.angles_deg.len() + t.cells.len() + 2 * t.refocus.len()) as u64;
+            if t.taus == 0 || t.taus * cells > 1_000_000 {
+                return err(format!(
+                    "tilt_shift.taus = {}: must be at least 1 and taus × cells at most 1000000",
+                    t.taus
                 ));
             }
         }

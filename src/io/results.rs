@@ -347,6 +347,72 @@ impl ResultFile for CorrelationMapFile {
     }
 }
 
+/// `tilt_shift.json`: the tilt-shift correlation `C(Δa, Δb, θ)` (paper 000, Eq. 49) of every
+/// cell, normalised by the fields' summed intensities, beside the model of Eq. 50; for a grid the
+/// normalised values as `[shift][angle]`, for a refocusing scan (Sec. 9.1) the power curves.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct TiltShiftFile {
+    #[serde(flatten)]
+    pub run: RunEcho,
+    /// Depth `L` between the input and output planes, and the transport mean free path.
+    pub depth: f64,
+    pub transport_mfp: f64,
+    pub cells: Vec<TiltShiftCell>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub grid: Option<TiltShiftGrid>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub refocus: Option<Refocus>,
+}
+
+/// One cell of a tilt-shift scan.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct TiltShiftCell {
+    /// Output shift `Δb`, relative tilt `θ` and input shift `Δa = Δb − Lθ`.
+    pub shift: f64,
+    pub angle_deg: f64,
+    pub input_shift: f64,
+    pub re: f64,
+    pub im: f64,
+    pub stderr: f64,
+    /// `|C| / √(I₁ I₂)` with `I` the fields' intensities summed over the same `τ`.
+    pub normalised: f64,
+    pub normalised_stderr: f64,
+    /// Eq. 50 at the cell.
+    pub model: f64,
+}
+
+/// A grid scan: `normalised[shift][angle]` and the model there.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct TiltShiftGrid {
+    pub shifts: Vec<f64>,
+    pub angles_deg: Vec<f64>,
+    pub normalised: Vec<Vec<f64>>,
+    pub model: Vec<Vec<f64>>,
+}
+
+/// Refocusing through the medium (paper 000, Sec. 9.1): the expected power `|C|²/(I₁ I₂)` at a
+/// focus displaced by each `Δ` with the shifted wavefront alone and shifted and tilted by Eq. 50's
+/// best tilt, with Eq. 50's predictions.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct Refocus {
+    pub displacements: Vec<f64>,
+    pub power_shift: Vec<f64>,
+    pub power_shift_stderr: Vec<f64>,
+    pub power_tilt: Vec<f64>,
+    pub power_tilt_stderr: Vec<f64>,
+    /// The tilts used (degrees).
+    pub tilts_deg: Vec<f64>,
+    pub model_shift: Vec<f64>,
+    pub model_tilt: Vec<f64>,
+}
+
+impl ResultFile for TiltShiftFile {
+    const NAME: &'static str = "tilt_shift.json";
+    fn format_version(&self) -> u32 {
+        self.run.format_version
+    }
+}
+
 /// `speckle.json`: speckle fields `u[r][l][v]` of every realisation.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct SpeckleFile {
