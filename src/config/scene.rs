@@ -220,8 +220,8 @@ pub struct RenderConfig {
     pub first_direction: FirstDirectionConfig,
     /// Focused apertures: `"vmf"` (closed forms, the default), `"quadrature"` (far-field
     /// connections summed over the aperture, each direction attenuated over its own length: the
-    /// reference of paper 000, Eq. 11) or `"quadrature_axis"` (the same with the axis attenuation
-    /// of Eq. 25).
+    /// reference of paper 000, Eq. 11), `"quadrature_linearised"` (the same with the closed forms'
+    /// linearised attenuation) or `"quadrature_axis"` (with paper 000's Eq. 25).
     #[serde(default)]
     pub aperture: ApertureConfig,
 }
@@ -233,6 +233,7 @@ pub enum ApertureConfig {
     #[default]
     Vmf,
     Quadrature,
+    QuadratureLinearised,
     QuadratureAxis,
 }
 
@@ -242,6 +243,9 @@ impl ApertureConfig {
         match self {
             ApertureConfig::Vmf => ApertureModel::Vmf,
             ApertureConfig::Quadrature => ApertureModel::Quadrature(Attenuation::Exact),
+            ApertureConfig::QuadratureLinearised => {
+                ApertureModel::Quadrature(Attenuation::Linearised)
+            }
             ApertureConfig::QuadratureAxis => ApertureModel::Quadrature(Attenuation::Axis),
         }
     }

@@ -7,8 +7,8 @@
 //! roulette factor), and `w = σ_s V` for single scattering (paper 001, Eqs. 31–36). Every endpoint
 //! amplitude `A = ξ e^{-σ_t ℓ/2} s(μ)` has `∂A/∂θ = A λ` with `λ = -ℓ/2` for `σ_s, σ_a` and
 //! `λ = ½ ∂log ρ/∂g` for HG `g`, so `∂a/∂θ` and `∂log w/∂θ` are cheap per event. A focused
-//! endpoint's aperture integral `Υ` (paper 000) carries `e^{-σ_t d/2}` along its axis, so it has the
-//! same `λ = -d/2` for `σ_s, σ_a`. `Υ` is linear in the amplitude's vMF lobes (paper 000, Eq. 28):
+//! endpoint's aperture integral `Υ` (paper 000) carries the linearised attenuation
+//! `e^{−σ_t h} e^{(σ_t h/2) a·ω}`, differentiated in closed form. `Υ` is linear in the amplitude's vMF lobes (paper 000, Eq. 28):
 //! at the target it is `Σ_l w_l(θ) Υ_{κ_l}`, with a vMF mixture's own lobes (whose weights and
 //! concentrations are differentiated exactly), and for other phase functions the target amplitude
 //! projected onto the proposal's lobe concentrations (least squares on the fit's quadrature:
@@ -49,8 +49,6 @@ struct TargetLobes {
     lobes: Lobes,
     dweight: Vec<C64>,
     dkappa: Vec<f64>,
-    /// Whether any concentration moves (then `∂Υ/∂κ` is needed).
-    moves_kappa: bool,
 }
 
 impl TargetLobes {
@@ -80,12 +78,10 @@ impl TargetLobes {
                     }
                 }
             }
-            let moves_kappa = dkappa.iter().any(|&d| d != 0.0);
             return TargetLobes {
                 lobes,
                 dweight,
                 dkappa,
-                moves_kappa,
             };
         }
         let lobes = if target == proposal_phase {
@@ -110,7 +106,6 @@ impl TargetLobes {
             lobes,
             dweight,
             dkappa: vec![0.0; params.len() * n],
-            moves_kappa: false,
         }
     }
 }
@@ -227,40 +222,42 @@ impl<'a> Reweighted<'a> {
         }
     }
 
-    /// `∂ log A/∂θ_p` of the attenuation `e^{-σ_t ℓ/2}` over length `inside`.
+    /// `∂σ_t/∂θ_p` (1 for σ_s and σ_a).
     #[inline]
-    fn attenuation_lambda(p: &Param, inside: f64) -> f64 {
+    fn dsigma_t(p: &Param) -> f64 {
         match p {
-            Param::SigmaS | Param::SigmaA => -0.5 * inside,
+            Param::SigmaS | Param::SigmaA => 1.0,
             _ => 0.0,
         }
     }
 
-    /// Target amplitude `A = prop e^{-Δσ_t ℓ/2} s_θ(μ)` of a connection at a vertex of type `kind`,
-    /// with the path direction `u` (scattering cosine `u·dir`), and its derivatives `dA`; for a
-    /// focused endpoint `Σ_l w_l Υ_{κ_l} e^{-Δσ_t d/2}` with the target's lobes.
+    /// Target amplitude `A = prop s_θ(μ)` of a connection at a vertex of type `kind` (seen from
+    /// the target medium), with the path direction `u` (scattering cosine `u·dir`), and its
+    /// derivatives `dA`; for a focused endpoint `Σ_l w_l Υ_{κ_l}` with the target's lobes, whose
+    /// linearised attenuation `e^{−σ_t h} e^{(σ_t h/2) a·ω}` gives
+    /// `∂Υ/∂σ_t = −h Υ + (h/2) ∂Υ/∂t` (`t` a concentration added along the axis).
     #[inline]
     fn amplitude(&self, c: &Seen, u: DVec3, kind: usize, da: &mut [C64]) -> C64 {
-        let d_sigma_t = self.target.sigma_t() - self.proposal.medium.sigma_t();
         let phase = self.target.scattering.phase(kind);
         let inside = c.inside();
-        let attenuation = (-0.5 * d_sigma_t * inside).exp();
         let Seen::Ray(ray) = c else {
             let t = &self.target_lobes[kind];
             let n = t.lobes.lobes.len();
             da.iter_mut().for_each(|d| *d = C64::default());
-            let mut a = C64::default();
+            let (mut a, mut d_axis) = (C64::default(), C64::default());
             for (l, lobe) in t.lobes.lobes.iter().enumerate() {
-                let (y, dy) = c.aperture_lobe(u, lobe.kappa, t.moves_kappa);
-                a += lobe.weight * y;
+                let y = c.aperture_lobe(u, lobe.kappa, true);
+                a += lobe.weight * y.value;
+                d_axis += lobe.weight * y.d_axis;
                 for (p, d) in da.iter_mut().enumerate() {
-                    *d += t.dweight[p * n + l] * y + lobe.weight * dy * t.dkappa[p * n + l];
+                    *d += t.dweight[p * n + l] * y.value
+                        + lobe.weight * y.d_kappa * t.dkappa[p * n + l];
                 }
             }
             for (d, p) in da.iter_mut().zip(&self.params) {
-                *d = (*d + a * Self::attenuation_lambda(p, inside)) * attenuation;
+                *d += (a * -inside + d_axis * (0.5 * inside)) * Self::dsigma_t(p);
             }
-            return a * attenuation;
+            return a;
         };
         let mu = u.dot(ray.dir);
         // a tabulated law is located once for all its node parameters (hot: every connection)
@@ -268,7 +265,7 @@ impl<'a> Reweighted<'a> {
             PhaseFunction::Tabulated(t) => Some((t, t.locate(mu))),
             _ => None,
         };
-        let a = ray.prop * attenuation * phase.amplitude(mu);
+        let a = ray.prop * phase.amplitude(mu);
         for (d, p) in da.iter_mut().zip(&self.params) {
             let lambda = match (p, located) {
                 (Param::SigmaS | Param::SigmaA, _) => -0.5 * inside,
@@ -297,35 +294,48 @@ impl<'a> Reweighted<'a> {
             }
             // a lens and a ray: the lens's Υ toward the ray times the ray's connection
             (lens, Seen::Ray(ray)) | (Seen::Ray(ray), lens) => {
-                let d_sigma_t = self.target.sigma_t() - self.proposal.medium.sigma_t();
-                let factor = ray.prop * (-0.5 * d_sigma_t * ray.inside).exp();
-                let a = self.amplitude(lens, -ray.dir, kind, da) * factor;
+                let a = self.amplitude(lens, -ray.dir, kind, da) * ray.prop;
                 for (d, p) in da.iter_mut().zip(&self.params) {
-                    *d = *d * factor + a * Self::attenuation_lambda(p, ray.inside);
+                    *d = *d * ray.prop + a * (-0.5 * ray.inside * Self::dsigma_t(p));
                 }
                 a
             }
-            (Seen::Aperture { vmf: al, .. }, Seen::Aperture { vmf: av, axis, .. }) => {
-                let d_sigma_t = self.target.sigma_t() - self.proposal.medium.sigma_t();
-                let inside = cl.inside() + cv.inside();
-                let attenuation = (-0.5 * d_sigma_t * inside).exp();
+            (
+                Seen::Aperture {
+                    vmf: al,
+                    axis: light_axis,
+                    inside: hl,
+                    ..
+                },
+                Seen::Aperture {
+                    vmf: av,
+                    axis,
+                    inside: hv,
+                    ..
+                },
+            ) => {
                 let t = &self.target_lobes[kind];
                 let n = t.lobes.lobes.len();
                 let view_bound = log_aperture_mass(av);
                 da.iter_mut().for_each(|d| *d = C64::default());
-                let mut a = C64::default();
+                let (mut a, mut d_sigma) = (C64::default(), C64::default());
                 for (l, lobe) in t.lobes.lobes.iter().enumerate() {
-                    let (y, dy) =
-                        lens_pair_lobe(al, lobe.kappa, *axis, av, view_bound, t.moves_kappa);
-                    a += lobe.weight * y;
+                    let y =
+                        lens_pair_lobe(al, *light_axis, lobe.kappa, *axis, av, view_bound, true);
+                    a += lobe.weight * y.value;
+                    d_sigma += lobe.weight
+                        * (y.value * -(hl + hv)
+                            + y.d_axis * (0.5 * hl)
+                            + y.d_axis_view * (0.5 * hv));
                     for (p, d) in da.iter_mut().enumerate() {
-                        *d += t.dweight[p * n + l] * y + lobe.weight * dy * t.dkappa[p * n + l];
+                        *d += t.dweight[p * n + l] * y.value
+                            + lobe.weight * y.d_kappa * t.dkappa[p * n + l];
                     }
                 }
                 for (d, p) in da.iter_mut().zip(&self.params) {
-                    *d = (*d + a * Self::attenuation_lambda(p, inside)) * attenuation;
+                    *d += d_sigma * Self::dsigma_t(p);
                 }
-                a * attenuation
+                a
             }
         }
     }
@@ -345,11 +355,12 @@ impl<'a> Reweighted<'a> {
         // 1/p(x₁): the volume (per unit area of a slab) for a uniform first vertex
         let vol = drawn.inv_pdf;
         let kind1 = m0.scattering.pick(|| uniform(rng));
+        // connections and apertures as the target sees them (its attenuation)
         for (e, c) in self.terminals.lights.iter().zip(sc.first_l.iter_mut()) {
-            *c = e.seen_from(x1, m0, s.k);
+            *c = e.seen_from(x1, m, s.k);
         }
         for (e, c) in self.terminals.views.iter().zip(sc.first_v.iter_mut()) {
-            *c = e.seen_from(x1, m0, s.k);
+            *c = e.seen_from(x1, m, s.k);
         }
 
         // single scattering: a_j = υ(i→x1) υ(i→x1→v), w = σ_s V
@@ -408,11 +419,11 @@ impl<'a> Reweighted<'a> {
         loop {
             let kind = m0.scattering.pick(|| uniform(rng));
             for (i, e) in self.terminals.lights.iter().enumerate() {
-                let c = e.seen_from(x, m0, s.k);
+                let c = e.seen_from(x, m, s.k);
                 sc.ampb_l[i] = self.amplitude(&c, w_in, kind, &mut sc.db_l[i * np..(i + 1) * np]);
             }
             for (i, e) in self.terminals.views.iter().enumerate() {
-                let c = e.seen_from(x, m0, s.k);
+                let c = e.seen_from(x, m, s.k);
                 sc.ampb_v[i] = self.amplitude(&c, w_in, kind, &mut sc.db_v[i * np..(i + 1) * np]);
             }
             let b = bounces as f64;

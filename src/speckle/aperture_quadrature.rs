@@ -4,8 +4,10 @@
 //! s(î·ω)` summed over aperture directions with the weights `m(î) e^{∓ik î·focus}` (Eqs. 15–17):
 //! Eq. 11 evaluated path by path. With `Attenuation::Exact` every direction is attenuated over its
 //! own length inside the medium, and the amplitude is the phase function's own, so this drops the
-//! three approximations of Sec. 5 (constant attenuation, Eq. 25; vMF lobes, Eq. 28; the vMF
-//! convolution, Eqs. 31–32) for `Υ`. `Attenuation::Axis` keeps Eq. 25 and isolates its bias.
+//! approximations of Sec. 5 (the attenuation model, Eq. 25; vMF lobes, Eq. 28; the vMF convolution,
+//! Eqs. 31–32) for `Υ`. `Attenuation::Linearised` keeps the closed forms' attenuation model (the
+//! axis path `h` as `d(ω) = h (2 − a·ω)`) and isolates its bias; `Attenuation::Axis` is paper
+//! 000's Eq. 25, `d(ω) = h`.
 //!
 //! The two-lens single-scattering term (Eq. 18) is a double integral; it is summed over the light's
 //! directions, each paired with the view's aperture integral of an amplitude lobe in closed form
@@ -22,7 +24,9 @@ use glam::DVec3;
 pub enum Attenuation {
     /// Each direction over its own path inside the medium (Eq. 11 without approximation).
     Exact,
-    /// Every direction over the axis path, as the closed forms do (Eq. 25).
+    /// The closed forms' model: the axis path `h` linearised in the direction, `h (2 − a·ω)`.
+    Linearised,
+    /// Every direction over the axis path (paper 000, Eq. 25).
     Axis,
 }
 
@@ -156,6 +160,7 @@ pub fn weighted_aperture(
     for (w, m) in grid.dirs.iter().zip(&grid.weights) {
         let inside = match attenuation {
             Attenuation::Exact => medium.geometry.exit_distance(x, *w * -lens.sign),
+            Attenuation::Linearised => axis_path * (2.0 - w.dot(lens.axis)),
             Attenuation::Axis => axis_path,
         };
         out.push(cis(rel.dot(*w)) * (m * (-0.5 * sigma_t * inside).exp()));
@@ -191,7 +196,7 @@ pub fn lens_pair(grid: &ApertureGrid, light_weights: &[C64], view: &Seen, lobes:
             let y: C64 = lobes
                 .lobes
                 .iter()
-                .map(|l| l.weight * view.aperture_lobe(*d, l.kappa, false).0)
+                .map(|l| l.weight * view.aperture_lobe(*d, l.kappa, false).value)
                 .sum();
             c * y
         })
@@ -205,7 +210,7 @@ mod tests {
     use crate::medium::{Geometry, Scattering};
     use crate::speckle::endpoint::Terminal;
 
-    /// With the axis attenuation and an amplitude that is exactly a vMF mixture, the quadrature
+    /// With the linearised attenuation and an amplitude that is exactly a vMF mixture, the quadrature
     /// `Υ` equals the closed form of Eq. 29 to 1e-8 (so the grid resolves the phase and the lobes),
     /// and the two-lens term is within the Eqs. 31–32 approximation's error of it (< 5 %).
     #[test]
@@ -235,12 +240,20 @@ mod tests {
             DVec3::new(1.0, -0.7, 1.5),
             DVec3::new(0.0, 0.0, 1.9),
         ] {
-            weighted_aperture(&light, &grid, Attenuation::Axis, x, &medium, k, &mut c);
+            weighted_aperture(
+                &light,
+                &grid,
+                Attenuation::Linearised,
+                x,
+                &medium,
+                k,
+                &mut c,
+            );
             let seen = Terminal::Lens(light).seen_from(x, &medium, k);
             for u in [DVec3::new(0.2, -0.1, -1.0).normalize(), -DVec3::Z, DVec3::X] {
                 let q = upsilon(&light, &grid, &c, u, &phase);
                 let closed = seen.amplitude(u, &phase, &lobes);
-                let scale = seen.aperture_lobe(-DVec3::Z, 0.0, false).0.norm();
+                let scale = seen.aperture_lobe(-DVec3::Z, 0.0, false).value.norm();
                 assert!(
                     (q - closed).norm() < 1e-8 * scale,
                     "{x}, {u}: {q} vs {closed}"

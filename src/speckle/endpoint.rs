@@ -104,21 +104,29 @@ pub struct Lens {
 
 impl Lens {
     /// The aperture function at vertex `x` as a vMF over propagation directions `ω` (Eqs. 17, 26–27):
-    /// `exp(−γ − σ_t d/2 + (γ a + i σ k (x − focus))·ω)`, `σ` the sign, with the attenuation `d`
-    /// taken along the axis for every direction (Eq. 25).
+    /// `exp(−γ − σ_t h + ((γ + σ_t h/2) a + i σ k (x − focus))·ω)`, `σ` the sign. The attenuation
+    /// `e^{−σ_t d(ω)/2}` of each direction is taken to first order about the axis, where the path
+    /// inside is `h`: a boundary across the axis gives `d = h/(ω·a) ≈ h (2 − ω·a)`, which keeps the
+    /// vMF form. Paper 000 takes `d = h` for every direction (Eq. 25); on a 6 λ cube at optical
+    /// depth 1 that overestimates focused intensities by 8.6 % (`σ_a = 0.5`) and 2.7 % (0.25)
+    /// against the exact attenuation, the first-order form by 2.2 % and 0.4 %.
     #[inline]
     pub fn aperture(&self, x: DVec3, medium: &Medium, k: f64) -> Vmf {
         self.aperture_and_path(x, medium, k).0
     }
 
-    /// The aperture and the length `d` of the axis path inside the medium (its attenuation).
+    /// The aperture and the length `h` of the axis path inside the medium (its attenuation).
     #[inline]
     pub fn aperture_and_path(&self, x: DVec3, medium: &Medium, k: f64) -> (Vmf, f64) {
         let inside = medium.geometry.exit_distance(x, self.axis * -self.sign);
+        let half = 0.5 * medium.sigma_t() * inside;
         (
             Vmf::new(
-                C64::new(-self.gamma - 0.5 * medium.sigma_t() * inside, 0.0),
-                CVec3::new(self.axis * self.gamma, (x - self.focus) * (self.sign * k)),
+                C64::new(-self.gamma - 2.0 * half, 0.0),
+                CVec3::new(
+                    self.axis * (self.gamma + half),
+                    (x - self.focus) * (self.sign * k),
+                ),
             ),
             inside,
         )
@@ -260,22 +268,40 @@ impl Seen {
     }
 
     /// One unit-weight lobe `exp(κ(μ − 1))` of `Υ` for a lens (Eq. 29) and, when `slope` is set,
-    /// its derivative with respect to `κ`: with `q² = μ·μ + 2κ μ·w + κ²`,
-    /// `∂ ln Υ_κ/∂κ = −1 + S(q) (μ·w + κ)`, `S` the log-slope of `sinh q/q` in `q²/2`. Zero for a
+    /// its derivatives with respect to `κ` and to `t`, a concentration added along the lens axis
+    /// (`μ → μ + t a`: how the linearised attenuation moves with `σ_t`): with
+    /// `q² = μ·μ + 2κ μ·w + κ²`, `∂ ln Υ_κ/∂κ = −1 + S(q) (μ·w + κ)` and
+    /// `∂ ln Υ_κ/∂t = S(q) (μ·a + κ w·a)`, `S` the log-slope of `sinh q/q` in `q²/2`. Zero for a
     /// ray terminal.
     #[inline]
-    pub fn aperture_lobe(&self, u: DVec3, kappa: f64, slope: bool) -> (C64, C64) {
-        let Seen::Aperture { vmf, mu2, sign, .. } = self else {
-            return (C64::default(), C64::default());
+    pub fn aperture_lobe(&self, u: DVec3, kappa: f64, slope: bool) -> LobeValue {
+        let Seen::Aperture {
+            vmf,
+            mu2,
+            sign,
+            axis,
+            ..
+        } = self
+        else {
+            return LobeValue::default();
         };
-        let mw = vmf.mu.dot_real(u * -*sign);
+        let w = u * -*sign;
+        let mw = vmf.mu.dot_real(w);
         let q2 = mu2 + mw * (2.0 * kappa) + kappa * kappa;
         let value = sphere_integral_scaled(vmf.log_scale - kappa, q2);
         if !slope {
-            return (value, C64::default());
+            return LobeValue {
+                value,
+                ..Default::default()
+            };
         }
-        let dlog = log_sinhc_slope(csqrt(q2)) * (mw + kappa) - 1.0;
-        (value, value * dlog)
+        let s = log_sinhc_slope(csqrt(q2));
+        LobeValue {
+            value,
+            d_kappa: value * (s * (mw + kappa) - 1.0),
+            d_axis: value * s * (vmf.mu.dot_real(*axis) + kappa * w.dot(*axis)),
+            d_axis_view: C64::default(),
+        }
     }
 
     /// The single-scattering amplitude of light `self` and view `view` at one vertex (Eq. 5 for
@@ -335,38 +361,67 @@ pub fn log_aperture_mass(av: &Vmf) -> f64 {
     av.log_scale.re + log_sphere_integral(C64::new(av.mu.re.length_squared(), 0.0)).re
 }
 
-/// One unit-weight lobe's term of Eq. 18 for the light aperture `al` and view aperture `av`
-/// (about the view's `axis`), and, when `slope` is set, its derivative with respect to the lobe's
-/// concentration `κ` through the convolution approximation (Eqs. 31–32 with the exact slope):
-/// `β² = (μ_l + κ a)²`, slope `t = κ S(β)`, product `μ_p = t μ_l + μ_v`, so
-/// `∂ ln P/∂κ = −1 + S(β)(μ_l·a + κ) − t′ μ_l·a + S(q)(μ_p·μ_l) t′` with
-/// `t′ = S(β) + κ S′(β)(μ_l·a + κ)/β`. Dropped terms (see [`lens_pair_term`]) have zero slope.
+/// A unit-weight lobe's share of an aperture integral and its derivatives: with respect to the
+/// lobe's `κ`, and to a concentration added along the (light's) axis and along the view's axis.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct LobeValue {
+    pub value: C64,
+    pub d_kappa: C64,
+    pub d_axis: C64,
+    pub d_axis_view: C64,
+}
+
+/// One unit-weight lobe's term of Eq. 18 for the light aperture `al` (axis `a_l`) and view
+/// aperture `av` (axis `a`, about which the convolution is expanded), and, when `slope` is set,
+/// its derivatives through the convolution approximation (Eqs. 31–32 with the exact slope):
+/// `m = μ_l + κ a`, `β² = m·m`, slope `t = κ S(β)`, product `μ_p = t μ_l + μ_v`,
+/// `ln P = c_l − κ + ln(4π sinh β/β) − t μ_l·a + c_v + ln(4π sinh q/q)`, `q² = μ_p·μ_p`.
+/// With respect to `κ`: `−1 + S(β) m·a − t′ μ_l·a + S(q)(μ_p·μ_l) t′`,
+/// `t′ = S(β) + κ S′(β) m·a/β`; to `μ_l → μ_l + ε a_l`: `S(β) m·a_l − t_ε μ_l·a − t a_l·a +
+/// S(q) μ_p·(a_l t + μ_l t_ε)`, `t_ε = κ S′(β) m·a_l/β`; to `μ_v → μ_v + ε a`: `S(q) μ_p·a`.
+/// Dropped terms (see [`lens_pair_term`]) have zero slope.
 pub fn lens_pair_lobe(
     al: &Vmf,
+    light_axis: DVec3,
     kappa: f64,
     axis: DVec3,
     av: &Vmf,
     view_bound: f64,
     slope: bool,
-) -> (C64, C64) {
+) -> LobeValue {
     let lobe = crate::medium::lobes::Lobe {
         weight: C64::new(1.0, 0.0),
         kappa,
     };
     let value = lens_pair_term(&convolve_lobe(al, &lobe, axis), av, view_bound);
     if !slope || value == C64::default() {
-        return (value, C64::default());
+        return LobeValue {
+            value,
+            ..Default::default()
+        };
     }
     let mw = al.mu.dot_real(axis);
+    let m_vec = al.mu.add_real(axis * kappa);
     let m = mw + kappa;
-    let beta = csqrt(al.mu.add_real(axis * kappa).dot_self());
+    let beta = csqrt(m_vec.dot_self());
     let s_beta = log_sinhc_slope(beta);
+    let s_prime = log_sinhc_slope_derivative(beta);
     let t = s_beta * kappa;
-    let dt = s_beta + log_sinhc_slope_derivative(beta) * kappa * m / beta;
+    let dt = s_beta + s_prime * kappa * m / beta;
     let p_mu = al.mu.scale(t) + av.mu;
-    let q = csqrt(p_mu.dot_self());
-    let dlog = s_beta * m - 1.0 - dt * mw + log_sinhc_slope(q) * p_mu.dot(&al.mu) * dt;
-    (value, value * dlog)
+    let s_q = log_sinhc_slope(csqrt(p_mu.dot_self()));
+    let d_kappa = s_beta * m - 1.0 - dt * mw + s_q * p_mu.dot(&al.mu) * dt;
+    let m_al = m_vec.dot_real(light_axis);
+    let t_eps = s_prime * kappa * m_al / beta;
+    let d_axis = s_beta * m_al - t_eps * mw - t * light_axis.dot(axis)
+        + s_q * (p_mu.dot_real(light_axis) * t + p_mu.dot(&al.mu) * t_eps);
+    let d_axis_view = s_q * p_mu.dot_real(axis);
+    LobeValue {
+        value,
+        d_kappa: value * d_kappa,
+        d_axis: value * d_axis,
+        d_axis_view: value * d_axis_view,
+    }
 }
 
 /// One lobe's term of Eq. 18: `w ∫ ã_v(ω) Υ_l(ω) dω` with `Υ_l` the convolved vMF. Where the
@@ -398,8 +453,9 @@ mod tests {
         }
     }
 
-    /// The κ-derivatives of one lobe's `Υ` (Eq. 29) and of its two-lens term (Eqs. 18, 31–32)
-    /// match central differences, on and off the beams.
+    /// The derivatives of one lobe's `Υ` (Eq. 29) and of its two-lens term (Eqs. 18, 31–32) with
+    /// respect to `κ` and to concentrations added along the light's and the view's axes match
+    /// central differences, on and off the beams.
     #[test]
     fn lobe_slopes_match_differences() {
         let medium = Medium {
@@ -409,13 +465,25 @@ mod tests {
             scattering: Scattering::single(PhaseFunction::Isotropic),
         };
         let k = 2.0 * std::f64::consts::PI;
-        let light = lens(DVec3::new(0.0, 0.0, 2.0), DVec3::Z, 0.4, 1.0);
+        let light = lens(
+            DVec3::new(0.0, 0.0, 2.0),
+            DVec3::new(0.05, 0.0, 1.0),
+            0.4,
+            1.0,
+        );
         let view = lens(
             DVec3::new(0.5, 0.0, 1.0),
             DVec3::new(0.1, 0.0, 1.0),
             0.3,
             -1.0,
         );
+        let close = |d: C64, fd: C64, what: &str| {
+            assert!(
+                (d - fd).norm() <= 1e-6 * fd.norm() + 1e-12 * d.norm().max(1e-300),
+                "{what}: {d} vs {fd}"
+            );
+        };
+        let shifted = |v: &Vmf, axis: DVec3, e: f64| Vmf::new(v.log_scale, v.mu.add_real(axis * e));
         for x in [
             DVec3::new(0.1, 0.2, -1.0),
             DVec3::new(1.5, -0.7, 0.5),
@@ -424,24 +492,61 @@ mod tests {
             let (al, _) = light.aperture_and_path(x, &medium, k);
             let (av, _) = view.aperture_and_path(x, &medium, k);
             let seen = Terminal::Lens(light).seen_from(x, &medium, k);
+            let seen_shifted = |e: f64| match seen {
+                Seen::Aperture {
+                    vmf,
+                    sign,
+                    axis,
+                    inside,
+                    ..
+                } => {
+                    let vmf = shifted(&vmf, axis, e);
+                    Seen::Aperture {
+                        mu2: vmf.mu.dot_self(),
+                        vmf,
+                        sign,
+                        axis,
+                        inside,
+                    }
+                }
+                s => s,
+            };
             let u = DVec3::new(0.2, -0.1, 1.0).normalize();
             let bound = log_aperture_mass(&av);
             for kappa in [0.5, 4.0, 30.0] {
                 let h = 1e-5 * kappa;
-                let (_, d) = seen.aperture_lobe(u, kappa, true);
-                let fd = (seen.aperture_lobe(u, kappa + h, false).0
-                    - seen.aperture_lobe(u, kappa - h, false).0)
-                    / (2.0 * h);
-                assert!(
-                    (d - fd).norm() <= 1e-6 * fd.norm() + 1e-300,
-                    "Υ at {x}, κ = {kappa}: {d} vs {fd}"
+                let y = seen.aperture_lobe(u, kappa, true);
+                let at = |kappa| seen.aperture_lobe(u, kappa, false).value;
+                close(
+                    y.d_kappa,
+                    (at(kappa + h) - at(kappa - h)) / (2.0 * h),
+                    "Υ κ",
                 );
-                let pair = |kappa| lens_pair_lobe(&al, kappa, view.axis, &av, bound, false).0;
-                let (_, d) = lens_pair_lobe(&al, kappa, view.axis, &av, bound, true);
-                let fd = (pair(kappa + h) - pair(kappa - h)) / (2.0 * h);
-                assert!(
-                    (d - fd).norm() <= 1e-6 * fd.norm() + 1e-300,
-                    "pair at {x}, κ = {kappa}: {d} vs {fd}"
+                let e = 1e-5;
+                let at = |e| seen_shifted(e).aperture_lobe(u, kappa, false).value;
+                close(y.d_axis, (at(e) - at(-e)) / (2.0 * e), "Υ axis");
+                let pair = |al: &Vmf, kappa, av: &Vmf| {
+                    lens_pair_lobe(al, light.axis, kappa, view.axis, av, bound, false).value
+                };
+                let p = lens_pair_lobe(&al, light.axis, kappa, view.axis, &av, bound, true);
+                close(
+                    p.d_kappa,
+                    (pair(&al, kappa + h, &av) - pair(&al, kappa - h, &av)) / (2.0 * h),
+                    "pair κ",
+                );
+                close(
+                    p.d_axis,
+                    (pair(&shifted(&al, light.axis, e), kappa, &av)
+                        - pair(&shifted(&al, light.axis, -e), kappa, &av))
+                        / (2.0 * e),
+                    "pair light axis",
+                );
+                close(
+                    p.d_axis_view,
+                    (pair(&al, kappa, &shifted(&av, view.axis, e))
+                        - pair(&al, kappa, &shifted(&av, view.axis, -e)))
+                        / (2.0 * e),
+                    "pair view axis",
                 );
             }
         }

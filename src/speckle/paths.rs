@@ -62,8 +62,9 @@ impl Terminals {
         let views: Vec<Terminal> = scene.views.iter().map(|&v| v.into()).collect();
         let focused = lights.iter().chain(&views).any(Terminal::is_lens);
         if focused && matches!(scene.medium.geometry, crate::medium::Geometry::Slab { .. }) {
-            // the vMF aperture's side lobes (amplitude e^{−γ} at 90°) are not attenuated across
-            // the medium under Eq. 25, so their share grows with the lateral extent without bound
+            // the vMF aperture's side lobes (amplitude e^{−γ} at 90°) are attenuated over 2h at
+            // most by the closed forms' model, and fall off only as 1/distance across the slab, so
+            // their share grows with the lateral extent without bound
             return Err(crate::Error::input(
                 "focused lights and views need a bounded medium: use medium.box instead of medium.slab, a few defocused beam widths wide (the results converge with the box width for aperture_sigma ≤ 0.2)",
             ));
