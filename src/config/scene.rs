@@ -212,7 +212,8 @@ pub struct RenderConfig {
     /// Include reversed paths (coherent backscattering); `false` is the forward-only (CTE) variant.
     #[serde(default = "yes")]
     pub reversed: bool,
-    /// First vertices near focused lights: `"beam"` (their Gaussian beams) or `"uniform"`.
+    /// First vertices near focused lights and views: `"beam"` (their Gaussian beams) or
+    /// `"uniform"`.
     #[serde(default)]
     pub first_vertex: FirstVertexConfig,
     /// First directions: `"aperture"` (from `|Υ|²`, needs `first_vertex = "beam"`) or `"uniform"`.

@@ -6,7 +6,9 @@
 //! `w(z)² = (γ_a + γ_s)/k² + z²/γ_a`, with `z` the distance from the focus along the axis. The
 //! first direction is drawn from a vMF approximation of `|Υ(ω | x₁, i)|²` (Eq. 41): each lobe's
 //! convolution with the aperture (Eqs. 31–32) is a complex vMF whose squared magnitude is a real
-//! one. Both proposals are defensive mixtures with a uniform part, and their densities are
+//! one. Focused views add beams too (one per group sharing an axis and aperture), where reversed
+//! paths start: a path's last vertex is not steered, so without them the views' beams are reached
+//! by chance, which gave large volumes a heavy-tailed error. Both proposals are defensive mixtures with a uniform part, and their densities are
 //! evaluated exactly, so the estimator stays unbiased whatever the approximations' quality.
 
 use crate::math::vmf::Vmf;
@@ -26,16 +28,19 @@ const DEFENSIVE: f64 = 0.1;
 pub enum Sampling {
     /// Uniform first vertex and direction (paper 001's estimator).
     Uniform,
-    /// First vertex from the focused lights' Gaussian beams, direction uniform.
+    /// First vertex from the focused lights' and views' Gaussian beams, direction uniform.
     Beam,
     /// First vertex from the beams and direction from `|Υ|²` (the default).
     #[default]
     BeamAndAperture,
 }
 
-/// One focused light's beam.
+/// One focused light's beam, or a group of focused views' (then the reversed paths start in it).
 struct Beam {
     lens: Lens,
+    /// A views' beam: first directions point against the view's `|Υ|²` lobes (the reversed path
+    /// leaves the first vertex towards the view).
+    view: bool,
     /// Frame across the axis.
     across: (DVec3, DVec3),
     /// Waist variance `(γ_a + γ_s)/k²`.
@@ -62,12 +67,13 @@ pub struct Drawn {
 }
 
 impl FirstVertex {
-    /// Beams for the focused lights with a real aperture (`γ ≥ 1`; wider ones are sampled
-    /// uniformly like isotropic sources). `lobes` are those of the first particle type, whose mean
+    /// Beams for the focused lights and groups of focused views with a real aperture (`γ ≥ 1`;
+    /// wider ones are sampled uniformly like isotropic sources). `lobes` are those of the first particle type, whose mean
     /// concentration widens the beam (Eq. 35).
     pub fn new(
         sampling: Sampling,
         lenses: impl Iterator<Item = Lens>,
+        views: &[Lens],
         medium: &Medium,
         lobes: &Lobes,
         k: f64,
@@ -85,18 +91,54 @@ impl FirstVertex {
                 0.0
             }
         };
+        let beam = |lens: Lens, spread2: f64, view: bool| Beam {
+            lens,
+            view,
+            across: orthonormal_basis(lens.axis),
+            waist2: (lens.gamma + gamma_s) / (k * k) + spread2,
+            z_range: extent(&medium.geometry, lens.focus, lens.axis),
+        };
         let beams = if sampling == Sampling::Uniform {
             Vec::new()
         } else {
-            lenses
+            let mut beams: Vec<Beam> = lenses
                 .filter(|l| l.gamma >= 1.0)
-                .map(|lens| Beam {
-                    lens,
-                    across: orthonormal_basis(lens.axis),
-                    waist2: (lens.gamma + gamma_s) / (k * k),
-                    z_range: extent(&medium.geometry, lens.focus, lens.axis),
-                })
-                .collect()
+                .map(|lens| beam(lens, 0.0, false))
+                .collect();
+            // views sharing an axis and aperture (an image of foci) share one beam about their
+            // mean focus, widened by the foci's spread across the axis
+            let mut groups: Vec<Vec<Lens>> = Vec::new();
+            for v in views.iter().filter(|l| l.gamma >= 1.0) {
+                match groups
+                    .iter_mut()
+                    .find(|g| g[0].axis.dot(v.axis) > 1.0 - 1e-12 && g[0].gamma == v.gamma)
+                {
+                    Some(g) => g.push(*v),
+                    None => groups.push(vec![*v]),
+                }
+            }
+            for g in groups {
+                let n = g.len() as f64;
+                let mean = g.iter().map(|l| l.focus).sum::<DVec3>() / n;
+                let axis = g[0].axis;
+                let spread2 = g
+                    .iter()
+                    .map(|l| {
+                        let d = l.focus - mean;
+                        (d - axis * d.dot(axis)).length_squared()
+                    })
+                    .sum::<f64>()
+                    / (2.0 * n);
+                beams.push(beam(
+                    Lens {
+                        focus: mean,
+                        ..g[0]
+                    },
+                    spread2,
+                    true,
+                ));
+            }
+            beams
         };
         let g = &medium.geometry;
         FirstVertex {
@@ -194,7 +236,7 @@ impl FirstVertex {
                     let v = a.convolve(l.kappa, b.lens.axis);
                     let re = v.mu.re;
                     let kappa = 2.0 * re.length();
-                    let dir = re.normalize_or(b.lens.axis);
+                    let dir = re.normalize_or(b.lens.axis) * if b.view { -1.0 } else { 1.0 };
                     // ∫ |w e^{L + μ·ω}|² dω = |w|² e^{2 Re L} ∫ e^{2 Re μ·ω} dω
                     let log_mass = 2.0 * (v.log_scale.re + l.weight.norm().max(1e-300).ln())
                         + crate::math::vmf::log_sphere_integral(C64::new(kappa * kappa, 0.0)).re;

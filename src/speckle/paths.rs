@@ -17,7 +17,7 @@ use crate::speckle::aperture_quadrature::{
     ApertureModel, Quadrature, lens_pair, upsilon, weighted_aperture,
 };
 use crate::speckle::endpoint::{
-    ConvolvedLobe, Seen, Terminal, convolve_lobe, lens_pair_term, log_aperture_mass,
+    ConvolvedLobe, Lens, Seen, Terminal, convolve_lobe, lens_pair_term, log_aperture_mass,
 };
 use crate::speckle::first_vertex::FirstVertex;
 use glam::DVec3;
@@ -82,11 +82,19 @@ impl Terminals {
                 }
             })
             .collect();
-        let lenses = lights.iter().filter_map(|t| match t {
+        let lens = |t: &Terminal| match t {
             Terminal::Lens(l) => Some(*l),
             Terminal::Ray(_) => None,
-        });
-        let first = FirstVertex::new(scene.sampling, lenses, &scene.medium, &lobes[0], scene.k);
+        };
+        let view_lenses: Vec<Lens> = views.iter().filter_map(lens).collect();
+        let first = FirstVertex::new(
+            scene.sampling,
+            lights.iter().filter_map(lens),
+            &view_lenses,
+            &scene.medium,
+            &lobes[0],
+            scene.k,
+        );
         let quadrature = match scene.aperture {
             ApertureModel::Quadrature(attenuation) if focused => {
                 let lens = |t: &Terminal| match t {
