@@ -206,3 +206,116 @@ fn bad_fit_requests_are_clear_errors() {
     // a measured CSV curve is a valid target
     assert!(fit(cfg(), &d.join("curve.csv"), &opts("mfp"), &d.join("ok")).is_ok());
 }
+
+/// A `correlation_map.json` is a fit target: its `C(Δ, τ)` entries are modelled on the map's scene
+/// built from the config's `[correlation_map]`, so at the truth the model matches the map within
+/// the errors (a wrong entry mapping would not); a config without the table, or with other shifts,
+/// is refused with a message saying what to use.
+#[test]
+fn correlation_map_is_a_fit_target() {
+    const MAP: &str = r#"
+wavelength = 1.0
+[medium]
+box = [6.0, 6.0, 4.0]
+mfp = 4.0
+phase = { kind = "hg", g = 0.6 }
+[[light]]
+kind = "focused"
+focus = [0.0, 0.0, 2.0]
+axis = [0.0, 0.0, 1.0]
+aperture_sigma = 0.3
+[[view]]
+kind = "focused"
+focus = [0.0, 0.0, 2.0]
+axis = [0.0, 0.0, 1.0]
+aperture_sigma = 0.3
+[correlation_map]
+deltas = [[1.0, 0.0]]
+tau_width = 2.0
+pixels = [3, 1]
+[render]
+samples = 40000
+chunk = 1000
+seed = 3
+"#;
+    let d = std::env::temp_dir().join(format!("lightpath-fit-map-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    run_scene(
+        Kind::CorrelationMap,
+        scene_from_text(MAP).unwrap(),
+        &RunOptions::default(),
+        &d.join("target"),
+    )
+    .unwrap();
+    let target = d.join("target/correlation_map.json");
+    let opts = FitOptions {
+        fit: "mfp".into(),
+        samples: Some(40_000),
+        seed: Some(11),
+        stages: 1,
+        iterations: Some(1),
+        optimizer: None,
+        learning_rate: 0.05,
+        smooth: 0.0,
+        progress: false,
+    };
+    // one step from the truth: the model's entries are the map's
+    let _ = fit(scene_from_text(MAP).unwrap(), &target, &opts, &d.join("o"));
+    let f: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("o/fit.json")).unwrap()).unwrap();
+    let values = |key: &str| -> Vec<f64> {
+        f[key]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_f64().unwrap())
+            .collect()
+    };
+    let map: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&target).unwrap()).unwrap();
+    // the map's Re C(Δ, τ), shift by shift, τ by τ: the order of the fit's entries
+    let wanted: Vec<f64> = map["re"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .flat_map(|delta| delta.as_array().unwrap().iter())
+        .flat_map(|row| row.as_array().unwrap().iter())
+        .map(|x| x.as_f64().unwrap())
+        .collect();
+    let model = values("model_initial");
+    assert_eq!(model.len(), wanted.len());
+    assert_eq!(model.len(), 6);
+    let scale = wanted.iter().fold(0.0f64, |a, b| a.max(b.abs()));
+    for (m, t) in model.iter().zip(&wanted) {
+        assert!((m - t).abs() < 0.1 * scale, "model {m} vs map {t}");
+    }
+    // without the table, and with other shifts
+    let err = fit(
+        scene_from_text(
+            &MAP.replace(
+                "deltas = [[1.0, 0.0]]\ntau_width = 2.0\npixels = [3, 1]\n",
+                "",
+            )
+            .replace("[correlation_map]\n", ""),
+        )
+        .unwrap(),
+        &target,
+        &opts,
+        &d.join("o2"),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(err.contains("[correlation_map]"), "{err}");
+    let err = fit(
+        scene_from_text(&MAP.replace("[[1.0, 0.0]]", "[[2.0, 0.0]]")).unwrap(),
+        &target,
+        &opts,
+        &d.join("o3"),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        err.contains("shifts") && err.contains("rendered with"),
+        "{err}"
+    );
+}

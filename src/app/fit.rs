@@ -34,7 +34,13 @@ pub fn fit(task: SceneTask, target_path: &Path, opts: &FitOptions, out: &Path) -
         scene,
     } = task;
     use crate::inverse::{Fit, FitParam, FitSettings, Target, check_params};
-    let target = crate::io::targets::read(target_path)?;
+    // a C(Δ, τ) map is fitted with the map's scene, built from the config's [correlation_map]
+    let map_target = crate::io::targets::is_correlation_map(target_path);
+    let target = if map_target {
+        crate::io::targets::correlation_map(target_path)?.target
+    } else {
+        crate::io::targets::read(target_path)?
+    };
     let phase = opts.fit.split(',').any(|p| p.trim() == "phase");
     let params: Vec<FitParam> = opts
         .fit
@@ -83,6 +89,35 @@ pub fn fit(task: SceneTask, target_path: &Path, opts: &FitOptions, out: &Path) -
                 scene,
             };
             super::run::memory_scan(&task)?.scene
+        }
+        Target::Entries { .. } if map_target => {
+            let shape = crate::io::targets::correlation_map(target_path)?;
+            let task = SceneTask {
+                config: cfg.clone(),
+                scene,
+            };
+            let map = super::correlation_map::map_of(&task).map_err(|_| {
+                Error::input(format!(
+                    "target {} is a C(Δ, τ) map: the config needs the [correlation_map] table it was rendered with",
+                    target_path.display()
+                ))
+            })?;
+            let same_shifts = map.deltas.len() == shape.deltas.len()
+                && map.deltas.iter().zip(&shape.deltas).all(|(a, b)| {
+                    (*a - glam::DVec3::from_array(*b)).length() <= 1e-9 * (1.0 + a.length())
+                });
+            if !same_shifts || map.taus.len() != shape.pixels {
+                return Err(Error::input(format!(
+                    "target {} has shifts {:?} over {} τ, but the config's [correlation_map] gives {:?} over {}: fit with the config the map was rendered with",
+                    target_path.display(),
+                    shape.deltas,
+                    shape.pixels,
+                    map.deltas.iter().map(|d| d.to_array()).collect::<Vec<_>>(),
+                    map.taus.len()
+                )));
+            }
+            target.check_scene(&map.scene, target_path)?;
+            map.scene
         }
         Target::Covariance { .. } | Target::Entries { .. } => {
             target.check_scene(&scene, target_path)?;

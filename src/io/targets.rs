@@ -50,6 +50,83 @@ pub fn read(path: &Path) -> crate::Result<Target> {
     Ok(t)
 }
 
+/// A `correlation_map.json` read as a target: its `C(Δ_k, τ_p)` as field-covariance entries between
+/// the map's pairs `(light 0, view p)` and `(light k, view k·T + p)` (the scene
+/// [`crate::speckle::correlation_map::CorrelationMap`] builds from the same config), with the map's
+/// shape `(shifts including 0, τ pixels)` to check against the fit's config.
+pub struct MapTarget {
+    pub target: Target,
+    /// The shifts `Δ` (0 first) and the number of `τ` pixels.
+    pub deltas: Vec<[f64; 3]>,
+    pub pixels: usize,
+}
+
+/// Whether `path` holds a `correlation_map.json` (a C(Δ, τ) map rather than another target).
+pub fn is_correlation_map(path: &Path) -> bool {
+    std::fs::read_to_string(path)
+        .ok()
+        .and_then(|t| serde_json::from_str::<Value>(&t).ok())
+        .is_some_and(|v| v.get("deltas").is_some() && v.get("taus").is_some())
+}
+
+/// Read a `correlation_map.json` as a fit target (see [`MapTarget`]).
+pub fn correlation_map(path: &Path) -> crate::Result<MapTarget> {
+    use crate::io::results::{CorrelationMapFile, ResultFile};
+    let m = CorrelationMapFile::read(path)?;
+    let k = m.deltas.len();
+    let flat = |a: &Vec<Vec<Vec<f64>>>| -> Vec<Vec<f64>> {
+        a.iter()
+            .map(|d| d.iter().flatten().copied().collect())
+            .collect()
+    };
+    let (re, im, se) = (flat(&m.re), flat(&m.im), flat(&m.stderr));
+    let t = re.first().map_or(0, Vec::len);
+    if k == 0
+        || t == 0
+        || [&re, &im, &se]
+            .iter()
+            .any(|a| a.len() != k || a.iter().any(|d| d.len() != t))
+    {
+        return Err(format!(
+            "{}: the map's re, im and stderr must each hold one τ grid per shift",
+            path.display()
+        )
+        .into());
+    }
+    let (mut entries, mut stderr) = (Vec::new(), Vec::new());
+    for d in 0..k {
+        for p in 0..t {
+            entries.push(Entry {
+                light: [0, d],
+                view: [p, d * t + p],
+                value: Measured::Field(C64::new(re[d][p], im[d][p])),
+            });
+            stderr.push(se[d][p]);
+        }
+    }
+    // entries whose Monte Carlo error is 0 (none sampled) carry no information: weight them by the
+    // smallest positive error instead of refusing the map
+    let floor = stderr
+        .iter()
+        .copied()
+        .filter(|s| *s > 0.0)
+        .fold(f64::INFINITY, f64::min);
+    if !floor.is_finite() {
+        return Err(format!("{}: the map has no standard errors", path.display()).into());
+    }
+    stderr.iter_mut().for_each(|s| *s = s.max(floor));
+    let target = Target::Entries {
+        entries,
+        stderr: Some(stderr),
+    };
+    target.validate(path)?;
+    Ok(MapTarget {
+        target,
+        deltas: m.deltas,
+        pixels: t,
+    })
+}
+
 /// Our `covariance.json` (Monte Carlo or wave solver), read through its typed format.
 fn covariance_json(path: &Path) -> crate::Result<Target> {
     use crate::io::results::{CovarianceFile, ResultFile};
