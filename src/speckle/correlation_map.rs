@@ -8,9 +8,29 @@
 
 use crate::math::{C64, Rng, orthonormal_basis};
 use crate::mc::Estimator;
+use crate::speckle::endpoint::{Lens, Terminal};
 use crate::speckle::paths::{EventSink, PathScratch, SubpathSampler};
 use crate::speckle::{Light, Scene, View};
 use glam::DVec3;
+
+/// Light 0 and view 0 of `base` as the lenses a scan of `command` shifts and tilts; both must be
+/// focused (`light_hint`, `view_hint` say where, in the error).
+pub fn focused_templates(
+    base: &Scene,
+    command: &str,
+    light_hint: &str,
+    view_hint: &str,
+) -> crate::Result<(Lens, Lens)> {
+    let light = match base.lights.first().map(|&l| Terminal::from(l)) {
+        Some(Terminal::Lens(l)) => l,
+        _ => return Err(format!("{command}: light[0] must be focused{light_hint}").into()),
+    };
+    let view = match base.views.first().map(|&v| Terminal::from(v)) {
+        Some(Terminal::Lens(v)) => v,
+        _ => return Err(format!("{command}: view[0] must be focused{view_hint}").into()),
+    };
+    Ok((light, view))
+}
 
 /// The lights and views of a map: light `k` is focused at `i + Δ_k` (`Δ_0 = 0`), view `k·T + p`
 /// at `v + τ_p + Δ_k`, with `i`, `v` the foci of light 0 and view 0 of the base scene.
@@ -33,22 +53,9 @@ impl CorrelationMap {
         tau_width: f64,
         pixels: [usize; 2],
     ) -> crate::Result<Self> {
-        let Some(&Light::Focused {
-            focus: i,
-            axis,
-            gamma,
-        }) = base.lights.first()
-        else {
-            return Err("correlation-map: light[0] must be focused".into());
-        };
-        let Some(&View::Focused {
-            focus: v,
-            axis: view_axis,
-            gamma: view_gamma,
-        }) = base.views.first()
-        else {
-            return Err("correlation-map: view[0] must be focused".into());
-        };
+        let (light, view) = focused_templates(base, "correlation-map", "", "")?;
+        let (i, axis, gamma) = (light.focus, light.axis, light.gamma);
+        let (v, view_axis, view_gamma) = (view.focus, view.axis, view.gamma);
         let (ex, ey) = orthonormal_basis(axis);
         let mut shifts = vec![DVec3::ZERO];
         shifts.extend(deltas.iter().map(|d| ex * d[0] + ey * d[1]));

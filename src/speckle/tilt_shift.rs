@@ -10,6 +10,7 @@
 
 use crate::math::{C64, Rng, orthonormal_basis};
 use crate::mc::Estimator;
+use crate::speckle::correlation_map::focused_templates;
 use crate::speckle::paths::{EventSink, PathScratch, SubpathSampler};
 use crate::speckle::{Light, Scene, View};
 use glam::DVec3;
@@ -50,17 +51,14 @@ impl TiltShift {
         tau_width: f64,
         taus: usize,
     ) -> crate::Result<Self> {
-        let Some(&Light::Focused { focus, axis, gamma }) = base.lights.first() else {
-            return Err("tilt-shift: light[0] must be focused (on the input plane)".into());
-        };
-        let Some(&View::Focused {
-            focus: view_focus,
-            axis: view_axis,
-            gamma: view_gamma,
-        }) = base.views.first()
-        else {
-            return Err("tilt-shift: view[0] must be focused (on the output plane)".into());
-        };
+        let (light, view) = focused_templates(
+            base,
+            "tilt-shift",
+            " (on the input plane)",
+            " (on the output plane)",
+        )?;
+        let (focus, axis, gamma) = (light.focus, light.axis, light.gamma);
+        let (view_focus, view_axis, view_gamma) = (view.focus, view.axis, view.gamma);
         let depth = (view_focus - focus).dot(axis);
         if depth.is_nan() || depth <= 0.0 {
             return Err(format!(
