@@ -2,7 +2,9 @@
 //! Sec. 6, Eqs. 39–41).
 //!
 //! The first vertex is drawn from the Gaussian beams of the focused lights (Eqs. 34–35): along the
-//! axis uniformly over the medium's extent, across it from a planar Gaussian of width
+//! axis half uniformly over the medium's extent and half from the beam's peak intensity
+//! `∝ 1/w(z)²` (not in the paper: single scattering between a light and a view focused on one
+//! point lives near the focus), across it from a planar Gaussian of width
 //! `w(z)² = (γ_a + γ_s)/k² + z²/γ_a`, with `z` the distance from the focus along the axis. The
 //! first direction is drawn from a vMF approximation of `|Υ(ω | x₁, i)|²` (Eq. 41): each lobe's
 //! convolution with the aperture (Eqs. 31–32) is a complex vMF whose squared magnitude is a real
@@ -162,7 +164,7 @@ impl FirstVertex {
         }
         let r2 = (d - b.lens.axis * z).length_squared();
         let w2 = b.waist2 + z * z / b.lens.gamma;
-        (-0.5 * r2 / w2).exp() / (2.0 * PI * w2) / (b.z_range.1 - b.z_range.0)
+        (-0.5 * r2 / w2).exp() / (2.0 * PI * w2) * axial_pdf(b, z)
     }
 
     /// `p(x₁)`: the defensive mixture of the uniform density and the beams.
@@ -189,7 +191,7 @@ impl FirstVertex {
         } else {
             let b = &self.beams
                 [((uniform(rng) * self.beams.len() as f64) as usize).min(self.beams.len() - 1)];
-            let z = b.z_range.0 + (b.z_range.1 - b.z_range.0) * uniform(rng);
+            let z = sample_axial(b, uniform(rng), uniform(rng));
             let w = (b.waist2 + z * z / b.lens.gamma).sqrt();
             // Box–Muller
             let r = w * (-2.0 * (1.0 - uniform(rng)).ln()).sqrt();
@@ -278,6 +280,32 @@ impl FirstVertex {
         };
         (w, 1.0 / pdf)
     }
+}
+
+/// Density of the distance `z` from the focus along a beam's axis: half uniform over the medium's
+/// extent (the beam's power crosses every depth), half a Cauchy law about the focus of scale
+/// `c = w₀ √γ` (`∝ 1/w(z)²`, the beam's peak intensity: where the single scattering between a
+/// light and a view focused near the same point lives), both truncated to the extent.
+fn axial_pdf(b: &Beam, z: f64) -> f64 {
+    let (z0, z1) = b.z_range;
+    if z < z0 || z > z1 || z1 <= z0 {
+        return 0.0;
+    }
+    let c = (b.waist2 * b.lens.gamma).sqrt();
+    let span = (z1 / c).atan() - (z0 / c).atan();
+    let t = z / c;
+    0.5 / (z1 - z0) + 0.5 / (c * (1.0 + t * t) * span)
+}
+
+/// Draw `z` from [`axial_pdf`] with two uniform numbers.
+fn sample_axial(b: &Beam, u_mix: f64, u: f64) -> f64 {
+    let (z0, z1) = b.z_range;
+    if u_mix < 0.5 {
+        return z0 + (z1 - z0) * u;
+    }
+    let c = (b.waist2 * b.lens.gamma).sqrt();
+    let (a0, a1) = ((z0 / c).atan(), (z1 / c).atan());
+    (c * (a0 + (a1 - a0) * u).tan()).clamp(z0, z1)
 }
 
 /// The extent of the medium along `axis` relative to `focus` (the projection of its bounds).
