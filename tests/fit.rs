@@ -27,11 +27,16 @@ seed = 7
 
 /// A fresh folder holding the memory-effect curve of `TRUTH` (the fit target) in `target/`.
 fn folder_with_target(name: &str) -> std::path::PathBuf {
+    folder_with(name, Kind::MemoryEffect, TRUTH)
+}
+
+/// A fresh folder holding the `kind` run of config `text` in `target/`.
+fn folder_with(name: &str, kind: Kind, text: &str) -> std::path::PathBuf {
     let d = std::env::temp_dir().join(format!("lightpath-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
     run_scene(
-        Kind::MemoryEffect,
-        scene_from_text(TRUTH).unwrap(),
+        kind,
+        scene_from_text(text).unwrap(),
         &RunOptions::default(),
         &d.join("target"),
     )
@@ -238,15 +243,7 @@ samples = 40000
 chunk = 1000
 seed = 3
 "#;
-    let d = std::env::temp_dir().join(format!("lightpath-fit-map-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    run_scene(
-        Kind::CorrelationMap,
-        scene_from_text(MAP).unwrap(),
-        &RunOptions::default(),
-        &d.join("target"),
-    )
-    .unwrap();
+    let d = folder_with("fit-map", Kind::CorrelationMap, MAP);
     let target = d.join("target/correlation_map.json");
     let opts = FitOptions {
         fit: "mfp".into(),
