@@ -270,21 +270,27 @@ seed = 3
     };
     let map: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&target).unwrap()).unwrap();
-    // the map's Re C(Δ, τ), shift by shift, τ by τ: the order of the fit's entries
-    let wanted: Vec<f64> = map["re"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .flat_map(|delta| delta.as_array().unwrap().iter())
-        .flat_map(|row| row.as_array().unwrap().iter())
-        .map(|x| x.as_f64().unwrap())
-        .collect();
+    // the map's Re C(Δ, τ) and errors, shift by shift, τ by τ: the order of the fit's entries
+    let flat = |key: &str| -> Vec<f64> {
+        map[key]
+            .as_array()
+            .unwrap()
+            .iter()
+            .flat_map(|delta| delta.as_array().unwrap().iter())
+            .flat_map(|row| row.as_array().unwrap().iter())
+            .map(|x| x.as_f64().unwrap())
+            .collect()
+    };
+    let (wanted, stderr) = (flat("re"), flat("stderr"));
     let model = values("model_initial");
     assert_eq!(model.len(), wanted.len());
     assert_eq!(model.len(), 6);
-    let scale = wanted.iter().fold(0.0f64, |a, b| a.max(b.abs()));
-    for (m, t) in model.iter().zip(&wanted) {
-        assert!((m - t).abs() < 0.1 * scale, "model {m} vs map {t}");
+    // the model has as many paths as the map: combined error √2 × the map's
+    for ((m, t), se) in model.iter().zip(&wanted).zip(&stderr) {
+        assert!(
+            (m - t).abs() < 4.0 * 2f64.sqrt() * se,
+            "model {m} vs map {t} ± {se}"
+        );
     }
     // without the table, and with other shifts
     let err = fit(

@@ -842,7 +842,7 @@ fn tilt_shift_matches_the_covariance_and_the_wave_solver() {
             scan.cells[c].shift, scan.cells[c].angle
         );
         assert!(
-            (rm - rw).abs() < 3.0 * se + 0.03,
+            (rm - rw).abs() < 3.0 * se,
             "cell {c}: MC {rm:.3} vs wave {rw:.3} (se {se:.3})"
         );
         mc_rho.push((rm, rw));

@@ -35,11 +35,14 @@ pub fn fit(task: SceneTask, target_path: &Path, opts: &FitOptions, out: &Path) -
     } = task;
     use crate::inverse::{Fit, FitParam, FitSettings, Target, check_params};
     // a C(Δ, τ) map is fitted with the map's scene, built from the config's [correlation_map]
-    let map_target = crate::io::targets::is_correlation_map(target_path);
-    let target = if map_target {
-        crate::io::targets::correlation_map(target_path)?.target
+    let map_target = if crate::io::targets::is_correlation_map(target_path) {
+        Some(crate::io::targets::correlation_map(target_path)?)
     } else {
-        crate::io::targets::read(target_path)?
+        None
+    };
+    let target = match &map_target {
+        Some(m) => m.target.clone(),
+        None => crate::io::targets::read(target_path)?,
     };
     let phase = opts.fit.split(',').any(|p| p.trim() == "phase");
     let params: Vec<FitParam> = opts
@@ -73,8 +76,8 @@ pub fn fit(task: SceneTask, target_path: &Path, opts: &FitOptions, out: &Path) -
         cfg.render.seed = s;
     }
     cfg.check_settings()?;
-    let scene = match &target {
-        Target::Memory { angles_deg, .. } => {
+    let scene = match (&target, &map_target) {
+        (Target::Memory { angles_deg, .. }, _) => {
             let axis = cfg
                 .memory_effect
                 .as_ref()
@@ -90,8 +93,7 @@ pub fn fit(task: SceneTask, target_path: &Path, opts: &FitOptions, out: &Path) -
             };
             super::run::memory_scan(&task)?.scene
         }
-        Target::Entries { .. } if map_target => {
-            let shape = crate::io::targets::correlation_map(target_path)?;
+        (_, Some(shape)) => {
             let task = SceneTask {
                 config: cfg.clone(),
                 scene,
@@ -119,7 +121,7 @@ pub fn fit(task: SceneTask, target_path: &Path, opts: &FitOptions, out: &Path) -
             target.check_scene(&map.scene, target_path)?;
             map.scene
         }
-        Target::Covariance { .. } | Target::Entries { .. } => {
+        (Target::Covariance { .. } | Target::Entries { .. }, None) => {
             target.check_scene(&scene, target_path)?;
             scene
         }

@@ -20,8 +20,8 @@ pub(crate) fn scan_of(task: &SceneTask) -> Result<TiltShift> {
         .tilt_shift
         .as_ref()
         .ok_or_else(|| Error::input(NEEDS_TABLE))?;
-    // the depth decides the refocusing tilts: build once without cells to read it
-    let depth = TiltShift::new(&task.scene, &[], 0.0, 1)?.depth;
+    // the depth decides the refocusing tilts
+    let depth = TiltShift::depth_of(&task.scene)?;
     let cells: Vec<(f64, f64)> = if !t.refocus.is_empty() {
         t.refocus
             .iter()

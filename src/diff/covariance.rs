@@ -246,7 +246,8 @@ impl<'a> Reweighted<'a> {
             da.iter_mut().for_each(|d| *d = C64::default());
             let (mut a, mut d_axis) = (C64::default(), C64::default());
             for (l, lobe) in t.lobes.lobes.iter().enumerate() {
-                let y = c.aperture_lobe(u, lobe.kappa, true);
+                // derivatives only when some are asked for (a fit's model evaluations need none)
+                let y = c.aperture_lobe(u, lobe.kappa, !self.params.is_empty());
                 a += lobe.weight * y.value;
                 d_axis += lobe.weight * y.d_axis;
                 for (p, d) in da.iter_mut().enumerate() {
@@ -320,8 +321,15 @@ impl<'a> Reweighted<'a> {
                 da.iter_mut().for_each(|d| *d = C64::default());
                 let (mut a, mut d_sigma) = (C64::default(), C64::default());
                 for (l, lobe) in t.lobes.lobes.iter().enumerate() {
-                    let y =
-                        lens_pair_lobe(al, *light_axis, lobe.kappa, *axis, av, view_bound, true);
+                    let y = lens_pair_lobe(
+                        al,
+                        *light_axis,
+                        lobe.kappa,
+                        *axis,
+                        av,
+                        view_bound,
+                        !self.params.is_empty(),
+                    );
                     a += lobe.weight * y.value;
                     d_sigma += lobe.weight
                         * (y.value * -(hl + hv)

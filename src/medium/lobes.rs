@@ -308,23 +308,13 @@ impl Lobes {
         let values: Vec<C64> = mus.iter().map(|&m| s(m)).collect();
         let kappas: Vec<f64> = self.lobes.iter().map(|l| l.kappa).collect();
         let lobes = least_squares(&mus, &ws, &values, &kappas);
-        let (mut resid, mut norm2) = (0.0, 0.0);
-        for ((&m, w), v) in mus.iter().zip(&ws).zip(&values) {
-            let fit: C64 = lobes
-                .iter()
-                .map(|l| l.weight * (l.kappa * (m - 1.0)).exp())
-                .sum();
-            resid += w * (v - fit).norm_sqr();
-            norm2 += w * v.norm_sqr();
-        }
-        Lobes {
-            lobes,
-            error: if norm2 > 0.0 {
-                (resid / norm2).sqrt()
-            } else {
-                0.0
-            },
-        }
+        let norm2: f64 = values.iter().zip(&ws).map(|(v, w)| w * v.norm_sqr()).sum();
+        let error = if norm2 > 0.0 {
+            (weighted_residual(&mus, &ws, &values, &lobes) / norm2).sqrt()
+        } else {
+            0.0
+        };
+        Lobes { lobes, error }
     }
 }
 
@@ -415,19 +405,7 @@ pub fn fit(s: impl Fn(f64) -> C64, tolerance: f64) -> Lobes {
         let kappas = em(&mus, &data, total, count, sharpest, backward);
         let kappas = refine(&mus, &ws, &values, kappas);
         let lobes = least_squares(&mus, &ws, &values, &kappas);
-        let resid: f64 = mus
-            .iter()
-            .zip(&ws)
-            .zip(&values)
-            .map(|((&m, w), v)| {
-                let fit: C64 = lobes
-                    .iter()
-                    .map(|l| l.weight * (l.kappa * (m - 1.0)).exp())
-                    .sum();
-                w * (v - fit).norm_sqr()
-            })
-            .sum();
-        let error = (resid / norm2).sqrt();
+        let error = (weighted_residual(&mus, &ws, &values, &lobes) / norm2).sqrt();
         if best.as_ref().is_none_or(|b| error < b.error) {
             best = Some(Lobes { lobes, error });
         }
@@ -495,6 +473,21 @@ fn em(
         }
     }
     kappa
+}
+
+/// `Σ w |s − ŝ|²` over the quadrature nodes for the lobes `ŝ`.
+fn weighted_residual(mus: &[f64], ws: &[f64], values: &[C64], lobes: &[Lobe]) -> f64 {
+    mus.iter()
+        .zip(ws)
+        .zip(values)
+        .map(|((&m, w), v)| {
+            let fit: C64 = lobes
+                .iter()
+                .map(|l| l.weight * (l.kappa * (m - 1.0)).exp())
+                .sum();
+            w * (v - fit).norm_sqr()
+        })
+        .sum()
 }
 
 /// Complex weights minimising `∫ |s − Σ w_m e^{κ_m(μ−1)}|² dμ` for fixed concentrations

@@ -84,14 +84,6 @@ impl ApertureGrid {
         }
         ApertureGrid { dirs, weights }
     }
-
-    pub fn len(&self) -> usize {
-        self.dirs.len()
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.dirs.is_empty()
-    }
 }
 
 /// The quadrature grids of a scene's focused lights and views (`None` for the others).
@@ -129,17 +121,6 @@ impl Quadrature {
             lights: grids(lights),
             views: grids(views),
         }
-    }
-
-    /// Directions of the largest grid (what one aperture integral costs).
-    pub fn largest(&self) -> usize {
-        self.lights
-            .iter()
-            .chain(&self.views)
-            .flatten()
-            .map(ApertureGrid::len)
-            .max()
-            .unwrap_or(0)
     }
 }
 

@@ -233,6 +233,14 @@ fn sphere_integral_scaled(c: C64, q2: C64) -> C64 {
     }
 }
 
+/// One unit-weight lobe's `Υ` for an aperture `vmf` with `μ·μ = mu2` and `μ·w = mw` (Eq. 29), and
+/// its `q²`.
+#[inline]
+fn lobe_integral(vmf: &Vmf, mu2: C64, mw: C64, kappa: f64) -> (C64, C64) {
+    let q2 = mu2 + mw * (2.0 * kappa) + kappa * kappa;
+    (sphere_integral_scaled(vmf.log_scale - kappa, q2), q2)
+}
+
 impl Seen {
     /// Length inside the medium over which this connection is attenuated.
     #[inline]
@@ -253,15 +261,11 @@ impl Seen {
             Seen::Ray(c) => c.prop * phase.amplitude(u.dot(c.dir)),
             Seen::Aperture { vmf, mu2, sign, .. } => {
                 // the path direction the aperture's plane waves scatter into (light) or from (view)
-                let w = u * -*sign;
-                let mw = vmf.mu.dot_real(w);
+                let mw = vmf.mu.dot_real(u * -*sign);
                 lobes
                     .lobes
                     .iter()
-                    .map(|l| {
-                        let q2 = mu2 + mw * (2.0 * l.kappa) + l.kappa * l.kappa;
-                        l.weight * sphere_integral_scaled(vmf.log_scale - l.kappa, q2)
-                    })
+                    .map(|l| l.weight * lobe_integral(vmf, *mu2, mw, l.kappa).0)
                     .sum()
             }
         }
@@ -287,8 +291,7 @@ impl Seen {
         };
         let w = u * -*sign;
         let mw = vmf.mu.dot_real(w);
-        let q2 = mu2 + mw * (2.0 * kappa) + kappa * kappa;
-        let value = sphere_integral_scaled(vmf.log_scale - kappa, q2);
+        let (value, q2) = lobe_integral(vmf, *mu2, mw, kappa);
         if !slope {
             return LobeValue {
                 value,

@@ -49,6 +49,8 @@ struct Beam {
     waist2: f64,
     /// Extent of the medium along the axis, relative to the focus.
     z_range: (f64, f64),
+    /// The Cauchy half of [`axial_pdf`]: scale `c = w₀ √γ` and `atan(z/c)` at the extent's ends.
+    cauchy: (f64, f64, f64),
 }
 
 /// Draws first vertices and directions for one scene.
@@ -74,7 +76,7 @@ impl FirstVertex {
     /// concentration widens the beam (Eq. 35).
     pub fn new(
         sampling: Sampling,
-        lenses: impl Iterator<Item = Lens>,
+        lights: &[Lens],
         views: &[Lens],
         medium: &Medium,
         lobes: &Lobes,
@@ -93,19 +95,26 @@ impl FirstVertex {
                 0.0
             }
         };
-        let beam = |lens: Lens, spread2: f64, view: bool| Beam {
-            lens,
-            view,
-            across: orthonormal_basis(lens.axis),
-            waist2: (lens.gamma + gamma_s) / (k * k) + spread2,
-            z_range: extent(&medium.geometry, lens.focus, lens.axis),
+        let beam = |lens: Lens, spread2: f64, view: bool| {
+            let waist2 = (lens.gamma + gamma_s) / (k * k) + spread2;
+            let z_range = extent(&medium.geometry, lens.focus, lens.axis);
+            let c = (waist2 * lens.gamma).sqrt();
+            Beam {
+                lens,
+                view,
+                across: orthonormal_basis(lens.axis),
+                waist2,
+                z_range,
+                cauchy: (c, (z_range.0 / c).atan(), (z_range.1 / c).atan()),
+            }
         };
         let beams = if sampling == Sampling::Uniform {
             Vec::new()
         } else {
-            let mut beams: Vec<Beam> = lenses
+            let mut beams: Vec<Beam> = lights
+                .iter()
                 .filter(|l| l.gamma >= 1.0)
-                .map(|lens| beam(lens, 0.0, false))
+                .map(|lens| beam(*lens, 0.0, false))
                 .collect();
             // views sharing an axis and aperture (an image of foci) share one beam about their
             // mean focus, widened by the foci's spread across the axis
@@ -291,10 +300,9 @@ fn axial_pdf(b: &Beam, z: f64) -> f64 {
     if z < z0 || z > z1 || z1 <= z0 {
         return 0.0;
     }
-    let c = (b.waist2 * b.lens.gamma).sqrt();
-    let span = (z1 / c).atan() - (z0 / c).atan();
+    let (c, a0, a1) = b.cauchy;
     let t = z / c;
-    0.5 / (z1 - z0) + 0.5 / (c * (1.0 + t * t) * span)
+    0.5 / (z1 - z0) + 0.5 / (c * (1.0 + t * t) * (a1 - a0))
 }
 
 /// Draw `z` from [`axial_pdf`] with two uniform numbers.
@@ -303,8 +311,7 @@ fn sample_axial(b: &Beam, u_mix: f64, u: f64) -> f64 {
     if u_mix < 0.5 {
         return z0 + (z1 - z0) * u;
     }
-    let c = (b.waist2 * b.lens.gamma).sqrt();
-    let (a0, a1) = ((z0 / c).atan(), (z1 / c).atan());
+    let (c, a0, a1) = b.cauchy;
     (c * (a0 + (a1 - a0) * u).tan()).clamp(z0, z1)
 }
 

@@ -14,7 +14,7 @@ use crate::medium::PhaseFunction;
 use crate::medium::lobes::Lobes;
 use crate::speckle::Scene;
 use crate::speckle::aperture_quadrature::{
-    ApertureModel, Quadrature, lens_pair, upsilon, weighted_aperture,
+    ApertureGrid, ApertureModel, Attenuation, Quadrature, lens_pair, upsilon, weighted_aperture,
 };
 use crate::speckle::endpoint::{
     ConvolvedLobe, Lens, Seen, Terminal, convolve_lobe, lens_pair_term, log_aperture_mass,
@@ -86,10 +86,11 @@ impl Terminals {
             Terminal::Lens(l) => Some(*l),
             Terminal::Ray(_) => None,
         };
+        let light_lenses: Vec<Lens> = lights.iter().filter_map(lens).collect();
         let view_lenses: Vec<Lens> = views.iter().filter_map(lens).collect();
         let first = FirstVertex::new(
             scene.sampling,
-            lights.iter().filter_map(lens),
+            &light_lenses,
             &view_lenses,
             &scene.medium,
             &lobes[0],
@@ -97,10 +98,6 @@ impl Terminals {
         );
         let quadrature = match scene.aperture {
             ApertureModel::Quadrature(attenuation) if focused => {
-                let lens = |t: &Terminal| match t {
-                    Terminal::Lens(l) => Some(*l),
-                    Terminal::Ray(_) => None,
-                };
                 let lens_l: Vec<_> = lights.iter().map(lens).collect();
                 let lens_v: Vec<_> = views.iter().map(lens).collect();
                 let sharpest = lobes
@@ -243,41 +240,37 @@ impl<'a> SubpathSampler<'a> {
 
         // B = 1: a_j = sqrt(V) υ(i→x1) υ(i→x1→v).
         let root = volume.sqrt();
-        let nlobes = lobes1.lobes.len();
-        if let Some(axis) = self.view_axis {
-            for (l, seen) in sc.first_l.iter().enumerate() {
-                if let Seen::Aperture { vmf, .. } = seen {
-                    for (m, lobe) in lobes1.lobes.iter().enumerate() {
-                        sc.convolved[l * self.max_lobes + m] = convolve_lobe(vmf, lobe, axis);
-                    }
-                }
-            }
-            for (seen, b) in sc.first_v.iter().zip(sc.view_bound.iter_mut()) {
-                if let Seen::Aperture { vmf, .. } = seen {
-                    *b = log_aperture_mass(vmf);
-                }
-            }
-        }
         if let Some(q) = &t.quadrature {
             self.quadrature_first(q, x1, sc);
-        }
-        if let Some(q) = &t.quadrature {
             for (n, &(l, v)) in self.pairs.iter().enumerate() {
                 sc.a[n] = self.quadrature_single(q, l, v, sc, phase1, lobes1) * root;
             }
-        }
-        for (a, &(l, v)) in sc.a.iter_mut().zip(&self.pairs) {
-            if t.quadrature.is_some() {
-                break;
+        } else {
+            let nlobes = lobes1.lobes.len();
+            if let Some(axis) = self.view_axis {
+                for (l, seen) in sc.first_l.iter().enumerate() {
+                    if let Seen::Aperture { vmf, .. } = seen {
+                        for (m, lobe) in lobes1.lobes.iter().enumerate() {
+                            sc.convolved[l * self.max_lobes + m] = convolve_lobe(vmf, lobe, axis);
+                        }
+                    }
+                }
+                for (seen, b) in sc.first_v.iter().zip(sc.view_bound.iter_mut()) {
+                    if let Seen::Aperture { vmf, .. } = seen {
+                        *b = log_aperture_mass(vmf);
+                    }
+                }
             }
-            *a = match (&sc.first_l[l], &sc.first_v[v], self.view_axis) {
-                (Seen::Aperture { .. }, Seen::Aperture { vmf: av, .. }, Some(_)) => sc.convolved
-                    [l * self.max_lobes..l * self.max_lobes + nlobes]
-                    .iter()
-                    .map(|c| lens_pair_term(c, av, sc.view_bound[v]))
-                    .sum(),
-                (sl, sv, _) => sl.single(sv, phase1, lobes1),
-            } * root;
+            for (a, &(l, v)) in sc.a.iter_mut().zip(&self.pairs) {
+                *a = match (&sc.first_l[l], &sc.first_v[v], self.view_axis) {
+                    (Seen::Aperture { .. }, Seen::Aperture { vmf: av, .. }, Some(_)) => sc
+                        .convolved[l * self.max_lobes..l * self.max_lobes + nlobes]
+                        .iter()
+                        .map(|c| lens_pair_term(c, av, sc.view_bound[v]))
+                        .sum(),
+                    (sl, sv, _) => sl.single(sv, phase1, lobes1),
+                } * root;
+            }
         }
         sink.event(false, &sc.a, rng);
 
@@ -288,23 +281,32 @@ impl<'a> SubpathSampler<'a> {
         if d >= geo.exit_distance(x1, w1) {
             return;
         }
-        for (c, a) in sc.first_l.iter().zip(sc.amp_first_l.iter_mut()) {
-            *a = c.amplitude(-w1, phase1, lobes1);
-        }
-        for (c, a) in sc.first_v.iter().zip(sc.amp_first_v.iter_mut()) {
-            *a = c.amplitude(-w1, phase1, lobes1);
-        }
-        if let Some(q) = &t.quadrature {
-            for (i, grid) in q.lights.iter().enumerate() {
-                if let (Some(g), Terminal::Lens(lens)) = (grid, &t.lights[i]) {
-                    sc.amp_first_l[i] = upsilon(lens, g, &sc.quad_first_l[i], -w1, phase1);
-                }
+        // at the first vertex the quadrature weights are already at hand (single scattering)
+        let first = |terminal: &Terminal,
+                     seen: &Seen,
+                     grid: Option<&Option<ApertureGrid>>,
+                     weights: &[C64]| {
+            match (terminal, grid) {
+                (Terminal::Lens(lens), Some(Some(g))) => upsilon(lens, g, weights, -w1, phase1),
+                _ => seen.amplitude(-w1, phase1, lobes1),
             }
-            for (i, grid) in q.views.iter().enumerate() {
-                if let (Some(g), Terminal::Lens(lens)) = (grid, &t.views[i]) {
-                    sc.amp_first_v[i] = upsilon(lens, g, &sc.quad_first_v[i], -w1, phase1);
-                }
-            }
+        };
+        let q = t.quadrature.as_ref();
+        for i in 0..t.lights.len() {
+            sc.amp_first_l[i] = first(
+                &t.lights[i],
+                &sc.first_l[i],
+                q.map(|q| &q.lights[i]),
+                &sc.quad_first_l[i],
+            );
+        }
+        for i in 0..t.views.len() {
+            sc.amp_first_v[i] = first(
+                &t.views[i],
+                &sc.first_v[i],
+                q.map(|q| &q.views[i]),
+                &sc.quad_first_v[i],
+            );
         }
         let scale = volume * inv_pdf_w1 * if self.reversed { 0.5 } else { 1.0 };
         let mut x = x1 + w1 * d;
@@ -312,10 +314,13 @@ impl<'a> SubpathSampler<'a> {
         let mut throughput = albedo;
         loop {
             let kind = m.scattering.pick(|| uniform(rng));
-            self.connect_all(x, w_in, kind, &mut sc.amp_last_l, &mut sc.amp_last_v);
-            if let Some(q) = &t.quadrature {
-                self.quadrature_connect(q, x, w_in, kind, sc);
-            }
+            self.connect_all(
+                x,
+                w_in,
+                kind,
+                (&mut sc.amp_last_l, &mut sc.amp_last_v),
+                &mut sc.quad_here,
+            );
             let root = (scale * throughput).sqrt();
             for (a, &(l, v)) in sc.a.iter_mut().zip(&self.pairs) {
                 let mut z = sc.amp_first_l[l] * sc.amp_last_v[v];
@@ -390,42 +395,34 @@ impl<'a> SubpathSampler<'a> {
         }
     }
 
-    /// Replace the focused terminals' amplitudes at vertex `x` by their quadrature values.
-    fn quadrature_connect(
+    /// `B_l = τ ξ s(w_in · dir)` (or `Υ` for a focused terminal, by quadrature when the scene asks
+    /// for it; `weights` is its working memory) to every light and view from vertex `x` reached
+    /// along `w_in`, scattered by a particle of type `kind`.
+    #[inline]
+    fn connect_all(
         &self,
-        q: &Quadrature,
         x: DVec3,
         w_in: DVec3,
         kind: usize,
-        sc: &mut PathScratch,
+        (al, av): (&mut [C64], &mut [C64]),
+        weights: &mut Vec<C64>,
     ) {
         let (s, t) = (self.scene, &self.terminals);
-        let phase = s.medium.scattering.phase(kind);
-        for (i, grid) in q.lights.iter().enumerate() {
-            if let (Some(g), Terminal::Lens(lens)) = (grid, &t.lights[i]) {
-                weighted_aperture(lens, g, q.attenuation, x, &s.medium, s.k, &mut sc.quad_here);
-                sc.amp_last_l[i] = upsilon(lens, g, &sc.quad_here, w_in, phase);
-            }
-        }
-        for (i, grid) in q.views.iter().enumerate() {
-            if let (Some(g), Terminal::Lens(lens)) = (grid, &t.views[i]) {
-                weighted_aperture(lens, g, q.attenuation, x, &s.medium, s.k, &mut sc.quad_here);
-                sc.amp_last_v[i] = upsilon(lens, g, &sc.quad_here, w_in, phase);
-            }
-        }
-    }
-
-    /// `B_l = τ ξ s(w_in · dir)` (or `Υ` for a focused terminal) to every light and view from
-    /// vertex `x` reached along `w_in`, scattered by a particle of type `kind`.
-    #[inline]
-    fn connect_all(&self, x: DVec3, w_in: DVec3, kind: usize, al: &mut [C64], av: &mut [C64]) {
-        let (s, t) = (self.scene, &self.terminals);
         let (phase, lobes) = (s.medium.scattering.phase(kind), &t.lobes[kind]);
-        for (e, a) in t.lights.iter().zip(al.iter_mut()) {
-            *a = e.seen_from(x, &s.medium, s.k).amplitude(w_in, phase, lobes);
+        let q = t.quadrature.as_ref();
+        let mut connect = |e: &Terminal, grid: Option<&Option<ApertureGrid>>| match (e, grid) {
+            (Terminal::Lens(lens), Some(Some(g))) => {
+                let attenuation = q.map_or(Attenuation::Exact, |q| q.attenuation);
+                weighted_aperture(lens, g, attenuation, x, &s.medium, s.k, weights);
+                upsilon(lens, g, weights, w_in, phase)
+            }
+            _ => e.seen_from(x, &s.medium, s.k).amplitude(w_in, phase, lobes),
+        };
+        for (i, (e, a)) in t.lights.iter().zip(al.iter_mut()).enumerate() {
+            *a = connect(e, q.map(|q| &q.lights[i]));
         }
-        for (e, a) in t.views.iter().zip(av.iter_mut()) {
-            *a = e.seen_from(x, &s.medium, s.k).amplitude(w_in, phase, lobes);
+        for (i, (e, a)) in t.views.iter().zip(av.iter_mut()).enumerate() {
+            *a = connect(e, q.map(|q| &q.views[i]));
         }
     }
 }

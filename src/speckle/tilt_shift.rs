@@ -11,9 +11,9 @@
 use crate::math::{C64, Rng, orthonormal_basis};
 use crate::mc::Estimator;
 use crate::speckle::correlation_map::focused_templates;
+use crate::speckle::endpoint::Lens;
 use crate::speckle::paths::{EventSink, PathScratch, SubpathSampler};
 use crate::speckle::{Light, Scene, View};
-use glam::DVec3;
 
 /// One cell of a scan: the output shift `Δb` and the relative tilt `θ` (radians); the input
 /// shift is `Δa = Δb − Lθ`.
@@ -38,11 +38,33 @@ pub struct TiltShift {
     pub taus: Vec<f64>,
     /// Depth `L` of plane `b` behind plane `a` along the axis.
     pub depth: f64,
-    /// The frame's first axis (the direction of shifts; tilts turn the axis towards it).
-    pub across: DVec3,
+}
+
+/// Light 0 and view 0 of a tilt-shift scan and the depth `L` of the output plane behind the
+/// input plane along the light's axis (it must be positive).
+fn templates(base: &Scene) -> crate::Result<(Lens, Lens, f64)> {
+    let (light, view) = focused_templates(
+        base,
+        "tilt-shift",
+        " (on the input plane)",
+        " (on the output plane)",
+    )?;
+    let depth = (view.focus - light.focus).dot(light.axis);
+    if depth.is_nan() || depth <= 0.0 {
+        return Err(format!(
+            "tilt-shift: view[0] must be focused behind light[0] along its axis (depth {depth})"
+        )
+        .into());
+    }
+    Ok((light, view, depth))
 }
 
 impl TiltShift {
+    /// The depth `L` of `base`'s output plane behind its input plane.
+    pub fn depth_of(base: &Scene) -> crate::Result<f64> {
+        Ok(templates(base)?.2)
+    }
+
     /// From light 0 (focused: plane `a`, axis, aperture) and view 0 (focused: plane `b`, aperture)
     /// of `base`, cells `(Δb, θ)` (θ in radians) and `taus` positions over `tau_width`.
     pub fn new(
@@ -51,21 +73,9 @@ impl TiltShift {
         tau_width: f64,
         taus: usize,
     ) -> crate::Result<Self> {
-        let (light, view) = focused_templates(
-            base,
-            "tilt-shift",
-            " (on the input plane)",
-            " (on the output plane)",
-        )?;
+        let (light, view, depth) = templates(base)?;
         let (focus, axis, gamma) = (light.focus, light.axis, light.gamma);
-        let (view_focus, view_axis, view_gamma) = (view.focus, view.axis, view.gamma);
-        let depth = (view_focus - focus).dot(axis);
-        if depth.is_nan() || depth <= 0.0 {
-            return Err(format!(
-                "tilt-shift: view[0] must be focused behind light[0] along its axis (depth {depth})"
-            )
-            .into());
-        }
+        let (view_axis, view_gamma) = (view.axis, view.gamma);
         let (across, _) = orthonormal_basis(axis);
         // the view's focus projected on the light's axis: the scan is about the beam's centre line
         let centre = focus + axis * depth;
@@ -129,7 +139,6 @@ impl TiltShift {
             shifts,
             taus,
             depth,
-            across,
         })
     }
 
