@@ -39,10 +39,7 @@ const MAX_LOBES: usize = 10;
 impl Lobes {
     /// `ŝ(μ)`.
     pub fn eval(&self, mu: f64) -> C64 {
-        self.lobes
-            .iter()
-            .map(|l| l.weight * (l.kappa * (mu - 1.0)).exp())
-            .sum()
+        eval(&self.lobes, mu)
     }
 
     /// The lobes of `p`'s amplitude: exact for isotropic scattering and vMF mixtures, fitted
@@ -475,18 +472,20 @@ fn em(
     kappa
 }
 
+/// `ŝ(μ) = Σ w_m e^{κ_m(μ−1)}`.
+fn eval(lobes: &[Lobe], mu: f64) -> C64 {
+    lobes
+        .iter()
+        .map(|l| l.weight * (l.kappa * (mu - 1.0)).exp())
+        .sum()
+}
+
 /// `Σ w |s − ŝ|²` over the quadrature nodes for the lobes `ŝ`.
 fn weighted_residual(mus: &[f64], ws: &[f64], values: &[C64], lobes: &[Lobe]) -> f64 {
     mus.iter()
         .zip(ws)
         .zip(values)
-        .map(|((&m, w), v)| {
-            let fit: C64 = lobes
-                .iter()
-                .map(|l| l.weight * (l.kappa * (m - 1.0)).exp())
-                .sum();
-            w * (v - fit).norm_sqr()
-        })
+        .map(|((&m, w), v)| w * (v - eval(lobes, m)).norm_sqr())
         .sum()
 }
 
@@ -558,13 +557,7 @@ fn residual(mus: &[f64], ws: &[f64], values: &[C64], kappas: &[f64]) -> Vec<C64>
     mus.iter()
         .zip(ws)
         .zip(values)
-        .map(|((&m, w), v)| {
-            let fit: C64 = lobes
-                .iter()
-                .map(|l| l.weight * (l.kappa * (m - 1.0)).exp())
-                .sum();
-            (v - fit) * w.sqrt()
-        })
+        .map(|((&m, w), v)| (v - eval(&lobes, m)) * w.sqrt())
         .collect()
 }
 
