@@ -139,6 +139,36 @@ enum Command {
         #[arg(long)]
         quiet: bool,
     },
+    /// Spheres by Lorenz–Mie theory: efficiencies, cross-sections, g, amplitudes S1/S2 and the
+    /// phase function (one diameter, or a log-normal distribution) → mie.json + mie.png
+    Mie {
+        /// Sphere diameter (the mean, with --diameter-spread), in the unit of --wavelength
+        #[arg(long)]
+        diameter: f64,
+        /// Standard deviation of a log-normal diameter distribution (default: all spheres equal)
+        #[arg(long, default_value_t = 0.0)]
+        diameter_spread: f64,
+        /// Real part of the particle's refractive index
+        #[arg(long)]
+        n_particle: f64,
+        /// Imaginary part of the particle's refractive index (absorption, >= 0)
+        #[arg(long, default_value_t = 0.0)]
+        k_particle: f64,
+        /// Refractive index of the host medium
+        #[arg(long, default_value_t = 1.0)]
+        n_medium: f64,
+        /// Vacuum wavelength
+        #[arg(long)]
+        wavelength: f64,
+        /// Number of scattering angles from 0° to 180° in the output
+        #[arg(long, default_value_t = 361)]
+        angles: usize,
+        /// Also give σ_s, σ_a, mfp and albedo of this volume fraction of spheres
+        #[arg(long)]
+        volume_fraction: Option<f64>,
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Check a config and print the scene it describes, without running anything
     Check { config: PathBuf },
     /// Measure paths/s, covariance entry-updates/s, field pixel-updates/s and the GEMM rate
@@ -328,6 +358,29 @@ fn dispatch(command: Option<Command>) -> Result<Outcome> {
             )),
         },
         Some(Command::Compare { .. }) => unreachable!("handled in main"),
+        Some(Command::Mie {
+            diameter,
+            diameter_spread,
+            n_particle,
+            k_particle,
+            n_medium,
+            wavelength,
+            angles,
+            volume_fraction,
+            out,
+        }) => app::mie::run(
+            &app::mie::MieRequest {
+                diameter,
+                diameter_spread,
+                n_particle,
+                k_particle,
+                n_medium,
+                vacuum_wavelength: wavelength,
+                angles,
+                volume_fraction,
+            },
+            &out,
+        ),
         Some(Command::Check { config }) => app::check::check(&config),
         Some(Command::Bench {
             design_iteration: true,

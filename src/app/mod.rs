@@ -8,6 +8,7 @@
 //! - [`compare`]: agreement of two `covariance.json`
 //! - [`fit`]: material and phase-function fits
 //! - [`grin`]: `trace`, `design` (grid designs and parameter fits)
+//! - [`mie`]: spheres by Lorenz–Mie theory
 //! - [`check`]: validate a config without running it
 //! - [`bench`]: throughput figures
 
@@ -17,6 +18,7 @@ pub mod compare;
 pub mod correlation_map;
 pub mod fit;
 pub mod grin;
+pub mod mie;
 pub mod run;
 pub mod tilt_shift;
 pub mod wave;

@@ -1,14 +1,18 @@
-//! The `[medium]` table: coefficients (mfp + albedo or σ_s + σ_a) and phase functions (isotropic,
-//! Henyey–Greenstein, tabulated inline or from a CSV file, mixtures of particle types) → [`Medium`].
+//! The `[medium]` table: coefficients (mfp + albedo, σ_s + σ_a, or a volume fraction of Mie
+//! spheres) and phase functions (isotropic, Henyey–Greenstein, tabulated inline or from a CSV file,
+//! vMF mixtures, Mie spheres, mixtures of particle types) → [`Medium`].
 
 use super::scene::{MediumConfig, PhaseConfig, positive};
 use super::{ConfigError, err};
+use crate::math::C64;
+use crate::medium::mie::{Optics, Particles};
 use crate::medium::{Geometry, Medium, PhaseFunction, Scattering, Table};
 use std::path::Path;
+use std::sync::{Arc, Mutex};
 
 impl MediumConfig {
-    /// The medium these keys describe, every value checked.
-    pub(super) fn build(&self) -> Result<Medium, ConfigError> {
+    /// The medium these keys describe, every value checked (`wavelength`: the scene's, in the host).
+    pub(super) fn build(&self, wavelength: f64) -> Result<Medium, ConfigError> {
         let geometry = match (self.box_size, self.slab) {
             (Some(b), None) => {
                 for (a, v) in b.iter().enumerate() {
@@ -33,6 +37,7 @@ impl MediumConfig {
             }
         };
         let (sigma_s, sigma_a) = match (self.mfp, self.albedo, self.sigma_s, self.sigma_a) {
+            _ if self.volume_fraction.is_some() => self.mie_coefficients(wavelength)?,
             (Some(mfp), albedo, None, None) => {
                 positive("medium.mfp", mfp)?;
                 let a = albedo.unwrap_or(1.0);
@@ -57,7 +62,9 @@ impl MediumConfig {
             (None, Some(_), None, None) => return err("medium.albedo needs medium.mfp"),
             (None, None, None, Some(_)) => return err("medium.sigma_a needs medium.sigma_s"),
             (None, None, None, None) => {
-                return err("medium: give mfp (+ albedo) or sigma_s (+ sigma_a)");
+                return err(
+                    "medium: give mfp (+ albedo), sigma_s (+ sigma_a) or volume_fraction (Mie spheres)",
+                );
             }
             _ => return err("medium: give either mfp + albedo or sigma_s + sigma_a, not both"),
         };
@@ -74,11 +81,14 @@ impl MediumConfig {
                     if let PhaseConfig::Mixture { .. } = c.phase {
                         return err(format!("{key}.phase: mixtures cannot be nested"));
                     }
-                    parts.push((c.weight, c.phase.build(&format!("{key}.phase"))?));
+                    parts.push((
+                        c.weight,
+                        c.phase.build(&format!("{key}.phase"), wavelength)?,
+                    ));
                 }
                 Scattering::mixture(parts)
             }
-            Some(p) => Scattering::single(p.build("medium.phase")?),
+            Some(p) => Scattering::single(p.build("medium.phase", wavelength)?),
         };
         Ok(Medium {
             geometry,
@@ -89,8 +99,98 @@ impl MediumConfig {
     }
 }
 
+impl MediumConfig {
+    /// `(σ_s, σ_a)` of a volume fraction `f` of Mie spheres: number density `f / ⟨V⟩` times the mean
+    /// cross-sections (independent scattering, so dilute suspensions).
+    fn mie_coefficients(&self, wavelength: f64) -> Result<(f64, f64), ConfigError> {
+        let f = self.volume_fraction.unwrap_or(0.0);
+        if self.mfp.is_some()
+            || self.albedo.is_some()
+            || self.sigma_s.is_some()
+            || self.sigma_a.is_some()
+        {
+            return err(
+                "medium.volume_fraction: give it instead of mfp, albedo, sigma_s and sigma_a, not with them",
+            );
+        }
+        if !(f.is_finite() && f > 0.0 && f <= 0.74) {
+            return err(format!(
+                "medium.volume_fraction = {f}: must be within (0, 0.74] (0.74: close-packed spheres)"
+            ));
+        }
+        let Some(phase @ PhaseConfig::Mie { .. }) = &self.phase else {
+            return err(
+                "medium.volume_fraction needs medium.phase = { kind = \"mie\", ... } (the spheres' size and index)",
+            );
+        };
+        let optics = phase.mie_optics("medium.phase", wavelength)?;
+        let density = f / optics.mean_volume;
+        Ok((density * optics.c_sca, density * optics.c_abs))
+    }
+}
+
+/// Mie optics already computed for these particles (a config is built more than once; size
+/// averages take a second).
+static MIE_CACHE: Mutex<Vec<(Particles, Arc<Optics>)>> = Mutex::new(Vec::new());
+
 impl PhaseConfig {
-    fn build(&self, key: &str) -> Result<PhaseFunction, ConfigError> {
+    /// The Mie optics of a `kind = "mie"` phase, every key checked.
+    fn mie_optics(&self, key: &str, wavelength: f64) -> Result<Arc<Optics>, ConfigError> {
+        let PhaseConfig::Mie {
+            diameter,
+            diameter_spread,
+            n_particle,
+            k_particle,
+            n_medium,
+            ..
+        } = self
+        else {
+            return err(format!("{key}: not a Mie phase function"));
+        };
+        positive(&format!("{key}.diameter"), *diameter)?;
+        positive(&format!("{key}.n_particle"), *n_particle)?;
+        positive(&format!("{key}.n_medium"), *n_medium)?;
+        if !(k_particle.is_finite() && *k_particle >= 0.0) {
+            return err(format!(
+                "{key}.k_particle = {k_particle}: must be a finite number >= 0 (absorption)"
+            ));
+        }
+        if !(diameter_spread.is_finite()
+            && *diameter_spread >= 0.0
+            && *diameter_spread < 3.0 * diameter)
+        {
+            return err(format!(
+                "{key}.diameter_spread = {diameter_spread}: must be >= 0 and below 3 × diameter"
+            ));
+        }
+        let particles = Particles {
+            diameter: *diameter,
+            spread: *diameter_spread,
+            n_particle: C64::new(*n_particle, *k_particle),
+            n_medium: *n_medium,
+            wavelength,
+        };
+        let cached = |p: &Particles| {
+            let cache = MIE_CACHE.lock().unwrap_or_else(|e| e.into_inner());
+            cache.iter().find(|e| e.0 == *p).map(|e| e.1.clone())
+        };
+        if let Some(o) = cached(&particles) {
+            return Ok(o);
+        }
+        let optics = Arc::new(
+            particles
+                .optics(&particles.default_grid())
+                .map_err(|e| ConfigError(format!("{key}: {e}")))?,
+        );
+        let mut cache = MIE_CACHE.lock().unwrap_or_else(|e| e.into_inner());
+        if cache.len() >= 8 {
+            cache.remove(0);
+        }
+        cache.push((particles, optics.clone()));
+        Ok(optics)
+    }
+
+    fn build(&self, key: &str, wavelength: f64) -> Result<PhaseFunction, ConfigError> {
         match self {
             PhaseConfig::Isotropic => Ok(PhaseFunction::Isotropic),
             PhaseConfig::Hg { g } => {
@@ -147,6 +247,11 @@ impl PhaseConfig {
                     .map(PhaseFunction::VmfMixture)
                     .map_err(|e| ConfigError(format!("{key}.{e}")))
             }
+            PhaseConfig::Mie { polarisation, .. } => self
+                .mie_optics(key, wavelength)?
+                .table(polarisation.model())
+                .map(PhaseFunction::Tabulated)
+                .map_err(|e| ConfigError(format!("{key}: {e}"))),
             PhaseConfig::Mixture { .. } => err(format!("{key}: mixtures cannot be nested")),
         }
     }

@@ -93,6 +93,10 @@ pub struct MediumConfig {
     pub sigma_a: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub phase: Option<PhaseConfig>,
+    /// Volume fraction of Mie spheres (`phase.kind = "mie"`): `σ_s`, `σ_a` from their number
+    /// density and cross-sections, instead of `mfp` or `sigma_s`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub volume_fraction: Option<f64>,
 }
 
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
@@ -122,10 +126,47 @@ pub enum PhaseConfig {
         weights: Vec<f64>,
         kappas: Vec<f64>,
     },
+    /// Homogeneous spheres by Lorenz–Mie theory: `diameter` (the mean of a log-normal distribution
+    /// whose standard deviation is `diameter_spread`, default 0), index `n_particle + i k_particle`
+    /// in a host of index `n_medium`. The scene's `wavelength` is the wavelength in the host
+    /// (vacuum wavelength / `n_medium`). `polarisation`: `"unpolarised"` (default),
+    /// `"perpendicular"` or `"parallel"` (which of `S1`, `S2` the scalar amplitude follows).
+    Mie {
+        diameter: f64,
+        #[serde(default)]
+        diameter_spread: f64,
+        n_particle: f64,
+        #[serde(default)]
+        k_particle: f64,
+        n_medium: f64,
+        #[serde(default)]
+        polarisation: PolarisationConfig,
+    },
     /// Several particle types; `weight` is each type's share of `σ_s` (paper 001, App. 9.1).
     Mixture {
         components: Vec<ComponentConfig>,
     },
+}
+
+/// `phase.polarisation` of Mie spheres.
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum PolarisationConfig {
+    #[default]
+    Unpolarised,
+    Perpendicular,
+    Parallel,
+}
+
+impl PolarisationConfig {
+    pub fn model(self) -> crate::medium::mie::Polarisation {
+        use crate::medium::mie::Polarisation;
+        match self {
+            PolarisationConfig::Unpolarised => Polarisation::Unpolarised,
+            PolarisationConfig::Perpendicular => Polarisation::Perpendicular,
+            PolarisationConfig::Parallel => Polarisation::Parallel,
+        }
+    }
 }
 
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
@@ -564,7 +605,7 @@ impl Config {
     /// Build the physical scene (lights and views expanded).
     pub fn scene(&self) -> Result<Scene, ConfigError> {
         positive("wavelength", self.wavelength)?;
-        let medium = self.medium.build()?;
+        let medium = self.medium.build(self.wavelength)?;
         if self.light.is_empty() {
             return err("light: the list is empty; give at least one [[light]]");
         }

@@ -557,3 +557,97 @@ pub fn lines(
     root.present().map_err(|x| e(&x))?;
     Ok(())
 }
+
+/// Phase functions on a polar plot: angle `θ` from the forward direction (right) mirrored into the
+/// lower half, radius `log₁₀ ρ` over the decades the series span (at most 8), with decade circles.
+pub fn polar_phase(
+    path: &Path,
+    title: &str,
+    theta_deg: &[f64],
+    series: &[(String, Vec<f64>)],
+) -> crate::Result<()> {
+    register_font();
+    let e = |e: &dyn std::fmt::Display| e.to_string();
+    let top = series
+        .iter()
+        .flat_map(|s| s.1.iter())
+        .filter(|v| v.is_finite() && **v > 0.0)
+        .fold(f64::NEG_INFINITY, |a, &b| a.max(b));
+    let bottom = series
+        .iter()
+        .flat_map(|s| s.1.iter())
+        .filter(|v| v.is_finite() && **v > 0.0)
+        .fold(f64::INFINITY, |a, &b| a.min(b));
+    if !(top.is_finite() && bottom.is_finite()) {
+        return Err(format!("{title}: nothing to plot").into());
+    }
+    let hi = top.log10().ceil();
+    let lo = bottom.log10().floor().max(hi - 8.0);
+    let radius = |v: f64| (v.max(10f64.powf(lo)).log10() - lo) / (hi - lo).max(1.0);
+    let root = BitMapBackend::new(path, (900, 900)).into_drawing_area();
+    root.fill(&WHITE).map_err(|x| e(&x))?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 20))
+        .margin(20)
+        .build_cartesian_2d(-1.1..1.1, -1.1..1.1)
+        .map_err(|x| e(&x))?;
+    let grey = RGBColor(200, 200, 200);
+    for d in 0..=((hi - lo) as i32) {
+        let r = d as f64 / (hi - lo).max(1.0);
+        chart
+            .draw_series(LineSeries::new(
+                (0..=360).map(|a| {
+                    let t = (a as f64).to_radians();
+                    (r * t.cos(), r * t.sin())
+                }),
+                grey.stroke_width(1),
+            ))
+            .map_err(|x| e(&x))?;
+        chart
+            .draw_series(std::iter::once(Text::new(
+                format!("1e{}", lo as i32 + d),
+                (0.0, r),
+                ("sans-serif", 13).into_font().color(&BLACK.mix(0.6)),
+            )))
+            .map_err(|x| e(&x))?;
+    }
+    chart
+        .draw_series(LineSeries::new(
+            [(-1.05, 0.0), (1.05, 0.0)],
+            grey.stroke_width(1),
+        ))
+        .map_err(|x| e(&x))?;
+    // the first series bold and on top, the others thin beneath it
+    for (i, (name, v)) in series.iter().enumerate().rev() {
+        let colour = Palette99::pick(i).to_rgba();
+        let width = if i == 0 { 2 } else { 1 };
+        let upper = theta_deg.iter().zip(v).map(|(t, &v)| {
+            let (r, t) = (radius(v), t.to_radians());
+            (r * t.cos(), r * t.sin())
+        });
+        let lower = theta_deg.iter().zip(v).rev().map(|(t, &v)| {
+            let (r, t) = (radius(v), t.to_radians());
+            (r * t.cos(), -r * t.sin())
+        });
+        chart
+            .draw_series(LineSeries::new(
+                upper.chain(lower),
+                colour.stroke_width(width),
+            ))
+            .map_err(|x| e(&x))?
+            .label(name.as_str())
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2))
+            });
+    }
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperLeft)
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .label_font(("sans-serif", 14))
+        .draw()
+        .map_err(|x| e(&x))?;
+    root.present().map_err(|x| e(&x))?;
+    Ok(())
+}

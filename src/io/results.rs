@@ -587,3 +587,60 @@ pub struct GrinFitFile {
     pub config: crate::config::ParamFitConfig,
 }
 result_file!(GrinFitFile, "fit.json");
+
+/// `mie.json` of `lightpath mie`: one sphere (or a log-normal suspension of them) by Lorenz–Mie
+/// theory. Lengths in the unit of the inputs; cross-sections per particle (means over the sizes).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct MieFile {
+    #[serde(default)]
+    pub format_version: u32,
+    pub diameter: f64,
+    pub diameter_spread: f64,
+    /// `[n, κ]` of the particle.
+    pub n_particle: [f64; 2],
+    pub n_medium: f64,
+    pub vacuum_wavelength: f64,
+    /// `π d n_medium / λ₀` of the mean diameter.
+    pub size_parameter: f64,
+    /// `[re, im]` of `(n + iκ) / n_medium`.
+    pub relative_index: [f64; 2],
+    /// Series terms of the largest sphere.
+    pub terms: usize,
+    pub q_ext: f64,
+    pub q_sca: f64,
+    pub q_abs: f64,
+    pub q_back: f64,
+    pub g: f64,
+    pub c_ext: f64,
+    pub c_sca: f64,
+    pub c_abs: f64,
+    pub c_back: f64,
+    pub mean_volume: f64,
+    /// With `--volume-fraction`: the bulk coefficients of the suspension.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bulk: Option<MieBulk>,
+    pub theta_deg: Vec<f64>,
+    /// Unpolarised `ρ(θ)`, `∫ρ dω = 1`.
+    pub phase: Vec<f64>,
+    pub phase_perpendicular: Vec<f64>,
+    pub phase_parallel: Vec<f64>,
+    /// Bohren–Huffman amplitudes (time dependence `exp(−iωt)`), averaged over the sizes.
+    pub s1_re: Vec<f64>,
+    pub s1_im: Vec<f64>,
+    pub s2_re: Vec<f64>,
+    pub s2_im: Vec<f64>,
+    pub seconds: f64,
+    pub version: String,
+}
+result_file!(MieFile, "mie.json");
+
+/// Bulk coefficients of a volume fraction of spheres (independent scattering).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct MieBulk {
+    pub volume_fraction: f64,
+    pub number_density: f64,
+    pub sigma_s: f64,
+    pub sigma_a: f64,
+    pub mfp: f64,
+    pub albedo: f64,
+}

@@ -2,6 +2,7 @@
 
 pub mod geometry;
 pub mod lobes;
+pub mod mie;
 pub mod params;
 pub mod phase;
 
