@@ -3,7 +3,7 @@
 //! merging the shards reproduces the single run bit for bit.
 
 use super::{Outcome, Progress, create_out};
-use crate::config::{Config, SceneTask, SpeckleConfig};
+use crate::config::{Config, EstimatorConfig, SceneTask, SpeckleConfig};
 use crate::error::{Error, Result};
 use crate::io::ResultFile;
 use crate::io::results::{CovarianceFile, MemoryEffectFile, RunEcho, SpeckleFile, nest2, nest4};
@@ -102,8 +102,66 @@ pub fn run_scene(
         return Err(Error::input(super::tilt_shift::NEEDS_TABLE));
     }
     cfg.check_settings()?;
+    if cfg.render.estimator == EstimatorConfig::SingleScattering {
+        return single_scattering(kind, &task, opts, out);
+    }
     let plan = plan_of(kind, cfg);
     execute(kind, &task, plan, opts, out)
+}
+
+/// `[render] estimator = "single_scattering"`: the covariance of paths that scatter once, in closed
+/// form (no paths, no standard error; `solver` says so). Only `covariance`, whole.
+fn single_scattering(
+    kind: Kind,
+    task: &SceneTask,
+    opts: &RunOptions,
+    out: &Path,
+) -> Result<Outcome> {
+    if kind != Kind::Covariance {
+        return Err(Error::input(format!(
+            "render.estimator = \"single_scattering\": only `lightpath covariance` has a closed form; {} needs \"monte_carlo\"",
+            kind.name()
+        )));
+    }
+    if opts.shard.is_some() {
+        return Err(Error::input(
+            "--shard: render.estimator = \"single_scattering\" is a closed form with nothing to split",
+        ));
+    }
+    let scene = &task.scene;
+    if let Some(why) = crate::speckle::single::unsupported(scene) {
+        return Err(Error::input(format!(
+            "render.estimator = \"single_scattering\": {why}"
+        )));
+    }
+    create_out(out)?;
+    let start = Instant::now();
+    let cov = crate::speckle::single::covariance(scene)?;
+    check_finite("covariance", &cov)?;
+    let (nl, nv) = (scene.lights.len(), scene.views.len());
+    let zeros = vec![0.0; cov.len()];
+    let echo = RunEcho::new(
+        &task.config,
+        scene,
+        0,
+        task.config.render.seed,
+        start.elapsed().as_secs_f64(),
+    );
+    let mut file = CovarianceFile::new(echo, nl, nv, &cov, &zeros, &mean_fields(scene));
+    file.single_re = Some(nest4(nl, nv, |i| cov[i].re));
+    file.single_im = Some(nest4(nl, nv, |i| cov[i].im));
+    file.single_stderr = Some(nest4(nl, nv, |_| 0.0));
+    file.solver = Some("single_scattering".into());
+    let path = out.join(CovarianceFile::NAME);
+    file.write(&path)?;
+    Ok(Outcome {
+        not_converged: None,
+        files: vec![path],
+        summary: format!(
+            "single-scattering covariance of {nl} light(s) × {nv} view(s) in closed form ({:.3} s)",
+            start.elapsed().as_secs_f64()
+        ),
+    })
 }
 
 /// Run the units of work of `kind` in this shard (all of them without `--shard`); write the shard's

@@ -266,6 +266,25 @@ pub struct RenderConfig {
     /// linearised attenuation) or `"quadrature_axis"` (with paper 000's Eq. 25).
     #[serde(default)]
     pub aperture: ApertureConfig,
+    /// `"monte_carlo"` (default) or `"single_scattering"`: `covariance` in closed form from paths
+    /// that scatter once (paper 001 Eq. 41; plane-wave lights and far-field views).
+    #[serde(default, skip_serializing_if = "EstimatorConfig::is_default")]
+    pub estimator: EstimatorConfig,
+}
+
+/// `[render] estimator`.
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum EstimatorConfig {
+    #[default]
+    MonteCarlo,
+    SingleScattering,
+}
+
+impl EstimatorConfig {
+    fn is_default(&self) -> bool {
+        *self == EstimatorConfig::MonteCarlo
+    }
 }
 
 /// `[render] aperture`.
@@ -350,6 +369,7 @@ impl Default for RenderConfig {
             first_vertex: FirstVertexConfig::default(),
             first_direction: FirstDirectionConfig::default(),
             aperture: ApertureConfig::default(),
+            estimator: EstimatorConfig::default(),
         }
     }
 }

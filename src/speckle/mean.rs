@@ -14,12 +14,11 @@
 //! (exponentials integrated exactly over convex cells); for a slab the off-specular mean per unit
 //! area vanishes (the specular part is a delta) and 0 is returned.
 
-use crate::math::CVec3;
-use crate::math::polytope::Polyhedron;
 use crate::math::{C64, INV_4PI, cis};
 use crate::medium::{Geometry, Medium};
 use crate::speckle::Scene;
 use crate::speckle::endpoint::{Light, View};
+use crate::speckle::single::box_exit_integral;
 use glam::DVec3;
 
 /// Mean field of `light` seen by `view`.
@@ -233,47 +232,11 @@ fn box_integral_dsigma(half: DVec3, k: f64, sigma_t: f64, d: DVec3, v: DVec3) ->
     acc / (N as f64 * r)
 }
 
-/// The exit distance from `x` along `w` to each box face it can reach, as `α + β·x`.
-fn face_distances(half: DVec3, w: DVec3) -> Vec<(f64, DVec3)> {
-    (0..3)
-        .filter(|&a| w[a] != 0.0)
-        .map(|a| {
-            let mut beta = DVec3::ZERO;
-            beta[a] = -1.0 / w[a];
-            (half[a] / w[a].abs(), beta)
-        })
-        .collect()
-}
-
 /// `∫_box exp(i k (d − v)·x − σ_t D_in(x) / 2) dx` in closed form, `D_in` the distance from `x` back
-/// to the surface towards the light: the box splits into convex cells on which that exit face is
-/// fixed, the exponent is linear there, and each cell integrates exactly ([`Polyhedron`]).
-/// `σ_t` may be complex (the integral is entire in it; see [`box_integral_dsigma`]).
+/// to the surface towards the light (one leg of [`box_exit_integral`]). `σ_t` may be complex (the
+/// integral is entire in it; see [`box_integral_dsigma`]).
 fn box_integral(half: DVec3, k: f64, sigma_t: C64, d: DVec3, v: DVec3) -> C64 {
-    let box_ = Polyhedron::cuboid(-half, half);
-    let faces = face_distances(half, -d);
-    let q = (d - v) * k;
-    let st = sigma_t * 0.5;
-    let mut total = C64::default();
-    for (i, &(ai, bi)) in faces.iter().enumerate() {
-        // cell where face i is the nearest towards the light
-        let mut cell = Some(box_.clone());
-        for &(a, b) in faces
-            .iter()
-            .enumerate()
-            .filter(|(n, _)| *n != i)
-            .map(|(_, x)| x)
-        {
-            cell = cell.and_then(|c| c.clip(bi - b, a - ai));
-        }
-        let Some(cell) = cell else { continue };
-        let b = CVec3 {
-            re: -bi * st.re,
-            im: q - bi * st.im,
-        };
-        total += cell.integrate_exp(b, -st * ai);
-    }
-    total
+    box_exit_integral(half, (d - v) * k, sigma_t, &[-d])
 }
 
 #[cfg(test)]

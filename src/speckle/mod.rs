@@ -10,6 +10,7 @@ pub mod first_vertex;
 pub mod mean;
 pub mod memory;
 pub mod paths;
+pub mod single;
 pub mod tilt_shift;
 pub mod wave;
 
