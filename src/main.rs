@@ -169,6 +169,14 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Read a phase function from speckle image pairs under tilted illuminations (windowed
+    /// correlations ⟂ Δ, paper 004) → phase_acquisition.json + PNG
+    AcquirePhase {
+        /// Acquisition config ([acquisition] + [[pair]])
+        config: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Check a config and print the scene it describes, without running anything
     Check { config: PathBuf },
     /// Measure paths/s, covariance entry-updates/s, field pixel-updates/s and the GEMM rate
@@ -381,6 +389,15 @@ fn dispatch(command: Option<Command>) -> Result<Outcome> {
             },
             &out,
         ),
+        Some(Command::AcquirePhase { config, out }) => match config::load(&config)? {
+            Task::Acquire(t) => app::acquire_phase::run(&t, &out),
+            other => Err(wrong_task(
+                &config,
+                "acquire-phase",
+                other.kind(),
+                &[TaskKind::Acquire],
+            )),
+        },
         Some(Command::Check { config }) => app::check::check(&config),
         Some(Command::Bench {
             design_iteration: true,

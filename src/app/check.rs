@@ -54,6 +54,23 @@ pub fn check(path: &Path) -> Result<Outcome> {
             rays(&t.problem.beams),
             t.problem.names.join(", ")
         ),
+        Task::Acquire(t) => {
+            for (i, p) in t.pair.iter().enumerate() {
+                for (key, f) in [("first", &p.first), ("second", &p.second)] {
+                    if !f.is_file() {
+                        return Err(crate::Error::input(format!(
+                            "pair[{i}].{key} = {}: no such file",
+                            f.display()
+                        )));
+                    }
+                }
+            }
+            format!(
+                "speckle acquisition, {} image pair(s), {}-pixel windows",
+                t.pair.len(),
+                t.acquisition.window
+            )
+        }
     };
     Ok(Outcome::text(format!("{}: ok — {what}", path.display())))
 }

@@ -9,9 +9,11 @@
 //! - [`fit`]: material and phase-function fits
 //! - [`grin`]: `trace`, `design` (grid designs and parameter fits)
 //! - [`mie`]: spheres by Lorenz–Mie theory
+//! - [`acquire_phase`]: the phase function read from speckle images
 //! - [`check`]: validate a config without running it
 //! - [`bench`]: throughput figures
 
+pub mod acquire_phase;
 pub mod bench;
 pub mod check;
 pub mod compare;

@@ -9,15 +9,18 @@
 //! | `[field]` + `[rays]`            | [`Task::Trace`]: rays through a field  | trace                         |
 //! | `[field]` + `[[beam]]` + `[grid]` | [`Task::Design`]: shape a grid field | design                        |
 //! | `[field]` + `[[beam]]` + `[parameters]` | [`Task::ParamFit`]: fit analytic parameters | design           |
+//! | `[acquisition]` + `[[pair]]`    | [`Task::Acquire`]: speckle images to read a phase function from | acquire-phase |
 //!
 //! Unknown keys and unphysical values are errors naming the key, the value and what is allowed,
 //! e.g. `medium.albedo = 1.3: must be within [0, 1]`. Nothing here panics on user input.
 
+pub mod acquire;
 pub mod design;
 mod medium;
 mod scene;
 pub mod trace;
 
+pub use acquire::AcquireConfig;
 pub use design::{DesignConfig, ParamFitConfig};
 pub use scene::*;
 pub use trace::{TraceConfig, TraceSettings};
@@ -67,6 +70,7 @@ pub enum Task {
     Trace(Box<TraceTask>),
     Design(Box<DesignTask>),
     ParamFit(Box<ParamFitTask>),
+    Acquire(Box<AcquireConfig>),
 }
 
 /// The kinds of task, named as in messages.
@@ -76,6 +80,7 @@ pub enum TaskKind {
     Trace,
     Design,
     ParamFit,
+    Acquire,
 }
 
 impl TaskKind {
@@ -92,11 +97,17 @@ impl TaskKind {
             TaskKind::ParamFit => {
                 "a parameter fit ([field] + [[beam]] + [parameters]; run it with `lightpath design`)"
             }
+            TaskKind::Acquire => {
+                "speckle images ([acquisition] + [[pair]]; read them with `lightpath acquire-phase`)"
+            }
         }
     }
 
     /// The kind a file's top-level tables declare.
     fn of(table: &toml::Table) -> TaskKind {
+        if table.contains_key("acquisition") {
+            return TaskKind::Acquire;
+        }
         match (
             table.contains_key("field"),
             table.contains_key("beam"),
@@ -117,6 +128,7 @@ impl Task {
             Task::Trace(_) => TaskKind::Trace,
             Task::Design(_) => TaskKind::Design,
             Task::ParamFit(_) => TaskKind::ParamFit,
+            Task::Acquire(_) => TaskKind::Acquire,
         }
     }
 
@@ -210,6 +222,12 @@ fn build(value: toml::Value, path: &Path) -> Result<Task, ConfigError> {
             config.field.resolve_paths(path);
             let problem = config.problem()?;
             Task::ParamFit(Box::new(ParamFitTask { config, problem }))
+        }
+        TaskKind::Acquire => {
+            let mut config: AcquireConfig = typed(value)?;
+            config.resolve_paths(path.parent().unwrap_or(Path::new("")));
+            config.validate()?;
+            Task::Acquire(Box::new(config))
         }
     })
 }

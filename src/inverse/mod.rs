@@ -7,7 +7,8 @@
 //! - [`grin_design`]: grid index fields by Adam through the ray-tracing operation;
 //! - [`lbfgs`], [`adam`]: the drivers (the loop, bounds, stopping rules, observers);
 //! - [`target`]: what fits are fitted to, the losses and their adjoints; [`shortcut`]: the
-//!   single-scattering reading of paper 004.
+//!   single-scattering reading of paper 004 from correlation targets; [`phase_from_speckle`]: the
+//!   same reading from camera images (windowed correlations, error bars, HG and vMF fits).
 //!
 //! Every fit reports a [`Convergence`]: whether it converged, why it stopped, the final gradient norm
 //! and the number of evaluations.
@@ -18,6 +19,7 @@ pub mod grin_fit;
 pub mod lbfgs;
 pub mod material_fit;
 pub mod phase_fit;
+pub mod phase_from_speckle;
 pub mod shortcut;
 pub mod target;
 

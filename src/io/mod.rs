@@ -2,6 +2,7 @@
 //! (Configs are read by [`crate::config`].)
 
 pub mod exr;
+pub mod images;
 pub mod plot;
 pub mod results;
 pub mod state;

@@ -651,3 +651,80 @@ pub fn polar_phase(
     root.present().map_err(|x| e(&x))?;
     Ok(())
 }
+
+/// A named set of measured points `(x, y, sd)`.
+pub type PointSet = (String, Vec<(f64, f64, f64)>);
+
+/// Measured points with ±1 sd error bars (one colour per named set) and model lines, on a log
+/// `y` axis (non-positive values are left out).
+pub fn points_and_lines(
+    path: &Path,
+    title: &str,
+    x_desc: &str,
+    y_desc: &str,
+    points: &[PointSet],
+    curves: &[(String, Vec<(f64, f64)>)],
+) -> crate::Result<()> {
+    register_font();
+    let e = |e: &dyn std::fmt::Display| e.to_string();
+    let xy = points
+        .iter()
+        .flat_map(|s| s.1.iter().map(|p| (p.0, p.1)))
+        .chain(curves.iter().flat_map(|s| s.1.iter().copied()))
+        .filter(|(x, y)| x.is_finite() && y.is_finite() && *y > 0.0);
+    let (mut x0, mut x1, mut y0, mut y1) = (
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+    );
+    for (x, y) in xy {
+        (x0, x1, y0, y1) = (x0.min(x), x1.max(x), y0.min(y), y1.max(y));
+    }
+    if !(x0.is_finite() && y0.is_finite()) {
+        return Err(format!("{title}: nothing to plot").into());
+    }
+    let root = BitMapBackend::new(path, (900, 600)).into_drawing_area();
+    root.fill(&WHITE).map_err(|x| e(&x))?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 22))
+        .margin(15)
+        .x_label_area_size(45)
+        .y_label_area_size(70)
+        .build_cartesian_2d(x0..x1.max(x0 + 1e-12), (y0 / 1.5..y1 * 1.5).log_scale())
+        .map_err(|x| e(&x))?;
+    chart
+        .configure_mesh()
+        .x_desc(x_desc)
+        .y_desc(y_desc)
+        .label_style(("sans-serif", 15))
+        .draw()
+        .map_err(|x| e(&x))?;
+    let floor = y0 / 1.5;
+    for (i, (name, p)) in points.iter().enumerate() {
+        let colour = Palette99::pick(i).to_rgba();
+        chart
+            .draw_series(p.iter().filter(|q| q.1 > 0.0).map(|&(x, y, s)| {
+                ErrorBar::new_vertical(x, (y - s).max(floor), y, y + s, colour.filled(), 6)
+            }))
+            .map_err(|x| e(&x))?
+            .label(name.as_str())
+            .legend(move |(x, y)| Circle::new((x + 10, y), 4, colour.filled()));
+    }
+    for (i, (name, c)) in curves.iter().enumerate() {
+        let colour = Palette99::pick(points.len() + i).to_rgba();
+        chart
+            .draw_series(LineSeries::new(
+                c.iter().copied().filter(|q| q.1 > 0.0),
+                colour.stroke_width(2),
+            ))
+            .map_err(|x| e(&x))?
+            .label(name.as_str())
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2))
+            });
+    }
+    legend(&mut chart, 14)?;
+    root.present().map_err(|x| e(&x))?;
+    Ok(())
+}

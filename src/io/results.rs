@@ -644,3 +644,78 @@ pub struct MieBulk {
     pub mfp: f64,
     pub albedo: f64,
 }
+
+/// A fitted Henyey–Greenstein in `phase_acquisition.json`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct HgRecord {
+    pub g: f64,
+    pub g_stderr: f64,
+    pub chi2_dof: f64,
+}
+
+/// Fitted vMF amplitude lobes (usable as `phase = { kind = "vmf_mixture", ... }`).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct VmfRecord {
+    pub weights: Vec<f64>,
+    pub kappas: Vec<f64>,
+    pub chi2_dof: f64,
+}
+
+/// One reading of `phase_acquisition.json`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct AcquiredReading {
+    pub offset_px: f64,
+    pub angle_deg: f64,
+    pub correlation: f64,
+    pub stderr: f64,
+    pub intensity: f64,
+    pub pairs: usize,
+    /// `√C` on the fitted HG's scale (`∫ρ dω = 1` for that HG); `null` without a fit or for `C ≤ 0`.
+    pub rho: Option<f64>,
+    pub rho_stderr: Option<f64>,
+    /// The naive reading `⟨I¹⟩` on the intensity HG's scale.
+    pub rho_intensity: Option<f64>,
+}
+
+/// The readings of the pairs sharing one illumination displacement.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct AcquiredCurve {
+    pub delta_px: [f64; 2],
+    pub delta_deg: f64,
+    pub grain_px: f64,
+    pub pairs: usize,
+    /// χ² of the correlations against 0 and the readings: a flat (noise) curve has χ² ≈ dof.
+    pub chi2_flat: f64,
+    pub dof: usize,
+    pub significant: bool,
+    pub readings: Vec<AcquiredReading>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hg: Option<HgRecord>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub vmf: Option<VmfRecord>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hg_intensity: Option<HgRecord>,
+}
+
+/// Whether the two largest displacements read the same correlation (single scattering isolated).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct Consistency {
+    pub curves: [usize; 2],
+    pub chi2: f64,
+    pub dof: usize,
+    pub consistent: bool,
+}
+
+/// `phase_acquisition.json` of `lightpath acquire-phase`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct PhaseAcquisitionFile {
+    #[serde(default)]
+    pub format_version: u32,
+    pub curves: Vec<AcquiredCurve>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub consistency: Option<Consistency>,
+    pub seconds: f64,
+    pub version: String,
+    pub config: crate::config::AcquireConfig,
+}
+result_file!(PhaseAcquisitionFile, "phase_acquisition.json");

@@ -1,0 +1,573 @@
+//! The phase function read from speckle images (Alterman, Bar, Gkioulekas, Levin 2022 — "paper
+//! 004"): a slab in a 4f relay, two illuminations `Δ` apart, one camera in the Fourier plane.
+//!
+//! - Windowed empirical correlation (Eq. 4): for a window `W` of `N` pixels at `i¹ + τ` in the first
+//!   image and `i¹ + τ + Δ` in the second, `C(τ) = ⟨I¹ I²⟩_W − ⟨I¹⟩_W ⟨I²⟩_W`.
+//! - `τ` runs along the line through the first illumination perpendicular to `Δ` (Eq. 6), where the
+//!   single-scattering correlation is `C = (ρ(|τ|) L σ_s e^{−σ_t L})²` with no sinc loss (Claim 1,
+//!   Eq. 3): `ρ ∝ √C`. Windows touching the ballistic peaks are masked.
+//! - Error bars from the SNR model (Eq. 5 and App. C): `sd(C) = √(Var X / N_eff)`, with
+//!   `N_eff = N / A_c` independent speckles in the window, `A_c` the speckle grain area in pixels
+//!   measured from the first image's intensity autocorrelation, and `X = (I¹ − Ī¹)(I² − Ī²)`. For
+//!   Gaussian speckle `Var X = Ī¹²Ī²² (1 + 4r + 3r²)` with `r = C / (Ī¹Ī²)` (from the bivariate
+//!   exponential moments `E[I₁ᵐI₂ⁿ] = m! n! Σ_k C(m,k) C(n,k) rᵏ`); its `r → 0` limit is Eq. 5.
+//! - The naive (intensity) reading is `ρ ∝ ⟨I¹⟩_W`, which is right only for single scattering.
+//! - Pixels map to directions through the relay (`tan θ = r · pitch / f` in air) and into the sample
+//!   by Snell's law (`n_out sin θ_out = n_sample sin θ_in`, flat parallel faces).
+//!
+//! Fits: Henyey–Greenstein to the correlation (`C ∝ HG²`) and to the naive reading (`I ∝ HG`), by
+//! profiling the linear scale out and scanning `g` (the error from `Δχ² = 1`); vMF lobes to the
+//! amplitude `√C ∝ Σ a_m e^{κ_m (μ − 1)}` (paper 000, Eq. 28) by non-negative least squares over a
+//! grid of concentrations.
+
+use glam::DVec3;
+
+/// A grey camera image, row-major (`data[y * width + x]`); read from files by `io::images`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Image {
+    pub width: usize,
+    pub height: usize,
+    pub data: Vec<f64>,
+    /// The largest code an integer format can hold (a pixel there is saturated); `None` for float.
+    pub full_scale: Option<f64>,
+}
+
+impl Image {
+    #[inline]
+    pub fn at(&self, x: usize, y: usize) -> f64 {
+        self.data[y * self.width + x]
+    }
+}
+
+/// The relay and sample: what maps pixels to directions inside the sample.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Relay {
+    pub focal_length: f64,
+    pub pixel_pitch: f64,
+    pub n_sample: f64,
+    pub n_outside: f64,
+    /// The optical axis on the sensor, in pixels.
+    pub axis_px: [f64; 2],
+}
+
+impl Relay {
+    /// The propagation direction inside the sample of the light reaching pixel `(x, y)`.
+    pub fn direction(&self, x: f64, y: f64) -> DVec3 {
+        let s = self.pixel_pitch / self.focal_length;
+        let air = DVec3::new((x - self.axis_px[0]) * s, (y - self.axis_px[1]) * s, 1.0).normalize();
+        // the lateral components are n sin θ, conserved across flat faces
+        let lateral = glam::DVec2::new(air.x, air.y) * (self.n_outside / self.n_sample);
+        let z = (1.0 - lateral.length_squared()).max(0.0).sqrt();
+        DVec3::new(lateral.x, lateral.y, z)
+    }
+}
+
+/// How the images are read.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Settings {
+    /// Side of the square averaging window, pixels.
+    pub window: usize,
+    /// Distance between readings along `τ`, pixels.
+    pub step: usize,
+    /// Radius of the disk masked around each ballistic peak, pixels.
+    pub ballistic_radius: f64,
+}
+
+/// One image pair, with its ballistic peaks (the illumination directions) in pixels.
+#[derive(Clone, Debug)]
+pub struct Pair<'a> {
+    pub first: &'a Image,
+    pub second: &'a Image,
+    pub peaks: [[f64; 2]; 2],
+}
+
+/// One reading at offset `t` (pixels along the line ⟂ Δ).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Reading {
+    pub offset_px: f64,
+    /// Scattering angle inside the sample between the first illumination and the window centre.
+    pub angle_deg: f64,
+    /// Eq. 4, averaged over the pairs.
+    pub correlation: f64,
+    /// Its standard error (Eq. 5).
+    pub stderr: f64,
+    /// `⟨I¹⟩_W`: the naive (intensity) reading.
+    pub intensity: f64,
+    /// Pairs averaged.
+    pub pairs: usize,
+}
+
+/// Readings of pairs that share one `Δ`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Curve {
+    /// `Δ` in pixels (second peak minus first).
+    pub delta_px: [f64; 2],
+    /// The angle between the two illuminations inside the sample.
+    pub delta_deg: f64,
+    pub readings: Vec<Reading>,
+    /// Speckle grain area, pixels (mean over the pairs).
+    pub grain_px: f64,
+}
+
+/// The brightest pixel: where the ballistic light focuses.
+pub fn brightest(image: &Image) -> [f64; 2] {
+    let (mut best, mut at) = (f64::NEG_INFINITY, 0);
+    for (i, &v) in image.data.iter().enumerate() {
+        if v > best {
+            (best, at) = (v, i);
+        }
+    }
+    [(at % image.width) as f64, (at / image.width) as f64]
+}
+
+/// Speckle grain area in pixels, `Σ_δ |μ(δ)|²`: the intensity correlation coefficients at one
+/// pixel's lag along x and y, `c = e^{−1/ℓ²}`, fix a Gaussian grain `|μ(δ)|² = e^{−δx²/ℓx² − δy²/ℓy²}`
+/// summed over the lattice. Intensities are taken relative to their mean over a box four windows
+/// wide (so the phase function's slow envelope does not count as grain), away from `avoid` (the
+/// ballistic peak). At least 1 (uncorrelated pixels).
+pub fn grain_area(image: &Image, window: usize, avoid: [f64; 2], radius: f64) -> f64 {
+    let (w, h) = (image.width, image.height);
+    let half = 2 * window.max(2);
+    if w <= 2 * half + 4 || h <= 2 * half + 4 {
+        return 1.0;
+    }
+    // summed-area table for the local means
+    let mut table = vec![0.0; (w + 1) * (h + 1)];
+    for y in 0..h {
+        for x in 0..w {
+            table[(y + 1) * (w + 1) + x + 1] =
+                image.at(x, y) + table[y * (w + 1) + x + 1] + table[(y + 1) * (w + 1) + x]
+                    - table[y * (w + 1) + x];
+        }
+    }
+    let local = |x: usize, y: usize| {
+        let (x0, y0, x1, y1) = (x - half, y - half, x + half + 1, y + half + 1);
+        let s = table[y1 * (w + 1) + x1] - table[y0 * (w + 1) + x1] - table[y1 * (w + 1) + x0]
+            + table[y0 * (w + 1) + x0];
+        s / ((x1 - x0) * (y1 - y0)) as f64
+    };
+    let mut f = vec![f64::NAN; w * h];
+    for y in half..h - half {
+        for x in half..w - half {
+            let m = local(x, y);
+            let far = (x as f64 - avoid[0]).hypot(y as f64 - avoid[1]) > radius + 2.0;
+            if m > 0.0 && far {
+                f[y * w + x] = image.at(x, y) / m - 1.0;
+            }
+        }
+    }
+    let cov = |dx: usize, dy: usize| {
+        let (mut s, mut c) = (0.0, 0.0);
+        for y in 0..h - dy {
+            for x in 0..w - dx {
+                let (a, b) = (f[y * w + x], f[(y + dy) * w + x + dx]);
+                if a.is_finite() && b.is_finite() {
+                    s += a * b;
+                    c += 1.0;
+                }
+            }
+        }
+        if c > 0.0 { s / c } else { 0.0 }
+    };
+    let c0 = cov(0, 0);
+    if c0 <= 0.0 {
+        return 1.0;
+    }
+    // 1/ℓ² along each axis; uncorrelated neighbours (c ≤ e^{−8}) count as no spread
+    let inv = |c: f64| if c > (-8.0f64).exp() { -c.ln() } else { 8.0 };
+    let (ax, ay) = (inv(cov(1, 0) / c0), inv(cov(0, 1) / c0));
+    let line = |a: f64| -> f64 { (-20..=20).map(|d: i32| (-(d * d) as f64 * a).exp()).sum() };
+    (line(ax) * line(ay)).max(1.0)
+}
+
+/// Why a pair cannot be read.
+#[derive(Clone, Debug, PartialEq)]
+pub enum PairError {
+    Sizes,
+    NoDisplacement,
+    Saturated { image: usize, count: usize },
+    NoWindows,
+}
+
+/// One pair's readings `(step index, Ī¹Ī², reading)` and its speckle grain area.
+type PairReadings = (Vec<(i64, f64, Reading)>, f64);
+
+/// Eq. 4 over `window`-pixel squares along the line ⟂ Δ through the first peak, for one pair.
+/// Returns readings keyed by their step index along the line.
+fn read_pair(pair: &Pair, relay: &Relay, s: &Settings) -> Result<PairReadings, PairError> {
+    let (a, b) = (pair.first, pair.second);
+    if (a.width, a.height) != (b.width, b.height) {
+        return Err(PairError::Sizes);
+    }
+    let [p1, p2] = pair.peaks;
+    let delta = [(p2[0] - p1[0]).round(), (p2[1] - p1[1]).round()];
+    let norm = delta[0].hypot(delta[1]);
+    if norm < 1.0 {
+        return Err(PairError::NoDisplacement);
+    }
+    let u = [-delta[1] / norm, delta[0] / norm];
+    let half = (s.window / 2) as i64;
+    let masked = |x: i64, y: i64, peak: [f64; 2]| {
+        (x as f64 - peak[0]).hypot(y as f64 - peak[1]) <= s.ballistic_radius
+    };
+    let i1 = relay.direction(p1[0], p1[1]);
+    let grain = grain_area(a, s.window, p1, s.ballistic_radius);
+    let reach = (a.width + a.height) as i64;
+    let mut out = Vec::new();
+    // saturated pixels inside any window read (each counted once)
+    let mut saturated: [std::collections::BTreeSet<i64>; 2] = Default::default();
+    for k in -reach..=reach {
+        let t = k as f64 * s.step as f64;
+        let c1 = [
+            (p1[0] + t * u[0]).round() as i64,
+            (p1[1] + t * u[1]).round() as i64,
+        ];
+        let c2 = [c1[0] + delta[0] as i64, c1[1] + delta[1] as i64];
+        let inside = |c: [i64; 2]| {
+            c[0] - half >= 0
+                && c[1] - half >= 0
+                && c[0] - half + (s.window as i64) <= a.width as i64
+                && c[1] - half + (s.window as i64) <= a.height as i64
+        };
+        if !inside(c1) || !inside(c2) {
+            continue;
+        }
+        let (mut m1, mut m2, mut m12, mut n) = (0.0, 0.0, 0.0, 0.0);
+        let mut hit = false;
+        let mut sat: [Vec<i64>; 2] = Default::default();
+        for dy in 0..s.window as i64 {
+            for dx in 0..s.window as i64 {
+                let (x1, y1) = (c1[0] - half + dx, c1[1] - half + dy);
+                let (x2, y2) = (c2[0] - half + dx, c2[1] - half + dy);
+                if masked(x1, y1, p1) || masked(x2, y2, p2) || masked(x1, y1, p2) {
+                    hit = true;
+                    break;
+                }
+                let (v1, v2) = (
+                    a.at(x1 as usize, y1 as usize),
+                    b.at(x2 as usize, y2 as usize),
+                );
+                if a.full_scale.is_some_and(|f| v1 >= f) {
+                    sat[0].push(y1 * a.width as i64 + x1);
+                }
+                if b.full_scale.is_some_and(|f| v2 >= f) {
+                    sat[1].push(y2 * b.width as i64 + x2);
+                }
+                m1 += v1;
+                m2 += v2;
+                m12 += v1 * v2;
+                n += 1.0;
+            }
+            if hit {
+                break;
+            }
+        }
+        if hit {
+            continue;
+        }
+        saturated[0].extend(&sat[0]);
+        saturated[1].extend(&sat[1]);
+        let (m1, m2) = (m1 / n, m2 / n);
+        let c = m12 / n - m1 * m2;
+        // the variance without correlation, (Ī¹Ī²)² / N_eff; read_curves adds the r terms from the
+        // pooled correlation (weights must not depend on each pair's noisy C)
+        let var = (m1 * m2).powi(2) / (n / grain);
+        let v = relay.direction(c1[0] as f64, c1[1] as f64);
+        out.push((
+            k,
+            m1 * m2,
+            Reading {
+                offset_px: t,
+                angle_deg: i1.dot(v).clamp(-1.0, 1.0).acos().to_degrees(),
+                correlation: c,
+                stderr: var.sqrt(),
+                intensity: m1,
+                pairs: 1,
+            },
+        ));
+    }
+    for (image, set) in saturated.iter().enumerate() {
+        if !set.is_empty() {
+            return Err(PairError::Saturated {
+                image,
+                count: set.len(),
+            });
+        }
+    }
+    if out.is_empty() {
+        return Err(PairError::NoWindows);
+    }
+    Ok((out, grain))
+}
+
+/// Read every pair and average the pairs that share a `Δ` (within a pixel), reading by reading
+/// (inverse-variance weights). Errors name the pair by its index.
+pub fn read_curves(
+    pairs: &[Pair],
+    relay: &Relay,
+    s: &Settings,
+) -> Result<Vec<Curve>, (usize, PairError)> {
+    struct Group {
+        delta: [f64; 2],
+        /// per step index: the first pair's reading, and every pair's (C, Var₀, Ī¹Ī², Ī¹)
+        sums: std::collections::BTreeMap<i64, (Reading, Vec<[f64; 4]>)>,
+        grain: f64,
+        count: usize,
+    }
+    let mut groups: Vec<Group> = Vec::new();
+    for (i, p) in pairs.iter().enumerate() {
+        let (readings, grain) = read_pair(p, relay, s).map_err(|e| (i, e))?;
+        let d = [
+            (p.peaks[1][0] - p.peaks[0][0]).round(),
+            (p.peaks[1][1] - p.peaks[0][1]).round(),
+        ];
+        let g = match groups
+            .iter_mut()
+            .position(|g| (g.delta[0] - d[0]).abs() <= 1.0 && (g.delta[1] - d[1]).abs() <= 1.0)
+        {
+            Some(g) => g,
+            None => {
+                groups.push(Group {
+                    delta: d,
+                    sums: Default::default(),
+                    grain: 0.0,
+                    count: 0,
+                });
+                groups.len() - 1
+            }
+        };
+        let g = &mut groups[g];
+        g.grain += grain;
+        g.count += 1;
+        for (k, product, r) in readings {
+            let e = g.sums.entry(k).or_insert((r, Vec::new()));
+            e.1.push([r.correlation, r.stderr * r.stderr, product, r.intensity]);
+        }
+    }
+    Ok(groups
+        .into_iter()
+        .map(|g| {
+            let first = pairs
+                .iter()
+                .find(|p| {
+                    (p.peaks[1][0] - p.peaks[0][0] - g.delta[0]).abs() <= 1.0
+                        && (p.peaks[1][1] - p.peaks[0][1] - g.delta[1]).abs() <= 1.0
+                })
+                .map(|p| p.peaks[0])
+                .unwrap_or([0.0, 0.0]);
+            let i1 = relay.direction(first[0], first[1]);
+            let i2 = relay.direction(first[0] + g.delta[0], first[1] + g.delta[1]);
+            Curve {
+                delta_px: g.delta,
+                delta_deg: i1.dot(i2).clamp(-1.0, 1.0).acos().to_degrees(),
+                readings: g
+                    .sums
+                    .into_values()
+                    .map(|(mut r, parts)| {
+                        // weights 1/Var₀; then Var X = Var₀ (1 + 4r + 3r²) with the pooled C
+                        // (Gaussian speckle, module docs)
+                        let w: Vec<f64> = parts
+                            .iter()
+                            .map(|p| 1.0 / p[1].max(f64::MIN_POSITIVE))
+                            .collect();
+                        let total: f64 = w.iter().sum();
+                        let c = parts.iter().zip(&w).map(|(p, w)| w * p[0]).sum::<f64>() / total;
+                        let var = parts
+                            .iter()
+                            .zip(&w)
+                            .map(|(p, w)| {
+                                let r = (c / p[2]).clamp(0.0, 1.0);
+                                w * w * p[1] * (1.0 + 4.0 * r + 3.0 * r * r)
+                            })
+                            .sum::<f64>()
+                            / (total * total);
+                        r.correlation = c;
+                        r.stderr = var.sqrt();
+                        r.intensity = parts.iter().map(|p| p[3]).sum::<f64>() / parts.len() as f64;
+                        r.pairs = parts.len();
+                        r
+                    })
+                    .collect(),
+                grain_px: g.grain / g.count as f64,
+            }
+        })
+        .collect())
+}
+
+/// χ² of the correlations against zero, and its degrees of freedom: a flat (pure noise) reading
+/// has χ²/dof ≈ 1.
+pub fn flatness(c: &Curve) -> (f64, usize) {
+    let chi2 = c
+        .readings
+        .iter()
+        .map(|r| (r.correlation / r.stderr).powi(2))
+        .sum();
+    (chi2, c.readings.len())
+}
+
+/// Whether a curve's correlation is significant: χ² against zero above its expectation by more
+/// than 5 standard deviations, `dof + 5 √(2 dof · overlap)` (overlapping windows, `overlap =
+/// window / step ≥ 1`, share pixels, which widens χ²'s spread).
+pub fn significant(c: &Curve, s: &Settings) -> bool {
+    let (chi2, dof) = flatness(c);
+    let overlap = (s.window as f64 / s.step.max(1) as f64).max(1.0);
+    chi2 > dof as f64 + 5.0 * (2.0 * dof as f64 * overlap).sqrt()
+}
+
+/// Henyey–Greenstein `ρ(μ)`.
+pub fn hg(g: f64, mu: f64) -> f64 {
+    (1.0 - g * g) / (4.0 * std::f64::consts::PI * (1.0 + g * g - 2.0 * g * mu).powf(1.5))
+}
+
+/// A fitted Henyey–Greenstein: `g`, its standard error, the scale, and `χ²/dof`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HgFit {
+    pub g: f64,
+    pub g_stderr: f64,
+    pub scale: f64,
+    pub chi2_dof: f64,
+}
+
+/// Fit `y ≈ A · HG(g, μ)^power` with standard errors `sd`: `A` profiled out, `g` scanned over
+/// (−0.99, 0.999) and refined by a parabola; `g`'s error from `Δχ² = 1`.
+pub fn fit_hg(mu: &[f64], y: &[f64], sd: &[f64], power: i32) -> Option<HgFit> {
+    if mu.len() < 3 {
+        return None;
+    }
+    let chi2 = |g: f64| -> (f64, f64) {
+        let (mut sfy, mut sff) = (0.0, 0.0);
+        for i in 0..mu.len() {
+            let f = hg(g, mu[i]).powi(power);
+            let w = 1.0 / (sd[i] * sd[i]);
+            sfy += w * f * y[i];
+            sff += w * f * f;
+        }
+        let a = sfy / sff;
+        let c: f64 = (0..mu.len())
+            .map(|i| ((y[i] - a * hg(g, mu[i]).powi(power)) / sd[i]).powi(2))
+            .sum();
+        (c, a)
+    };
+    let grid: Vec<f64> = (0..=2000)
+        .map(|i| -0.99 + 1.989 * i as f64 / 2000.0)
+        .collect();
+    let values: Vec<f64> = grid.iter().map(|&g| chi2(g).0).collect();
+    let best = (0..grid.len()).min_by(|&a, &b| values[a].total_cmp(&values[b]))?;
+    // refine by golden section between the neighbours
+    let (mut lo, mut hi) = (
+        grid[best.saturating_sub(1)],
+        grid[(best + 1).min(grid.len() - 1)],
+    );
+    for _ in 0..80 {
+        let (m1, m2) = (lo + 0.382 * (hi - lo), lo + 0.618 * (hi - lo));
+        if chi2(m1).0 < chi2(m2).0 {
+            hi = m2;
+        } else {
+            lo = m1;
+        }
+    }
+    let g = 0.5 * (lo + hi);
+    let (c, a) = chi2(g);
+    // curvature by a symmetric difference at a step that keeps g inside the range
+    let h = 1e-3f64.min(0.999 - g).min(g + 0.99).max(1e-6);
+    let curv = (chi2(g + h).0 - 2.0 * c + chi2(g - h).0) / (h * h);
+    let g_stderr = if curv > 0.0 {
+        (2.0 / curv).sqrt()
+    } else {
+        f64::NAN
+    };
+    Some(HgFit {
+        g,
+        g_stderr,
+        scale: a,
+        chi2_dof: c / (mu.len() as f64 - 2.0).max(1.0),
+    })
+}
+
+/// Fitted vMF amplitude lobes: `√C ∝ Σ a_m e^{κ_m (μ − 1)}`, weights normalised to sum 1.
+#[derive(Clone, Debug, PartialEq)]
+pub struct VmfFit {
+    pub weights: Vec<f64>,
+    pub kappas: Vec<f64>,
+    pub chi2_dof: f64,
+}
+
+/// Fit one and two non-negative vMF amplitude lobes to `amp ± sd` over a logarithmic grid of
+/// concentrations (κ from 1 to 1e5), weights by non-negative least squares; the better by `χ²/dof`.
+pub fn fit_vmf(mu: &[f64], amp: &[f64], sd: &[f64]) -> Option<VmfFit> {
+    if mu.len() < 4 {
+        return None;
+    }
+    let kappas: Vec<f64> = (0..=60)
+        .map(|i| 10f64.powf(5.0 * i as f64 / 60.0))
+        .collect();
+    let basis = |k: f64| -> Vec<f64> { mu.iter().map(|&m| (k * (m - 1.0)).exp()).collect() };
+    let lsq1 = |f: &[f64]| -> (f64, f64) {
+        let (mut sfy, mut sff) = (0.0, 0.0);
+        for i in 0..mu.len() {
+            let w = 1.0 / (sd[i] * sd[i]);
+            sfy += w * f[i] * amp[i];
+            sff += w * f[i] * f[i];
+        }
+        let a = (sfy / sff).max(0.0);
+        let c = (0..mu.len())
+            .map(|i| ((amp[i] - a * f[i]) / sd[i]).powi(2))
+            .sum();
+        (a, c)
+    };
+    let bases: Vec<Vec<f64>> = kappas.iter().map(|&k| basis(k)).collect();
+    let mut best: Option<(f64, Vec<f64>, Vec<f64>, usize)> = None;
+    for (i, f) in bases.iter().enumerate() {
+        let (a, c) = lsq1(f);
+        if a > 0.0
+            && best
+                .as_ref()
+                .is_none_or(|b| c / (mu.len() as f64 - 2.0) < b.0)
+        {
+            best = Some((
+                c / (mu.len() as f64 - 2.0).max(1.0),
+                vec![a],
+                vec![kappas[i]],
+                1,
+            ));
+        }
+    }
+    if mu.len() >= 6 {
+        for i in 0..bases.len() {
+            for j in i + 1..bases.len() {
+                let (f, h) = (&bases[i], &bases[j]);
+                let (mut ff, mut fh, mut hh, mut fy, mut hy) = (0.0, 0.0, 0.0, 0.0, 0.0);
+                for n in 0..mu.len() {
+                    let w = 1.0 / (sd[n] * sd[n]);
+                    ff += w * f[n] * f[n];
+                    fh += w * f[n] * h[n];
+                    hh += w * h[n] * h[n];
+                    fy += w * f[n] * amp[n];
+                    hy += w * h[n] * amp[n];
+                }
+                let det = ff * hh - fh * fh;
+                if det <= 1e-12 * ff * hh {
+                    continue;
+                }
+                let (a, b) = ((fy * hh - hy * fh) / det, (hy * ff - fy * fh) / det);
+                if a <= 0.0 || b <= 0.0 {
+                    continue;
+                }
+                let c: f64 = (0..mu.len())
+                    .map(|n| ((amp[n] - a * f[n] - b * h[n]) / sd[n]).powi(2))
+                    .sum();
+                let per = c / (mu.len() as f64 - 4.0);
+                if best.as_ref().is_none_or(|b| per < b.0) {
+                    best = Some((per, vec![a, b], vec![kappas[i], kappas[j]], 2));
+                }
+            }
+        }
+    }
+    let (chi2_dof, weights, kappas, _) = best?;
+    let total: f64 = weights.iter().sum();
+    Some(VmfFit {
+        weights: weights.iter().map(|w| w / total).collect(),
+        kappas,
+        chi2_dof,
+    })
+}
