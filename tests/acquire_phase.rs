@@ -297,7 +297,10 @@ fn command_reads_png_tiff_and_exr() {
     for r in &c.readings {
         if let (Some(rho), Some(sd)) = (r.rho, r.rho_stderr) {
             chi2 += ((rho
-                - lightpath::inverse::phase_from_speckle::hg(0.9, r.angle_deg.to_radians().cos()))
+                - lightpath::inverse::phase_from_speckle::hg(
+                    0.9,
+                    r.reading.angle_deg.to_radians().cos(),
+                ))
                 / sd)
                 .powi(2);
         }

@@ -95,10 +95,10 @@ def hg(g, mu):
     return (1 - g * g) / (4 * math.pi * (1 + g * g - 2 * g * mu) ** 1.5)
 
 
-def truth_g(material, angles):
-    """g of the HG that best fits the true ρ (log least squares) over the readings' angles."""
+def true_rho(material):
+    """The true ρ(θ°): HG, or Mie theory (`lightpath mie`, 0.05° steps, linear interpolation)."""
     if material == "hg-0.9":
-        return 0.9
+        return lambda a: hg(0.9, math.cos(math.radians(a))), None
     d, n = (10.0, 1.457) if material.startswith("silica") else (4.0, 1.587)
     out = os.path.join(OUT, material + "-mie")
     subprocess.run(
@@ -106,7 +106,73 @@ def truth_g(material, angles):
          "--wavelength", "0.6328", "--angles", "3601", "--out", out],
         check=True, stdout=subprocess.DEVNULL)
     m = json.load(open(os.path.join(out, "mie.json")))
-    rho = lambda a: m["phase"][min(range(len(m["theta_deg"])), key=lambda i: abs(m["theta_deg"][i] - a))]
+
+    def rho(a):
+        x = a / 0.05
+        i = min(int(x), len(m["phase"]) - 2)
+        return m["phase"][i] + (x - i) * (m["phase"][i + 1] - m["phase"][i])
+
+    return rho, m["g"]
+
+
+def window_model(rho, delta_px, offset_px):
+    """What a reading sees of the true ρ: Claim 1's C ∝ ρ(θ)² sinc²(kL/2 Δ·τ) averaged over the
+    8-pixel window (its angular extent smooths Mie's lobes), as an amplitude √⟨C⟩."""
+    p1 = PEAKS[0]
+    norm = math.hypot(*delta_px)
+    u = (-delta_px[1] / norm, delta_px[0] / norm)
+    cx, cy = round(p1[0] + offset_px * u[0]), round(p1[1] + offset_px * u[1])
+    i1 = pixel_direction(*p1)
+    d = [a - b for a, b in zip(pixel_direction(p1[0] + delta_px[0], p1[1] + delta_px[1]), i1)]
+    k_half = math.pi * THICKNESS / LAMBDA
+    total = 0.0
+    for y in range(cy - 4, cy + 4):
+        for x in range(cx - 4, cx + 4):
+            v = pixel_direction(x, y)
+            mu = max(-1.0, min(1.0, sum(a * b for a, b in zip(i1, v))))
+            tau = [a - b for a, b in zip(v, i1)]
+            arg = k_half * (d[0] * tau[0] + d[1] * tau[1])
+            sinc = 1.0 if abs(arg) < 1e-12 else math.sin(arg) / arg
+            total += (rho(math.degrees(math.acos(mu))) * sinc) ** 2
+    return math.sqrt(total / 64)
+
+
+def truth_g_same_fit(curve, rho):
+    """The g that the same weighted HG fit (C ∝ HG², the readings' errors) gives on the noise-free
+    window model of the true ρ: what a perfect reading would report."""
+    pts = [(math.cos(math.radians(r["angle_deg"])), window_model(rho, curve["delta_px"], r["offset_px"]) ** 2,
+            r["stderr"] / max(r["correlation"], 1e-300)) for r in curve["readings"] if r["correlation"] > 0]
+    best = None
+    for i in range(1, 4000):
+        g = 0.5 + 0.4999 * i / 4000
+        f = [hg(g, mu) ** 2 for mu, _, _ in pts]
+        # relative errors, so the scale of C does not matter
+        w = [1 / (rel * c) ** 2 for (_, c, rel) in pts]
+        a = sum(wi * fi * c for wi, fi, (_, c, _) in zip(w, f, pts)) / sum(wi * fi * fi for wi, fi in zip(w, f))
+        cost = sum(wi * (c - a * fi) ** 2 for wi, fi, (_, c, _) in zip(w, f, pts))
+        if best is None or cost < best[0]:
+            best = (cost, g)
+    return best[1]
+
+
+def shape_chi2(curve, rho):
+    """χ²/dof of the readings' √C (on any scale: one factor fitted) against the window model."""
+    pts = [(window_model(rho, curve["delta_px"], r["offset_px"]), r["rho"], r["rho_stderr"])
+           for r in curve["readings"] if r.get("rho")]
+    if len(pts) < 2:
+        return None
+    num = sum(y * m / s ** 2 for m, y, s in pts)
+    den = sum(m ** 2 / s ** 2 for m, y, s in pts)
+    k = num / den
+    return sum(((y - k * m) / s) ** 2 for m, y, s in pts) / (len(pts) - 1)
+
+
+def truth_g(material, angles):
+    """g of the HG that best fits the true ρ (log least squares) over the readings' angles, and
+    the true g over the sphere."""
+    rho, g_all = true_rho(material)
+    if g_all is None:
+        return 0.9, 0.9
     best = None
     for i in range(1, 2000):
         g = 0.5 + 0.4995 * i / 2000
@@ -114,7 +180,7 @@ def truth_g(material, angles):
         mean = sum(logs) / len(logs)
         cost = sum((x - mean) ** 2 for x in logs)
         if best is None or cost < best[0]:
-            best = (cost, g, m["g"])
+            best = (cost, g, g_all)
     return best[1], best[2]
 
 
@@ -123,6 +189,7 @@ def main():
     ap.add_argument("--realisations", type=int, default=30)
     ap.add_argument("--paths", type=int, default=2000)
     ap.add_argument("--only")
+    ap.add_argument("--analyse-only", action="store_true", help="reuse the rendered images and readings")
     a = ap.parse_args()
     rows = []
     for material in MATERIALS:
@@ -134,29 +201,35 @@ def main():
             cfg = os.path.join(folder, "scene.toml")
             with open(cfg, "w") as f:
                 f.write(scene(material, od, a.realisations, a.paths))
-            subprocess.run([BIN, "speckle", cfg, "--out", os.path.join(folder, "render"), "--quiet"],
-                           check=True, stdout=subprocess.DEVNULL)
-            acq = acquire(folder, a.realisations)
-            r = subprocess.run([BIN, "acquire-phase", acq, "--out", os.path.join(folder, "phase")],
-                               capture_output=True, text=True)
-            if r.returncode != 0:
-                print(r.stderr, file=sys.stderr)
-                sys.exit(1)
+            if not a.analyse_only:
+                subprocess.run([BIN, "speckle", cfg, "--out", os.path.join(folder, "render"), "--quiet"],
+                               check=True, stdout=subprocess.DEVNULL)
+                acq = acquire(folder, a.realisations)
+                r = subprocess.run([BIN, "acquire-phase", acq, "--out", os.path.join(folder, "phase")],
+                                   capture_output=True, text=True)
+                if r.returncode != 0:
+                    print(r.stderr, file=sys.stderr)
+                    sys.exit(1)
+                print(r.stdout.strip().splitlines()[-1], file=sys.stderr)
             res = json.load(open(os.path.join(folder, "phase", "phase_acquisition.json")))
             angles = [x["angle_deg"] for x in res["curves"][-1]["readings"]]
             tg = truth_g(material, angles)
+            rho, _ = true_rho(material)
+            cons = res.get("consistency")
             for c in res["curves"]:
                 rows.append((material, od, c["delta_deg"], c["significant"],
-                             c.get("hg"), c.get("hg_intensity"), tg,
-                             res.get("consistency")))
-            print(r.stdout.strip().splitlines()[-1], file=sys.stderr)
-    print("| material | OD | Δ | significant | g (correlation) | g (intensity) | truth: HG fit over the angles (Mie g) |")
-    print("| --- | --- | --- | --- | --- | --- | --- |")
-    for m, od, d, s, h, hi, tg, cons in rows:
-        t = f"{tg[0]:.4f} ({tg[1]:.4f})" if isinstance(tg, tuple) else f"{tg}"
+                             c.get("hg"), c.get("hg_intensity"), (truth_g_same_fit(c, rho), tg[1]),
+                             shape_chi2(c, rho),
+                             cons["consistent"] if cons else None))
+    print("| material | OD | Δ | significant | √C vs true ρ: χ²/dof | largest two Δ agree | g (correlation) | g (intensity) | truth: the same HG fit to the true ρ (g over the sphere) |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    for m, od, d, s, h, hi, tg, chi, cons in rows:
+        t = f"{tg[0]:.4f} ({tg[1]:.4f})"
         gc = f"{h['g']:.4f} ± {h['g_stderr']:.4f}" if h else "—"
         gi = f"{hi['g']:.4f}" if hi else "—"
-        print(f"| {m} | {od} | {d:.2f}° | {'yes' if s else 'no'} | {gc} | {gi} | {t} |")
+        ch = f"{chi:.2f}" if chi is not None else "—"
+        co = {True: "yes", False: "no", None: "—"}[cons]
+        print(f"| {m} | {od} | {d:.2f}° | {'yes' if s else 'no'} | {ch} | {co} | {gc} | {gi} | {t} |")
 
 
 if __name__ == "__main__":

@@ -107,9 +107,12 @@ pub fn run(config: &AcquireConfig, out: &Path) -> Result<Outcome> {
             c.readings.len(),
             c.readings
                 .iter()
-                .map(|r| r.angle_deg)
+                .map(|r| r.reading.angle_deg)
                 .fold(f64::INFINITY, f64::min),
-            c.readings.iter().map(|r| r.angle_deg).fold(0.0, f64::max),
+            c.readings
+                .iter()
+                .map(|r| r.reading.angle_deg)
+                .fold(0.0, f64::max),
             match (c.significant, fit) {
                 (false, _) => format!(
                     "no significant correlation (χ² {:.1} over {} readings): the reading is flat, consistent with noise",
@@ -191,12 +194,7 @@ fn record(c: &Curve, s: &crate::inverse::phase_from_speckle::Settings) -> Acquir
                     )
                 });
             AcquiredReading {
-                offset_px: r.offset_px,
-                angle_deg: r.angle_deg,
-                correlation: r.correlation,
-                stderr: r.stderr,
-                intensity: r.intensity,
-                pairs: r.pairs,
+                reading: *r,
                 rho: rho.map(|x| x.0),
                 rho_stderr: rho.map(|x| x.1),
                 rho_intensity: naive
@@ -242,9 +240,10 @@ fn consistency(curves: &[AcquiredCurve]) -> Option<Consistency> {
         if let Some(q) = b
             .readings
             .iter()
-            .find(|q| (q.offset_px - r.offset_px).abs() < 0.5)
+            .find(|q| (q.reading.offset_px - r.reading.offset_px).abs() < 0.5)
         {
-            chi2 += (r.correlation - q.correlation).powi(2) / (r.stderr.powi(2) + q.stderr.powi(2));
+            chi2 += (r.reading.correlation - q.reading.correlation).powi(2)
+                / (r.reading.stderr.powi(2) + q.reading.stderr.powi(2));
             dof += 1;
         }
     }
@@ -265,7 +264,7 @@ fn plot(file: &PhaseAcquisitionFile, path: &Path) -> Result<()> {
         let pts: Vec<(f64, f64, f64)> = c
             .readings
             .iter()
-            .filter_map(|r| Some((r.angle_deg, r.rho?, r.rho_stderr?)))
+            .filter_map(|r| Some((r.reading.angle_deg, r.rho?, r.rho_stderr?)))
             .collect();
         if !pts.is_empty() {
             points.push((format!("correlation, Δ = {:.2}°", c.delta_deg), pts));
@@ -275,7 +274,7 @@ fn plot(file: &PhaseAcquisitionFile, path: &Path) -> Result<()> {
         let mut naive: Vec<(f64, f64)> = c
             .readings
             .iter()
-            .filter_map(|r| r.rho_intensity.map(|v| (r.angle_deg, v)))
+            .filter_map(|r| r.rho_intensity.map(|v| (r.reading.angle_deg, v)))
             .collect();
         // readings at ±τ share an angle: one point, their mean
         naive.sort_by(|a, b| a.0.total_cmp(&b.0));
@@ -294,7 +293,11 @@ fn plot(file: &PhaseAcquisitionFile, path: &Path) -> Result<()> {
             curves.push(("intensity (naive reading)".to_string(), naive));
         }
         if let Some(f) = &c.hg {
-            let top = c.readings.iter().map(|r| r.angle_deg).fold(0.0, f64::max);
+            let top = c
+                .readings
+                .iter()
+                .map(|r| r.reading.angle_deg)
+                .fold(0.0, f64::max);
             let line = (0..=100)
                 .map(|i| {
                     let t = top * i as f64 / 100.0;
@@ -312,7 +315,7 @@ fn plot(file: &PhaseAcquisitionFile, path: &Path) -> Result<()> {
                 let mut v: Vec<(f64, f64)> = c
                     .readings
                     .iter()
-                    .map(|r| (r.offset_px, r.correlation))
+                    .map(|r| (r.reading.offset_px, r.reading.correlation))
                     .collect();
                 v.sort_by(|a, b| a.0.total_cmp(&b.0));
                 (format!("C(τ), Δ = {:.2}°", c.delta_deg), v)

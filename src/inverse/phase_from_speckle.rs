@@ -82,7 +82,7 @@ pub struct Pair<'a> {
 }
 
 /// One reading at offset `t` (pixels along the line ⟂ Δ).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Reading {
     pub offset_px: f64,
     /// Scattering angle inside the sample between the first illumination and the window centre.

@@ -664,12 +664,8 @@ pub struct VmfRecord {
 /// One reading of `phase_acquisition.json`.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct AcquiredReading {
-    pub offset_px: f64,
-    pub angle_deg: f64,
-    pub correlation: f64,
-    pub stderr: f64,
-    pub intensity: f64,
-    pub pairs: usize,
+    #[serde(flatten)]
+    pub reading: crate::inverse::phase_from_speckle::Reading,
     /// `√C` on the fitted HG's scale (`∫ρ dω = 1` for that HG); `null` without a fit or for `C ≤ 0`.
     pub rho: Option<f64>,
     pub rho_stderr: Option<f64>,
