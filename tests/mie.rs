@@ -450,3 +450,61 @@ fn mie_command() {
     );
     assert!(!out.join("mie.json").exists());
 }
+
+#[test]
+fn mixture_of_sphere_sizes_by_volume_fraction() {
+    // 4 µm and 10 µm spheres, 1 % and 2 % by volume: σ_s adds, the shares follow
+    let text = SUSPENSION.replace(
+        "volume_fraction = 0.01\nphase = { kind = \"mie\", diameter = 4.0, n_particle = 1.59, n_medium = 1.335 }",
+        r#"[medium.phase]
+kind = "mixture"
+components = [
+  { volume_fraction = 0.01, phase = { kind = "mie", diameter = 4.0, n_particle = 1.59, n_medium = 1.335 } },
+  { volume_fraction = 0.02, phase = { kind = "mie", diameter = 10.0, n_particle = 1.457, n_medium = 1.335, k_particle = 1e-4 } },
+]"#,
+    );
+    let task = lightpath::config::scene_from_text(&text).unwrap();
+    let part = |d: f64, n: (f64, f64), f: f64| {
+        let p = Particles {
+            diameter: d,
+            spread: 0.0,
+            n_particle: C64::new(n.0, n.1),
+            n_medium: 1.335,
+            wavelength: 0.474,
+        };
+        let o = p.optics(&[1.0]).unwrap();
+        let density = f / (PI / 6.0 * d.powi(3));
+        (density * o.c_sca, density * o.c_abs)
+    };
+    let (s1, a1) = part(4.0, (1.59, 0.0), 0.01);
+    let (s2, a2) = part(10.0, (1.457, 1e-4), 0.02);
+    let m = &task.scene.medium;
+    near("σ_s", m.sigma_s / (s1 + s2), 1.0, 1e-12);
+    near("σ_a", m.sigma_a / (a1 + a2), 1.0, 1e-12);
+    assert!(a2 > 0.0);
+    let shares = m.scattering.components();
+    near(
+        "share of the 4 µm spheres",
+        shares[0].0,
+        s1 / (s1 + s2),
+        1e-12,
+    );
+    // mixing weights and volume fractions, or a volume fraction on another kind, is refused
+    for (from, to, needle) in [
+        (
+            "{ volume_fraction = 0.01,",
+            "{ weight = 0.5,",
+            "every component a volume_fraction",
+        ),
+        (
+            "{ volume_fraction = 0.02, phase = { kind = \"mie\", diameter = 10.0, n_particle = 1.457, n_medium = 1.335, k_particle = 1e-4 } }",
+            "{ volume_fraction = 0.02, phase = { kind = \"hg\", g = 0.5 } }",
+            "components[1].volume_fraction needs",
+        ),
+        ("[medium]\n", "[medium]\nmfp = 3.0\n", "leave out mfp"),
+        ("volume_fraction = 0.02", "volume_fraction = 0.9", "sum to"),
+    ] {
+        let e = lightpath::config::scene_from_text(&text.replace(from, to)).unwrap_err();
+        assert!(e.to_string().contains(needle), "{to}: {e}");
+    }
+}

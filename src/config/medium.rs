@@ -36,8 +36,18 @@ impl MediumConfig {
                 return err("medium: missing geometry; give box = [x, y, z] or slab = thickness");
             }
         };
+        let by_components = self.component_coefficients(wavelength)?;
         let (sigma_s, sigma_a) = match (self.mfp, self.albedo, self.sigma_s, self.sigma_a) {
             _ if self.volume_fraction.is_some() => self.mie_coefficients(wavelength)?,
+            (None, None, None, None) if by_components.is_some() => {
+                let c = by_components.as_ref().map(|c| (c.0, c.1));
+                c.unwrap_or_default()
+            }
+            _ if by_components.is_some() => {
+                return err(
+                    "medium: the components' volume_fraction give σ_s and σ_a; leave out mfp, albedo, sigma_s and sigma_a",
+                );
+            }
             (Some(mfp), albedo, None, None) => {
                 positive("medium.mfp", mfp)?;
                 let a = albedo.unwrap_or(1.0);
@@ -77,14 +87,19 @@ impl MediumConfig {
                 let mut parts = Vec::new();
                 for (i, c) in components.iter().enumerate() {
                     let key = format!("medium.phase.components[{i}]");
-                    positive(&format!("{key}.weight"), c.weight)?;
                     if let PhaseConfig::Mixture { .. } = c.phase {
                         return err(format!("{key}.phase: mixtures cannot be nested"));
                     }
-                    parts.push((
-                        c.weight,
-                        c.phase.build(&format!("{key}.phase"), wavelength)?,
-                    ));
+                    let weight = match (&by_components, c.weight) {
+                        (Some(c), _) => c.2[i],
+                        (None, Some(w)) => positive(&format!("{key}.weight"), w)?,
+                        (None, None) => {
+                            return err(format!(
+                                "{key}: give weight (its share of σ_s) or, for Mie spheres, volume_fraction"
+                            ));
+                        }
+                    };
+                    parts.push((weight, c.phase.build(&format!("{key}.phase"), wavelength)?));
                 }
                 Scattering::mixture(parts)
             }
@@ -126,6 +141,63 @@ impl MediumConfig {
         let optics = phase.mie_optics("medium.phase", wavelength)?;
         let density = f / optics.mean_volume;
         Ok((density * optics.c_sca, density * optics.c_abs))
+    }
+}
+
+impl MediumConfig {
+    /// With every mixture component given by `volume_fraction` (Mie spheres): `(σ_s, σ_a, shares)`,
+    /// summed over the components (independent scattering); `None` when they give weights.
+    fn component_coefficients(
+        &self,
+        wavelength: f64,
+    ) -> Result<Option<(f64, f64, Vec<f64>)>, ConfigError> {
+        let Some(PhaseConfig::Mixture { components }) = &self.phase else {
+            return Ok(None);
+        };
+        let fractions = components
+            .iter()
+            .filter(|c| c.volume_fraction.is_some())
+            .count();
+        if fractions == 0 {
+            return Ok(None);
+        }
+        if fractions < components.len() || components.iter().any(|c| c.weight.is_some()) {
+            return err(
+                "medium.phase.components: give every component a volume_fraction (Mie spheres) or every one a weight, not both",
+            );
+        }
+        if self.volume_fraction.is_some() {
+            return err(
+                "medium.volume_fraction: not with components' volume_fraction (each component gives its own)",
+            );
+        }
+        let (mut s, mut a, mut shares, mut total) = (0.0, 0.0, Vec::new(), 0.0);
+        for (i, c) in components.iter().enumerate() {
+            let key = format!("medium.phase.components[{i}]");
+            let f = c.volume_fraction.unwrap_or(0.0);
+            if !(f.is_finite() && f > 0.0) {
+                return err(format!(
+                    "{key}.volume_fraction = {f}: must be a positive fraction"
+                ));
+            }
+            total += f;
+            if !matches!(c.phase, PhaseConfig::Mie { .. }) {
+                return err(format!(
+                    "{key}.volume_fraction needs {key}.phase = {{ kind = \"mie\", ... }}"
+                ));
+            }
+            let o = c.phase.mie_optics(&format!("{key}.phase"), wavelength)?;
+            let density = f / o.mean_volume;
+            s += density * o.c_sca;
+            a += density * o.c_abs;
+            shares.push(density * o.c_sca);
+        }
+        if total > 0.74 {
+            return err(format!(
+                "medium.phase.components: volume fractions sum to {total}; at most 0.74 (close-packed spheres)"
+            ));
+        }
+        Ok(Some((s, a, shares)))
     }
 }
 

@@ -142,7 +142,8 @@ pub enum PhaseConfig {
         #[serde(default)]
         polarisation: PolarisationConfig,
     },
-    /// Several particle types; `weight` is each type's share of `σ_s` (paper 001, App. 9.1).
+    /// Several particle types; `weight` is each type's share of `σ_s` (paper 001, App. 9.1), or
+    /// every component is Mie spheres with its own `volume_fraction`.
     Mixture {
         components: Vec<ComponentConfig>,
     },
@@ -172,7 +173,12 @@ impl PolarisationConfig {
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct ComponentConfig {
-    pub weight: f64,
+    /// The component's share of `σ_s`; or, for Mie spheres, give `volume_fraction` instead.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub weight: Option<f64>,
+    /// Volume fraction of this component's Mie spheres: its `σ_s`, `σ_a` (and so its share) follow.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub volume_fraction: Option<f64>,
     pub phase: PhaseConfig,
 }
 
