@@ -173,6 +173,12 @@ fn unknown_keys() {
         &GOOD.replace("kind = \"hg\"", "kind = \"rayleigh\""),
         &["medium.phase", "rayleigh"],
     );
+    // an isotropic phase function has no g: a g there is a mistake, not ignored
+    expect_error(
+        "isotropic-with-g",
+        &GOOD.replace("kind = \"hg\", g = 0.3", "kind = \"isotropic\", g = 0.9"),
+        &["medium.phase", "unknown field `g`"],
+    );
 }
 
 #[test]

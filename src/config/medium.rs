@@ -264,7 +264,7 @@ impl PhaseConfig {
 
     fn build(&self, key: &str, wavelength: f64) -> Result<PhaseFunction, ConfigError> {
         match self {
-            PhaseConfig::Isotropic => Ok(PhaseFunction::Isotropic),
+            PhaseConfig::Isotropic {} => Ok(PhaseFunction::Isotropic),
             PhaseConfig::Hg { g } => {
                 if !g.is_finite() || g.abs() >= 1.0 {
                     return err(format!("{key}.g = {g}: must be within (-1, 1)"));

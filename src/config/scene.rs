@@ -102,7 +102,8 @@ pub struct MediumConfig {
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum PhaseConfig {
-    Isotropic,
+    /// Scatters equally in all directions (a table, so unknown keys such as `g` are refused).
+    Isotropic {},
     Hg {
         g: f64,
     },

@@ -31,9 +31,11 @@ pub struct Plan {
 }
 
 impl Plan {
-    /// At least `samples` samples in chunks of `chunk_paths` (rounded up to whole chunks).
+    /// At least `samples` samples in chunks of `chunk_paths` (rounded up to whole chunks). A chunk
+    /// larger than half the samples is cut to that, so the run stays `samples` long (at least two
+    /// chunks, for the batch-means errors) whatever the configured chunk.
     pub fn new(seed: u64, samples: u64, chunk_paths: u64) -> Self {
-        let chunk_paths = chunk_paths.max(1);
+        let chunk_paths = chunk_paths.clamp(1, samples.div_ceil(2).max(1));
         Plan {
             seed,
             chunk_paths,
@@ -325,6 +327,17 @@ mod tests {
                 out[1] += C64::new(0.0, u * u);
             }
         }
+    }
+
+    #[test]
+    fn a_large_chunk_does_not_lengthen_the_run() {
+        // a chunk far beyond the samples asked for is cut to half of them: two chunks, the run
+        // as long as asked (it once ran two whole chunks: 9.2e18 paths for 2000 asked)
+        let p = Plan::new(1, 2000, 9_200_000_000_000_000_000);
+        assert_eq!((p.chunks, p.chunk_paths, p.samples()), (2, 1000, 2000));
+        let p = Plan::new(1, 2000, 300);
+        assert_eq!((p.chunks, p.chunk_paths), (7, 300));
+        assert_eq!(Plan::new(1, 1, 10).samples(), 2);
     }
 
     #[test]
