@@ -195,6 +195,19 @@ fn bad_fit_requests_are_clear_errors() {
         .unwrap_err()
         .to_string();
     assert!(err.contains("cannot read target"), "{err}");
+    // malformed JSON is reported as JSON, with its position, not read as a CSV curve
+    std::fs::write(
+        d.join("broken.json"),
+        "{\"angles_deg\": [1, 2],\n \"correlation\": [0.5,\n",
+    )
+    .unwrap();
+    let err = fit(cfg(), &d.join("broken.json"), &opts("mfp"), &d.join("o"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("not valid JSON") && err.contains("line 3"),
+        "{err}"
+    );
     let iso = TRUTH.replace(
         "phase = { kind = \"hg\", g = 0.3 }",
         "phase = { kind = \"isotropic\" }",

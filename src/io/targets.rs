@@ -20,11 +20,22 @@ fn floats(v: &Value, key: &str, path: &Path) -> crate::Result<Vec<f64>> {
         .collect()
 }
 
-/// Read a target file (format by content: covariance.json, memory curve JSON, or CSV).
+/// Read a target file (format by content: covariance.json, memory curve JSON, or CSV). A file
+/// whose first character is `{` or `[` is JSON, and a malformed one is reported with its line and
+/// column rather than read as CSV.
 pub fn read(path: &Path) -> crate::Result<Target> {
     let text = std::fs::read_to_string(path)
         .map_err(|e| format!("cannot read target {}: {e}", path.display()))?;
-    let t = if let Ok(v) = serde_json::from_str::<Value>(&text) {
+    let json = text.trim_start().starts_with(['{', '[']);
+    let parsed = if json {
+        Some(
+            serde_json::from_str::<Value>(&text)
+                .map_err(|e| format!("target {}: not valid JSON: {e}", path.display()))?,
+        )
+    } else {
+        None
+    };
+    let t = if let Some(v) = parsed {
         if v.get("entries").is_some() {
             entries_json(&v, path)?
         } else if v.get("re").is_some() && v.get("stderr").is_some() {
