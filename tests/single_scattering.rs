@@ -153,8 +153,9 @@ fn slab_transmission_is_claim_1_when_paraxial() {
         let scale = hg.eval(angle) * l * sigma_s * (-(sigma_s + sigma_a) * l).exp();
         let claim = scale * sinc.abs();
         eprintln!("τ {tau:?}: closed {got:.6e}, Claim 1 {claim:.6e}, sinc {sinc:.4}");
+        // the paraxial approximation drops O(θ²) ≈ 0.25 % at these angles
         assert!(
-            (got - claim).abs() < 0.02 * scale,
+            (got - claim).abs() < 0.005 * scale,
             "τ {tau:?}: {got} vs {claim}"
         );
         checked += 1;

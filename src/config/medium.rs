@@ -39,10 +39,7 @@ impl MediumConfig {
         let by_components = self.component_coefficients(wavelength)?;
         let (sigma_s, sigma_a) = match (self.mfp, self.albedo, self.sigma_s, self.sigma_a) {
             _ if self.volume_fraction.is_some() => self.mie_coefficients(wavelength)?,
-            (None, None, None, None) if by_components.is_some() => {
-                let c = by_components.as_ref().map(|c| (c.0, c.1));
-                c.unwrap_or_default()
-            }
+            (None, None, None, None) if let Some((s, a, _)) = &by_components => (*s, *a),
             _ if by_components.is_some() => {
                 return err(
                     "medium: the components' volume_fraction give σ_s and σ_a; leave out mfp, albedo, sigma_s and sigma_a",

@@ -309,6 +309,8 @@ pub fn read_curves(
 ) -> Result<Vec<Curve>, (usize, PairError)> {
     struct Group {
         delta: [f64; 2],
+        /// The first illumination's peak in the group's first pair.
+        first: [f64; 2],
         /// per step index: the first pair's reading, and every pair's (C, Var₀, Ī¹Ī², Ī¹)
         sums: std::collections::BTreeMap<i64, (Reading, Vec<[f64; 4]>)>,
         grain: f64,
@@ -329,6 +331,7 @@ pub fn read_curves(
             None => {
                 groups.push(Group {
                     delta: d,
+                    first: p.peaks[0],
                     sums: Default::default(),
                     grain: 0.0,
                     count: 0,
@@ -347,14 +350,7 @@ pub fn read_curves(
     Ok(groups
         .into_iter()
         .map(|g| {
-            let first = pairs
-                .iter()
-                .find(|p| {
-                    (p.peaks[1][0] - p.peaks[0][0] - g.delta[0]).abs() <= 1.0
-                        && (p.peaks[1][1] - p.peaks[0][1] - g.delta[1]).abs() <= 1.0
-                })
-                .map(|p| p.peaks[0])
-                .unwrap_or([0.0, 0.0]);
+            let first = g.first;
             let i1 = relay.direction(first[0], first[1]);
             let i2 = relay.direction(first[0] + g.delta[0], first[1] + g.delta[1]);
             Curve {

@@ -181,29 +181,13 @@ pub fn covariance(scene: &Scene) -> crate::Result<Vec<C64>> {
 mod tests {
     use super::*;
 
-    /// Gauss–Legendre nodes on `[a, b]` (Newton on the Legendre recurrence).
+    /// Gauss–Legendre nodes and weights on `[a, b]`.
     fn gauss(a: f64, b: f64, n: usize) -> Vec<(f64, f64)> {
-        let mut out = Vec::with_capacity(n);
-        for i in 0..n {
-            let mut x = (std::f64::consts::PI * (i as f64 + 0.75) / (n as f64 + 0.5)).cos();
-            let mut dp = 0.0;
-            for _ in 0..100 {
-                let (mut p0, mut p1) = (1.0, x);
-                for k in 2..=n {
-                    let p2 = ((2 * k - 1) as f64 * x * p1 - (k - 1) as f64 * p0) / k as f64;
-                    (p0, p1) = (p1, p2);
-                }
-                dp = n as f64 * (x * p1 - p0) / (x * x - 1.0);
-                let dx = p1 / dp;
-                x -= dx;
-                if dx.abs() < 1e-15 {
-                    break;
-                }
-            }
-            let w = 2.0 / ((1.0 - x * x) * dp * dp);
-            out.push((0.5 * (a + b) + 0.5 * (b - a) * x, 0.5 * (b - a) * w));
-        }
-        out
+        let (x, w) = crate::math::gauss_legendre(n);
+        x.iter()
+            .zip(&w)
+            .map(|(x, w)| (0.5 * (a + b) + 0.5 * (b - a) * x, 0.5 * (b - a) * w))
+            .collect()
     }
 
     #[test]
