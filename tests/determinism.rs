@@ -153,3 +153,85 @@ fn memory_effect_shards_merge_bitwise() {
 fn speckle_shards_merge_bitwise() {
     shards_equal_single("speckle", "speckle.json", &["re", "im"]);
 }
+
+/// Run `lightpath` and return (exit code, stderr).
+fn lightpath_status(args: &[&str]) -> (i32, String) {
+    let o = Command::new(env!("CARGO_BIN_EXE_lightpath"))
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        o.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn damaged_or_edited_shards_are_refused() {
+    let d: PathBuf =
+        std::env::temp_dir().join(format!("lightpath-bad-shards-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    let cfg = d.join("scene.toml");
+    std::fs::write(&cfg, SCENE.replace("samples = 7000", "samples = 1200")).unwrap();
+    let shard = |i: u32| d.join(format!("shard-{i}"));
+    for i in 0..2 {
+        let s = shard(i);
+        lightpath(&[
+            "covariance",
+            cfg.to_str().unwrap(),
+            "--out",
+            s.to_str().unwrap(),
+            "--shard",
+            &format!("{i}/2"),
+        ]);
+    }
+    let good = std::fs::read(shard(1).join("state.bin")).unwrap();
+    let merge_with = |bytes: &[u8], expect: &str| {
+        let bad = d.join("bad");
+        std::fs::create_dir_all(&bad).unwrap();
+        std::fs::write(bad.join("state.bin"), bytes).unwrap();
+        let out = d.join("merged");
+        let (code, err) = lightpath_status(&[
+            "merge",
+            shard(0).to_str().unwrap(),
+            bad.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert_eq!(code, 2, "{expect}: {err}");
+        assert!(err.contains(expect), "expected {expect:?} in {err}");
+        assert!(!out.join("covariance.json").exists());
+    };
+    // one flipped bit in the numbers (it once changed a merged entry 8.62 → 7.75 silently)
+    let mut flipped = good.clone();
+    let at = flipped.len() - 40;
+    flipped[at] ^= 0x10;
+    merge_with(&flipped, "checksum mismatch");
+    // truncated
+    merge_with(&good[..good.len() / 2], "checksum mismatch");
+    merge_with(&good[..10], "truncated");
+    // a header edited with its checksum recomputed (as a tool would): the blocks no longer fit
+    let text = String::from_utf8_lossy(&good).into_owned();
+    assert!(
+        text.contains("\"count\":6"),
+        "the header echoes the view count"
+    );
+    let start = good.windows(10).position(|w| w == b"\"count\":6,").unwrap();
+    let mut edited = good.clone();
+    edited[start + 8] = b'5';
+    let body = edited.len() - 4;
+    let crc = crc32fast::hash(&edited[..body]);
+    edited[body..].copy_from_slice(&crc.to_le_bytes());
+    merge_with(&edited, "different run");
+    // the same edit on both shards: the header agrees with itself but not with the numbers
+    let own = std::fs::read(shard(0).join("state.bin")).unwrap();
+    let start0 = own.windows(10).position(|w| w == b"\"count\":6,").unwrap();
+    let mut own_edited = own.clone();
+    own_edited[start0 + 8] = b'5';
+    let body0 = own_edited.len() - 4;
+    let crc0 = crc32fast::hash(&own_edited[..body0]);
+    own_edited[body0..].copy_from_slice(&crc0.to_le_bytes());
+    std::fs::write(shard(0).join("state.bin"), &own_edited).unwrap();
+    merge_with(&edited, "does not fit the run");
+}

@@ -335,3 +335,70 @@ seed = 3
         "{err}"
     );
 }
+
+/// A `covariance.json` target from another setup is refused by key, not fitted because the counts
+/// match: another wavelength, another view direction; a ragged target array is refused, not cut.
+#[test]
+fn a_target_from_another_setup_is_refused() {
+    const SCENE: &str = r#"
+wavelength = 1.0
+[medium]
+box = [6.0, 6.0, 3.0]
+mfp = 3.0
+phase = { kind = "hg", g = 0.3 }
+[[light]]
+kind = "plane_wave"
+direction = [0.0, 0.0, 1.0]
+[[view]]
+kind = "far_field"
+direction = [0.0, 0.0, 1.0]
+[[view]]
+kind = "far_field"
+direction = [0.0, 0.1, 1.0]
+[render]
+samples = 1000
+chunk = 250
+seed = 3
+"#;
+    let d = folder_with("fit-mismatch", Kind::Covariance, SCENE);
+    let target = d.join("target/covariance.json");
+    let opts = FitOptions {
+        samples: Some(500),
+        stages: 1,
+        ..options("mfp", None, 1, 0.05)
+    };
+    let run = |text: &str, target: &std::path::Path| {
+        fit(scene_from_text(text).unwrap(), target, &opts, &d.join("o"))
+    };
+    // the same setup is accepted
+    assert!(run(SCENE, &target).is_ok());
+    let err = run(
+        &SCENE.replace("wavelength = 1.0", "wavelength = 0.5"),
+        &target,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        err.contains("wavelength = 1") && err.contains("0.5"),
+        "{err}"
+    );
+    let err = run(
+        &SCENE.replace("[0.0, 0.1, 1.0]", "[0.1, 0.0, 1.0]"),
+        &target,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(err.contains("views[1].direction"), "{err}");
+    // a ragged [1][1][2][3] array (one extra column) is refused, not truncated to 2 × 2
+    let mut v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&target).unwrap()).unwrap();
+    for key in ["re", "im", "stderr"] {
+        for row in v[key][0][0].as_array_mut().unwrap() {
+            row.as_array_mut().unwrap().push(serde_json::json!(0.0));
+        }
+    }
+    let ragged = d.join("ragged.json");
+    std::fs::write(&ragged, v.to_string()).unwrap();
+    let err = run(SCENE, &ragged).unwrap_err().to_string();
+    assert!(err.contains("array like `re`"), "{err}");
+}

@@ -124,3 +124,65 @@ fn covariance_json_has_documented_shape() {
         assert!(v["im"][0][0][j][j].as_f64().unwrap().abs() <= 1e-9 * t);
     }
 }
+
+/// Run `lightpath args…` and return (success, stderr).
+fn lightpath(args: &[&str]) -> (bool, String) {
+    let o = Command::new(env!("CARGO_BIN_EXE_lightpath"))
+        .args(args)
+        .arg("--quiet")
+        .output()
+        .unwrap();
+    (
+        o.status.success(),
+        String::from_utf8_lossy(&o.stderr).into(),
+    )
+}
+
+/// A re-used output folder keeps no stale files of the same command (a run with fewer
+/// realisations leaves no old images; a half-written staging file is cleared), keeps other
+/// commands' files, and an output folder that cannot be made is reported before any work.
+#[test]
+fn reused_output_folders_hold_no_stale_results() {
+    let out = run("speckle", "stale");
+    let d = out.parent().unwrap().to_path_buf();
+    let old = out.join("speckle_0001_l0.exr");
+    assert!(old.exists(), "two realisations write speckle_0001_*");
+    std::fs::write(out.join("fit.json"), "{}").unwrap();
+    std::fs::write(out.join(".partial-speckle.json"), "half").unwrap();
+    std::fs::write(out.join("notes.txt"), "mine").unwrap();
+    let one = SCENE.replace("realisations = 2", "realisations = 1");
+    std::fs::write(d.join("one.toml"), one).unwrap();
+    let cfg = d.join("one.toml");
+    let (ok, err) = lightpath(&[
+        "speckle",
+        cfg.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    assert!(out.join("speckle_0000_l0.exr").exists());
+    assert!(!old.exists(), "a stale image of the earlier run survived");
+    assert!(!out.join(".partial-speckle.json").exists());
+    assert!(out.join("fit.json").exists() && out.join("notes.txt").exists());
+    let names: Vec<String> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(
+        names.iter().all(|n| !n.starts_with(".partial")),
+        "{names:?}"
+    );
+    // a file where the folder should be: refused up front, nothing written
+    let blocked = d.join("notes.txt");
+    std::fs::write(&blocked, "in the way").unwrap();
+    let inside = blocked.join("o");
+    let (ok, err) = lightpath(&[
+        "covariance",
+        cfg.to_str().unwrap(),
+        "--out",
+        inside.to_str().unwrap(),
+        "--samples",
+        "100000000000",
+    ]);
+    assert!(!ok && err.contains("output folder"), "{err}");
+}

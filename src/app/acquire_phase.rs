@@ -84,7 +84,7 @@ pub fn run(config: &AcquireConfig, out: &Path) -> Result<Outcome> {
     // sort by displacement: the largest last
     records.sort_by(|a, b| a.delta_deg.total_cmp(&b.delta_deg));
     let consistency = consistency(&records);
-    create_out(out)?;
+    create_out(out, &["phase_acquisition.json", "phase_acquisition.png"])?;
     let file = PhaseAcquisitionFile {
         format_version: crate::io::results::FORMAT_VERSION,
         curves: records,

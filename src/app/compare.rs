@@ -70,7 +70,7 @@ pub fn compare(a: &Path, b: &Path, tolerance: f64, plot: Option<&Path>) -> Resul
         if ok { "agree" } else { "DISAGREE" }
     );
     if let Some(dir) = plot {
-        super::create_out(dir)?;
+        super::create_out(dir, &["compare_diagonals.png", "compare_matrices.png"])?;
         for f in plots(dir, (a, &ma), (b, &mb))? {
             report += &format!("\nwrote {}", f.display());
         }

@@ -126,12 +126,13 @@ pub fn fit(task: SceneTask, target_path: &Path, opts: &FitOptions, out: &Path) -
             scene
         }
     };
+    crate::io::targets::check_setup(target_path, cfg.wavelength, &scene)?;
     check_params(&params, &scene.medium)?;
     let iterations = opts.iterations.unwrap_or(if adam { 150 } else { 15 });
     if opts.stages == 0 || iterations == 0 {
         return Err(Error::input("--stages and --iterations must be at least 1"));
     }
-    create_out(out)?;
+    create_out(out, &["fit.json", "fit.png", "phase.png"])?;
     let model = crate::inverse::ModelSettings {
         samples: cfg.render.samples,
         chunk: cfg.render.chunk,

@@ -19,7 +19,10 @@ use std::time::Instant;
 pub fn design(task: &DesignTask, show: bool, out: &Path) -> Result<Outcome> {
     use crate::inverse::grin_design::radial_profile;
     let (cfg, problem) = (&task.config, &task.problem);
-    create_out(out)?;
+    create_out(
+        out,
+        &["design.json", "loss.png", "profile.png", "grid_slice_z.exr"],
+    )?;
     let t0 = Instant::now();
     let res = problem.run(&|s| {
         if show && (s.iteration % 10 == 0 || s.iteration + 1 == problem.iterations) {
@@ -145,7 +148,7 @@ pub fn design(task: &DesignTask, show: bool, out: &Path) -> Result<Outcome> {
 pub fn param_fit(task: &ParamFitTask, show: bool, out: &Path) -> Result<Outcome> {
     use crate::eikonal::Tracer;
     let (cfg, problem) = (&task.config, &task.problem);
-    create_out(out)?;
+    create_out(out, &["fit.json", "loss.png", "rays.png"])?;
     let t0 = Instant::now();
     let res = problem.run(&|s| {
         if show {
@@ -245,6 +248,7 @@ pub fn trace(task: &TraceTask, out: &Path) -> Result<Outcome> {
         step: task.step,
         max_steps: task.max_steps,
     };
+    create_out(out, &["rays.json", "rays.png"])?;
     let t0 = Instant::now();
     let traced: Vec<(crate::eikonal::RayEnd, Vec<DVec3>, Option<DVec3>)> = rays
         .par_iter()
@@ -278,7 +282,7 @@ pub fn trace(task: &TraceTask, out: &Path) -> Result<Outcome> {
             field.n(x)
         )));
     }
-    create_out(out)?;
+
     let seconds = t0.elapsed().as_secs_f64();
     let file = RaysFile {
         format_version: crate::io::results::FORMAT_VERSION,

@@ -67,7 +67,7 @@ pub fn run(r: &MieRequest, out: &std::path::Path) -> Result<Outcome> {
     particles
         .validate()
         .map_err(|e| Error::input(format!("--diameter-spread / --diameter: {e}")))?;
-    create_out(out)?;
+    create_out(out, &["mie.json", "mie.png"])?;
     let start = std::time::Instant::now();
     // θ from 0° to 180°: the optics want increasing cosines, so compute reversed
     let theta: Vec<f64> = (0..r.angles)

@@ -66,13 +66,49 @@ pub fn with_threads<T: Send>(
     }
 }
 
-/// Create the output folder `out` (and its parents), or say which one could not be made.
-pub fn create_out(out: &Path) -> Result<()> {
-    std::fs::create_dir_all(out).map_err(|source| Error::Io {
-        action: "create output folder",
-        path: out.to_path_buf(),
-        source,
-    })
+/// Prepare the output folder `out` before any work: create it (and its parents), check that files
+/// can be written there (so an unwritable folder is reported now, not after the computation), and
+/// remove the files an earlier run of the same command left (`owned`: names, or `prefix*suffix`
+/// patterns) together with any half-written staging file, so no stale result sits beside a new one.
+/// Other files in the folder are left alone.
+pub fn create_out(out: &Path, owned: &[&str]) -> Result<()> {
+    let io = |action: &'static str, path: &Path| {
+        let path = path.to_path_buf();
+        move |source| Error::Io {
+            action,
+            path,
+            source,
+        }
+    };
+    std::fs::create_dir_all(out).map_err(io("create output folder", out))?;
+    let probe = out.join(format!(
+        "{}write-check-{}",
+        crate::io::STAGING_PREFIX,
+        std::process::id()
+    ));
+    std::fs::write(&probe, b"")
+        .and_then(|()| std::fs::remove_file(&probe))
+        .map_err(io("write into output folder", out))?;
+    let entries = std::fs::read_dir(out).map_err(io("read output folder", out))?;
+    for entry in entries.flatten() {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let stale = name.starts_with(crate::io::STAGING_PREFIX)
+            || owned.iter().any(|p| matches_pattern(&name, p));
+        if stale && entry.file_type().is_ok_and(|t| t.is_file()) {
+            std::fs::remove_file(entry.path()).map_err(io("remove stale output", &entry.path()))?;
+        }
+    }
+    Ok(())
+}
+
+/// Whether `name` is `pattern`, or matches `prefix*suffix` when the pattern holds one `*`.
+fn matches_pattern(name: &str, pattern: &str) -> bool {
+    match pattern.split_once('*') {
+        Some((pre, suf)) => {
+            name.len() >= pre.len() + suf.len() && name.starts_with(pre) && name.ends_with(suf)
+        }
+        None => name == pattern,
+    }
 }
 
 /// A progress bar on a terminal; silent otherwise (the engine's progress observer).

@@ -45,6 +45,25 @@ impl Kind {
         }
     }
 
+    /// The result files a run of this kind writes (see [`super::create_out`]); a shard writes
+    /// `state.bin` instead.
+    pub fn files(self) -> &'static [&'static str] {
+        match self {
+            Kind::Covariance | Kind::Wave => &["covariance.json"],
+            Kind::MemoryEffect => &["memory_effect.json", "memory_effect.png"],
+            Kind::Speckle => &["speckle.json", "speckle_*.exr"],
+            Kind::CorrelationMap => &["correlation_map.json", "correlation_map.png"],
+            Kind::TiltShift => &["tilt_shift.json", "tilt_shift.png"],
+        }
+    }
+
+    /// What a run (or shard) of this kind owns in its output folder: its results and `state.bin`.
+    fn owned(self) -> Vec<&'static str> {
+        let mut v = self.files().to_vec();
+        v.push(STATE_FILE);
+        v
+    }
+
     fn from_name(s: &str) -> Option<Kind> {
         [
             Kind::Covariance,
@@ -58,6 +77,9 @@ impl Kind {
         .find(|k| k.name() == s)
     }
 }
+
+/// The shard state file in a shard's output folder.
+const STATE_FILE: &str = "state.bin";
 
 /// Command-line overrides and run options.
 #[derive(Clone, Debug, Default)]
@@ -134,7 +156,7 @@ fn single_scattering(
             "render.estimator = \"single_scattering\": {why}"
         )));
     }
-    create_out(out)?;
+    create_out(out, &Kind::Covariance.owned())?;
     let start = Instant::now();
     let cov = crate::speckle::single::covariance(scene)?;
     check_finite("covariance", &cov)?;
@@ -192,7 +214,7 @@ pub(crate) fn execute(
         }
         None => (0..whole, [0, 1]),
     };
-    create_out(out)?;
+    create_out(out, &kind.owned())?;
     let units = match kind {
         Kind::Speckle => range.end.saturating_sub(range.start) * plan.chunks,
         _ => range.end - range.start,
@@ -217,7 +239,7 @@ pub(crate) fn execute(
             shard,
             version: env!("CARGO_PKG_VERSION").into(),
         };
-        let path = out.join("state.bin");
+        let path = out.join(STATE_FILE);
         write_state(&path, &header, &blocks).map_err(|source| Error::Io {
             action: "write",
             path: path.clone(),
@@ -248,7 +270,7 @@ pub fn merge_shards(inputs: &[PathBuf], out: &Path) -> Result<Outcome> {
     let mut seen = Vec::new();
     for dir in inputs {
         let path = if dir.is_dir() {
-            dir.join("state.bin")
+            dir.join(STATE_FILE)
         } else {
             dir.clone()
         };
@@ -292,8 +314,97 @@ pub fn merge_shards(inputs: &[PathBuf], out: &Path) -> Result<Outcome> {
         config: h.config,
         scene,
     };
-    create_out(out)?;
+    let whole = match kind {
+        Kind::Speckle => realisations(&task.config),
+        _ => plan.chunks,
+    };
+    check_blocks(&blocks, shape(kind, &task)?, whole)?;
+    create_out(out, kind.files())?;
     finish(kind, &task, &plan, blocks, f64::NAN, out)
+}
+
+/// What each engine block of a run holds: `outputs` sums (and as many squares, except for speckle
+/// realisations) and `kept` values per chunk.
+#[derive(Clone, Copy, Debug)]
+struct Shape {
+    outputs: usize,
+    squares: usize,
+    kept: usize,
+}
+
+/// The block shape of `kind` on `task`, from the estimator the run would build.
+fn shape(kind: Kind, task: &SceneTask) -> Result<Shape> {
+    use crate::mc::Estimator;
+    let reversed = task.config.render.reversed;
+    let scene = &task.scene;
+    let all = |outputs| Shape {
+        outputs,
+        squares: outputs,
+        kept: 0,
+    };
+    Ok(match kind {
+        Kind::Covariance => all(Covariance::all_pairs(scene, reversed)?.outputs()),
+        Kind::MemoryEffect => {
+            let scan = memory_scan(task)?;
+            let est = Covariance::with_pairs(&scan.scene, scan.pairs(), reversed)?;
+            Shape {
+                kept: scan.kept_outputs().len(),
+                ..all(est.outputs())
+            }
+        }
+        Kind::CorrelationMap => {
+            let map = super::correlation_map::map_of(task)?;
+            all(crate::speckle::correlation_map::MapEstimator::new(&map, reversed)?.outputs())
+        }
+        Kind::TiltShift => {
+            let scan = super::tilt_shift::scan_of(task)?;
+            let n = crate::speckle::tilt_shift::TiltShiftEstimator::new(&scan, reversed)?.outputs();
+            Shape { kept: n, ..all(n) }
+        }
+        Kind::Wave => {
+            let est = crate::speckle::wave::Realizations::new(scene);
+            Shape {
+                kept: est.kept_outputs().len(),
+                ..all(est.outputs())
+            }
+        }
+        Kind::Speckle => Shape {
+            squares: 0,
+            ..all(FieldSampler::new(scene, SubpathSampler::all_pairs(scene), reversed)?.outputs())
+        },
+    })
+}
+
+/// Refuse shard blocks that do not fit the run their header describes (sizes, chunk ranges), so a
+/// damaged or hand-edited state is an error and never a relabelled result or a panic.
+fn check_blocks(blocks: &[Block], shape: Shape, whole: u64) -> Result<()> {
+    for b in blocks {
+        let end = b
+            .start
+            .checked_add(b.len)
+            .filter(|&e| b.len > 0 && e <= whole);
+        let kept = usize::try_from(b.len)
+            .ok()
+            .and_then(|n| n.checked_mul(shape.kept));
+        if end.is_none()
+            || b.sum.len() != shape.outputs
+            || b.sq.len() != shape.squares
+            || kept != Some(b.kept.len())
+        {
+            return Err(Error::input(format!(
+                "merge: a shard block (units {}..+{}, {} sums, {} squares, {} kept) does not fit the run its header describes ({whole} units, {} outputs, {} squares, {} kept per unit); the shard files do not belong together or were edited",
+                b.start,
+                b.len,
+                b.sum.len(),
+                b.sq.len(),
+                b.kept.len(),
+                shape.outputs,
+                shape.squares,
+                shape.kept
+            )));
+        }
+    }
+    Ok(())
 }
 
 fn default_speckle() -> SpeckleConfig {

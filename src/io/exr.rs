@@ -31,10 +31,12 @@ pub fn write_fields(
                 let z = field[p.y() * width + p.x()];
                 (z.norm_sqr() as f32, z.im as f32, z.re as f32)
             });
+        let mut bytes = std::io::Cursor::new(Vec::new());
         Image::from_channels((width, height), pixels)
             .write()
-            .to_file(&file)
-            .map_err(|e| crate::Error::input(e.to_string()))?;
+            .to_buffered(&mut bytes)
+            .map_err(|e| crate::Error::input(format!("{}: {e}", file.display())))?;
+        write_file(&file, bytes.get_ref())?;
         files.push(file);
     }
     Ok(files)
@@ -52,8 +54,19 @@ pub fn write_scalar(
     let pixels = SpecificChannels::build()
         .with_channel(name)
         .with_pixel_fn(|p: Vec2<usize>| (values[p.y() * width + p.x()] as f32,));
+    let mut bytes = std::io::Cursor::new(Vec::new());
     Image::from_channels((width, height), pixels)
         .write()
-        .to_file(path)
-        .map_err(|e| crate::Error::input(e.to_string()))
+        .to_buffered(&mut bytes)
+        .map_err(|e| crate::Error::input(format!("{}: {e}", path.display())))?;
+    write_file(path, bytes.get_ref())
+}
+
+/// Write an encoded image atomically.
+fn write_file(path: &Path, bytes: &[u8]) -> crate::Result<()> {
+    crate::io::write_atomic(path, bytes).map_err(|source| crate::Error::Io {
+        action: "write",
+        path: path.to_path_buf(),
+        source,
+    })
 }

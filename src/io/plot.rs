@@ -46,7 +46,8 @@ pub fn heat_maps(
     let e = |e: &dyn std::fmt::Display| e.to_string();
     let side = 260u32;
     let width = side * panels.len().max(1) as u32 + 20;
-    let root = BitMapBackend::new(path, (width, side + 70)).into_drawing_area();
+    let staged = crate::io::staging_name(path);
+    let root = BitMapBackend::new(&staged, (width, side + 70)).into_drawing_area();
     root.fill(&WHITE).map_err(|x| e(&x))?;
     let root = root.titled(title, ("sans-serif", 20)).map_err(|x| e(&x))?;
     let areas = root.split_evenly((1, panels.len().max(1)));
@@ -67,6 +68,7 @@ pub fn heat_maps(
             .map_err(|x| e(&x))?;
     }
     root.present().map_err(|x| e(&x))?;
+    crate::io::commit_staged(&staged, path)?;
     Ok(())
 }
 
@@ -74,7 +76,8 @@ pub fn heat_maps(
 pub fn memory_effect(path: &Path, c: &MemoryCurve) -> crate::Result<()> {
     register_font();
     let e = |e: &dyn std::fmt::Display| e.to_string();
-    let root = BitMapBackend::new(path, (800, 560)).into_drawing_area();
+    let staged = crate::io::staging_name(path);
+    let root = BitMapBackend::new(&staged, (800, 560)).into_drawing_area();
     root.fill(&WHITE).map_err(|x| e(&x))?;
     let xmax = c.angles_deg.iter().fold(0.0f64, |a, &b| a.max(b.abs())) * 1.05;
     let xmax = if xmax > 0.0 { xmax } else { 1.0 };
@@ -129,6 +132,7 @@ pub fn memory_effect(path: &Path, c: &MemoryCurve) -> crate::Result<()> {
         .map_err(|x| e(&x))?;
     legend(&mut chart, 15)?;
     root.present().map_err(|x| e(&x))?;
+    crate::io::commit_staged(&staged, path)?;
     Ok(())
 }
 
@@ -177,8 +181,9 @@ pub fn compare(
     let rows = pairs.len().div_ceil(cols);
     let diag_path = dir.join("compare_diagonals.png");
     {
-        let root = BitMapBackend::new(&diag_path, (520 * cols as u32, 380 * rows as u32))
-            .into_drawing_area();
+        let staged = crate::io::staging_name(&diag_path);
+        let root =
+            BitMapBackend::new(&staged, (520 * cols as u32, 380 * rows as u32)).into_drawing_area();
         root.fill(&WHITE).map_err(|x| e(&x))?;
         for (p, area) in pairs.iter().zip(root.split_evenly((rows, cols))) {
             let lo = p
@@ -233,12 +238,14 @@ pub fn compare(
             legend(&mut chart, 13)?;
         }
         root.present().map_err(|x| e(&x))?;
+        crate::io::commit_staged(&staged, &diag_path)?;
     }
     let mat_path = dir.join("compare_matrices.png");
     {
         let cell = (360 / nv.max(1)).max(1) as u32;
         let side = cell * nv as u32;
-        let root = BitMapBackend::new(&mat_path, (2 * side + 60, (side + 40) * pairs.len() as u32))
+        let staged = crate::io::staging_name(&mat_path);
+        let root = BitMapBackend::new(&staged, (2 * side + 60, (side + 40) * pairs.len() as u32))
             .into_drawing_area();
         root.fill(&WHITE).map_err(|x| e(&x))?;
         for (row, p) in root.split_evenly((pairs.len(), 1)).iter().zip(pairs) {
@@ -271,6 +278,7 @@ pub fn compare(
             }
         }
         root.present().map_err(|x| e(&x))?;
+        crate::io::commit_staged(&staged, &mat_path)?;
     }
     Ok(vec![diag_path, mat_path])
 }
@@ -286,7 +294,8 @@ pub fn fit_curve(
 ) -> crate::Result<()> {
     register_font();
     let e = |e: &dyn std::fmt::Display| e.to_string();
-    let root = BitMapBackend::new(path, (800, 560)).into_drawing_area();
+    let staged = crate::io::staging_name(path);
+    let root = BitMapBackend::new(&staged, (800, 560)).into_drawing_area();
     root.fill(&WHITE).map_err(|x| e(&x))?;
     let xmax = angles.iter().fold(0.0f64, |a, b| a.max(b.abs())) * 1.05;
     let ymax = target
@@ -343,6 +352,7 @@ pub fn fit_curve(
         .legend(|(x, y)| Circle::new((x + 10, y), 4, RED.filled()));
     legend(&mut chart, 15)?;
     root.present().map_err(|x| e(&x))?;
+    crate::io::commit_staged(&staged, path)?;
     Ok(())
 }
 
@@ -367,7 +377,8 @@ pub fn ray_paths(path: &Path, rays: &[Vec<glam::DVec3>]) -> crate::Result<()> {
         return Err("no ray points to draw".into());
     }
     let pad = 0.05 * (x1 - x0).max(z1 - z0).max(1e-9);
-    let root = BitMapBackend::new(path, (800, 600)).into_drawing_area();
+    let staged = crate::io::staging_name(path);
+    let root = BitMapBackend::new(&staged, (800, 600)).into_drawing_area();
     root.fill(&WHITE).map_err(|x| e(&x))?;
     let mut chart = ChartBuilder::on(&root)
         .caption("Ray paths (x-z projection)", ("sans-serif", 20))
@@ -389,6 +400,7 @@ pub fn ray_paths(path: &Path, rays: &[Vec<glam::DVec3>]) -> crate::Result<()> {
             .map_err(|x| e(&x))?;
     }
     root.present().map_err(|x| e(&x))?;
+    crate::io::commit_staged(&staged, path)?;
     Ok(())
 }
 
@@ -405,7 +417,8 @@ pub fn phase_fit(
 ) -> crate::Result<()> {
     register_font();
     let e = |e: &dyn std::fmt::Display| e.to_string();
-    let root = BitMapBackend::new(path, (900, 600)).into_drawing_area();
+    let staged = crate::io::staging_name(path);
+    let root = BitMapBackend::new(&staged, (900, 600)).into_drawing_area();
     root.fill(&WHITE).map_err(|x| e(&x))?;
     let positive = |v: f64| v.is_finite() && v > 0.0;
     let all = initial
@@ -489,6 +502,7 @@ pub fn phase_fit(
     }
     legend(&mut chart, 14)?;
     root.present().map_err(|x| e(&x))?;
+    crate::io::commit_staged(&staged, path)?;
     Ok(())
 }
 
@@ -516,7 +530,8 @@ pub fn lines(
     if !(x0.is_finite() && y0.is_finite()) {
         return Err(format!("{title}: nothing to plot").into());
     }
-    let root = BitMapBackend::new(path, (900, 600)).into_drawing_area();
+    let staged = crate::io::staging_name(path);
+    let root = BitMapBackend::new(&staged, (900, 600)).into_drawing_area();
     root.fill(&WHITE).map_err(|x| e(&x))?;
     let mut builder = ChartBuilder::on(&root);
     builder
@@ -555,6 +570,7 @@ pub fn lines(
         draw!(builder.build_cartesian_2d(xr, (y0 - pad)..(y1 + pad)));
     }
     root.present().map_err(|x| e(&x))?;
+    crate::io::commit_staged(&staged, path)?;
     Ok(())
 }
 
@@ -584,7 +600,8 @@ pub fn polar_phase(
     let hi = top.log10().ceil();
     let lo = bottom.log10().floor().max(hi - 8.0);
     let radius = |v: f64| (v.max(10f64.powf(lo)).log10() - lo) / (hi - lo).max(1.0);
-    let root = BitMapBackend::new(path, (900, 900)).into_drawing_area();
+    let staged = crate::io::staging_name(path);
+    let root = BitMapBackend::new(&staged, (900, 900)).into_drawing_area();
     root.fill(&WHITE).map_err(|x| e(&x))?;
     let mut chart = ChartBuilder::on(&root)
         .caption(title, ("sans-serif", 20))
@@ -649,6 +666,7 @@ pub fn polar_phase(
         .draw()
         .map_err(|x| e(&x))?;
     root.present().map_err(|x| e(&x))?;
+    crate::io::commit_staged(&staged, path)?;
     Ok(())
 }
 
@@ -684,7 +702,8 @@ pub fn points_and_lines(
     if !(x0.is_finite() && y0.is_finite()) {
         return Err(format!("{title}: nothing to plot").into());
     }
-    let root = BitMapBackend::new(path, (900, 600)).into_drawing_area();
+    let staged = crate::io::staging_name(path);
+    let root = BitMapBackend::new(&staged, (900, 600)).into_drawing_area();
     root.fill(&WHITE).map_err(|x| e(&x))?;
     let mut chart = ChartBuilder::on(&root)
         .caption(title, ("sans-serif", 22))
@@ -726,5 +745,6 @@ pub fn points_and_lines(
     }
     legend(&mut chart, 14)?;
     root.present().map_err(|x| e(&x))?;
+    crate::io::commit_staged(&staged, path)?;
     Ok(())
 }

@@ -139,7 +139,8 @@ impl RunEcho {
     }
 }
 
-fn light_record(l: &Light) -> LightConfig {
+/// A light as the config key that describes it (what result files echo).
+pub fn light_record(l: &Light) -> LightConfig {
     match *l {
         Light::PlaneWave { direction } => LightConfig::PlaneWave {
             direction: direction.to_array(),
@@ -155,7 +156,8 @@ fn light_record(l: &Light) -> LightConfig {
     }
 }
 
-fn view_record(v: &View) -> ViewConfig {
+/// A view as the config key that describes it (what result files echo).
+pub fn view_record(v: &View) -> ViewConfig {
     match *v {
         View::FarField { direction } => ViewConfig::FarField {
             direction: direction.to_array(),

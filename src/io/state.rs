@@ -1,9 +1,10 @@
 //! Shard state files (`state.bin`): the header of the run and the engine blocks of one shard, so
 //! that `lightpath merge` reproduces the single run bit for bit.
 //!
-//! Layout (little endian): `LPSTATE1`, `u64` header length, header JSON, `u64` block count, then per
+//! Layout (little endian): `LPSTATE2`, `u64` header length, header JSON, `u64` block count, then per
 //! block `start, len, n_sum, n_sq, n_kept` (`u64`) and the `f64` data of `sum` (re, im), `sq`,
-//! `kept` (re, im).
+//! `kept` (re, im); last the CRC-32 of everything before it (`u32`), so a changed bit anywhere —
+//! in the numbers or in the header that says what they are — is refused, not merged.
 
 use crate::math::C64;
 use crate::mc::Block;
@@ -11,7 +12,9 @@ use serde::{Deserialize, Serialize};
 use std::io::{Read, Write};
 use std::path::Path;
 
-const MAGIC: &[u8; 8] = b"LPSTATE1";
+const MAGIC: &[u8; 8] = b"LPSTATE2";
+/// The first format (no checksum): recognised only to say so.
+const MAGIC_V1: &[u8; 8] = b"LPSTATE1";
 
 /// What a shard computed and for which run.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -81,6 +84,8 @@ pub fn write_state(path: &Path, header: &StateHeader, blocks: &[Block]) -> std::
             buf.extend_from_slice(&z.im.to_le_bytes());
         }
     }
+    let crc = crc32fast::hash(&buf);
+    buf.extend_from_slice(&crc.to_le_bytes());
     crate::io::write_atomic(path, &buf)
 }
 
@@ -125,13 +130,25 @@ pub fn read_state(path: &Path) -> crate::Result<(StateHeader, Vec<Block>)> {
         .and_then(|mut f| f.read_to_end(&mut data))
         .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
     let parse = || -> crate::Result<(StateHeader, Vec<Block>)> {
-        let mut c = Cursor {
-            data: &data,
-            pos: 0,
-        };
-        if c.take(8)? != MAGIC {
+        if data.starts_with(MAGIC_V1) {
+            return Err("written by an older lightpath (no checksum); run the shard again".into());
+        }
+        if !data.starts_with(MAGIC) {
             return Err("not a lightpath state file".into());
         }
+        let body = data
+            .len()
+            .checked_sub(4)
+            .filter(|&n| n >= 8)
+            .ok_or("file is truncated")?;
+        let stored = u32::from_le_bytes(data[body..].try_into().expect("4 bytes"));
+        if crc32fast::hash(&data[..body]) != stored {
+            return Err("checksum mismatch: the file was changed or damaged after it was written; run the shard again".into());
+        }
+        let mut c = Cursor {
+            data: &data[..body],
+            pos: 8,
+        };
         let hl = c.len()?;
         let header: StateHeader =
             serde_json::from_slice(c.take(hl)?).map_err(|e| format!("bad header: {e}"))?;
@@ -160,6 +177,9 @@ pub fn read_state(path: &Path) -> crate::Result<(StateHeader, Vec<Block>)> {
                 kept,
             });
         }
+        if c.pos != c.data.len() {
+            return Err("file is corrupt (bytes after the last block)".into());
+        }
         Ok((header, blocks))
     };
     parse().map_err(|e| crate::Error::input(format!("{}: {e}", path.display())))
@@ -167,7 +187,7 @@ pub fn read_state(path: &Path) -> crate::Result<(StateHeader, Vec<Block>)> {
 
 /// Write `bytes` to `path` through a temporary file, so a reader never sees half a file.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    let tmp = path.with_extension("partial");
+    let tmp = crate::io::staging_name(path);
     {
         let mut f = std::fs::File::create(&tmp)?;
         f.write_all(bytes)?;

@@ -61,6 +61,80 @@ pub fn read(path: &Path) -> crate::Result<Target> {
     Ok(t)
 }
 
+/// Refuse a target rendered for another setup. Our result files echo the wavelength, lights and
+/// views they were rendered with; those must agree with the scene the fit renders (to 1e-9
+/// relative), since equal counts alone say nothing about the directions or positions behind each
+/// index. Measured targets (CSV, entries, curves without an echo) pass.
+pub fn check_setup(
+    path: &Path,
+    wavelength: f64,
+    scene: &crate::speckle::Scene,
+) -> crate::Result<()> {
+    use crate::io::results::{light_record, view_record};
+    let Some(v) = std::fs::read_to_string(path)
+        .ok()
+        .and_then(|t| serde_json::from_str::<Value>(&t).ok())
+    else {
+        return Ok(());
+    };
+    let (Some(echoed), Some(lights), Some(views)) =
+        (v.get("wavelength"), v.get("lights"), v.get("views"))
+    else {
+        return Ok(());
+    };
+    let lights_now: Vec<_> = scene.lights.iter().map(light_record).collect();
+    let views_now: Vec<_> = scene.views.iter().map(view_record).collect();
+    let expected = [
+        ("wavelength", echoed, serde_json::json!(wavelength)),
+        ("lights", lights, serde_json::json!(lights_now)),
+        ("views", views, serde_json::json!(views_now)),
+    ];
+    for (key, got, want) in expected {
+        if let Some((at, a, b)) = first_difference(key, got, &want) {
+            return Err(crate::Error::input(format!(
+                "target {} was rendered with {at} = {a}, but the fit's config gives {b}: fit with the setup the target was rendered with",
+                path.display()
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// The first place where two JSON values differ (numbers to 1e-9 relative), as `(key path, got,
+/// expected)`.
+fn first_difference(at: &str, got: &Value, want: &Value) -> Option<(String, String, String)> {
+    let differ = || Some((at.to_string(), got.to_string(), want.to_string()));
+    match (got, want) {
+        (Value::Number(a), Value::Number(b)) => {
+            let (a, b) = (a.as_f64()?, b.as_f64()?);
+            ((a - b).abs() > 1e-9 * a.abs().max(b.abs()).max(1e-300)).then(differ)?
+        }
+        (Value::Array(a), Value::Array(b)) => {
+            if a.len() != b.len() {
+                return differ();
+            }
+            let inner = a
+                .iter()
+                .zip(b)
+                .enumerate()
+                .find_map(|(i, (x, y))| first_difference(&format!("{at}[{i}]"), x, y));
+            // a vector of numbers is reported whole
+            if inner.is_some() && a.iter().all(Value::is_number) {
+                return differ();
+            }
+            inner
+        }
+        (Value::Object(a), Value::Object(b)) => {
+            if a.len() != b.len() || a.keys().any(|k| !b.contains_key(k)) {
+                return differ();
+            }
+            a.iter()
+                .find_map(|(k, x)| first_difference(&format!("{at}.{k}"), x, &b[k]))
+        }
+        _ => (got != want).then(differ)?,
+    }
+}
+
 /// A `correlation_map.json` read as a target: its `C(Δ_k, τ_p)` as field-covariance entries between
 /// the map's pairs `(light 0, view p)` and `(light k, view k·T + p)` (the scene
 /// [`crate::speckle::correlation_map::CorrelationMap`] builds from the same config), with the map's
