@@ -116,6 +116,9 @@ enum Command {
         /// Weight of the smoothness prior Σ (Δ² log ρ)² on a fitted phase function
         #[arg(long, default_value_t = 0.0)]
         smooth: f64,
+        /// Limits on one objective evaluation
+        #[command(flatten)]
+        budget: BudgetArgs,
         #[arg(long)]
         quiet: bool,
     },
@@ -217,9 +220,31 @@ struct RunArgs {
     /// Run shard i of n (e.g. 2/8) and write state.bin for `lightpath merge`
     #[arg(long, value_parser = parse_shard)]
     shard: Option<(u64, u64)>,
+    #[command(flatten)]
+    budget: BudgetArgs,
     /// No progress bar
     #[arg(long)]
     quiet: bool,
+}
+
+/// What a run may use: refused before any work when the estimate is beyond it.
+#[derive(Args)]
+struct BudgetArgs {
+    /// Refuse runs whose estimated time (this shard's share) exceeds this many minutes
+    #[arg(long, default_value_t = 240.0)]
+    max_minutes: f64,
+    /// Refuse runs whose estimated memory exceeds this many GB (all threads)
+    #[arg(long, default_value_t = 8.0)]
+    max_memory_gb: f64,
+}
+
+impl BudgetArgs {
+    fn budget(&self) -> app::budget::Budget {
+        app::budget::Budget {
+            max_minutes: self.max_minutes,
+            max_memory_gb: self.max_memory_gb,
+        }
+    }
 }
 
 fn parse_shard(s: &str) -> std::result::Result<(u64, u64), String> {
@@ -252,6 +277,7 @@ fn run(kind: app::run::Kind, a: RunArgs) -> Result<Outcome> {
         seed: a.seed,
         shard: a.shard,
         progress: !a.quiet,
+        budget: a.budget.budget(),
     };
     with_threads(a.threads, || app::run::run_scene(kind, task, &opts, &a.out))
 }
@@ -318,6 +344,7 @@ fn dispatch(command: Option<Command>) -> Result<Outcome> {
             optimizer,
             learning_rate,
             smooth,
+            budget,
             quiet,
         }) => {
             let task = scene(&config, "fit")?;
@@ -334,6 +361,7 @@ fn dispatch(command: Option<Command>) -> Result<Outcome> {
                 learning_rate,
                 smooth,
                 progress: !quiet,
+                budget: budget.budget(),
             };
             with_threads(threads, || app::fit::fit(task, &target, &opts, &out))
         }

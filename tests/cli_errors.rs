@@ -279,6 +279,8 @@ fn bad_flags() {
         vec!["--shard", "3/2"],
         vec!["--samples", "0"],
         vec!["--threads", "0"],
+        vec!["--max-minutes", "0"],
+        vec!["--max-memory-gb", "0"],
     ] {
         let o = Command::new(env!("CARGO_BIN_EXE_lightpath"))
             .args([
@@ -370,4 +372,42 @@ fn bad_tilt_shift_and_aperture_settings() {
         &GOOD.replace("chunk = 500", "chunk = 500\naperture = \"gauss\""),
         &["render.aperture", "gauss", "vmf", "quadrature"],
     );
+}
+
+/// Legal physics that no run could finish (a diffusive box 10⁵ λ wide, mfp 10⁻³⁰⁰, σ_s 10³⁰⁸, a
+/// 10¹⁵ λ slab) or whose outputs cannot fit in memory (7200 views: 9.95 GB once) is refused before
+/// any work, with the estimate and the flag to change; each of these once hung or aborted.
+#[test]
+fn runs_beyond_the_budget_are_refused_up_front() {
+    let cases: [(&str, &str, &str, &str); 5] = [
+        (
+            "samples = 2000",
+            "samples = 100000",
+            "box = [4.0, 4.0, 4.0]\nmfp = 2.0",
+            "--max-minutes",
+        ),
+        ("mfp = 2.0", "mfp = 1e-300", "", "--max-minutes"),
+        (
+            "mfp = 2.0\nalbedo = 1.0",
+            "sigma_s = 1e308\nsigma_a = 0.0",
+            "",
+            "--max-minutes",
+        ),
+        ("box = [4.0, 4.0, 4.0]", "slab = 1e15", "", "--max-minutes"),
+        (
+            "kind = \"far_field\"\ndirection = [0.0, 0.0, 1.0]",
+            "kind = \"far_field_ring\"\nstart = [0.0, 0.0, 1.0]\naxis = [0.0, 1.0, 0.0]\ncount = 7200",
+            "",
+            "--max-memory-gb",
+        ),
+    ];
+    for (i, (from, to, drop, flag)) in cases.into_iter().enumerate() {
+        let mut text = GOOD.replace(from, to);
+        if !drop.is_empty() {
+            // the first case also widens the box to 10⁵ λ at mfp 5
+            text = text.replace(drop, "box = [1e5, 1e5, 1e5]\nmfp = 5.0");
+        }
+        assert_ne!(text, GOOD);
+        expect_error(&format!("budget-{i}"), &text, &[flag, "estimate", "Use"]);
+    }
 }

@@ -61,6 +61,7 @@ fn options(
         learning_rate,
         smooth: 0.0,
         progress: false,
+        budget: Default::default(),
     }
 }
 
@@ -172,6 +173,7 @@ fn bad_fit_requests_are_clear_errors() {
         learning_rate: 0.05,
         smooth: 0.0,
         progress: false,
+        budget: Default::default(),
     };
     let err = fit(
         cfg(),
@@ -268,6 +270,7 @@ seed = 3
         learning_rate: 0.05,
         smooth: 0.0,
         progress: false,
+        budget: Default::default(),
     };
     // one step from the truth: the model's entries are the map's
     let _ = fit(scene_from_text(MAP).unwrap(), &target, &opts, &d.join("o"));

@@ -25,6 +25,8 @@ pub struct FitOptions {
     pub learning_rate: f64,
     pub smooth: f64,
     pub progress: bool,
+    /// Refuse fits whose single objective evaluation is estimated beyond this time or memory.
+    pub budget: super::budget::Budget,
 }
 
 /// `lightpath fit`: fit medium parameters so rendered statistics match a target.
@@ -132,6 +134,18 @@ pub fn fit(task: SceneTask, target_path: &Path, opts: &FitOptions, out: &Path) -
     if opts.stages == 0 || iterations == 0 {
         return Err(Error::input("--stages and --iterations must be at least 1"));
     }
+    // one objective evaluation (the covariance of the pairs the target needs) must fit the budget
+    let probe =
+        crate::speckle::Covariance::with_pairs(&scene, target.pairs(&scene), cfg.render.reversed)?;
+    super::budget::check(
+        "fit (one objective evaluation)",
+        &probe,
+        &scene.medium,
+        cfg.render.samples as f64,
+        cfg.render.samples.div_ceil(cfg.render.chunk),
+        0,
+        &opts.budget,
+    )?;
     create_out(out, &["fit.json", "fit.png", "phase.png"])?;
     let model = crate::inverse::ModelSettings {
         samples: cfg.render.samples,

@@ -15,6 +15,7 @@
 
 pub mod acquire_phase;
 pub mod bench;
+pub mod budget;
 pub mod check;
 pub mod compare;
 pub mod correlation_map;

@@ -90,6 +90,8 @@ pub struct RunOptions {
     pub shard: Option<(u64, u64)>,
     /// Show a progress bar (only when stderr is a terminal).
     pub progress: bool,
+    /// Refuse runs estimated beyond this time or memory.
+    pub budget: super::budget::Budget,
 }
 
 /// Run `kind` (not `Wave`: see [`super::wave::run`]) on `task` and write into `out`.
@@ -226,7 +228,7 @@ pub(crate) fn execute(
     };
     let t0 = Instant::now();
     let bar = Progress::new(opts.progress, units, kind.name(), unit);
-    let blocks = compute(kind, task, &plan, range, &bar)?;
+    let blocks = compute(kind, task, &plan, range, &opts.budget, &bar)?;
     bar.finish();
     if shard[1] > 1 {
         let header = StateHeader {
@@ -448,24 +450,34 @@ fn compute(
     task: &SceneTask,
     plan: &Plan,
     range: std::ops::Range<u64>,
+    budget: &super::budget::Budget,
     bar: &Progress,
 ) -> Result<Vec<Block>> {
     let reversed = task.config.render.reversed;
     let scene = &task.scene;
     let progress = |n| bar.set(n);
+    let chunks = range.end - range.start;
+    let paths = (chunks * plan.chunk_paths) as f64;
+    let what = kind.name();
+    let medium = &scene.medium;
+    use super::budget::check as afford_run;
     Ok(match kind {
         Kind::Covariance => {
             let est = Covariance::all_pairs(scene, reversed)?;
+            afford_run(what, &est, medium, paths, chunks, 0, budget)?;
             run(&est, plan, range, &[], &progress)
         }
         Kind::MemoryEffect => {
             let scan = memory_scan(task)?;
             let est = Covariance::with_pairs(&scan.scene, scan.pairs(), reversed)?;
-            run(&est, plan, range, &scan.kept_outputs(), &progress)
+            let keep = scan.kept_outputs();
+            afford_run(what, &est, medium, paths, chunks, keep.len(), budget)?;
+            run(&est, plan, range, &keep, &progress)
         }
         Kind::CorrelationMap => {
             let map = super::correlation_map::map_of(task)?;
             let est = crate::speckle::correlation_map::MapEstimator::new(&map, reversed)?;
+            afford_run(what, &est, medium, paths, chunks, 0, budget)?;
             run(&est, plan, range, &[], &progress)
         }
         Kind::TiltShift => {
@@ -473,14 +485,18 @@ fn compute(
             let est = crate::speckle::tilt_shift::TiltShiftEstimator::new(&scan, reversed)?;
             // every output per chunk: the normalised correlations' errors by batch means
             let keep: Vec<usize> = (0..crate::mc::Estimator::outputs(&est)).collect();
+            afford_run(what, &est, medium, paths, chunks, keep.len(), budget)?;
             run(&est, plan, range, &keep, &progress)
         }
         Kind::Wave => {
+            // the wave solver checks its own limits (scatterers, dense solves, timed estimate)
             let est = crate::speckle::wave::Realizations::new(scene);
             run(&est, plan, range, &est.kept_outputs(), &progress)
         }
         Kind::Speckle => {
             let est = FieldSampler::new(scene, SubpathSampler::all_pairs(scene), reversed)?;
+            let images = (plan.samples() * chunks) as f64;
+            afford_run(what, &est, medium, images, plan.chunks, 0, budget)?;
             let mut out = Vec::new();
             for r in range.clone() {
                 let p = Plan {

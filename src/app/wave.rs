@@ -83,6 +83,7 @@ pub fn run(mut task: SceneTask, opts: &WaveOptions, out: &Path) -> Result<Outcom
         seed: None,
         shard: opts.shard,
         progress: opts.progress,
+        ..Default::default()
     };
     let mut outcome = execute(Kind::Wave, &task, plan, &run_opts, out)?;
     if opts.shard.is_none() {

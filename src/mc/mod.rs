@@ -20,6 +20,29 @@ pub trait Estimator: Sync {
     fn scratch(&self) -> Self::Scratch;
     /// Trace `paths` samples drawn from `rng` and add their summed contributions to `out`.
     fn run_chunk(&self, rng: &mut Rng, paths: u64, scratch: &mut Self::Scratch, out: &mut [C64]);
+    /// Bytes of one [`Self::Scratch`] beyond a few output-sized buffers (for memory estimates).
+    fn scratch_bytes(&self) -> usize {
+        0
+    }
+}
+
+/// Bytes the engine holds to run chunks `range` of an estimator with `outputs` outputs on
+/// `threads` threads, keeping `kept` outputs per chunk: the chunk buffers, the reducer's blocks, the
+/// kept per-chunk means and each thread's scratch.
+pub fn working_bytes(
+    outputs: usize,
+    scratch_bytes: usize,
+    kept: usize,
+    chunks: u64,
+    threads: usize,
+) -> f64 {
+    let c = std::mem::size_of::<C64>() as f64;
+    let outputs = outputs as f64;
+    let blocks = 2.0 + (chunks.max(1) as f64).log2();
+    WAVE as f64 * outputs * c
+        + blocks * outputs * (c + 8.0)
+        + chunks as f64 * kept as f64 * c
+        + threads as f64 * scratch_bytes as f64
 }
 
 /// How a run is cut into chunks.

@@ -144,6 +144,15 @@ impl Geometry {
         }
     }
 
+    /// The smallest side (box) or the thickness (slab): the distance that decides how long light
+    /// stays inside.
+    pub fn smallest_extent(&self) -> f64 {
+        match self {
+            Geometry::Box { half } => 2.0 * half.min_element(),
+            Geometry::Slab { half_thickness, .. } => 2.0 * half_thickness,
+        }
+    }
+
     /// Radius of a sphere about the origin containing the medium (boxes only).
     pub fn bounding_radius(&self) -> f64 {
         match self {

@@ -33,6 +33,15 @@ impl Medium {
         self.sigma_s / self.sigma_t()
     }
 
+    /// Mean cosine `g` of the scattering law (the mixture's weighted mean).
+    pub fn mean_cosine(&self) -> f64 {
+        self.scattering
+            .components()
+            .iter()
+            .map(|(w, p)| w * p.mean_cosine())
+            .sum()
+    }
+
     /// Field (amplitude) attenuation over a length `d` inside: `τ = exp(-σ_t d / 2)` (Eq. 19).
     #[inline]
     pub fn amplitude_attenuation(&self, d: f64) -> f64 {

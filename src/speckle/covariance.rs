@@ -213,6 +213,12 @@ impl Estimator for Covariance<'_> {
         3 * self.fields() * self.fields()
     }
 
+    fn scratch_bytes(&self) -> usize {
+        let j = self.fields();
+        // two batches (single, multiple): A and conj(A) of j × BATCH, and the j × j accumulator
+        2 * (2 * j * BATCH + j * j) * std::mem::size_of::<C64>()
+    }
+
     fn scratch(&self) -> CovScratch {
         let j = self.fields();
         CovScratch {

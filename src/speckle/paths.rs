@@ -22,6 +22,30 @@ use crate::speckle::endpoint::{
 use crate::speckle::first_vertex::FirstVertex;
 use glam::DVec3;
 
+/// Throughput below which a subpath plays Russian roulette, and the chance it survives.
+const ROULETTE_BELOW: f64 = 1e-3;
+const ROULETTE_SURVIVAL: f64 = 0.1;
+
+/// The order of magnitude of the mean number of scattering events on a subpath — the cost of one
+/// path. A path started inside a medium of optical thickness `τ = σ_s d` (`d` the smallest extent)
+/// diffuses out after about `1 + τ + τ²(1 − g)` events (`(τ(1 − g))²` transport steps of
+/// `1/(1 − g)` events each); absorption and the Russian roulette end it after about
+/// `(ln(1/t) + ln(1/s)/(1 − s)) / ln(1/a)` events (`t`, `s`: the roulette threshold and survival
+/// chance, `a` the albedo), whichever is fewer. Used to refuse runs that cannot finish.
+pub fn expected_events(medium: &crate::medium::Medium) -> f64 {
+    let tau = medium.sigma_s * medium.geometry.smallest_extent();
+    let g = medium.mean_cosine().clamp(-1.0, 1.0);
+    let diffusive = 1.0 + tau + tau * tau * (1.0 - g);
+    let a = medium.albedo();
+    let absorbed = if a < 1.0 {
+        let s = ROULETTE_SURVIVAL;
+        ((1.0 / ROULETTE_BELOW).ln() + (1.0 / s).ln() / (1.0 - s)) / (1.0 / a).ln()
+    } else {
+        f64::INFINITY
+    };
+    1.0 + diffusive.min(absorbed)
+}
+
 /// Receives the events of a subpath.
 pub trait EventSink {
     /// `a` is the weighted event vector over pairs; `multiple` is false for the `B = 1` event.
@@ -342,12 +366,12 @@ impl<'a> SubpathSampler<'a> {
             x += w_out * d;
             w_in = w_out;
             throughput *= albedo;
-            if throughput < 1e-3 {
+            if throughput < ROULETTE_BELOW {
                 // Russian roulette keeps absorbing media cheap without bias.
-                if uniform(rng) >= 0.1 {
+                if uniform(rng) >= ROULETTE_SURVIVAL {
                     return;
                 }
-                throughput *= 10.0;
+                throughput *= 1.0 / ROULETTE_SURVIVAL;
             }
         }
     }
