@@ -66,6 +66,8 @@ enum Command {
         /// Refuse runs whose timed estimate exceeds this many minutes
         #[arg(long, default_value_t = 240.0)]
         max_minutes: f64,
+        #[command(flatten)]
+        checkpoints: CheckpointArgs,
         #[arg(long)]
         quiet: bool,
     },
@@ -222,9 +224,24 @@ struct RunArgs {
     shard: Option<(u64, u64)>,
     #[command(flatten)]
     budget: BudgetArgs,
+    #[command(flatten)]
+    checkpoints: CheckpointArgs,
     /// No progress bar
     #[arg(long)]
     quiet: bool,
+}
+
+/// Saving and resuming long runs.
+#[derive(Args)]
+struct CheckpointArgs {
+    /// Continue the interrupted run whose checkpoint.bin is in this folder (give the same
+    /// command, config and options that started it); the result is bit-identical to an
+    /// uninterrupted run
+    #[arg(long, value_name = "DIR")]
+    resume: Option<PathBuf>,
+    /// Save checkpoint.bin every N chunks (speckle: every N images); default: every two minutes
+    #[arg(long, value_name = "N")]
+    checkpoint_every: Option<u64>,
 }
 
 /// What a run may use: refused before any work when the estimate is beyond it.
@@ -278,6 +295,8 @@ fn run(kind: app::run::Kind, a: RunArgs) -> Result<Outcome> {
         shard: a.shard,
         progress: !a.quiet,
         budget: a.budget.budget(),
+        resume: a.checkpoints.resume,
+        checkpoint_every: a.checkpoints.checkpoint_every,
     };
     with_threads(a.threads, || app::run::run_scene(kind, task, &opts, &a.out))
 }
@@ -315,6 +334,7 @@ fn dispatch(command: Option<Command>) -> Result<Outcome> {
             max_scatterers,
             max_memory_gb,
             max_minutes,
+            checkpoints,
             quiet,
         }) => {
             let task = scene(&config, "wave")?;
@@ -328,6 +348,8 @@ fn dispatch(command: Option<Command>) -> Result<Outcome> {
                     max_minutes,
                 },
                 progress: !quiet,
+                resume: checkpoints.resume,
+                checkpoint_every: checkpoints.checkpoint_every,
             };
             with_threads(threads, || app::wave::run(task, &opts, &out))
         }

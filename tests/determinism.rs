@@ -235,3 +235,117 @@ fn damaged_or_edited_shards_are_refused() {
     std::fs::write(shard(0).join("state.bin"), &own_edited).unwrap();
     merge_with(&edited, "does not fit the run");
 }
+
+/// A run killed with SIGKILL at arbitrary moments and resumed from its checkpoint, again and again,
+/// ends with the same bytes as an uninterrupted run (covariance and speckle); a checkpoint is not
+/// resumed by another run, and a finished run leaves none behind.
+#[test]
+fn killed_and_resumed_runs_equal_uninterrupted_ones() {
+    let d: PathBuf = std::env::temp_dir().join(format!("lightpath-resume-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    let cfg = d.join("scene.toml");
+    // a few seconds of chunks, so that kills land mid-run
+    let text = SCENE
+        .replace("samples = 7000", "samples = 12000000")
+        .replace("realisations = 3", "realisations = 150")
+        .replace("paths = 900", "paths = 50000");
+    std::fs::write(&cfg, &text).unwrap();
+    let c = cfg.to_str().unwrap();
+    for (cmd, file, keys, every) in [
+        (
+            "covariance",
+            "covariance.json",
+            &["re", "im", "stderr"][..],
+            "100",
+        ),
+        ("speckle", "speckle.json", &["re", "im"][..], "1"),
+    ] {
+        let whole = d.join(format!("{cmd}-whole"));
+        lightpath(&[cmd, c, "--out", whole.to_str().unwrap()]);
+        let out = d.join(format!("{cmd}-killed"));
+        let o = out.to_str().unwrap();
+        let mut rng = 0x9e37_79b9_u64;
+        let (mut kills, mut resumes) = (0, 0);
+        let mut resumed = false;
+        for attempt in 0..40 {
+            let mut args = vec![cmd, c, "--out", o, "--checkpoint-every", every, "--quiet"];
+            if resumed {
+                args.extend(["--resume", o]);
+                resumes += 1;
+            }
+            let mut child = Command::new(env!("CARGO_BIN_EXE_lightpath"))
+                .args(&args)
+                .spawn()
+                .unwrap();
+            if attempt < 4 {
+                rng = rng
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                let ms = 200 + (rng >> 33) % 600;
+                std::thread::sleep(std::time::Duration::from_millis(ms));
+                if child.try_wait().unwrap().is_none() {
+                    child.kill().unwrap(); // SIGKILL
+                    kills += 1;
+                }
+                child.wait().unwrap();
+                resumed = out.join("checkpoint.bin").exists();
+                if out.join(file).exists() {
+                    break;
+                }
+            } else {
+                assert!(child.wait().unwrap().success());
+                break;
+            }
+        }
+        assert!(
+            kills >= 2 && resumes >= 2,
+            "{cmd}: {kills} kills, {resumes} resumes: the run ended before it was interrupted twice"
+        );
+        assert!(out.join(file).exists(), "{cmd}: no result after resuming");
+        assert!(
+            !out.join("checkpoint.bin").exists(),
+            "a finished run keeps no checkpoint"
+        );
+        assert_eq!(
+            numbers(&whole.join(file), keys),
+            numbers(&out.join(file), keys),
+            "{cmd}: resumed after {kills} kills differs from the uninterrupted run"
+        );
+    }
+    // a checkpoint of another run is refused
+    let out = d.join("other");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_lightpath"))
+        .args([
+            "covariance",
+            c,
+            "--out",
+            out.to_str().unwrap(),
+            "--checkpoint-every",
+            "1",
+            "--quiet",
+        ])
+        .spawn()
+        .unwrap();
+    for _ in 0..200 {
+        if out.join("checkpoint.bin").exists() {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    assert!(out.join("checkpoint.bin").exists());
+    let (code, err) = lightpath_status(&[
+        "covariance",
+        c,
+        "--out",
+        out.to_str().unwrap(),
+        "--resume",
+        out.to_str().unwrap(),
+        "--seed",
+        "5",
+    ]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("another run"), "{err}");
+}

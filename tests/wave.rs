@@ -350,6 +350,8 @@ fn point_to_point_and_guard_rails() {
             shard: None,
             limits,
             progress: false,
+            resume: None,
+            checkpoint_every: None,
         };
         lightpath::app::wave::run(task, &opts, &out)
             .unwrap_err()

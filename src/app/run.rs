@@ -9,7 +9,7 @@ use crate::io::ResultFile;
 use crate::io::results::{CovarianceFile, MemoryEffectFile, RunEcho, SpeckleFile, nest2, nest4};
 use crate::io::state::{StateHeader, read_state, write_state};
 use crate::math::{C64, splitmix64};
-use crate::mc::{Block, Estimate, Plan, merge, run};
+use crate::mc::{Block, Checkpoint, Estimate, Plan, merge, resume, run};
 use crate::speckle::covariance::Order;
 use crate::speckle::mean::mean_field;
 use crate::speckle::memory::MemoryScan;
@@ -80,6 +80,10 @@ impl Kind {
 
 /// The shard state file in a shard's output folder.
 const STATE_FILE: &str = "state.bin";
+/// The engine state an unfinished run saves in its output folder (same format as `state.bin`).
+pub const CHECKPOINT_FILE: &str = "checkpoint.bin";
+/// How often a run saves its checkpoint when `--checkpoint-every` does not say.
+const CHECKPOINT_INTERVAL: std::time::Duration = std::time::Duration::from_secs(120);
 
 /// Command-line overrides and run options.
 #[derive(Clone, Debug, Default)]
@@ -92,6 +96,11 @@ pub struct RunOptions {
     pub progress: bool,
     /// Refuse runs estimated beyond this time or memory.
     pub budget: super::budget::Budget,
+    /// Continue the interrupted run whose `checkpoint.bin` is in this folder.
+    pub resume: Option<PathBuf>,
+    /// Save a checkpoint every this many chunks (speckle: realisations); without it, every two
+    /// minutes.
+    pub checkpoint_every: Option<u64>,
 }
 
 /// Run `kind` (not `Wave`: see [`super::wave::run`]) on `task` and write into `out`.
@@ -216,7 +225,26 @@ pub(crate) fn execute(
         }
         None => (0..whole, [0, 1]),
     };
-    create_out(out, &kind.owned())?;
+    let header = StateHeader {
+        format_version: crate::io::results::FORMAT_VERSION,
+        kind: kind.name().into(),
+        config: cfg.clone(),
+        seed: plan.seed,
+        chunk_paths: plan.chunk_paths,
+        chunks: plan.chunks,
+        shard,
+        version: env!("CARGO_PKG_VERSION").into(),
+    };
+    let done = match &opts.resume {
+        Some(dir) => resumed_blocks(kind, task, &header, whole, dir)?,
+        None => Vec::new(),
+    };
+    let mut owned = kind.owned();
+    if opts.resume.is_none() {
+        // a fresh run replaces any earlier checkpoint; a resumed one keeps it until it saves its own
+        owned.push(CHECKPOINT_FILE);
+    }
+    create_out(out, &owned)?;
     let units = match kind {
         Kind::Speckle => range.end.saturating_sub(range.start) * plan.chunks,
         _ => range.end - range.start,
@@ -228,26 +256,39 @@ pub(crate) fn execute(
     };
     let t0 = Instant::now();
     let bar = Progress::new(opts.progress, units, kind.name(), unit);
-    let blocks = compute(kind, task, &plan, range, &opts.budget, &bar)?;
+    let checkpoint_path = out.join(CHECKPOINT_FILE);
+    let mut save = |blocks: &[Block]| -> Result<()> {
+        write_state(&checkpoint_path, &header, blocks).map_err(|source| Error::Io {
+            action: "write",
+            path: checkpoint_path.clone(),
+            source,
+        })
+    };
+    let checkpoint = Checkpoint {
+        every: opts.checkpoint_every.unwrap_or(u64::MAX).max(1),
+        interval: if opts.checkpoint_every.is_some() {
+            std::time::Duration::MAX
+        } else {
+            CHECKPOINT_INTERVAL
+        },
+        save: &mut save,
+    };
+    let work = Work {
+        plan: &plan,
+        range,
+        done,
+        checkpoint,
+    };
+    let blocks = compute(kind, task, work, &opts.budget, &bar)?;
     bar.finish();
-    if shard[1] > 1 {
-        let header = StateHeader {
-            format_version: crate::io::results::FORMAT_VERSION,
-            kind: kind.name().into(),
-            config: cfg.clone(),
-            seed: plan.seed,
-            chunk_paths: plan.chunk_paths,
-            chunks: plan.chunks,
-            shard,
-            version: env!("CARGO_PKG_VERSION").into(),
-        };
+    let outcome = if shard[1] > 1 {
         let path = out.join(STATE_FILE);
         write_state(&path, &header, &blocks).map_err(|source| Error::Io {
             action: "write",
             path: path.clone(),
             source,
         })?;
-        return Ok(Outcome {
+        Outcome {
             not_converged: None,
             summary: format!(
                 "shard {}/{} of {} done in {:.1} s; combine all shards with `lightpath merge`",
@@ -257,9 +298,54 @@ pub(crate) fn execute(
                 t0.elapsed().as_secs_f64()
             ),
             files: vec![path],
-        });
+        }
+    } else {
+        finish(kind, task, &plan, blocks, t0.elapsed().as_secs_f64(), out)?
+    };
+    // the run is complete: its checkpoint has nothing left to resume
+    match std::fs::remove_file(out.join(CHECKPOINT_FILE)) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(Error::Io {
+            action: "remove",
+            path: out.join(CHECKPOINT_FILE),
+            source: e,
+        }),
+        _ => Ok(outcome),
     }
-    finish(kind, task, &plan, blocks, t0.elapsed().as_secs_f64(), out)
+}
+
+/// The blocks saved in `dir/checkpoint.bin`, if it belongs to the run `header` describes.
+fn resumed_blocks(
+    kind: Kind,
+    task: &SceneTask,
+    header: &StateHeader,
+    whole: u64,
+    dir: &Path,
+) -> Result<Vec<Block>> {
+    let path = dir.join(CHECKPOINT_FILE);
+    if !path.exists() {
+        return Err(Error::input(format!(
+            "--resume {}: no {CHECKPOINT_FILE} there (the run finished, never saved one, or wrote elsewhere)",
+            dir.display()
+        )));
+    }
+    let (saved, blocks) = read_state(&path)?;
+    if !saved.same_run(header) || saved.shard != header.shard {
+        return Err(Error::input(format!(
+            "--resume {}: the checkpoint belongs to another run (command, config, seed, samples, shard or version differ); resume with the command and config that started it",
+            dir.display()
+        )));
+    }
+    check_blocks(&blocks, shape(kind, task)?, whole)?;
+    Ok(blocks)
+}
+
+/// The chunks a run computes: its plan, its range, the blocks already done (resumed), and when to
+/// save checkpoints.
+struct Work<'a> {
+    plan: &'a Plan,
+    range: std::ops::Range<u64>,
+    done: Vec<Block>,
+    checkpoint: Checkpoint<'a>,
 }
 
 /// Merge shard folders (each with `state.bin`) into the results of the single run.
@@ -448,15 +534,22 @@ pub(crate) fn memory_scan(task: &SceneTask) -> Result<MemoryScan> {
 fn compute(
     kind: Kind,
     task: &SceneTask,
-    plan: &Plan,
-    range: std::ops::Range<u64>,
+    work: Work,
     budget: &super::budget::Budget,
     bar: &Progress,
 ) -> Result<Vec<Block>> {
     let reversed = task.config.render.reversed;
     let scene = &task.scene;
+    let Work {
+        plan,
+        range,
+        done,
+        checkpoint,
+    } = work;
     let progress = |n| bar.set(n);
-    let chunks = range.end - range.start;
+    // what is left to run (after a resumed checkpoint)
+    let next = done.last().map_or(range.start, |b| b.start + b.len);
+    let chunks = range.end.saturating_sub(next);
     let paths = (chunks * plan.chunk_paths) as f64;
     let what = kind.name();
     let medium = &scene.medium;
@@ -465,20 +558,20 @@ fn compute(
         Kind::Covariance => {
             let est = Covariance::all_pairs(scene, reversed)?;
             afford_run(what, &est, medium, paths, chunks, 0, budget)?;
-            run(&est, plan, range, &[], &progress)
+            resume(&est, plan, range, &[], &progress, done, Some(checkpoint))?
         }
         Kind::MemoryEffect => {
             let scan = memory_scan(task)?;
             let est = Covariance::with_pairs(&scan.scene, scan.pairs(), reversed)?;
             let keep = scan.kept_outputs();
             afford_run(what, &est, medium, paths, chunks, keep.len(), budget)?;
-            run(&est, plan, range, &keep, &progress)
+            resume(&est, plan, range, &keep, &progress, done, Some(checkpoint))?
         }
         Kind::CorrelationMap => {
             let map = super::correlation_map::map_of(task)?;
             let est = crate::speckle::correlation_map::MapEstimator::new(&map, reversed)?;
             afford_run(what, &est, medium, paths, chunks, 0, budget)?;
-            run(&est, plan, range, &[], &progress)
+            resume(&est, plan, range, &[], &progress, done, Some(checkpoint))?
         }
         Kind::TiltShift => {
             let scan = super::tilt_shift::scan_of(task)?;
@@ -486,26 +579,30 @@ fn compute(
             // every output per chunk: the normalised correlations' errors by batch means
             let keep: Vec<usize> = (0..crate::mc::Estimator::outputs(&est)).collect();
             afford_run(what, &est, medium, paths, chunks, keep.len(), budget)?;
-            run(&est, plan, range, &keep, &progress)
+            resume(&est, plan, range, &keep, &progress, done, Some(checkpoint))?
         }
         Kind::Wave => {
             // the wave solver checks its own limits (scatterers, dense solves, timed estimate)
             let est = crate::speckle::wave::Realizations::new(scene);
-            run(&est, plan, range, &est.kept_outputs(), &progress)
+            let keep = est.kept_outputs();
+            resume(&est, plan, range, &keep, &progress, done, Some(checkpoint))?
         }
         Kind::Speckle => {
+            // one unit of work per realisation (an image of `plan.samples()` paths)
             let est = FieldSampler::new(scene, SubpathSampler::all_pairs(scene), reversed)?;
             let images = (plan.samples() * chunks) as f64;
             afford_run(what, &est, medium, images, plan.chunks, 0, budget)?;
-            let mut out = Vec::new();
-            for r in range.clone() {
+            let mut out = done;
+            let mut saved_at = next;
+            let mut saved_when = Instant::now();
+            for r in next..range.end {
                 let p = Plan {
                     seed: realisation_seed(plan.seed, r),
                     ..*plan
                 };
-                let done = (r - range.start) * plan.chunks;
+                let before = (r - range.start) * plan.chunks;
                 let root = merge(
-                    run(&est, &p, 0..p.chunks, &[], &|c| bar.set(done + c)),
+                    run(&est, &p, 0..p.chunks, &[], &|c| bar.set(before + c)),
                     p.chunks,
                 )?;
                 out.push(Block {
@@ -515,6 +612,13 @@ fn compute(
                     sq: vec![],
                     kept: vec![],
                 });
+                if r + 1 < range.end
+                    && (r + 1 - saved_at >= checkpoint.every
+                        || saved_when.elapsed() >= checkpoint.interval)
+                {
+                    (checkpoint.save)(&out)?;
+                    (saved_at, saved_when) = (r + 1, Instant::now());
+                }
             }
             out
         }

@@ -29,6 +29,10 @@ pub struct WaveOptions {
     pub shard: Option<(u64, u64)>,
     pub limits: WaveLimits,
     pub progress: bool,
+    /// Continue the interrupted run whose checkpoint is in this folder.
+    pub resume: Option<std::path::PathBuf>,
+    /// Save a checkpoint every this many placements (default: every two minutes).
+    pub checkpoint_every: Option<u64>,
 }
 
 /// Check the scene and the limits (size, memory, timed estimate), then run.
@@ -83,6 +87,8 @@ pub fn run(mut task: SceneTask, opts: &WaveOptions, out: &Path) -> Result<Outcom
         seed: None,
         shard: opts.shard,
         progress: opts.progress,
+        resume: opts.resume.clone(),
+        checkpoint_every: opts.checkpoint_every,
         ..Default::default()
     };
     let mut outcome = execute(Kind::Wave, &task, plan, &run_opts, out)?;

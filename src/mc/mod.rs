@@ -172,11 +172,54 @@ pub fn run<E: Estimator>(
     keep: &[usize],
     progress: &(dyn Fn(u64) + Sync),
 ) -> Vec<Block> {
+    resume(est, plan, range, keep, progress, Vec::new(), None)
+        .expect("a run without checkpoints cannot fail")
+}
+
+/// When to save a run's blocks so far (see [`resume`]): after at least `every` chunks or
+/// `interval`, whichever comes first, through `save`.
+pub struct Checkpoint<'a> {
+    pub every: u64,
+    pub interval: std::time::Duration,
+    pub save: &'a mut dyn FnMut(&[Block]) -> crate::Result<()>,
+}
+
+/// [`run`], continuing from `done`: the blocks an interrupted run of the same range had reduced
+/// (contiguous from `range.start`, as [`Checkpoint::save`] received them), and saving checkpoints
+/// on the way. The blocks come out as the uninterrupted run's, bit for bit: the reduction tree
+/// depends only on chunk indices.
+pub fn resume<E: Estimator>(
+    est: &E,
+    plan: &Plan,
+    range: Range<u64>,
+    keep: &[usize],
+    progress: &(dyn Fn(u64) + Sync),
+    done: Vec<Block>,
+    mut checkpoint: Option<Checkpoint>,
+) -> crate::Result<Vec<Block>> {
     let n = est.outputs();
     let mut reducer = Reducer::default();
+    let mut next = range.start;
+    for b in done {
+        if b.start != next || b.len == 0 {
+            return Err(crate::Error::input(format!(
+                "checkpoint: chunks {}..+{} do not continue the run at chunk {next}",
+                b.start, b.len
+            )));
+        }
+        next = b.start + b.len;
+        reducer.push(b);
+    }
+    if next > range.end {
+        return Err(crate::Error::input(format!(
+            "checkpoint: it covers chunks up to {next}, beyond this run's {}",
+            range.end
+        )));
+    }
     let mut bufs: Vec<(Vec<C64>, Option<E::Scratch>)> =
         (0..WAVE).map(|_| (vec![C64::default(); n], None)).collect();
-    let mut next = range.start;
+    let (mut saved_at, mut saved_when) = (next, std::time::Instant::now());
+    progress(next - range.start);
     while next < range.end {
         let count = ((range.end - next) as usize).min(WAVE);
         bufs[..count]
@@ -194,8 +237,15 @@ pub fn run<E: Estimator>(
         }
         next += count as u64;
         progress(next - range.start);
+        if let Some(c) = checkpoint.as_mut()
+            && next < range.end
+            && (next - saved_at >= c.every || saved_when.elapsed() >= c.interval)
+        {
+            (c.save)(&reducer.stack)?;
+            (saved_at, saved_when) = (next, std::time::Instant::now());
+        }
     }
-    reducer.into_blocks()
+    Ok(reducer.into_blocks())
 }
 
 /// Merge shard blocks (in any order) into the single-run root block; errors if they do not tile
