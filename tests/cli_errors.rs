@@ -411,3 +411,89 @@ fn runs_beyond_the_budget_are_refused_up_front() {
         expect_error(&format!("budget-{i}"), &text, &[flag, "estimate", "Use"]);
     }
 }
+
+/// `lightpath check` on `text`: (success, stderr).
+fn check(name: &str, text: &str) -> (bool, String) {
+    let d = tmpdir(name);
+    let cfg = d.join("c.toml");
+    std::fs::write(&cfg, text).unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_lightpath"))
+        .args(["check", cfg.to_str().unwrap()])
+        .output()
+        .unwrap();
+    (
+        o.status.success(),
+        String::from_utf8_lossy(&o.stderr).into(),
+    )
+}
+
+/// Errors inside tables tagged by `kind` (views, lights, phase functions, mixtures, profiles,
+/// bounds) name the full key path, as errors in plain tables do; an array where a table belongs is
+/// refused rather than read by position.
+#[test]
+fn errors_inside_tagged_tables_name_the_full_key() {
+    let ring =
+        "kind = \"far_field_ring\"\nstart = [0.0, 0.0, 1.0]\naxis = [0.0, 1.0, 0.0]\ncount = 3";
+    let cases: Vec<(String, &str)> = vec![
+        (
+            GOOD.replace("kind = \"far_field\"", &format!("{ring}\n[[view]]\nkind = \"far_field\"")),
+            "",
+        ),
+        (
+            GOOD.replace("kind = \"far_field\"\ndirection = [0.0, 0.0, 1.0]", &ring.replace("axis = [0.0, 1.0, 0.0]", "axis = [0.0, 1.0]")),
+            "view[0].axis: invalid length 2",
+        ),
+        (
+            GOOD.replace("kind = \"far_field\"\ndirection = [0.0, 0.0, 1.0]", &ring.replace("count = 3", "count = \"three\"")),
+            "view[0].count: invalid type",
+        ),
+        (
+            GOOD.replace("direction = [0.0, 0.0, 1.0]\n[[view]]", "position = [0.0, 0.0, 1.0]\n[[view]]"),
+            "light[0].position: unknown field `position`",
+        ),
+        (
+            GOOD.replace("kind = \"hg\", g = 0.3", "kind = \"hgx\", g = 0.3"),
+            "medium.phase.kind: unknown variant `hgx`",
+        ),
+        (
+            GOOD.replace(
+                "phase = { kind = \"hg\", g = 0.3 }",
+                "phase = { kind = \"mixture\", components = [{ weight = 1.0, phase = { kind = \"hg\", g = 0.3 } }, { weight = 1.0, phase = { kind = \"hg\", q = 0.3 } }] }",
+            ),
+            "medium.phase.components[1].phase.q: unknown field `q`",
+        ),
+        (
+            format!("render = [2000.0]\n{}", GOOD.split("[render]").next().unwrap()),
+            "render",
+        ),
+    ];
+    let (ok, err) = check("tagged-good", &cases[0].0);
+    assert!(ok, "the unmutated config must pass: {err}");
+    for (i, (text, needle)) in cases.iter().enumerate().skip(1) {
+        let (ok, err) = check(&format!("tagged-{i}"), text);
+        assert!(!ok && !err.contains("panicked"), "{i}: {err}");
+        assert!(err.contains(needle), "{i}: expected {needle:?} in {err}");
+    }
+    // GRIN configs: a profile's key, and `trace = [10.0]` (once read as step = 10)
+    let lune = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/configs/luneburg.toml"
+    ))
+    .unwrap();
+    let (ok, err) = check(
+        "lune-radius",
+        &lune.replace("radius = 1.0 }]", "radius = \"one\" }]"),
+    );
+    assert!(!ok && err.contains("field.profiles[0].radius"), "{err}");
+    let (ok, err) = check(
+        "lune-bounds",
+        &lune.replace("kind = \"sphere\", radius", "kind = \"sphere\", radios"),
+    );
+    assert!(!ok && err.contains("field.bounds.radios"), "{err}");
+    let positional = format!(
+        "trace = [10.0]\n{}",
+        lune.replace("[trace]\nstep = 0.002", "")
+    );
+    let (ok, err) = check("lune-trace", &positional);
+    assert!(!ok && err.contains("trace: expected a table"), "{err}");
+}

@@ -172,17 +172,190 @@ fn parse(text: &str) -> Result<toml::Value, ConfigError> {
     Ok(value)
 }
 
-/// Deserialise `value` into `T`, naming the key of the first error.
-fn typed<T: serde::de::DeserializeOwned>(value: toml::Value) -> Result<T, ConfigError> {
-    serde_path_to_error::deserialize(value).map_err(|e| {
-        let key = e.path().to_string();
-        let inner = e.into_inner().to_string();
-        ConfigError(if key == "." {
-            inner
-        } else {
-            format!("{key}: {inner}")
+/// Deserialise `value` into `T`, naming the key of the first error. Inside tables tagged by `kind`
+/// (lights, views, phase functions, profiles, …) serde loses the key, so the error is narrowed
+/// down by [`narrow`] to the key that causes it (`view[0].axis`, not `view[0]`).
+fn typed<T: serde::de::DeserializeOwned + serde::Serialize>(
+    value: toml::Value,
+) -> Result<T, ConfigError> {
+    let backup = value.clone();
+    match serde_path_to_error::deserialize::<_, T>(value) {
+        Ok(t) => {
+            let read = serde_json::to_value(&t).map_err(|e| ConfigError(e.to_string()))?;
+            tables_stay_tables(&backup, &read, &mut Vec::new())?;
+            Ok(t)
+        }
+        Err(e) => {
+            let at = segments(e.path());
+            let message = e.into_inner().message().to_string();
+            let (at, message) = narrow::<T>(&backup, at, message);
+            Err(ConfigError(if at.is_empty() {
+                message
+            } else {
+                format!("{}: {message}", display(&at))
+            }))
+        }
+    }
+}
+
+/// Refuse an array where the schema has a table: serde reads a table's keys from an array by
+/// position, so `trace = [10.0]` would silently mean `trace = { step = 10.0 }`. `read` is what was
+/// understood (serialised back); wherever it holds a table, the input must hold one too.
+fn tables_stay_tables(
+    input: &toml::Value,
+    read: &serde_json::Value,
+    at: &mut Vec<Step>,
+) -> Result<(), ConfigError> {
+    use serde_json::Value as J;
+    use toml::Value as T;
+    match (input, read) {
+        (T::Array(_), J::Object(keys)) => {
+            let keys: Vec<&str> = keys.keys().map(String::as_str).collect();
+            Err(ConfigError(format!(
+                "{}: expected a table (keys {}), found an array",
+                display(at),
+                keys.join(", ")
+            )))
+        }
+        (T::Table(t), J::Object(o)) => {
+            for (k, v) in t {
+                if let Some(r) = o.get(k) {
+                    at.push(Step::Key(k.clone()));
+                    tables_stay_tables(v, r, at)?;
+                    at.pop();
+                }
+            }
+            Ok(())
+        }
+        (T::Array(a), J::Array(r)) => {
+            for (i, (v, r)) in a.iter().zip(r).enumerate() {
+                at.push(Step::Index(i));
+                tables_stay_tables(v, r, at)?;
+                at.pop();
+            }
+            Ok(())
+        }
+        _ => Ok(()),
+    }
+}
+
+/// One step of a key path: a table key or an array index.
+#[derive(Clone, Debug, PartialEq)]
+enum Step {
+    Key(String),
+    Index(usize),
+}
+
+fn segments(path: &serde_path_to_error::Path) -> Vec<Step> {
+    use serde_path_to_error::Segment;
+    path.iter()
+        .filter_map(|s| match s {
+            Segment::Seq { index } => Some(Step::Index(*index)),
+            Segment::Map { key } => Some(Step::Key(key.clone())),
+            Segment::Enum { .. } | Segment::Unknown => None,
         })
+        .collect()
+}
+
+/// `view[0].axis`
+fn display(at: &[Step]) -> String {
+    let mut s = String::new();
+    for step in at {
+        match step {
+            Step::Key(k) if s.is_empty() => s += k,
+            Step::Key(k) => s += &format!(".{k}"),
+            Step::Index(i) => s += &format!("[{i}]"),
+        }
+    }
+    s
+}
+
+fn node_mut<'a>(v: &'a mut toml::Value, at: &[Step]) -> Option<&'a mut toml::Value> {
+    at.iter().try_fold(v, |v, step| match step {
+        Step::Key(k) => v.as_table_mut()?.get_mut(k),
+        Step::Index(i) => v.as_array_mut()?.get_mut(*i),
     })
+}
+
+/// The first error of deserialising `value` as `T`: its path and message.
+fn first_error<T: serde::de::DeserializeOwned>(value: toml::Value) -> Option<(Vec<Step>, String)> {
+    serde_path_to_error::deserialize::<_, T>(value)
+        .err()
+        .map(|e| (segments(e.path()), e.into_inner().message().to_string()))
+}
+
+/// Narrow an error reported at a table (serde cannot see into tables tagged by `kind`) down to the
+/// key that causes it: keep one key at a time (with the tag) and see which one alone still fails
+/// with something other than a missing field; then look inside that key. Arrays of tables are
+/// narrowed to the element. Returns the path as the user wrote it (original array indices).
+fn narrow<T: serde::de::DeserializeOwned>(
+    root: &toml::Value,
+    at: Vec<Step>,
+    message: String,
+) -> (Vec<Step>, String) {
+    let missing = |m: &str| m.starts_with("missing field");
+    let (mut probe, mut probe_at, mut shown, mut message) = (root.clone(), at.clone(), at, message);
+    for _ in 0..16 {
+        if missing(&message) {
+            break;
+        }
+        let Some(node) = node_mut(&mut probe, &probe_at).map(|n| n.clone()) else {
+            break;
+        };
+        // candidates: (replacement node, the step it narrows to, the step as shown)
+        let candidates: Vec<(toml::Value, Step, Step)> = match &node {
+            toml::Value::Table(t) => t
+                .iter()
+                .map(|(k, v)| {
+                    let mut reduced = toml::Table::new();
+                    if let Some(tag) = t.get("kind") {
+                        reduced.insert("kind".into(), tag.clone());
+                    }
+                    reduced.insert(k.clone(), v.clone());
+                    (
+                        toml::Value::Table(reduced),
+                        Step::Key(k.clone()),
+                        Step::Key(k.clone()),
+                    )
+                })
+                .collect(),
+            toml::Value::Array(a) if a.iter().any(toml::Value::is_table) => a
+                .iter()
+                .enumerate()
+                .map(|(i, v)| {
+                    (
+                        toml::Value::Array(vec![v.clone()]),
+                        Step::Index(0),
+                        Step::Index(i),
+                    )
+                })
+                .collect(),
+            _ => break,
+        };
+        let found = candidates
+            .into_iter()
+            .find_map(|(replacement, step, show)| {
+                let mut candidate = probe.clone();
+                *node_mut(&mut candidate, &probe_at)? = replacement;
+                let (path, m) = first_error::<T>(candidate.clone())?;
+                // the error must stay on this key's lineage (serde may report it at a tagged ancestor)
+                let lineage = path.starts_with(&probe_at) || probe_at.starts_with(&path);
+                (!missing(&m) && lineage).then_some((candidate, step, show, path, m))
+            });
+        let Some((candidate, step, show, path, m)) = found else {
+            break;
+        };
+        probe = candidate;
+        probe_at.push(step);
+        shown.push(show);
+        message = m;
+        // serde may already see deeper than the narrowed key (plain tables below it)
+        if path.len() > probe_at.len() && path.starts_with(&probe_at) {
+            shown.extend_from_slice(&path[probe_at.len()..]);
+            probe_at = path;
+        }
+    }
+    (shown, message)
 }
 
 fn build(value: toml::Value, path: &Path) -> Result<Task, ConfigError> {
