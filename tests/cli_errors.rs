@@ -497,3 +497,69 @@ fn errors_inside_tagged_tables_name_the_full_key() {
     let (ok, err) = check("lune-trace", &positional);
     assert!(!ok && err.contains("trace: expected a table"), "{err}");
 }
+
+/// `lightpath trace` refuses a step too coarse for the field (a Luneburg lens at step 10 once
+/// missed its focus by 0.35 R and exited 0) or too fine to cross it within max_steps (once "0
+/// through the field" as a success), warns with an estimate when the exit points are uncertain, and
+/// `check` refuses an ultrasonic field whose Bessel sum would take forever (once a hang).
+#[test]
+fn trace_steps_are_checked_against_the_field() {
+    let lune = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/configs/luneburg.toml"
+    ))
+    .unwrap();
+    let trace = |name: &str, step: &str| {
+        let d = tmpdir(name);
+        let cfg = d.join("l.toml");
+        std::fs::write(
+            &cfg,
+            lune.replace("step = 0.002", &format!("step = {step}")),
+        )
+        .unwrap();
+        let o = Command::new(env!("CARGO_BIN_EXE_lightpath"))
+            .args([
+                "trace",
+                cfg.to_str().unwrap(),
+                "--out",
+                d.join("o").to_str().unwrap(),
+            ])
+            .output()
+            .unwrap();
+        (
+            o.status.success(),
+            String::from_utf8_lossy(&o.stdout).into_owned() + &String::from_utf8_lossy(&o.stderr),
+            d.join("o/rays.json").exists(),
+        )
+    };
+    let (ok, err, wrote) = trace("lune-coarse", "10.0");
+    assert!(
+        !ok && !wrote && err.contains("trace.step = 10") && err.contains("too coarse"),
+        "{err}"
+    );
+    let (ok, err, wrote) = trace("lune-fine", "1e-9");
+    assert!(!ok && !wrote && err.contains("max_steps"), "{err}");
+    let (ok, out, wrote) = trace("lune-warn", "0.1");
+    assert!(
+        ok && wrote && out.contains("warning") && out.contains("uncertain"),
+        "{out}"
+    );
+    let (ok, out, _) = trace("lune-good", "0.002");
+    assert!(ok && !out.contains("warning"), "{out}");
+    let us = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/configs/ultrasonic_lens.toml"
+    ))
+    .unwrap();
+    for (from, to) in [
+        ("k_r = 4.0", "k_r = 1e15"),
+        ("radius = 5.0", "radius = 1e15"),
+    ] {
+        assert!(us.contains(from));
+        let (ok, err) = check("us-big", &us.replace(from, to));
+        assert!(
+            !ok && err.contains("field.profiles[0].k_r") && err.contains("k_r·r"),
+            "{err}"
+        );
+    }
+}

@@ -238,6 +238,9 @@ pub fn param_fit(task: &ParamFitTask, show: bool, out: &Path) -> Result<Outcome>
     })
 }
 
+/// The fewest leapfrog steps a ray may take across the field's largest extent.
+const MIN_STEPS_ACROSS: f64 = 20.0;
+
 /// `lightpath trace`: trace a bundle of rays through an index field → rays.json and rays.png.
 pub fn trace(task: &TraceTask, out: &Path) -> Result<Outcome> {
     use crate::eikonal::{IndexField, Tracer};
@@ -248,28 +251,51 @@ pub fn trace(task: &TraceTask, out: &Path) -> Result<Outcome> {
         step: task.step,
         max_steps: task.max_steps,
     };
+    // the field's largest extent: the scale the step is measured against
+    let size = field.bounds.half_extent().map(|h| 2.0 * h.max_element());
+    if let Some(size) = size
+        && task.step > size / MIN_STEPS_ACROSS
+    {
+        return Err(Error::input(format!(
+            "trace.step = {} is too coarse for a field {size:.3e} across: a ray would take fewer than {MIN_STEPS_ACROSS} steps through it and could not follow the index; use a step of at most {:.3e}",
+            task.step,
+            size / MIN_STEPS_ACROSS
+        )));
+    }
+    if let Some(size) = size
+        && task.step * (task.max_steps as f64) < size
+    {
+        return Err(Error::input(format!(
+            "trace.step = {} × max_steps = {} covers a path of {:.3e}, shorter than the field ({size:.3e} across): no ray could cross it; raise trace.max_steps or the step",
+            task.step,
+            task.max_steps,
+            task.step * task.max_steps as f64
+        )));
+    }
     create_out(out, &["rays.json", "rays.png"])?;
     let t0 = Instant::now();
-    let traced: Vec<(crate::eikonal::RayEnd, Vec<DVec3>, Option<DVec3>)> = rays
-        .par_iter()
-        .map(|&(o, d)| {
-            let mut path = vec![o];
-            let mut bad = None;
-            let mut k = 0usize;
-            let end = tracer.trace_with(o, d, |x| {
-                let n = field.n(x);
-                if bad.is_none() && !(n > 0.0 && n.is_finite()) {
-                    bad = Some(x);
-                }
-                if k.is_multiple_of(16) {
-                    path.push(x);
-                }
-                k += 1;
-            });
-            path.push(end.x);
-            (end, path, bad)
-        })
-        .collect();
+    let trace_all = |tracer: &Tracer, rays: &[(DVec3, DVec3)]| {
+        rays.par_iter()
+            .map(|&(o, d)| {
+                let mut path = vec![o];
+                let mut bad = None;
+                let mut k = 0usize;
+                let end = tracer.trace_with(o, d, |x| {
+                    let n = field.n(x);
+                    if bad.is_none() && !(n > 0.0 && n.is_finite()) {
+                        bad = Some(x);
+                    }
+                    if k.is_multiple_of(16) {
+                        path.push(x);
+                    }
+                    k += 1;
+                });
+                path.push(end.x);
+                (end, path, bad)
+            })
+            .collect::<Vec<(crate::eikonal::RayEnd, Vec<DVec3>, Option<DVec3>)>>()
+    };
+    let traced = trace_all(&tracer, rays);
     if !traced.iter().any(|t| t.0.entered) {
         return Err(Error::input(format!(
             "rays: none of the {} rays meets the field's bounds: check rays.center / rays.origin and the direction",
@@ -282,6 +308,66 @@ pub fn trace(task: &TraceTask, out: &Path) -> Result<Outcome> {
             field.n(x)
         )));
     }
+    if size.is_some() && !traced.iter().any(|t| t.0.entered && t.0.exited) {
+        return Err(Error::input(format!(
+            "no ray left the field within trace.max_steps = {} steps of {}: raise max_steps (or the step)",
+            task.max_steps, task.step
+        )));
+    }
+    // the step's error: the exit points of a few rays traced again at half the step (the leapfrog
+    // is second order, so the error at `step` is about 4/3 of the difference)
+    let probe: Vec<usize> = {
+        let through: Vec<usize> = (0..traced.len())
+            .filter(|&i| traced[i].0.entered && traced[i].0.exited)
+            .collect();
+        let mut p = vec![
+            through[0],
+            through[through.len() / 2],
+            through[through.len() - 1],
+        ];
+        p.dedup();
+        p
+    };
+    let fine = Tracer {
+        field,
+        step: 0.5 * task.step,
+        max_steps: task.max_steps.saturating_mul(2),
+    };
+    let again = trace_all(&fine, &probe.iter().map(|&i| rays[i]).collect::<Vec<_>>());
+    let step_error = probe
+        .iter()
+        .zip(&again)
+        .map(|(&i, t)| {
+            if t.0.exited {
+                4.0 / 3.0 * (t.0.x - traced[i].0.x).length()
+            } else {
+                f64::INFINITY
+            }
+        })
+        .fold(0.0, f64::max);
+    let scale = size.unwrap_or_else(|| {
+        probe
+            .iter()
+            .map(|&i| (traced[i].0.x - rays[i].0).length())
+            .fold(0.0, f64::max)
+    });
+    let relative = step_error / scale;
+    // second order: the step that would bring the error to 0.1 % of the field's size
+    let suggest = task.step * (1e-3 / relative).sqrt().min(1.0);
+    if relative > 1e-2 {
+        return Err(Error::input(format!(
+            "trace.step = {} is too coarse for this field: halving it moves the rays' exit points by ~{step_error:.3e} ({:.1} % of the field's {scale:.3e} size); use a step of about {suggest:.3e} or less",
+            task.step,
+            100.0 * relative
+        )));
+    }
+    let warning = (relative > 1e-3).then(|| {
+        format!(
+            "\nwarning: the exit points are uncertain by ~{step_error:.3e} ({:.2} % of the field's size) at trace.step = {}; a step of {suggest:.3e} brings that to 0.1 %",
+            100.0 * relative,
+            task.step
+        )
+    });
 
     let seconds = t0.elapsed().as_secs_f64();
     let file = RaysFile {
@@ -300,6 +386,7 @@ pub fn trace(task: &TraceTask, out: &Path) -> Result<Outcome> {
                 exited: e.exited,
             })
             .collect(),
+        step_error: Some(step_error),
         seconds,
         version: env!("CARGO_PKG_VERSION").into(),
         config: task.config.clone(),
@@ -321,8 +408,9 @@ pub fn trace(task: &TraceTask, out: &Path) -> Result<Outcome> {
         not_converged: None,
         files: vec![path, png],
         summary: format!(
-            "traced {} rays ({exited} through the field) in {seconds:.2} s",
-            rays.len()
+            "traced {} rays ({exited} through the field) in {seconds:.2} s; exit points uncertain by ~{step_error:.2e} from the step{}",
+            rays.len(),
+            warning.unwrap_or_default()
         ),
     })
 }

@@ -121,6 +121,10 @@ pub enum RaysConfig {
     },
 }
 
+/// The largest `k_r · r` of an ultrasonic profile inside its bounds (about as many plane waves per
+/// evaluation; 10⁵ wavelengths across is far beyond any acousto-optic lens).
+const MAX_BESSEL_ARGUMENT: f64 = 1e5;
+
 /// The `[trace]` table of every GRIN config: the leapfrog step and when a ray stops.
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -287,6 +291,24 @@ impl FieldConfig {
                 }
             }
         };
+        // the ultrasonic harmonic is a sum of ~k_r·r plane waves (eikonal::bessel): bound its cost
+        let r_max = match bounds {
+            Bounds::Everywhere => None,
+            Bounds::Sphere { radius } | Bounds::Cylinder { radius, .. } => Some(radius),
+            Bounds::Box { half } => Some(half.x.hypot(half.y)),
+        };
+        if let Some(r_max) = r_max {
+            for (i, p) in profiles.iter().enumerate() {
+                if let Profile::Ultrasonic { k_r, .. } = p
+                    && k_r * r_max > MAX_BESSEL_ARGUMENT
+                {
+                    return err(format!(
+                        "field.profiles[{i}].k_r = {k_r} within {r_max:.4e} of the axis (field.bounds): k_r·r reaches {:.3e}, beyond {MAX_BESSEL_ARGUMENT:e} (each evaluation sums ~k_r·r plane waves); check the units of k_r and field.bounds",
+                        k_r * r_max
+                    ));
+                }
+            }
+        }
         let field = BoundedField {
             profiles,
             bounds,

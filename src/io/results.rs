@@ -517,6 +517,10 @@ pub struct RaysFile {
     #[serde(default)]
     pub format_version: u32,
     pub rays: Vec<RayRecord>,
+    /// Estimated error of the exit positions from the step (a few rays traced again at half the
+    /// step; 4/3 of the largest change, the leapfrog being second order).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub step_error: Option<f64>,
     pub seconds: f64,
     pub version: String,
     pub config: crate::config::TraceConfig,
