@@ -26,13 +26,17 @@ impl Default for Budget {
     }
 }
 
-/// Work (paths × events) below which no pilot is timed: such runs take well under a minute.
-const NO_PILOT_BELOW: f64 = 2e6;
+/// Work (paths × events × outputs updated per event) below which no pilot is timed: such runs
+/// take well under a second.
+const NO_PILOT_BELOW: f64 = 1e8;
 /// Events a pilot traces (a few tens of milliseconds).
 const PILOT_EVENTS: f64 = 1e5;
-/// The cheapest scattering event seen on any scene (one light, one view), in seconds: the floor
-/// of a time estimate when paths are too long to time a pilot.
+/// Output updates a pilot makes (tens of milliseconds).
+const PILOT_UPDATES: f64 = 3e7;
+/// The cheapest scattering event seen on any scene (one light, one view), in seconds, and the
+/// cheapest update of one output: the floor of a time estimate when paths are too long to time.
 const FASTEST_EVENT: f64 = 1e-8;
+const FASTEST_UPDATE: f64 = 2e-10;
 
 /// How much a run of `paths` subpaths of `est` in `medium` would take (chunks `chunks`, `kept`
 /// outputs kept per chunk); an error naming `what` and the limit when beyond `budget`.
@@ -63,27 +67,33 @@ pub fn check<E: Estimator>(
         )));
     }
     let events = expected_events(medium);
-    let work = paths * events;
+    let work = paths * events * est.outputs() as f64;
     if work < NO_PILOT_BELOW {
         return Ok(());
     }
-    let per_path = if events * FASTEST_EVENT > 1.0 {
-        // a single path takes more than a second: time nothing, take the cheapest event cost
-        events * FASTEST_EVENT
+    let outputs = est.outputs().max(1) as f64;
+    let floor = events * (FASTEST_EVENT + outputs * FASTEST_UPDATE);
+    let per_path = if floor > 1.0 {
+        // a single path takes more than a second: time nothing, take the cheapest costs
+        floor
     } else {
-        let pilot = (PILOT_EVENTS / events).clamp(1.0, 10_000.0).round() as u64;
+        let pilot = (PILOT_EVENTS / events)
+            .min(PILOT_UPDATES / (events * outputs))
+            .clamp(1.0, 10_000.0)
+            .round() as u64;
         let mut scratch = est.scratch();
         let mut out = vec![C64::default(); est.outputs()];
         let mut rng = stream_rng(0x0050_494c_4f54, 0);
         let t0 = Instant::now();
         est.run_chunk(&mut rng, pilot, &mut scratch, &mut out);
-        (t0.elapsed().as_secs_f64() / pilot as f64).max(events * FASTEST_EVENT)
+        (t0.elapsed().as_secs_f64() / pilot as f64).max(floor)
     };
     let seconds = paths * per_path / threads as f64;
     if seconds > 60.0 * budget.max_minutes {
         let tau = medium.sigma_s * medium.geometry.smallest_extent();
         return Err(Error::input(format!(
-            "{what}: {paths:.3e} paths of ~{events:.3e} scattering events each (optical thickness σ_s·d = {tau:.3e} over the smallest extent, albedo {:.6}, g = {:.3}) would take an estimated {} on {threads} threads, beyond --max-minutes {}. Use fewer samples, a thinner or more absorbing medium (a longer mfp), more --threads or shards, or raise --max-minutes",
+            "{what}: {paths:.3e} paths of ~{events:.3e} scattering events each, updating {} outputs at each (optical thickness σ_s·d = {tau:.3e} over the smallest extent, albedo {:.6}, g = {:.3}) would take an estimated {} on {threads} threads, beyond --max-minutes {}. Use fewer samples, a thinner or more absorbing medium (a longer mfp), fewer lights or views, more --threads or shards, or raise --max-minutes",
+            est.outputs(),
             medium.albedo(),
             medium.mean_cosine(),
             duration(seconds),

@@ -302,6 +302,25 @@ fn narrow<T: serde::de::DeserializeOwned>(
         let Some(node) = node_mut(&mut probe, &probe_at).map(|n| n.clone()) else {
             break;
         };
+        // if the error stays with this node emptied (its tag kept), its contents do not cause it
+        let emptied = match &node {
+            toml::Value::Table(t) => Some(toml::Value::Table(
+                t.get("kind")
+                    .map(|tag| toml::Table::from_iter([("kind".to_string(), tag.clone())]))
+                    .unwrap_or_default(),
+            )),
+            toml::Value::Array(_) => Some(toml::Value::Array(vec![])),
+            _ => None,
+        };
+        if let Some(emptied) = emptied {
+            let mut candidate = probe.clone();
+            if let Some(n) = node_mut(&mut candidate, &probe_at) {
+                *n = emptied;
+            }
+            if first_error::<T>(candidate).is_some_and(|(_, m)| !missing(&m) && m == message) {
+                break;
+            }
+        }
         // candidates: (replacement node, the step it narrows to, the step as shown)
         let candidates: Vec<(toml::Value, Step, Step)> = match &node {
             toml::Value::Table(t) => t
@@ -360,7 +379,19 @@ fn narrow<T: serde::de::DeserializeOwned>(
 
 fn build(value: toml::Value, path: &Path) -> Result<Task, ConfigError> {
     let kind = match &value {
-        toml::Value::Table(t) => TaskKind::of(t),
+        toml::Value::Table(t) => {
+            // design tables without the beams they shape: say so rather than read a trace config
+            if t.contains_key("field") && !t.contains_key("beam") {
+                for table in ["parameters", "grid"] {
+                    if t.contains_key(table) {
+                        return err(format!(
+                            "beam: missing: a [{table}] table designs the field for [[beam]] tables (a center, direction, spread and focus each); give at least one, or drop [{table}] to trace rays"
+                        ));
+                    }
+                }
+            }
+            TaskKind::of(t)
+        }
         _ => return err("the config must be a TOML table"),
     };
     Ok(match kind {

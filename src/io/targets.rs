@@ -43,11 +43,21 @@ pub fn read(path: &Path) -> crate::Result<Target> {
         } else {
             let angles_deg = floats(&v, "angles_deg", path)?;
             let correlation = floats(&v, "correlation", path)?;
-            let stderr = ["correlation_stderr", "stderr"]
-                .iter()
-                .find(|k| v.get(**k).is_some())
-                .map(|k| floats(&v, k, path))
-                .transpose()?;
+            let key = ["correlation_stderr", "stderr"]
+                .into_iter()
+                .find(|k| v.get(*k).is_some());
+            let stderr = key.map(|k| floats(&v, k, path)).transpose()?;
+            if let (Some(k), Some(s)) = (key, &stderr)
+                && let Some((i, x)) = s
+                    .iter()
+                    .enumerate()
+                    .find(|(_, x)| !(**x > 0.0 && x.is_finite()))
+            {
+                return Err(crate::Error::input(format!(
+                    "{}: {k}[{i}] = {x}: a standard error must be positive and finite",
+                    path.display()
+                )));
+            }
             Target::Memory {
                 angles_deg,
                 correlation,
@@ -296,6 +306,15 @@ fn csv(text: &str, path: &Path) -> crate::Result<Target> {
             .collect();
         let nums: Result<Vec<f64>, _> = f.iter().map(|x| x.parse::<f64>()).collect();
         match nums {
+            Ok(x) if x.len() == 3 && !(x[2] > 0.0 && x[2].is_finite()) => {
+                return Err(format!(
+                    "{}: line {}: stderr = {}: a standard error must be positive and finite",
+                    path.display(),
+                    n + 1,
+                    x[2]
+                )
+                .into());
+            }
             Ok(x) if x.len() == 2 || x.len() == 3 => {
                 a.push(x[0]);
                 c.push(x[1]);
