@@ -38,11 +38,42 @@ enum Step {
     Index(usize),
 }
 
-/// A mutant: what was changed (for reports), the key names an error should mention, and the text.
+/// A mutant: what was changed (for reports), the key names an error may mention (the mutated
+/// path's, or any key of the file written as a key reference: `key.`, `key[`, `key =`, `key:`),
+/// and the text.
 struct Mutant {
     what: String,
     keys: Vec<String>,
     text: String,
+}
+
+/// Every key name in a TOML document.
+fn key_names(v: &toml::Value, out: &mut Vec<String>) {
+    match v {
+        toml::Value::Table(t) => {
+            for (k, x) in t {
+                if !out.contains(k) {
+                    out.push(k.clone());
+                }
+                key_names(x, out);
+            }
+        }
+        toml::Value::Array(a) => a.iter().for_each(|x| key_names(x, out)),
+        _ => {}
+    }
+}
+
+/// Whether `err` names a key: one of `keys` anywhere, or one of `refs` as a key reference.
+fn names_a_key(err: &str, keys: &[String], refs: &[String]) -> bool {
+    keys.iter().any(|k| err.contains(k.as_str()))
+        || refs.iter().any(|k| {
+            [".", "[", " =", ":"]
+                .iter()
+                .any(|end| err.contains(&format!("{k}{end}")))
+        })
+        || ["line ", "--max-", "missing field", "TOML parse error"]
+            .iter()
+            .any(|n| err.contains(n))
 }
 
 fn at<'a>(v: &'a mut toml::Value, path: &[Step]) -> &'a mut toml::Value {
@@ -139,7 +170,7 @@ fn mutants(text: &str) -> Vec<Mutant> {
                     0.0,
                     -1.0,
                 ] {
-                    push(path, &format!("= {x}"), replaced(toml::Value::Float(x)));
+                    push(path, &format!("= {x:e}"), replaced(toml::Value::Float(x)));
                 }
                 for x in [0i64, -1, i64::MAX, 7200] {
                     push(path, &format!("= {x}"), replaced(toml::Value::Integer(x)));
@@ -220,8 +251,8 @@ fn null_inside(v: &serde_json::Value, key: &str) -> bool {
     }
 }
 
-/// Run `args` with a time limit and judge it.
-fn judge(args: &[String], out: &Path, keys: &[String]) -> Verdict {
+/// Run `args` with a time limit and judge it (`keys`, `refs`: see [`names_a_key`]).
+fn judge(args: &[String], out: &Path, keys: &[String], refs: &[String]) -> Verdict {
     let mut child = Command::new(env!("CARGO_BIN_EXE_lightpath"))
         .args(args)
         .stdout(Stdio::null())
@@ -266,11 +297,7 @@ fn judge(args: &[String], out: &Path, keys: &[String]) -> Verdict {
         }
         Some(_) if err.contains("panicked") => Verdict::Panic(err),
         Some(_) => {
-            let named = keys.iter().any(|k| err.contains(k.as_str()))
-                || ["line ", "--max-", "missing field", "TOML parse error"]
-                    .iter()
-                    .any(|n| err.contains(n));
-            if named {
+            if names_a_key(&err, keys, refs) {
                 Verdict::Refused
             } else {
                 Verdict::Unnamed(err)
@@ -313,8 +340,10 @@ fn corpus(stride: usize, workers: usize) -> (usize, Vec<(String, Verdict)>) {
     for (c, cmd) in CONFIGS {
         let text = std::fs::read_to_string(root.join(c)).unwrap();
         let dir = root.join(c).parent().unwrap().to_path_buf();
+        let mut refs = Vec::new();
+        key_names(&toml::from_str(&text).unwrap(), &mut refs);
         for m in mutants(&text) {
-            jobs.push((c.to_string(), cmd.to_string(), dir.clone(), m));
+            jobs.push((c.to_string(), cmd.to_string(), dir.clone(), refs.clone(), m));
         }
     }
     let jobs: Vec<_> = jobs.into_iter().step_by(stride).collect();
@@ -328,7 +357,7 @@ fn corpus(stride: usize, workers: usize) -> (usize, Vec<(String, Verdict)>) {
             std::thread::spawn(move || {
                 loop {
                     let i = next.fetch_add(1, Ordering::Relaxed);
-                    let Some((name, cmd, dir, m)) = jobs.get(i) else {
+                    let Some((name, cmd, dir, refs, m)) = jobs.get(i) else {
                         break;
                     };
                     let work = base.join(format!("w{w}"));
@@ -338,7 +367,7 @@ fn corpus(stride: usize, workers: usize) -> (usize, Vec<(String, Verdict)>) {
                     let cfg = dir.join(format!(".fuzz-{}-{w}.toml", std::process::id()));
                     std::fs::write(&cfg, &m.text).unwrap();
                     let out = work.join("out");
-                    let v = judge(&command(cmd, &cfg, &out), &out, &m.keys);
+                    let v = judge(&command(cmd, &cfg, &out), &out, &m.keys, refs);
                     let _ = std::fs::remove_file(&cfg);
                     if !matches!(v, Verdict::Ok | Verdict::Refused) {
                         bad.lock().unwrap().push((format!("{name}: {}", m.what), v));
@@ -466,8 +495,11 @@ fn target_corpus(stride: usize) -> (usize, Vec<(String, Verdict)>) {
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     }
     let mut jobs = Vec::new();
+    let mut refs: Vec<String> = Vec::new();
     for file in ["memory_effect.json", "covariance.json"] {
         let text = std::fs::read_to_string(base.join("t").join(file)).unwrap();
+        let doc: serde_json::Value = serde_json::from_str(&text).unwrap();
+        refs.extend(doc.as_object().unwrap().keys().cloned());
         for m in json_mutants(&text) {
             jobs.push((file.to_string(), "json", m));
         }
@@ -525,7 +557,7 @@ fn target_corpus(stride: usize) -> (usize, Vec<(String, Verdict)>) {
         ]
         .map(String::from)
         .to_vec();
-        let v = judge(&args, &out, &m.keys);
+        let v = judge(&args, &out, &m.keys, &refs);
         if !matches!(v, Verdict::Ok | Verdict::Refused) {
             bad.push((format!("{file}: {}", m.what), v));
         }
@@ -687,7 +719,7 @@ fn extreme_physics_stays_finite() {
             ]
             .map(String::from)
             .to_vec();
-            let v = judge(&args, &out, &[]);
+            let v = judge(&args, &out, &[], &[]);
             assert!(matches!(v, Verdict::Ok), "{name} ({cmd}): {v:?}");
         }
     }

@@ -26,11 +26,15 @@ impl Default for Budget {
     }
 }
 
-/// Work (paths × events × outputs updated per event) below which no pilot is timed: such runs
-/// take well under a second.
+/// Work (paths × events × each event's cost in output updates) below which no pilot is timed:
+/// such runs take well under a second.
 const NO_PILOT_BELOW: f64 = 1e8;
 /// Events a pilot traces (a few tens of milliseconds).
 const PILOT_EVENTS: f64 = 1e5;
+/// How long a pilot runs: at least the first, at most the second (past it, the batch under way
+/// finishes and the pilot stops).
+const PILOT_MIN_TIME: std::time::Duration = std::time::Duration::from_millis(30);
+const PILOT_TIME: std::time::Duration = std::time::Duration::from_millis(100);
 /// Output updates a pilot makes (tens of milliseconds).
 const PILOT_UPDATES: f64 = 3e7;
 /// The cheapest scattering event seen on any scene (one light, one view), in seconds, and the
@@ -67,26 +71,33 @@ pub fn check<E: Estimator>(
         )));
     }
     let events = expected_events(medium);
-    let work = paths * events * est.outputs() as f64;
+    let cost = est.event_cost().max(1.0);
+    let work = paths * events * cost;
     if work < NO_PILOT_BELOW {
         return Ok(());
     }
-    let outputs = est.outputs().max(1) as f64;
-    let floor = events * (FASTEST_EVENT + outputs * FASTEST_UPDATE);
+    let floor = events * (FASTEST_EVENT + cost * FASTEST_UPDATE);
     let per_path = if floor > 1.0 {
         // a single path takes more than a second: time nothing, take the cheapest costs
         floor
     } else {
-        let pilot = (PILOT_EVENTS / events)
-            .min(PILOT_UPDATES / (events * outputs))
-            .clamp(1.0, 10_000.0)
-            .round() as u64;
+        // doubling batches of paths until the pilot has run long enough (or its share is done),
+        // so that a cost model that is off cannot make the pilot itself long
+        let cap = (PILOT_EVENTS / events)
+            .min(PILOT_UPDATES / (events * cost))
+            .clamp(1.0, 10_000.0) as u64;
         let mut scratch = est.scratch();
         let mut out = vec![C64::default(); est.outputs()];
         let mut rng = stream_rng(0x0050_494c_4f54, 0);
+        let (mut done, mut batch) = (0u64, 1u64);
         let t0 = Instant::now();
-        est.run_chunk(&mut rng, pilot, &mut scratch, &mut out);
-        (t0.elapsed().as_secs_f64() / pilot as f64).max(floor)
+        // at least PILOT_MIN_TIME (one path may be far cheaper than the mean), at most PILOT_TIME
+        while (done < cap || t0.elapsed() < PILOT_MIN_TIME) && t0.elapsed() < PILOT_TIME {
+            est.run_chunk(&mut rng, batch, &mut scratch, &mut out);
+            done += batch;
+            batch *= 2;
+        }
+        (t0.elapsed().as_secs_f64() / done as f64).max(floor)
     };
     let seconds = paths * per_path / threads as f64;
     if seconds > 60.0 * budget.max_minutes {

@@ -21,6 +21,27 @@ pub fn check(path: &Path) -> Result<Outcome> {
                 s.medium.sigma_a,
                 s.k
             );
+            // what a covariance of every light × view field would cost
+            let est = crate::speckle::Covariance::all_pairs(s, t.config.render.reversed)?;
+            let plan = crate::mc::Plan::new(0, t.config.render.samples, t.config.render.chunk);
+            let gb = crate::mc::working_bytes(
+                crate::mc::Estimator::outputs(&est),
+                crate::mc::Estimator::scratch_bytes(&est),
+                0,
+                plan.chunks,
+                rayon::current_num_threads(),
+            ) / 1e9;
+            what += &format!(
+                "; ~{:.3} scattering events per path; `covariance` holds {} light×view fields (~{gb:.2} GB)",
+                crate::speckle::paths::expected_events(&s.medium),
+                est.fields()
+            );
+            let limit = super::budget::Budget::default().max_memory_gb;
+            if gb > limit {
+                what += &format!(
+                    " — beyond the default --max-memory-gb {limit}: `covariance` would refuse it (`speckle` needs far less)"
+                );
+            }
             // focused endpoints see the amplitude through its vMF lobes: say how well they fit
             let focused = s
                 .lights

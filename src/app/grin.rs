@@ -316,15 +316,16 @@ pub fn trace(task: &TraceTask, out: &Path) -> Result<Outcome> {
     }
     // the step's error: the exit points of a few rays traced again at half the step (the leapfrog
     // is second order, so the error at `step` is about 4/3 of the difference)
+    // (rays through the field, or without bounds every ray that entered, compared where it ends:
+    // at half the step and twice the steps it covers the same length)
     let probe: Vec<usize> = {
         let through: Vec<usize> = (0..traced.len())
-            .filter(|&i| traced[i].0.entered && traced[i].0.exited)
+            .filter(|&i| traced[i].0.entered && (traced[i].0.exited || size.is_none()))
             .collect();
-        let mut p = vec![
-            through[0],
-            through[through.len() / 2],
-            through[through.len() - 1],
-        ];
+        let mut p: Vec<usize> = [0, through.len() / 2, through.len().saturating_sub(1)]
+            .iter()
+            .filter_map(|&k| through.get(k).copied())
+            .collect();
         p.dedup();
         p
     };
@@ -338,7 +339,7 @@ pub fn trace(task: &TraceTask, out: &Path) -> Result<Outcome> {
         .iter()
         .zip(&again)
         .map(|(&i, t)| {
-            if t.0.exited {
+            if t.0.exited == traced[i].0.exited {
                 4.0 / 3.0 * (t.0.x - traced[i].0.x).length()
             } else {
                 f64::INFINITY

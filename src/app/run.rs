@@ -742,7 +742,7 @@ fn finish_memory(
         .any(|x| !x.is_finite())
     {
         return Err(Error::Numerical(
-            "memory-effect: the curve holds non-finite values (no light reached the view?); nothing was written".into(),
+            "memory-effect: the curve holds non-finite values: no light reached the view (its intensity C(0) is 0); check medium.mfp, medium.albedo, the geometry and the view's direction; nothing was written".into(),
         ));
     }
     let file = MemoryEffectFile {

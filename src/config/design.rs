@@ -52,14 +52,28 @@ pub struct BeamConfig {
 }
 
 /// The beams of a design or fit config, every value checked.
+/// The most beams a design traces.
+const MAX_BEAMS: usize = 64;
+
 pub fn beams(config: &[BeamConfig]) -> Result<Vec<Beam>, ConfigError> {
     if config.is_empty() {
         return err("beam: give at least one [[beam]]");
+    }
+    if config.len() > MAX_BEAMS {
+        return err(format!(
+            "beam: {} [[beam]] tables, at most {MAX_BEAMS} (each one's rays are traced at every iteration)",
+            config.len()
+        ));
     }
     let mut beams = Vec::new();
     for (i, b) in config.iter().enumerate() {
         let k = |s: &str| format!("beam[{i}].{s}");
         let d = unit(&k("direction"), b.direction)?;
+        for (key, v) in [("center", b.center), ("focus", b.focus)] {
+            if !v.iter().all(|x| x.is_finite()) {
+                return err(format!("{} = {v:?}: must be finite", k(key)));
+            }
+        }
         if !(b.radius >= 0.0 && b.radius.is_finite()) {
             return err(format!("{} = {}: must be >= 0", k("radius"), b.radius));
         }
@@ -251,10 +265,17 @@ impl ParamFitConfig {
                     prof.kind()
                 ))
             })?;
-            params.push(FieldParam {
+            let param = FieldParam {
                 profile: p.profile as usize,
                 which,
-            });
+            };
+            if params.contains(&param) {
+                return err(format!(
+                    "parameters.fit[{i}] = {{ profile = {}, name = \"{}\" }}: already listed; name each parameter once",
+                    p.profile, p.name
+                ));
+            }
+            params.push(param);
             names.push(format!("profiles[{}].{}", p.profile, p.name));
         }
         let (step, max_steps) = self.trace.to_exit("a parameter fit")?;

@@ -169,7 +169,45 @@ fn parse(text: &str) -> Result<toml::Value, ConfigError> {
     let mut value: toml::Value =
         toml::from_str(text).map_err(|e| ConfigError(format!("invalid TOML: {e}")))?;
     normalise_numbers(&mut value, "");
+    check_magnitudes(&value, &mut Vec::new())?;
     Ok(value)
+}
+
+/// The magnitudes any real-valued key may have (besides 0 and the non-finite values some keys
+/// take, such as `aperture_sigma = inf`): far beyond any quantity in any unit, yet far from where
+/// squares, reciprocals and `k = 2π/λ` overflow.
+const MAGNITUDES: std::ops::RangeInclusive<f64> = 1e-100..=1e12;
+
+/// Refuse a number outside [`MAGNITUDES`] wherever it is, naming its key (a box of 1e308 once
+/// gave NaN results, a focus of 1e308 a panic).
+pub(crate) fn check_magnitudes(v: &toml::Value, at: &mut Vec<Step>) -> Result<(), ConfigError> {
+    match v {
+        toml::Value::Float(x) if x.is_finite() && *x != 0.0 && !MAGNITUDES.contains(&x.abs()) => {
+            Err(ConfigError(format!(
+                "{} = {x:e}: beyond what lightpath accepts for any quantity (0, or magnitudes from {:e} to {:e})",
+                display(at),
+                MAGNITUDES.start(),
+                MAGNITUDES.end()
+            )))
+        }
+        toml::Value::Array(a) => {
+            for (i, x) in a.iter().enumerate() {
+                at.push(Step::Index(i));
+                check_magnitudes(x, at)?;
+                at.pop();
+            }
+            Ok(())
+        }
+        toml::Value::Table(t) => {
+            for (k, x) in t {
+                at.push(Step::Key(k.clone()));
+                check_magnitudes(x, at)?;
+                at.pop();
+            }
+            Ok(())
+        }
+        _ => Ok(()),
+    }
 }
 
 /// Deserialise `value` into `T`, naming the key of the first error. Inside tables tagged by `kind`
@@ -241,7 +279,7 @@ fn tables_stay_tables(
 
 /// One step of a key path: a table key or an array index.
 #[derive(Clone, Debug, PartialEq)]
-enum Step {
+pub(crate) enum Step {
     Key(String),
     Index(usize),
 }

@@ -150,6 +150,39 @@ pub enum PhaseConfig {
     },
 }
 
+/// A number that may be infinite (`aperture_sigma = inf`, an unapodised aperture): written to JSON
+/// as the text `"inf"`, which JSON numbers cannot hold, and read back from a number or that text.
+mod unbounded {
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    pub fn serialize<S: Serializer>(v: &f64, s: S) -> Result<S::Ok, S::Error> {
+        if v.is_finite() {
+            s.serialize_f64(*v)
+        } else {
+            s.serialize_str(&v.to_string())
+        }
+    }
+
+    #[derive(Deserialize)]
+    #[serde(untagged)]
+    enum NumberOrText {
+        Number(f64),
+        Text(String),
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+        match NumberOrText::deserialize(d)? {
+            NumberOrText::Number(x) => Ok(x),
+            NumberOrText::Text(t) => match t.as_str() {
+                "inf" | "+inf" | "Infinity" => Ok(f64::INFINITY),
+                _ => Err(serde::de::Error::custom(format!(
+                    "invalid value {t:?}: expected a number or \"inf\""
+                ))),
+            },
+        }
+    }
+}
+
 /// `phase.polarisation` of Mie spheres.
 #[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
 #[serde(rename_all = "snake_case")]
@@ -197,6 +230,7 @@ pub enum LightConfig {
     Focused {
         focus: [f64; 3],
         axis: [f64; 3],
+        #[serde(with = "unbounded")]
         aperture_sigma: f64,
     },
 }
@@ -214,6 +248,7 @@ pub enum ViewConfig {
     Focused {
         focus: [f64; 3],
         axis: [f64; 3],
+        #[serde(with = "unbounded")]
         aperture_sigma: f64,
     },
     /// A `pixels[0] × pixels[1]` image of sensor foci `spacing` apart on the plane through `center`
@@ -222,6 +257,7 @@ pub enum ViewConfig {
     FocusedGrid {
         center: [f64; 3],
         axis: [f64; 3],
+        #[serde(with = "unbounded")]
         aperture_sigma: f64,
         spacing: f64,
         pixels: [u64; 2],
@@ -453,6 +489,7 @@ impl Config {
         let mut value: toml::Value =
             toml::from_str(text).map_err(|e| ConfigError(format!("invalid TOML: {e}")))?;
         normalise_numbers(&mut value, "");
+        super::check_magnitudes(&value, &mut Vec::new())?;
         let mut cfg: Config = serde_path_to_error::deserialize(value).map_err(|e| {
             let path = e.path().to_string();
             let inner = e.into_inner().to_string();
@@ -680,8 +717,10 @@ pub(crate) fn positive(key: &str, v: f64) -> Result<f64, ConfigError> {
 
 pub(crate) fn unit(key: &str, v: [f64; 3]) -> Result<DVec3, ConfigError> {
     let d = DVec3::from_array(v);
-    if d.is_finite() && d.length() > 0.0 {
-        Ok(d.normalize())
+    // scaled first, so that huge components do not overflow the length
+    let largest = d.abs().max_element();
+    if d.is_finite() && largest > 0.0 {
+        Ok((d / largest).normalize())
     } else {
         err(format!("{key} = {v:?}: must be a non-zero finite vector"))
     }

@@ -121,6 +121,9 @@ pub enum RaysConfig {
     },
 }
 
+/// The most profiles a field may sum.
+const MAX_PROFILES: usize = 64;
+
 /// The largest `k_r · r` of an ultrasonic profile inside its bounds (about as many plane waves per
 /// evaluation; 10⁵ wavelengths across is far beyond any acousto-optic lens).
 const MAX_BESSEL_ARGUMENT: f64 = 1e5;
@@ -205,6 +208,12 @@ impl FieldConfig {
     /// background), each value checked.
     pub fn build(&self) -> Result<BoundedField, ConfigError> {
         let f = self;
+        if f.profiles.len() > MAX_PROFILES {
+            return err(format!(
+                "field.profiles holds {} profiles: at most {MAX_PROFILES} (each adds to every evaluation of n)",
+                f.profiles.len()
+            ));
+        }
         let mut profiles = Vec::new();
         for (i, p) in f.profiles.iter().enumerate() {
             let k = format!("field.profiles[{i}]");
@@ -397,6 +406,13 @@ impl TraceConfig {
 
     /// Ray origins and unit directions.
     pub fn rays(&self) -> Result<Vec<(DVec3, DVec3)>, ConfigError> {
+        let finite = |key: &str, v: [f64; 3]| {
+            if v.iter().all(|x| x.is_finite()) {
+                Ok(DVec3::from_array(v))
+            } else {
+                err(format!("{key} = {v:?}: must be finite"))
+            }
+        };
         let count = |c: u64| {
             if (1..=100_000).contains(&c) {
                 Ok(c as usize)
@@ -419,7 +435,7 @@ impl TraceConfig {
                 };
                 let n = count(c)?;
                 let (e1, _) = crate::math::orthonormal_basis(d);
-                let c0 = DVec3::from_array(center);
+                let c0 = finite("rays.center", center)?;
                 Ok((0..n)
                     .map(|i| {
                         (
@@ -447,6 +463,7 @@ impl TraceConfig {
                     ));
                 }
                 let n = count(c)?;
+                let o = finite("rays.origin", origin)?;
                 let (e1, _) = crate::math::orthonormal_basis(a);
                 let rot_axis = a.cross(e1).normalize();
                 Ok((0..n)
@@ -457,7 +474,7 @@ impl TraceConfig {
                             2.0 * i as f64 / (n - 1) as f64 - 1.0
                         };
                         (
-                            DVec3::from_array(origin),
+                            o,
                             crate::math::rotate(a, rot_axis, (t * half_angle_deg).to_radians()),
                         )
                     })

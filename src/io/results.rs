@@ -266,7 +266,11 @@ impl CovarianceFile {
             .and_then(|r| r.first())
             .map_or(0, |r| r.len());
         if nl == 0 || nv == 0 {
-            return Err(format!("{}: empty covariance", path.display()).into());
+            return Err(format!(
+                "{}: `re` is empty: a covariance needs at least one light and one view",
+                path.display()
+            )
+            .into());
         }
         let j = nl * nv;
         let mut value = vec![C64::default(); j * j];

@@ -38,7 +38,11 @@ pub fn read(path: &Path) -> crate::Result<Target> {
     let t = if let Some(v) = parsed {
         if v.get("entries").is_some() {
             entries_json(&v, path)?
-        } else if v.get("re").is_some() && v.get("stderr").is_some() {
+        } else if ["re", "im", "stderr", "mean_re", "mean_im"]
+            .iter()
+            .any(|k| v.get(*k).is_some())
+        {
+            // a covariance.json, read through its type so a missing or malformed key is named
             covariance_json(path)?
         } else {
             let angles_deg = floats(&v, "angles_deg", path)?;
@@ -48,6 +52,16 @@ pub fn read(path: &Path) -> crate::Result<Target> {
                 .find(|k| v.get(*k).is_some());
             let stderr = key.map(|k| floats(&v, k, path)).transpose()?;
             if let (Some(k), Some(s)) = (key, &stderr)
+                && s.len() != angles_deg.len()
+            {
+                return Err(crate::Error::input(format!(
+                    "{}: {k} has {} values for {} angles in angles_deg",
+                    path.display(),
+                    s.len(),
+                    angles_deg.len()
+                )));
+            }
+            if let (Some(k), Some(s)) = (key, &stderr)
                 && let Some((i, x)) = s
                     .iter()
                     .enumerate()
@@ -55,6 +69,16 @@ pub fn read(path: &Path) -> crate::Result<Target> {
             {
                 return Err(crate::Error::input(format!(
                     "{}: {k}[{i}] = {x}: a standard error must be positive and finite",
+                    path.display()
+                )));
+            }
+            if let Some((i, c)) = correlation
+                .iter()
+                .enumerate()
+                .find(|(_, c)| c.abs() > MAX_TARGET)
+            {
+                return Err(crate::Error::input(format!(
+                    "{}: correlation[{i}] = {c:e}: must be within ±{MAX_TARGET:e}",
                     path.display()
                 )));
             }
@@ -226,13 +250,56 @@ pub fn correlation_map(path: &Path) -> crate::Result<MapTarget> {
 fn covariance_json(path: &Path) -> crate::Result<Target> {
     use crate::io::results::{CovarianceFile, ResultFile};
     let m = CovarianceFile::read(path)?.matrix(path)?;
+    let j = m.lights * m.views;
+    let at = |i: usize| {
+        let (a, b) = (i / j, i % j);
+        let (l1, v1, l2, v2) = (a / m.views, a % m.views, b / m.views, b % m.views);
+        format!("[{l1}][{l2}][{v1}][{v2}]")
+    };
+    if let Some(i) = m.stderr.iter().position(|s| !(*s >= 0.0 && s.is_finite())) {
+        return Err(format!(
+            "{}: stderr{} = {}: a standard error must be finite and ≥ 0",
+            path.display(),
+            at(i),
+            m.stderr[i]
+        )
+        .into());
+    }
+    if let Some(i) = m
+        .value
+        .iter()
+        .position(|z| !(z.re.abs() <= MAX_TARGET && z.im.abs() <= MAX_TARGET))
+    {
+        return Err(format!(
+            "{}: re/im{} = {}: must be finite and within ±{MAX_TARGET:e}",
+            path.display(),
+            at(i),
+            m.value[i]
+        )
+        .into());
+    }
+    // an entry no path reached has no error of its own: weight it like the best-known entry
+    let floor = m
+        .stderr
+        .iter()
+        .copied()
+        .filter(|s| *s > 0.0)
+        .fold(f64::INFINITY, f64::min);
+    let stderr = if floor.is_finite() {
+        m.stderr.iter().map(|s| s.max(floor)).collect()
+    } else {
+        m.stderr
+    };
     Ok(Target::Covariance {
         lights: m.lights,
         views: m.views,
         value: m.value,
-        stderr: m.stderr,
+        stderr,
     })
 }
+
+/// The largest magnitude a target value may have (squares of it must stay finite in the loss).
+const MAX_TARGET: f64 = 1e100;
 
 fn entries_json(v: &Value, path: &Path) -> crate::Result<Target> {
     let list = v["entries"]

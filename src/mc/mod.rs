@@ -24,6 +24,11 @@ pub trait Estimator: Sync {
     fn scratch_bytes(&self) -> usize {
         0
     }
+    /// The work of one sample's unit step (a scattering event), in output updates (for time
+    /// estimates); by default every output once.
+    fn event_cost(&self) -> f64 {
+        self.outputs() as f64
+    }
 }
 
 /// Bytes the engine holds to run chunks `range` of an estimator with `outputs` outputs on

@@ -154,6 +154,11 @@ impl EventSink for Products<'_> {
 impl Estimator for MapEstimator<'_> {
     type Scratch = PathScratch;
 
+    fn event_cost(&self) -> f64 {
+        // the connections, then every output's product
+        self.sampler.event_cost() + crate::mc::Estimator::outputs(self) as f64
+    }
+
     fn outputs(&self) -> usize {
         2 * self.deltas * self.taus
     }

@@ -209,6 +209,10 @@ impl<'a> Covariance<'a> {
 impl Estimator for Covariance<'_> {
     type Scratch = CovScratch;
 
+    fn event_cost(&self) -> f64 {
+        self.sampler.event_cost() + crate::mc::Estimator::outputs(self) as f64 / 3.0
+    }
+
     fn outputs(&self) -> usize {
         3 * self.fields() * self.fields()
     }

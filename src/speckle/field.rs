@@ -43,6 +43,10 @@ impl EventSink for PhasedSum<'_> {
 impl Estimator for FieldSampler<'_> {
     type Scratch = PathScratch;
 
+    fn event_cost(&self) -> f64 {
+        self.sampler.event_cost()
+    }
+
     fn outputs(&self) -> usize {
         self.sampler.pairs().len()
     }

@@ -312,7 +312,8 @@ fn sample_axial(b: &Beam, u_mix: f64, u: f64) -> f64 {
         return z0 + (z1 - z0) * u;
     }
     let (c, a0, a1) = b.cauchy;
-    (c * (a0 + (a1 - a0) * u).tan()).clamp(z0, z1)
+    // max/min rather than clamp: degenerate (non-finite) bounds give NaN, caught before writing
+    (c * (a0 + (a1 - a0) * u).tan()).max(z0).min(z1)
 }
 
 /// The extent of the medium along `axis` relative to `focus` (the projection of its bounds).

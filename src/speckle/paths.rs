@@ -22,6 +22,10 @@ use crate::speckle::endpoint::{
 use crate::speckle::first_vertex::FirstVertex;
 use glam::DVec3;
 
+/// The cost of connecting a vertex to one light or view, in output updates (a phase, an
+/// attenuation and, for focused ends, a sphere integral).
+pub const CONNECTION_COST: f64 = 100.0;
+
 /// Throughput below which a subpath plays Russian roulette, and the chance it survives.
 const ROULETTE_BELOW: f64 = 1e-3;
 const ROULETTE_SURVIVAL: f64 = 0.1;
@@ -213,6 +217,13 @@ impl<'a> SubpathSampler<'a> {
         (0..scene.lights.len())
             .flat_map(|l| (0..scene.views.len()).map(move |v| (l, v)))
             .collect()
+    }
+
+    /// The work of one scattering event, in units of one output update: each light and view is
+    /// connected (an aperture integral, about [`CONNECTION_COST`] updates), then each pair formed.
+    pub fn event_cost(&self) -> f64 {
+        let ends = self.terminals.lights.len() + self.terminals.views.len();
+        (ends as f64) * CONNECTION_COST + self.pairs.len() as f64
     }
 
     pub fn pairs(&self) -> &[(usize, usize)] {
