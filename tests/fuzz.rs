@@ -166,6 +166,8 @@ fn mutants(text: &str) -> Vec<Mutant> {
                     1e308,
                     -1e308,
                     1e15,
+                    1e12,
+                    1e-12,
                     1e-308,
                     0.0,
                     -1.0,

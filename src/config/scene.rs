@@ -715,6 +715,10 @@ pub(crate) fn positive(key: &str, v: f64) -> Result<f64, ConfigError> {
     }
 }
 
+/// The narrowest focused aperture (`γ = 1/σ² ≤ 1e8`; narrower ones overflow the vMF algebra and
+/// are far-field beams in all but name).
+const MIN_APERTURE_SIGMA: f64 = 1e-4;
+
 pub(crate) fn unit(key: &str, v: [f64; 3]) -> Result<DVec3, ConfigError> {
     let d = DVec3::from_array(v);
     // scaled first, so that huge components do not overflow the length
@@ -756,9 +760,9 @@ fn focused(
         return err(format!("{key}.focus = {focus:?}: must be finite"));
     }
     let a = unit(&format!("{key}.axis"), axis)?;
-    if sigma.is_nan() || sigma <= 0.0 {
+    if sigma.is_nan() || sigma < MIN_APERTURE_SIGMA {
         return err(format!(
-            "{key}.aperture_sigma = {sigma}: must be positive (inf for an unapodised aperture)"
+            "{key}.aperture_sigma = {sigma}: must be at least {MIN_APERTURE_SIGMA:e} (a numerical aperture of about that; inf for an unapodised aperture)"
         ));
     }
     Ok((f, a, 1.0 / (sigma * sigma)))
