@@ -62,7 +62,7 @@ pub fn check<E: Estimator>(
         }
     }
     let threads = rayon::current_num_threads();
-    let gb = working_bytes(est.outputs(), est.scratch_bytes(), kept, chunks, threads) / 1e9;
+    let gb = memory_gb(est, kept, chunks);
     if gb > budget.max_memory_gb {
         return Err(Error::input(format!(
             "{what}: {} outputs (from the lights × views asked for) need an estimated {gb:.1} GB on {threads} threads, beyond --max-memory-gb {}. Use fewer lights or views (a coarser ring or grid), fewer --threads, or raise --max-memory-gb",
@@ -112,6 +112,13 @@ pub fn check<E: Estimator>(
         )));
     }
     Ok(())
+}
+
+/// The memory, in GB, of running `chunks` chunks of `est` on the current threads, keeping `kept`
+/// outputs per chunk.
+pub fn memory_gb<E: Estimator>(est: &E, kept: usize, chunks: u64) -> f64 {
+    let threads = rayon::current_num_threads();
+    working_bytes(est.outputs(), est.scratch_bytes(), kept, chunks, threads) / 1e9
 }
 
 /// A duration in the unit that reads best.

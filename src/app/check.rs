@@ -24,13 +24,7 @@ pub fn check(path: &Path) -> Result<Outcome> {
             // what a covariance of every light × view field would cost
             let est = crate::speckle::Covariance::all_pairs(s, t.config.render.reversed)?;
             let plan = crate::mc::Plan::new(0, t.config.render.samples, t.config.render.chunk);
-            let gb = crate::mc::working_bytes(
-                crate::mc::Estimator::outputs(&est),
-                crate::mc::Estimator::scratch_bytes(&est),
-                0,
-                plan.chunks,
-                rayon::current_num_threads(),
-            ) / 1e9;
+            let gb = super::budget::memory_gb(&est, 0, plan.chunks);
             what += &format!(
                 "; ~{:.3} scattering events per path; `covariance` holds {} light×view fields (~{gb:.2} GB)",
                 crate::speckle::paths::expected_events(&s.medium),

@@ -82,8 +82,6 @@ impl Kind {
 const STATE_FILE: &str = "state.bin";
 /// The engine state an unfinished run saves in its output folder (same format as `state.bin`).
 pub const CHECKPOINT_FILE: &str = "checkpoint.bin";
-/// How often a run saves its checkpoint when `--checkpoint-every` does not say.
-const CHECKPOINT_INTERVAL: std::time::Duration = std::time::Duration::from_secs(120);
 
 /// Command-line overrides and run options.
 #[derive(Clone, Debug, Default)]
@@ -264,15 +262,7 @@ pub(crate) fn execute(
             source,
         })
     };
-    let checkpoint = Checkpoint {
-        every: opts.checkpoint_every.unwrap_or(u64::MAX).max(1),
-        interval: if opts.checkpoint_every.is_some() {
-            std::time::Duration::MAX
-        } else {
-            CHECKPOINT_INTERVAL
-        },
-        save: &mut save,
-    };
+    let checkpoint = Checkpoint::new(opts.checkpoint_every, &mut save);
     let work = Work {
         plan: &plan,
         range,
@@ -544,7 +534,7 @@ fn compute(
         plan,
         range,
         done,
-        checkpoint,
+        mut checkpoint,
     } = work;
     let progress = |n| bar.set(n);
     // what is left to run (after a resumed checkpoint)
@@ -593,8 +583,7 @@ fn compute(
             let images = (plan.samples() * chunks) as f64;
             afford_run(what, &est, medium, images, plan.chunks, 0, budget)?;
             let mut out = done;
-            let mut saved_at = next;
-            let mut saved_when = Instant::now();
+            checkpoint.start(next);
             for r in next..range.end {
                 let p = Plan {
                     seed: realisation_seed(plan.seed, r),
@@ -612,12 +601,8 @@ fn compute(
                     sq: vec![],
                     kept: vec![],
                 });
-                if r + 1 < range.end
-                    && (r + 1 - saved_at >= checkpoint.every
-                        || saved_when.elapsed() >= checkpoint.interval)
-                {
-                    (checkpoint.save)(&out)?;
-                    (saved_at, saved_when) = (r + 1, Instant::now());
+                if r + 1 < range.end {
+                    checkpoint.offer(r + 1, &out)?;
                 }
             }
             out

@@ -181,12 +181,44 @@ pub fn run<E: Estimator>(
         .expect("a run without checkpoints cannot fail")
 }
 
-/// When to save a run's blocks so far (see [`resume`]): after at least `every` chunks or
-/// `interval`, whichever comes first, through `save`.
+/// Saving a run's blocks so far (see [`resume`]) through `save`: after every `every` units of work
+/// when given, else every two minutes.
 pub struct Checkpoint<'a> {
-    pub every: u64,
-    pub interval: std::time::Duration,
-    pub save: &'a mut dyn FnMut(&[Block]) -> crate::Result<()>,
+    every: u64,
+    interval: std::time::Duration,
+    save: &'a mut dyn FnMut(&[Block]) -> crate::Result<()>,
+    saved_at: u64,
+    saved_when: std::time::Instant,
+}
+
+impl<'a> Checkpoint<'a> {
+    pub fn new(every: Option<u64>, save: &'a mut dyn FnMut(&[Block]) -> crate::Result<()>) -> Self {
+        let (every, interval) = match every {
+            Some(n) => (n.max(1), std::time::Duration::MAX),
+            None => (u64::MAX, std::time::Duration::from_secs(120)),
+        };
+        Checkpoint {
+            every,
+            interval,
+            save,
+            saved_at: 0,
+            saved_when: std::time::Instant::now(),
+        }
+    }
+
+    /// Count from `done` units of work (where the run starts or resumes).
+    pub fn start(&mut self, done: u64) {
+        (self.saved_at, self.saved_when) = (done, std::time::Instant::now());
+    }
+
+    /// `done` units are finished and reduced into `blocks`: save them if a checkpoint is due.
+    pub fn offer(&mut self, done: u64, blocks: &[Block]) -> crate::Result<()> {
+        if done - self.saved_at >= self.every || self.saved_when.elapsed() >= self.interval {
+            (self.save)(blocks)?;
+            self.start(done);
+        }
+        Ok(())
+    }
 }
 
 /// [`run`], continuing from `done`: the blocks an interrupted run of the same range had reduced
@@ -223,7 +255,9 @@ pub fn resume<E: Estimator>(
     }
     let mut bufs: Vec<(Vec<C64>, Option<E::Scratch>)> =
         (0..WAVE).map(|_| (vec![C64::default(); n], None)).collect();
-    let (mut saved_at, mut saved_when) = (next, std::time::Instant::now());
+    if let Some(c) = checkpoint.as_mut() {
+        c.start(next);
+    }
     progress(next - range.start);
     while next < range.end {
         let count = ((range.end - next) as usize).min(WAVE);
@@ -244,10 +278,8 @@ pub fn resume<E: Estimator>(
         progress(next - range.start);
         if let Some(c) = checkpoint.as_mut()
             && next < range.end
-            && (next - saved_at >= c.every || saved_when.elapsed() >= c.interval)
         {
-            (c.save)(&reducer.stack)?;
-            (saved_at, saved_when) = (next, std::time::Instant::now());
+            c.offer(next, &reducer.stack)?;
         }
     }
     Ok(reducer.into_blocks())
