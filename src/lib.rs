@@ -1,7 +1,7 @@
 //! lightpath: forward and inverse rendering of light in scattering and refractive media.
 //!
 //! The layers, from the bottom: `math` → `medium` → `mc` (the engine) → `speckle`, `eikonal` (the
-//! estimators and ray integrators) → `diff` (gradients, the burn bridge) → `inverse` (fits and
+//! estimators and ray integrators) → `rrte` (refractive rendering) → `diff` (gradients, the burn bridge) → `inverse` (fits and
 //! designs) → `config` (the one loader), `io` (typed result files, images, plots) → `app` (one file
 //! per command). `ARCHITECTURE.md` is the map.
 
@@ -15,6 +15,7 @@ pub mod io;
 pub mod math;
 pub mod mc;
 pub mod medium;
+pub mod rrte;
 pub mod speckle;
 
 pub use error::{Error, Result};

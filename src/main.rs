@@ -33,6 +33,9 @@ enum Command {
     CorrelationMap(RunArgs),
     /// Tilt-shift memory-effect correlations C(Δa, Δb, θ) of two focused beams (paper 000, Eq. 49) beside the model of Eq. 50 → tilt_shift.json + PNG
     TiltShift(RunArgs),
+    /// Render a refractive, scattering volume (curved rays, Fresnel surfaces) by particle tracing
+    /// → render.json + screen EXR/PNG images
+    Render(RunArgs),
     /// Merge the shards of one run (folders holding state.bin) into the single run's results
     Merge {
         /// Shard folders (or state.bin files)
@@ -289,16 +292,20 @@ fn scene(path: &Path, command: &str) -> Result<config::SceneTask> {
 
 fn run(kind: app::run::Kind, a: RunArgs) -> Result<Outcome> {
     let task = scene(&a.config, kind.name())?;
-    let opts = app::run::RunOptions {
+    let opts = run_options(&a);
+    with_threads(a.threads, || app::run::run_scene(kind, task, &opts, &a.out))
+}
+
+fn run_options(a: &RunArgs) -> app::run::RunOptions {
+    app::run::RunOptions {
         samples: a.samples,
         seed: a.seed,
         shard: a.shard,
         progress: !a.quiet,
         budget: a.budget.budget(),
-        resume: a.checkpoints.resume,
+        resume: a.checkpoints.resume.clone(),
         checkpoint_every: a.checkpoints.checkpoint_every,
-    };
-    with_threads(a.threads, || app::run::run_scene(kind, task, &opts, &a.out))
+    }
 }
 
 fn dispatch(command: Option<Command>) -> Result<Outcome> {
@@ -323,6 +330,18 @@ fn dispatch(command: Option<Command>) -> Result<Outcome> {
         Some(Command::MemoryEffect(a)) => run(Kind::MemoryEffect, a),
         Some(Command::CorrelationMap(a)) => run(Kind::CorrelationMap, a),
         Some(Command::TiltShift(a)) => run(Kind::TiltShift, a),
+        Some(Command::Render(a)) => match config::load(&a.config)? {
+            Task::Render(task) => {
+                let opts = run_options(&a);
+                with_threads(a.threads, || app::render::run(*task, &opts, &a.out))
+            }
+            other => Err(wrong_task(
+                &a.config,
+                "render",
+                other.kind(),
+                &[TaskKind::Render],
+            )),
+        },
         Some(Command::Merge { shards, out }) => app::run::merge_shards(&shards, &out),
         Some(Command::Wave {
             config,

@@ -6,18 +6,19 @@ use std::collections::BTreeSet;
 use std::path::Path;
 
 /// Layers from the bottom; a module may use modules of strictly lower rank.
-const RANKS: [(&str, u32); 11] = [
+const RANKS: [(&str, u32); 12] = [
     ("error", 0),
     ("math", 0),
     ("mc", 1),
     ("medium", 1),
     ("speckle", 2),
     ("eikonal", 2),
-    ("diff", 3),
-    ("inverse", 4),
-    ("config", 5),
-    ("io", 6),
-    ("app", 7),
+    ("rrte", 3),
+    ("diff", 4),
+    ("inverse", 5),
+    ("config", 6),
+    ("io", 7),
+    ("app", 8),
 ];
 
 fn rank(m: &str) -> Option<u32> {

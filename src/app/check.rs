@@ -57,6 +57,7 @@ pub fn check(path: &Path) -> Result<Outcome> {
             what
         }
         Task::Trace(t) => format!("trace config, {} ray(s)", t.rays.len()),
+        Task::Render(t) => super::render::describe(&t),
         Task::Design(t) => format!(
             "design config, {} beam(s), {} ray(s), levels {:?}",
             t.problem.beams.len(),

@@ -9,6 +9,7 @@
 //! - [`fit`]: material and phase-function fits
 //! - [`grin`]: `trace`, `design` (grid designs and parameter fits)
 //! - [`mie`]: spheres by Lorenz–Mie theory
+//! - [`render`]: refractive, scattering volumes by particle tracing
 //! - [`acquire_phase`]: the phase function read from speckle images
 //! - [`check`]: validate a config without running it
 //! - [`bench`]: throughput figures
@@ -22,6 +23,7 @@ pub mod correlation_map;
 pub mod fit;
 pub mod grin;
 pub mod mie;
+pub mod render;
 pub mod run;
 pub mod tilt_shift;
 pub mod wave;

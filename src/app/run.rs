@@ -31,6 +31,8 @@ pub enum Kind {
     TiltShift,
     /// Foldy–Lax realisations (see [`super::wave`]).
     Wave,
+    /// Refractive renders (see [`super::render`]).
+    Render,
 }
 
 impl Kind {
@@ -42,6 +44,7 @@ impl Kind {
             Kind::CorrelationMap => "correlation-map",
             Kind::TiltShift => "tilt-shift",
             Kind::Wave => "wave",
+            Kind::Render => "render",
         }
     }
 
@@ -54,11 +57,12 @@ impl Kind {
             Kind::Speckle => &["speckle.json", "speckle_*.exr"],
             Kind::CorrelationMap => &["correlation_map.json", "correlation_map.png"],
             Kind::TiltShift => &["tilt_shift.json", "tilt_shift.png"],
+            Kind::Render => super::render::FILES,
         }
     }
 
     /// What a run (or shard) of this kind owns in its output folder: its results and `state.bin`.
-    fn owned(self) -> Vec<&'static str> {
+    pub(crate) fn owned(self) -> Vec<&'static str> {
         let mut v = self.files().to_vec();
         v.push(STATE_FILE);
         v
@@ -72,9 +76,46 @@ impl Kind {
             Kind::CorrelationMap,
             Kind::TiltShift,
             Kind::Wave,
+            Kind::Render,
         ]
         .into_iter()
         .find(|k| k.name() == s)
+    }
+}
+
+/// What a run works on: a speckle scene, or a refractive render.
+#[derive(Clone, Copy)]
+pub(crate) enum Job<'a> {
+    Scene(&'a SceneTask),
+    Render(&'a crate::config::RenderTask),
+}
+
+impl<'a> Job<'a> {
+    /// The config as the run's header records it.
+    fn config_json(self) -> Result<serde_json::Value> {
+        match self {
+            Job::Scene(t) => serde_json::to_value(&t.config),
+            Job::Render(t) => serde_json::to_value(&t.config),
+        }
+        .map_err(|e| Error::input(format!("the run's config cannot be recorded: {e}")))
+    }
+
+    /// The speckle scene of every kind but `Render`.
+    fn scene(self) -> Result<&'a SceneTask> {
+        match self {
+            Job::Scene(t) => Ok(t),
+            Job::Render(_) => Err(Error::input(
+                "a render config cannot run as a speckle command",
+            )),
+        }
+    }
+
+    /// Units of work of the whole run (speckle: realisations; else chunks).
+    fn units(self, kind: Kind, plan: &Plan) -> u64 {
+        match (kind, self) {
+            (Kind::Speckle, Job::Scene(t)) => realisations(&t.config),
+            _ => plan.chunks,
+        }
     }
 }
 
@@ -137,7 +178,7 @@ pub fn run_scene(
         return single_scattering(kind, &task, opts, out);
     }
     let plan = plan_of(kind, cfg);
-    execute(kind, &task, plan, opts, out)
+    execute(kind, Job::Scene(&task), plan, opts, out)
 }
 
 /// `[render] estimator = "single_scattering"`: the covariance of paths that scatter once, in closed
@@ -199,16 +240,12 @@ fn single_scattering(
 /// state or the results.
 pub(crate) fn execute(
     kind: Kind,
-    task: &SceneTask,
+    task: Job,
     plan: Plan,
     opts: &RunOptions,
     out: &Path,
 ) -> Result<Outcome> {
-    let cfg = &task.config;
-    let whole = match kind {
-        Kind::Speckle => realisations(cfg),
-        _ => plan.chunks,
-    };
+    let whole = task.units(kind, &plan);
     let (range, shard) = match opts.shard {
         Some((i, n)) => {
             if n == 0 || i >= n {
@@ -226,7 +263,7 @@ pub(crate) fn execute(
     let header = StateHeader {
         format_version: crate::io::results::FORMAT_VERSION,
         kind: kind.name().into(),
-        config: cfg.clone(),
+        config: task.config_json()?,
         seed: plan.seed,
         chunk_paths: plan.chunk_paths,
         chunks: plan.chunks,
@@ -306,7 +343,7 @@ pub(crate) fn execute(
 /// The blocks saved in `dir/checkpoint.bin`, if it belongs to the run `header` describes.
 fn resumed_blocks(
     kind: Kind,
-    task: &SceneTask,
+    task: Job,
     header: &StateHeader,
     whole: u64,
     dir: &Path,
@@ -387,32 +424,52 @@ pub fn merge_shards(inputs: &[PathBuf], out: &Path) -> Result<Outcome> {
         chunk_paths: h.chunk_paths,
         chunks: h.chunks,
     };
-    let scene = h.config.build()?;
-    let task = SceneTask {
-        config: h.config,
-        scene,
+    let recorded = |e: serde_json::Error| {
+        Error::input(format!(
+            "merge: the shards' recorded config cannot be read ({e}); they were written by another version"
+        ))
     };
-    let whole = match kind {
-        Kind::Speckle => realisations(&task.config),
-        _ => plan.chunks,
-    };
-    check_blocks(&blocks, shape(kind, &task)?, whole)?;
+    if kind == Kind::Render {
+        let config: crate::config::RenderConfig =
+            serde_json::from_value(h.config).map_err(recorded)?;
+        let scene = config.build()?;
+        let task = crate::config::RenderTask { config, scene };
+        return merged(kind, Job::Render(&task), &plan, blocks, out);
+    }
+    let config: Config = serde_json::from_value(h.config).map_err(recorded)?;
+    let scene = config.build()?;
+    let task = SceneTask { config, scene };
+    merged(kind, Job::Scene(&task), &plan, blocks, out)
+}
+
+/// Check merged blocks against the run and write its results.
+fn merged(kind: Kind, task: Job, plan: &Plan, blocks: Vec<Block>, out: &Path) -> Result<Outcome> {
+    check_blocks(&blocks, shape(kind, task)?, task.units(kind, plan))?;
     create_out(out, kind.files())?;
-    finish(kind, &task, &plan, blocks, f64::NAN, out)
+    finish(kind, task, plan, blocks, f64::NAN, out)
 }
 
 /// What each engine block of a run holds: `outputs` sums (and as many squares, except for speckle
 /// realisations) and `kept` values per chunk.
 #[derive(Clone, Copy, Debug)]
-struct Shape {
+pub(crate) struct Shape {
     outputs: usize,
     squares: usize,
     kept: usize,
 }
 
 /// The block shape of `kind` on `task`, from the estimator the run would build.
-fn shape(kind: Kind, task: &SceneTask) -> Result<Shape> {
+fn shape(kind: Kind, job: Job) -> Result<Shape> {
     use crate::mc::Estimator;
+    if let Job::Render(r) = job {
+        let outputs = crate::rrte::ParticleTracer::new(&r.scene).outputs();
+        return Ok(Shape {
+            outputs,
+            squares: outputs,
+            kept: 0,
+        });
+    }
+    let task = job.scene()?;
     let reversed = task.config.render.reversed;
     let scene = &task.scene;
     let all = |outputs| Shape {
@@ -446,6 +503,7 @@ fn shape(kind: Kind, task: &SceneTask) -> Result<Shape> {
                 ..all(est.outputs())
             }
         }
+        Kind::Render => return Err(Error::input("a speckle config cannot run as a render")),
         Kind::Speckle => Shape {
             squares: 0,
             ..all(FieldSampler::new(scene, SubpathSampler::all_pairs(scene), reversed)?.outputs())
@@ -523,11 +581,21 @@ pub(crate) fn memory_scan(task: &SceneTask) -> Result<MemoryScan> {
 
 fn compute(
     kind: Kind,
-    task: &SceneTask,
+    job: Job,
     work: Work,
     budget: &super::budget::Budget,
     bar: &Progress,
 ) -> Result<Vec<Block>> {
+    if let Job::Render(r) = job {
+        let Work {
+            plan,
+            range,
+            done,
+            checkpoint,
+        } = work;
+        return super::render::compute(r, plan, range, done, checkpoint, budget, bar);
+    }
+    let task = job.scene()?;
     let reversed = task.config.render.reversed;
     let scene = &task.scene;
     let Work {
@@ -545,6 +613,7 @@ fn compute(
     let medium = &scene.medium;
     use super::budget::check as afford_run;
     Ok(match kind {
+        Kind::Render => return Err(Error::input("a speckle config cannot run as a render")),
         Kind::Covariance => {
             let est = Covariance::all_pairs(scene, reversed)?;
             afford_run(what, &est, medium, paths, chunks, 0, budget)?;
@@ -612,12 +681,16 @@ fn compute(
 
 fn finish(
     kind: Kind,
-    task: &SceneTask,
+    job: Job,
     plan: &Plan,
     blocks: Vec<Block>,
     seconds: f64,
     out: &Path,
 ) -> Result<Outcome> {
+    if let Job::Render(r) = job {
+        return super::render::finish(r, plan, blocks, seconds, out);
+    }
+    let task = job.scene()?;
     match kind {
         Kind::Covariance => finish_covariance(task, plan, blocks, seconds, out),
         Kind::MemoryEffect => finish_memory(task, plan, blocks, seconds, out),
@@ -625,6 +698,7 @@ fn finish(
         Kind::CorrelationMap => super::correlation_map::finish(task, plan, blocks, seconds, out),
         Kind::TiltShift => super::tilt_shift::finish(task, plan, blocks, seconds, out),
         Kind::Wave => super::wave::finish(task, plan, blocks, seconds, out),
+        Kind::Render => Err(Error::input("a speckle config cannot run as a render")),
     }
 }
 

@@ -91,7 +91,13 @@ pub fn run(mut task: SceneTask, opts: &WaveOptions, out: &Path) -> Result<Outcom
         checkpoint_every: opts.checkpoint_every,
         ..Default::default()
     };
-    let mut outcome = execute(Kind::Wave, &task, plan, &run_opts, out)?;
+    let mut outcome = execute(
+        Kind::Wave,
+        super::run::Job::Scene(&task),
+        plan,
+        &run_opts,
+        out,
+    )?;
     if opts.shard.is_none() {
         outcome.summary = format!("wave solver: {size}; {}", outcome.summary);
     }

@@ -36,6 +36,17 @@ impl MediumConfig {
                 return err("medium: missing geometry; give box = [x, y, z] or slab = thickness");
             }
         };
+        let (sigma_s, sigma_a, scattering) = self.bulk(wavelength)?;
+        Ok(Medium {
+            geometry,
+            sigma_s,
+            sigma_a,
+            scattering,
+        })
+    }
+
+    /// `(σ_s, σ_a)` and the scattering law these keys describe (everything but the geometry).
+    pub(super) fn bulk(&self, wavelength: f64) -> Result<(f64, f64, Scattering), ConfigError> {
         let by_components = self.component_coefficients(wavelength)?;
         let (sigma_s, sigma_a) = match (self.mfp, self.albedo, self.sigma_s, self.sigma_a) {
             _ if self.volume_fraction.is_some() => self.mie_coefficients(wavelength)?,
@@ -102,12 +113,7 @@ impl MediumConfig {
             }
             Some(p) => Scattering::single(p.build("medium.phase", wavelength)?),
         };
-        Ok(Medium {
-            geometry,
-            sigma_s,
-            sigma_a,
-            scattering,
-        })
+        Ok((sigma_s, sigma_a, scattering))
     }
 }
 

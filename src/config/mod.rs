@@ -10,6 +10,7 @@
 //! | `[field]` + `[[beam]]` + `[grid]` | [`Task::Design`]: shape a grid field | design                        |
 //! | `[field]` + `[[beam]]` + `[parameters]` | [`Task::ParamFit`]: fit analytic parameters | design           |
 //! | `[acquisition]` + `[[pair]]`    | [`Task::Acquire`]: speckle images to read a phase function from | acquire-phase |
+//! | `[field]` + `[light]`           | [`Task::Render`]: a refractive, scattering volume and its sensors | render |
 //!
 //! Unknown keys and unphysical values are errors naming the key, the value and what is allowed,
 //! e.g. `medium.albedo = 1.3: must be within [0, 1]`. Nothing here panics on user input.
@@ -17,11 +18,13 @@
 pub mod acquire;
 pub mod design;
 mod medium;
+pub mod render;
 mod scene;
 pub mod trace;
 
 pub use acquire::AcquireConfig;
 pub use design::{DesignConfig, ParamFitConfig};
+pub use render::RenderConfig;
 pub use scene::*;
 pub use trace::{TraceConfig, TraceSettings};
 
@@ -63,6 +66,13 @@ pub struct ParamFitTask {
     pub problem: crate::inverse::grin_fit::ParamFit,
 }
 
+/// A refractive render: the config and the scene it describes.
+#[derive(Clone, Debug)]
+pub struct RenderTask {
+    pub config: RenderConfig,
+    pub scene: crate::rrte::RenderScene,
+}
+
 /// What a config file holds, validated and built.
 #[derive(Clone, Debug)]
 pub enum Task {
@@ -71,6 +81,7 @@ pub enum Task {
     Design(Box<DesignTask>),
     ParamFit(Box<ParamFitTask>),
     Acquire(Box<AcquireConfig>),
+    Render(Box<RenderTask>),
 }
 
 /// The kinds of task, named as in messages.
@@ -81,6 +92,7 @@ pub enum TaskKind {
     Design,
     ParamFit,
     Acquire,
+    Render,
 }
 
 impl TaskKind {
@@ -100,6 +112,9 @@ impl TaskKind {
             TaskKind::Acquire => {
                 "speckle images ([acquisition] + [[pair]]; read them with `lightpath acquire-phase`)"
             }
+            TaskKind::Render => {
+                "a refractive render ([field] + [light] + [[sensor]]; run it with `lightpath render`)"
+            }
         }
     }
 
@@ -107,6 +122,9 @@ impl TaskKind {
     fn of(table: &toml::Table) -> TaskKind {
         if table.contains_key("acquisition") {
             return TaskKind::Acquire;
+        }
+        if table.contains_key("field") && table.contains_key("light") {
+            return TaskKind::Render;
         }
         match (
             table.contains_key("field"),
@@ -129,6 +147,7 @@ impl Task {
             Task::Design(_) => TaskKind::Design,
             Task::ParamFit(_) => TaskKind::ParamFit,
             Task::Acquire(_) => TaskKind::Acquire,
+            Task::Render(_) => TaskKind::Render,
         }
     }
 
@@ -470,6 +489,15 @@ fn build(value: toml::Value, path: &Path) -> Result<Task, ConfigError> {
             config.resolve_paths(path.parent().unwrap_or(Path::new("")));
             config.validate()?;
             Task::Acquire(Box::new(config))
+        }
+        TaskKind::Render => {
+            let mut config: RenderConfig = typed(value)?;
+            config.field.resolve_paths(path);
+            if let Some(m) = &mut config.medium {
+                m.resolve_paths(path.parent().unwrap_or(Path::new("")));
+            }
+            let scene = config.build()?;
+            Task::Render(Box::new(RenderTask { config, scene }))
         }
     })
 }

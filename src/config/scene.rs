@@ -99,6 +99,26 @@ pub struct MediumConfig {
     pub volume_fraction: Option<f64>,
 }
 
+impl MediumConfig {
+    /// Make phase-table file paths relative to `base` (the config file's folder).
+    pub(crate) fn resolve_paths(&mut self, base: &Path) {
+        fn fix(p: &mut PhaseConfig, base: &Path) {
+            match p {
+                PhaseConfig::Tabulated { file: Some(f), .. } if f.is_relative() => {
+                    *f = base.join(&*f)
+                }
+                PhaseConfig::Mixture { components } => {
+                    components.iter_mut().for_each(|c| fix(&mut c.phase, base))
+                }
+                _ => {}
+            }
+        }
+        if let Some(p) = &mut self.phase {
+            fix(p, base);
+        }
+    }
+}
+
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum PhaseConfig {
@@ -448,8 +468,9 @@ fn default_paths() -> u64 {
 }
 
 /// Keys that hold whole numbers; everything else numeric is read as a float.
-const INTEGER_KEYS: [&str; 15] = [
+const INTEGER_KEYS: [&str; 16] = [
     "samples",
+    "bins",
     "seed",
     "chunk",
     "count",
@@ -507,20 +528,7 @@ impl Config {
     }
 
     pub(crate) fn resolve_paths(&mut self, base: &Path) {
-        fn fix(p: &mut PhaseConfig, base: &Path) {
-            match p {
-                PhaseConfig::Tabulated { file: Some(f), .. } if f.is_relative() => {
-                    *f = base.join(&*f)
-                }
-                PhaseConfig::Mixture { components } => {
-                    components.iter_mut().for_each(|c| fix(&mut c.phase, base))
-                }
-                _ => {}
-            }
-        }
-        if let Some(p) = &mut self.medium.phase {
-            fix(p, base);
-        }
+        self.medium.resolve_paths(base);
     }
 
     /// Check every value and build the scene (once: callers keep it).

@@ -94,6 +94,25 @@ impl Tracer<'_> {
         (r, [[xx, xv], [vx, vv]])
     }
 
+    /// The fraction of a step `h` from `r` (inside) that stays inside the bounds when the full step
+    /// leaves them, by bisection: the last state inside is within `1e-14 h` of the surface.
+    pub(crate) fn boundary_step(&self, r: Ray, h: f64) -> f64 {
+        let bounds = &self.field.bounds;
+        let (mut lo, mut hi) = (0.0, h);
+        for _ in 0..60 {
+            let mid = 0.5 * (lo + hi);
+            if bounds.contains(self.leapfrog(r, mid).x) {
+                lo = mid
+            } else {
+                hi = mid
+            }
+            if hi - lo < 1e-14 * h {
+                break;
+            }
+        }
+        lo
+    }
+
     /// Trace a ray from `origin` along unit `dir` (straight outside the bounds) until it leaves.
     pub fn trace(&self, origin: DVec3, dir: DVec3) -> RayEnd {
         self.trace_with(origin, dir, |_| {})
@@ -155,20 +174,7 @@ impl Tracer<'_> {
         for k in 0..self.max_steps {
             let next = self.leapfrog(r, h);
             if !bounds.contains(next.x) {
-                // bisection on the step length for the boundary crossing; the exit state is the
-                // last one inside (within 1e-14 h of the surface)
-                let (mut lo, mut hi) = (0.0, h);
-                for _ in 0..60 {
-                    let mid = 0.5 * (lo + hi);
-                    if bounds.contains(self.leapfrog(r, mid).x) {
-                        lo = mid
-                    } else {
-                        hi = mid
-                    }
-                    if hi - lo < 1e-14 * h {
-                        break;
-                    }
-                }
+                let lo = self.boundary_step(r, h);
                 let end = self.leapfrog(r, lo);
                 visit(end.x);
                 record(Segment {

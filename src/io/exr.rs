@@ -62,6 +62,31 @@ pub fn write_scalar(
     write_file(path, bytes.get_ref())
 }
 
+/// Write a `width × height` image (row-major) with its per-pixel standard error: channels `Y`
+/// (the value) and `stderr`.
+pub fn write_with_error(
+    path: &Path,
+    values: &[f64],
+    stderr: &[f64],
+    width: usize,
+    height: usize,
+) -> crate::Result<()> {
+    use exr::prelude::*;
+    let pixels = SpecificChannels::build()
+        .with_channel("Y")
+        .with_channel("stderr")
+        .with_pixel_fn(|p: Vec2<usize>| {
+            let i = p.y() * width + p.x();
+            (values[i] as f32, stderr[i] as f32)
+        });
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    Image::from_channels((width, height), pixels)
+        .write()
+        .to_buffered(&mut bytes)
+        .map_err(|e| crate::Error::input(format!("{}: {e}", path.display())))?;
+    write_file(path, bytes.get_ref())
+}
+
 /// Write an encoded image atomically.
 fn write_file(path: &Path, bytes: &[u8]) -> crate::Result<()> {
     crate::io::write_atomic(path, bytes).map_err(|source| crate::Error::Io {

@@ -725,3 +725,68 @@ pub struct PhaseAcquisitionFile {
     pub config: crate::config::AcquireConfig,
 }
 result_file!(PhaseAcquisitionFile, "phase_acquisition.json");
+
+/// A mean with its standard error.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq)]
+pub struct Measured {
+    pub mean: f64,
+    pub stderr: f64,
+}
+
+/// One sensor of a render: the power it received and, per time bin, its values.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct SensorRecord {
+    pub name: String,
+    /// `flux` or `screen`.
+    pub kind: String,
+    /// Fraction of the emitted power the sensor received (all pixels and time bins).
+    pub power: Measured,
+    /// Time bins (1 without `[transient]`).
+    pub bins: usize,
+    /// Flux sensors: the fraction of the emitted power per time bin, and its standard error.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub per_bin: Option<Vec<f64>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub per_bin_stderr: Option<Vec<f64>>,
+    /// Screens: pixels along the sensor's sides and the area of one pixel; the images (EXR,
+    /// channels `Y` = irradiance per unit emitted power and `stderr`) are in `files`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pixels: Option<[usize; 2]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pixel_area: Option<f64>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub files: Vec<String>,
+}
+
+/// How the photons went: per-photon averages and the speed.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct RenderStatistics {
+    pub events_per_photon: f64,
+    pub steps_per_photon: f64,
+    /// `null` for merged shards.
+    pub photons_per_second: Option<f64>,
+    pub steps_per_second: Option<f64>,
+}
+
+/// `render.json` of `lightpath render`: fractions of the emitted power.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct RenderFile {
+    #[serde(default)]
+    pub format_version: u32,
+    pub estimator: String,
+    pub samples: u64,
+    pub seed: u64,
+    pub chunk: u64,
+    pub sensors: Vec<SensorRecord>,
+    /// Absorbed inside the volume, left it (seen by a sensor or not), and given up (trapped past
+    /// the step budget): they add up to 1 within their errors.
+    pub absorbed: Measured,
+    pub escaped: Measured,
+    pub unfinished: Measured,
+    pub statistics: RenderStatistics,
+    /// Wall time; `null` for merged shards.
+    pub seconds: Option<f64>,
+    pub version: String,
+    pub config: crate::config::RenderConfig,
+}
+result_file!(RenderFile, "render.json");

@@ -23,8 +23,9 @@ pub struct StateHeader {
     pub format_version: u32,
     /// `covariance`, `memory-effect`, `speckle` or `wave`.
     pub kind: String,
-    /// The config the run used (after command-line overrides).
-    pub config: crate::config::Config,
+    /// The config the run used (after command-line overrides), as JSON: a speckle scene's
+    /// `Config` or a render's `RenderConfig`, as `kind` says.
+    pub config: serde_json::Value,
     pub seed: u64,
     pub chunk_paths: u64,
     pub chunks: u64,

@@ -27,8 +27,8 @@ use glam::DVec3;
 pub const CONNECTION_COST: f64 = 100.0;
 
 /// Throughput below which a subpath plays Russian roulette, and the chance it survives.
-const ROULETTE_BELOW: f64 = 1e-3;
-const ROULETTE_SURVIVAL: f64 = 0.1;
+pub(crate) const ROULETTE_BELOW: f64 = 1e-3;
+pub(crate) const ROULETTE_SURVIVAL: f64 = 0.1;
 
 /// The order of magnitude of the mean number of scattering events on a subpath — the cost of one
 /// path. A path started inside a medium of optical thickness `τ = σ_s d` (`d` the smallest extent)

@@ -1,0 +1,244 @@
+//! `lightpath render`: a refractive, scattering volume rendered by particle tracing on the engine
+//! (whole, as shards for `merge`, resumable) → `render.json` (every sensor's power, flux per time
+//! bin, absorbed/escaped totals, statistics) and, per screen, EXR images with their standard error
+//! and a PNG preview.
+
+use super::run::{Job, Kind, RunOptions, check_finite, execute};
+use super::{Outcome, Progress};
+use crate::config::RenderTask;
+use crate::error::{Error, Result};
+use crate::io::ResultFile;
+use crate::io::results::{Measured, RenderFile, RenderStatistics, SensorRecord};
+use crate::mc::{Block, Checkpoint, Estimate, Plan, merge, resume};
+use crate::medium::{Geometry, Medium};
+use crate::rrte::{ParticleTracer, SensorKind, Total};
+use std::path::Path;
+
+/// The files a render writes (screens add `screen_<name>.exr`, `screen_<name>.png` and, with time
+/// bins, `screen_<name>_t<bin>.exr`).
+pub const FILES: &[&str] = &["render.json", "screen_*.exr", "screen_*.png"];
+
+/// Run the render of `task` into `out`.
+pub fn run(mut task: RenderTask, opts: &RunOptions, out: &Path) -> Result<Outcome> {
+    let r = &mut task.config.render;
+    if let Some(s) = opts.samples {
+        if s == 0 {
+            return Err(Error::input("--samples 0: must be at least 1"));
+        }
+        r.samples = s;
+    }
+    if let Some(s) = opts.seed {
+        r.seed = s;
+    }
+    let plan = Plan::new(r.seed, r.samples, r.chunk);
+    execute(Kind::Render, Job::Render(&task), plan, opts, out)
+}
+
+/// What `check` says of a render config.
+pub fn describe(task: &RenderTask) -> String {
+    let s = &task.scene;
+    let v = &s.volume;
+    format!(
+        "render config: {} index profile(s) ({}), σ_s = {}, σ_a = {}, {} sensor(s) with {} output(s){}; ~{:.3} scattering events per photon",
+        v.field.profiles.len(),
+        if v.homogeneous() {
+            "constant n: straight rays"
+        } else {
+            "curved rays"
+        },
+        v.sigma_s,
+        v.sigma_a,
+        s.sensors.len(),
+        crate::mc::Estimator::outputs(&ParticleTracer::new(s)),
+        s.transient
+            .map_or(String::new(), |t| format!(", {} time bins", t.bins)),
+        crate::speckle::paths::expected_events(&proxy_medium(task)),
+    )
+}
+
+/// The volume as a homogeneous medium in its bounding box (for the expected path length).
+fn proxy_medium(task: &RenderTask) -> Medium {
+    let v = &task.scene.volume;
+    let half = v.field.bounds.half_extent().unwrap_or(glam::DVec3::ONE);
+    Medium {
+        geometry: Geometry::boxed((half * 2.0).to_array()),
+        sigma_s: v.sigma_s,
+        sigma_a: v.sigma_a,
+        scattering: v.scattering.clone(),
+    }
+}
+
+/// Trace the chunks of `range` (after the resumed `done`), refusing runs beyond `budget`.
+pub(crate) fn compute(
+    task: &RenderTask,
+    plan: &Plan,
+    range: std::ops::Range<u64>,
+    done: Vec<Block>,
+    checkpoint: Checkpoint,
+    budget: &super::budget::Budget,
+    bar: &Progress,
+) -> Result<Vec<Block>> {
+    let est = ParticleTracer::new(&task.scene);
+    let next = done.last().map_or(range.start, |b| b.start + b.len);
+    let chunks = range.end.saturating_sub(next);
+    let photons = (chunks * plan.chunk_paths) as f64;
+    let medium = proxy_medium(task);
+    super::budget::check("render", &est, &medium, photons, chunks, 0, budget)?;
+    let progress = |n| bar.set(n);
+    resume(&est, plan, range, &[], &progress, done, Some(checkpoint))
+}
+
+/// Write the results of a whole run (or merged shards) into `out`.
+pub(crate) fn finish(
+    task: &RenderTask,
+    plan: &Plan,
+    blocks: Vec<Block>,
+    seconds: f64,
+    out: &Path,
+) -> Result<Outcome> {
+    let scene = &task.scene;
+    let est = ParticleTracer::new(scene);
+    let root = merge(blocks, plan.chunks)?;
+    let e = Estimate::from_block(&root, plan);
+    check_finite("render", &e.mean)?;
+    let measured = |i: usize| Measured {
+        mean: e.mean[i].re,
+        stderr: e.stderr[i],
+    };
+    let bins = scene.bins();
+    let mut files = Vec::new();
+    let mut sensors = Vec::new();
+    let mut summary = Vec::new();
+    for (i, s) in scene.sensors.iter().enumerate() {
+        let o = est.offset(i);
+        let n = s.pixel_count();
+        let power = measured(est.power(i));
+        summary.push(format!(
+            "{} {:.4} ± {:.4}",
+            s.name, power.mean, power.stderr
+        ));
+        let mut record = SensorRecord {
+            name: s.name.clone(),
+            kind: match s.kind {
+                SensorKind::Flux => "flux",
+                SensorKind::Screen => "screen",
+            }
+            .into(),
+            power,
+            bins,
+            per_bin: None,
+            per_bin_stderr: None,
+            pixels: None,
+            pixel_area: None,
+            files: vec![],
+        };
+        match (s.kind, s.pixel_area()) {
+            (SensorKind::Screen, Some(area)) => {
+                let [w, h] = s.pixels;
+                let image = |b: usize| -> (Vec<f64>, Vec<f64>) {
+                    let at = o + b * n;
+                    (
+                        (at..at + n).map(|k| e.mean[k].re / area).collect(),
+                        (at..at + n).map(|k| e.stderr[k] / area).collect(),
+                    )
+                };
+                // the time-integrated image; its error from the bins' (exclusive per photon)
+                let mut total = vec![0.0; n];
+                let mut var = vec![0.0; n];
+                for b in 0..bins {
+                    let (v, se) = image(b);
+                    for k in 0..n {
+                        total[k] += v[k];
+                        var[k] += se[k] * se[k];
+                    }
+                    if bins > 1 {
+                        let name = format!("screen_{}_t{b:04}.exr", s.name);
+                        crate::io::exr::write_with_error(&out.join(&name), &v, &se, w, h)?;
+                        record.files.push(name);
+                    }
+                }
+                let se: Vec<f64> = var.iter().map(|v| v.sqrt()).collect();
+                let name = format!("screen_{}.exr", s.name);
+                crate::io::exr::write_with_error(&out.join(&name), &total, &se, w, h)?;
+                record.files.insert(0, name.clone());
+                files.push(out.join(name));
+                let max = total.iter().cloned().fold(0.0, f64::max);
+                let preview: Vec<f64> = (0..n)
+                    .map(|k| {
+                        // rows top-down in the PNG, as the sensor's up axis
+                        let (x, y) = (k % w, k / w);
+                        let v = total[(h - 1 - y) * w + x];
+                        if max > 0.0 { (v / max).sqrt() } else { 0.0 }
+                    })
+                    .collect();
+                let png = out.join(format!("screen_{}.png", s.name));
+                crate::io::plot::heat_maps(
+                    &png,
+                    &format!("√irradiance, max {max:.2e}"),
+                    &[(s.name.clone(), preview)],
+                    w,
+                    h,
+                )?;
+                files.push(png);
+                record.pixels = Some(s.pixels);
+                record.pixel_area = Some(area);
+            }
+            _ => {
+                let at = o;
+                record.per_bin = Some((at..at + n * bins).map(|k| e.mean[k].re).collect());
+                record.per_bin_stderr = Some((at..at + n * bins).map(|k| e.stderr[k]).collect());
+            }
+        }
+        sensors.push(record);
+    }
+    let events = e.mean[est.total(Total::Events)].re;
+    let steps = e.mean[est.total(Total::Steps)].re;
+    let timed = seconds.is_finite().then_some(seconds);
+    let file = RenderFile {
+        format_version: crate::io::results::FORMAT_VERSION,
+        estimator: "particle_tracing".into(),
+        samples: plan.samples(),
+        seed: plan.seed,
+        chunk: plan.chunk_paths,
+        sensors,
+        absorbed: measured(est.total(Total::Absorbed)),
+        escaped: measured(est.total(Total::Escaped)),
+        unfinished: measured(est.total(Total::Unfinished)),
+        statistics: RenderStatistics {
+            events_per_photon: events,
+            steps_per_photon: steps,
+            photons_per_second: timed.map(|t| plan.samples() as f64 / t),
+            steps_per_second: timed.map(|t| steps * plan.samples() as f64 / t),
+        },
+        seconds: timed,
+        version: env!("CARGO_PKG_VERSION").into(),
+        config: task.config.clone(),
+    };
+    let path = out.join(RenderFile::NAME);
+    file.write(&path)?;
+    files.insert(0, path);
+    let unfinished = file.unfinished.mean;
+    if unfinished > 1e-3 {
+        eprintln!(
+            "warning: {unfinished:.2e} of the power was given up (photons trapped past render.max_steps steps in one flight); raise render.max_steps or check the field"
+        );
+    }
+    Ok(Outcome {
+        not_converged: None,
+        files,
+        summary: format!(
+            "rendered {} photons ({:.2} events, {:.0} steps each): {}; absorbed {:.4}, escaped {:.4}{}",
+            plan.samples(),
+            events,
+            steps,
+            if summary.is_empty() {
+                "no sensors".into()
+            } else {
+                summary.join(", ")
+            },
+            file.absorbed.mean,
+            file.escaped.mean,
+            timed.map_or(String::new(), |t| format!(" in {t:.1} s"))
+        ),
+    })
+}

@@ -1,0 +1,184 @@
+//! Free flights along curved rays and the dielectric interface of the volume.
+//!
+//! Transmittance depends on the *geometric* length travelled (paper 002, Eq. 5), so a free flight
+//! of sampled length `d` is stepped with the symplectic integrator of [`crate::eikonal`] until its
+//! chords add up to `d` or the ray meets the boundary (found by bisection, as in `trace`). Where
+//! `n` is constant the ray is a straight line and the flight is exact.
+
+use super::scene::Volume;
+use crate::eikonal::{IndexField, Ray, Tracer};
+use glam::DVec3;
+
+/// How a free flight ended.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Flight {
+    /// The sampled distance ran out inside: a collision at `ray.x`.
+    Collision { ray: Ray, optical_path: f64 },
+    /// The ray reached the boundary first: `ray` is the last state inside (within round-off of
+    /// the surface).
+    Boundary { ray: Ray, optical_path: f64 },
+    /// The step budget ran out before either (a ray trapped in the field).
+    Stuck { ray: Ray, optical_path: f64 },
+}
+
+/// The free-flight integrator of a volume.
+pub struct Flyer<'v> {
+    pub volume: &'v Volume,
+    tracer: Tracer<'v>,
+    straight: bool,
+}
+
+impl<'v> Flyer<'v> {
+    pub fn new(volume: &'v Volume, step: f64, max_steps: usize) -> Self {
+        Flyer {
+            volume,
+            tracer: Tracer {
+                field: &volume.field,
+                step,
+                max_steps,
+            },
+            straight: volume.homogeneous(),
+        }
+    }
+
+    /// `n` at `x`.
+    #[inline]
+    pub fn n(&self, x: DVec3) -> f64 {
+        self.volume.field.n(x)
+    }
+
+    /// Fly from `r` (inside, `|v| = n`) for geometric length `distance` (may be infinite), and the
+    /// leapfrog steps it took.
+    pub fn fly(&self, r: Ray, distance: f64) -> (Flight, usize) {
+        if self.straight {
+            return (self.fly_straight(r, distance), 1);
+        }
+        let t = &self.tracer;
+        let h = t.step;
+        let (mut r, mut s, mut opl) = (r, 0.0, 0.0);
+        let mut n0 = self.n(r.x);
+        for k in 0..t.max_steps {
+            let next = t.leapfrog(r, h);
+            let (next, tau, boundary) = if self.volume.field.bounds.contains(next.x) {
+                (next, h, false)
+            } else {
+                let tau = t.boundary_step(r, h);
+                (t.leapfrog(r, tau), tau, true)
+            };
+            let chord = (next.x - r.x).length();
+            if s + chord >= distance {
+                // the collision falls inside this step: shorten it in proportion to the chord
+                let frac = if chord > 0.0 {
+                    (distance - s) / chord
+                } else {
+                    0.0
+                };
+                let hit = t.leapfrog(r, tau * frac);
+                let n1 = self.n(hit.x);
+                let optical_path = opl + 0.5 * (n0 + n1) * (hit.x - r.x).length();
+                return (
+                    Flight::Collision {
+                        ray: hit,
+                        optical_path,
+                    },
+                    k + 1,
+                );
+            }
+            let n1 = self.n(next.x);
+            opl += 0.5 * (n0 + n1) * chord;
+            s += chord;
+            r = next;
+            n0 = n1;
+            if boundary {
+                return (
+                    Flight::Boundary {
+                        ray: r,
+                        optical_path: opl,
+                    },
+                    k + 1,
+                );
+            }
+        }
+        (
+            Flight::Stuck {
+                ray: r,
+                optical_path: opl,
+            },
+            t.max_steps,
+        )
+    }
+
+    /// A straight flight through constant `n`, in closed form.
+    fn fly_straight(&self, r: Ray, distance: f64) -> Flight {
+        let n = r.v.length();
+        let w = r.v / n;
+        let exit = self
+            .volume
+            .field
+            .bounds
+            .interval(r.x, w)
+            .map_or(0.0, |(_, t1)| t1.max(0.0));
+        if distance < exit {
+            Flight::Collision {
+                ray: Ray {
+                    x: r.x + w * distance,
+                    v: r.v,
+                },
+                optical_path: n * distance,
+            }
+        } else {
+            // the last point inside: step back from the surface by round-off
+            let t = exit * (1.0 - 1e-12) - 1e-15;
+            Flight::Boundary {
+                ray: Ray {
+                    x: r.x + w * t.max(0.0),
+                    v: r.v,
+                },
+                optical_path: n * exit,
+            }
+        }
+    }
+}
+
+/// Fresnel reflectance of unpolarised light at a smooth interface, from the cosine of incidence
+/// and `eta = n_from / n_to` (1 on total internal reflection).
+pub fn fresnel(cos_i: f64, eta: f64) -> f64 {
+    let cos_i = cos_i.abs().min(1.0);
+    let sin2_t = eta * eta * (1.0 - cos_i * cos_i);
+    if sin2_t >= 1.0 {
+        return 1.0;
+    }
+    let cos_t = (1.0 - sin2_t).sqrt();
+    let rs = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
+    let rp = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
+    0.5 * (rs * rs + rp * rp)
+}
+
+/// The mirror image of unit `d` in a surface of unit normal `normal`.
+#[inline]
+pub fn reflect(d: DVec3, normal: DVec3) -> DVec3 {
+    d - normal * (2.0 * d.dot(normal))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fresnel_matches_normal_incidence_and_brewster() {
+        // normal incidence: ((n1 − n2)/(n1 + n2))²
+        let r = fresnel(1.0, 1.0 / 1.5);
+        assert!((r - 0.04).abs() < 1e-12, "{r}");
+        // the same from either side at normal incidence
+        assert!((fresnel(1.0, 1.5) - r).abs() < 1e-12);
+        // Brewster's angle tan θ = n2/n1: only the s polarisation reflects
+        let th = 1.5f64.atan();
+        let (n1, n2) = (1.0, 1.5);
+        let ct = (1.0 - (n1 / n2 * th.sin()).powi(2)).sqrt();
+        let rs = ((n1 * th.cos() - n2 * ct) / (n1 * th.cos() + n2 * ct)).powi(2);
+        assert!((fresnel(th.cos(), n1 / n2) - 0.5 * rs).abs() < 1e-12);
+        // beyond the critical angle
+        assert_eq!(fresnel(0.1, 1.5), 1.0);
+        assert_eq!(fresnel(1.0, 1.0), 0.0);
+    }
+}

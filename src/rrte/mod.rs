@@ -1,0 +1,15 @@
+//! Refractive radiative transfer (paper 002): light that scatters *and* bends. A volume with an
+//! index field `n(x)` (any [`crate::eikonal`] profile or grid) and homogeneous scattering, bounded
+//! by a sphere, box or cylinder with a smooth dielectric surface (Fresnel reflection and refraction,
+//! total internal reflection); lights outside or inside it; sensors outside it.
+//!
+//! - [`scene`]: the volume, lights, sensors and time-of-flight bins;
+//! - [`flight`]: free flights over geometric length along curved rays (Eq. 5), Fresnel;
+//! - [`particle`]: particle (light) tracing as an engine estimator (results per emitted power).
+
+pub mod flight;
+pub mod particle;
+pub mod scene;
+
+pub use particle::{ParticleTracer, Total};
+pub use scene::{Light, RenderScene, Sensor, SensorKind, Transient, Volume};

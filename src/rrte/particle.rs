@@ -1,0 +1,282 @@
+//! Particle (light) tracing through a refractive, scattering volume.
+//!
+//! Photons leave the light with equal power, refract or reflect at the volume's surface with the
+//! Fresnel probabilities, fly along curved rays (free-flight lengths drawn over geometric length,
+//! paper 002 Eq. 5), scatter by the phase function with their weight times the albedo (the rest is
+//! tallied as absorbed), and play Russian roulette once their weight is small. A photon that leaves
+//! the volume travels straight and is recorded by every sensor plane it crosses, in the time bin of
+//! its optical path length (Eq. 14). Each output is a fraction of the emitted power, so flux sensors
+//! give total reflectance and transmittance, and `absorbed + escaped + unfinished = 1` in
+//! expectation (and exactly for each photon when no roulette is played).
+//!
+//! Flux is conserved along ray tubes, so a photon's power needs no `n²` factor: the basic radiance
+//! `L/n²` of the RRTE enters only where radiance is connected to a point (cameras, next-event
+//! estimation).
+
+use super::flight::{Flight, Flyer, fresnel, reflect};
+use super::scene::RenderScene;
+use crate::eikonal::Ray;
+use crate::eikonal::trace::refract;
+use crate::math::{C64, Rng, uniform};
+use crate::mc::Estimator;
+use crate::speckle::paths::{ROULETTE_BELOW, ROULETTE_SURVIVAL};
+use glam::DVec3;
+
+/// Scattering events after which a photon is given up (counted as unfinished).
+pub const MAX_EVENTS: usize = 1_000_000;
+
+/// Indices of the totals after the sensors' outputs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Total {
+    /// Power absorbed inside the volume.
+    Absorbed = 0,
+    /// Power that left the volume (recorded by a sensor or not).
+    Escaped = 1,
+    /// Power of photons given up: trapped beyond the step budget or [`MAX_EVENTS`].
+    Unfinished = 2,
+    /// Scattering events (a count per photon, for statistics).
+    Events = 3,
+    /// Leapfrog steps (a count per photon, for statistics).
+    Steps = 4,
+}
+
+/// How many totals follow the sensors.
+pub const TOTALS: usize = 5;
+
+/// The particle tracer of a scene, as an engine estimator.
+pub struct ParticleTracer<'s> {
+    scene: &'s RenderScene,
+    flyer: Flyer<'s>,
+    /// First output of each sensor.
+    offsets: Vec<usize>,
+    totals: usize,
+}
+
+impl<'s> ParticleTracer<'s> {
+    pub fn new(scene: &'s RenderScene) -> Self {
+        let mut offsets = Vec::with_capacity(scene.sensors.len());
+        let mut at = 0;
+        for s in &scene.sensors {
+            // the sensor's total power, then its images
+            offsets.push(at + 1);
+            at += 1 + s.pixel_count() * scene.bins();
+        }
+        ParticleTracer {
+            scene,
+            flyer: Flyer::new(&scene.volume, scene.step, scene.max_steps),
+            offsets,
+            totals: at,
+        }
+    }
+
+    /// The first output of sensor `i` (its values follow, time bin after time bin, each bin a
+    /// row-major image).
+    pub fn offset(&self, i: usize) -> usize {
+        self.offsets[i]
+    }
+
+    /// The output holding the total power sensor `i` recorded (all pixels and time bins).
+    pub fn power(&self, i: usize) -> usize {
+        self.offsets[i] - 1
+    }
+
+    /// The output index of total `t`.
+    pub fn total(&self, t: Total) -> usize {
+        self.totals + t as usize
+    }
+
+    /// Record a photon of `weight` that left the volume at `x` along unit `d`, having travelled the
+    /// optical path `opl`.
+    fn escape(&self, x: DVec3, d: DVec3, weight: f64, opl: f64, out: &mut [C64]) {
+        out[self.total(Total::Escaped)].re += weight;
+        let n_out = self.scene.volume.field.n_out;
+        for (s, &offset) in self.scene.sensors.iter().zip(&self.offsets) {
+            let Some((pixel, t)) = s.hit(x, d) else {
+                continue;
+            };
+            let bin = match self.scene.transient {
+                None => 0,
+                Some(tr) => {
+                    let b = ((opl + n_out * t) / tr.max_path * tr.bins as f64).floor();
+                    if !(0.0..tr.bins as f64).contains(&b) {
+                        continue;
+                    }
+                    b as usize
+                }
+            };
+            out[offset + bin * s.pixel_count() + pixel].re += weight;
+            out[offset - 1].re += weight;
+        }
+    }
+
+    /// Trace one photon, adding its contributions to `out`.
+    fn photon(&self, rng: &mut Rng, out: &mut [C64]) {
+        let volume = &self.scene.volume;
+        let bounds = &volume.field.bounds;
+        let n_out = volume.field.n_out;
+        let (mut x, mut d) =
+            self.scene
+                .light
+                .sample([uniform(rng), uniform(rng), uniform(rng), uniform(rng)]);
+        let mut opl = 0.0;
+        let mut steps = 0usize;
+        let mut events = 0usize;
+        let mut weight = 1.0;
+        // enter the volume from outside, or start inside it
+        let mut ray = if bounds.contains(x) {
+            Ray {
+                x,
+                v: d * self.flyer.n(x),
+            }
+        } else {
+            match bounds.interval(x, d) {
+                Some((t0, t1)) if t1 > 0.0 && t0 >= 0.0 => {
+                    let surface = x + d * t0;
+                    opl += n_out * t0;
+                    let inside = x + d * crate::eikonal::trace::entry_parameter(t0);
+                    let n_in = self.flyer.n(inside);
+                    let normal = bounds.normal(surface).unwrap_or(-d);
+                    let r = fresnel(d.dot(normal), n_out / n_in);
+                    if r > 0.0 && uniform(rng) < r {
+                        self.escape(surface, reflect(d, normal), weight, opl, out);
+                        return;
+                    }
+                    match refract(d, normal, n_out / n_in) {
+                        Ok(t) => d = t,
+                        Err(reflected) => {
+                            self.escape(surface, reflected, weight, opl, out);
+                            return;
+                        }
+                    }
+                    x = inside;
+                    Ray { x, v: d * n_in }
+                }
+                // it misses the volume
+                _ => {
+                    self.escape(x, d, weight, opl, out);
+                    return;
+                }
+            }
+        };
+        let sigma_t = volume.sigma_t();
+        let albedo = volume.albedo();
+        let finish = |out: &mut [C64], events: usize, steps: usize| {
+            out[self.total(Total::Events)].re += events as f64;
+            out[self.total(Total::Steps)].re += steps as f64;
+        };
+        loop {
+            let distance = if sigma_t > 0.0 {
+                -(1.0 - uniform(rng)).ln() / sigma_t
+            } else {
+                f64::INFINITY
+            };
+            let (flight, k) = self.flyer.fly(ray, distance);
+            steps += k;
+            match flight {
+                Flight::Collision {
+                    ray: hit,
+                    optical_path,
+                } => {
+                    opl += optical_path;
+                    events += 1;
+                    out[self.total(Total::Absorbed)].re += weight * (1.0 - albedo);
+                    weight *= albedo;
+                    if weight < ROULETTE_BELOW {
+                        if uniform(rng) >= ROULETTE_SURVIVAL {
+                            break;
+                        }
+                        weight /= ROULETTE_SURVIVAL;
+                    }
+                    if events >= MAX_EVENTS {
+                        out[self.total(Total::Unfinished)].re += weight;
+                        break;
+                    }
+                    let kind = volume.scattering.pick(|| uniform(rng));
+                    let w = hit.v.normalize();
+                    let w = volume
+                        .scattering
+                        .phase(kind)
+                        .sample(w, uniform(rng), uniform(rng));
+                    ray = Ray {
+                        x: hit.x,
+                        v: w * self.flyer.n(hit.x),
+                    };
+                }
+                Flight::Boundary {
+                    ray: end,
+                    optical_path,
+                } => {
+                    opl += optical_path;
+                    let n_in = self.flyer.n(end.x);
+                    let d = end.v.normalize();
+                    let normal = bounds.normal(end.x).unwrap_or(d);
+                    let r = fresnel(d.dot(normal), n_in / n_out);
+                    let leaves = match refract(d, -normal, n_in / n_out) {
+                        Ok(t) if r == 0.0 || uniform(rng) >= r => Some(t),
+                        _ => None,
+                    };
+                    match leaves {
+                        Some(t) => {
+                            self.escape(end.x, t, weight, opl, out);
+                            break;
+                        }
+                        None => {
+                            // Fresnel or total internal reflection: back inside
+                            ray = Ray {
+                                x: end.x,
+                                v: reflect(d, normal) * n_in,
+                            };
+                        }
+                    }
+                }
+                Flight::Stuck { .. } => {
+                    out[self.total(Total::Unfinished)].re += weight;
+                    break;
+                }
+            }
+        }
+        finish(out, events, steps);
+    }
+}
+
+impl Estimator for ParticleTracer<'_> {
+    type Scratch = ();
+
+    fn outputs(&self) -> usize {
+        self.totals + TOTALS
+    }
+
+    fn scratch(&self) {}
+
+    fn run_chunk(&self, rng: &mut Rng, paths: u64, _: &mut (), out: &mut [C64]) {
+        for _ in 0..paths {
+            self.photon(rng, out);
+        }
+    }
+
+    /// A scattering event costs its flight's leapfrog steps (each about a hundred output updates'
+    /// worth for analytic fields: the flight's length, a mean free path or the volume's size, over
+    /// the geometric length of a step) and a pass over the sensors.
+    fn event_cost(&self) -> f64 {
+        let v = &self.scene.volume;
+        let steps = if v.homogeneous() {
+            1.0
+        } else {
+            let size = v
+                .field
+                .bounds
+                .half_extent()
+                .map_or(1.0, |h| 2.0 * h.max_element());
+            let flight = if v.sigma_t() > 0.0 {
+                size.min(1.0 / v.sigma_t())
+            } else {
+                size
+            };
+            (flight / (v.field.n_out * self.scene.step)).clamp(1.0, self.scene.max_steps as f64)
+        };
+        STEP_COST * steps + self.scene.sensors.len() as f64
+    }
+}
+
+/// The cost of one leapfrog step of an analytic field, in output updates.
+const STEP_COST: f64 = 100.0;

@@ -1,0 +1,253 @@
+//! What a refractive render holds: a scattering volume with an index field, a light, and sensors
+//! outside the volume that record the light leaving it.
+
+use crate::eikonal::{BoundedField, Bounds, Profile};
+use crate::math::{orthonormal_basis, uniform_sphere};
+use crate::medium::Scattering;
+use glam::DVec3;
+use std::f64::consts::PI;
+
+/// A refractive, scattering volume: the index field `n(x)` inside its bounds (`n_out` outside, a
+/// smooth dielectric interface where the two differ), and homogeneous bulk scattering.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Volume {
+    pub field: BoundedField,
+    /// Scattering coefficient `σ_s` (1/length), inside the bounds.
+    pub sigma_s: f64,
+    /// Absorption coefficient `σ_a` (1/length), inside the bounds.
+    pub sigma_a: f64,
+    pub scattering: Scattering,
+}
+
+impl Volume {
+    /// Extinction `σ_t = σ_s + σ_a`.
+    pub fn sigma_t(&self) -> f64 {
+        self.sigma_s + self.sigma_a
+    }
+
+    /// Single-scattering albedo (1 when nothing interacts).
+    pub fn albedo(&self) -> f64 {
+        if self.sigma_t() > 0.0 {
+            self.sigma_s / self.sigma_t()
+        } else {
+            1.0
+        }
+    }
+
+    /// Whether `n` is constant inside (every profile constant): rays are then straight lines,
+    /// traced in closed form instead of stepped.
+    pub fn homogeneous(&self) -> bool {
+        self.field
+            .profiles
+            .iter()
+            .all(|p| matches!(p, Profile::Constant { .. }))
+    }
+
+    /// The largest distance from the origin to the volume's surface `h(d)` along unit `d` (the
+    /// support function of the bounds): the volume lies within `x·d ≤ h(d)`.
+    pub fn support(&self, d: DVec3) -> f64 {
+        match self.field.bounds {
+            Bounds::Everywhere => f64::INFINITY,
+            Bounds::Sphere { radius } => radius,
+            Bounds::Box { half } => (half * d.abs()).element_sum(),
+            Bounds::Cylinder {
+                radius,
+                half_length,
+            } => radius * (d.x * d.x + d.y * d.y).sqrt() + half_length * d.z.abs(),
+        }
+    }
+}
+
+/// Where light comes from; power 1 in total (results are fractions of the emitted power).
+#[derive(Clone, Debug, PartialEq)]
+pub enum Light {
+    /// A collimated laser beam of uniform intensity over a disc of `radius` about `center`,
+    /// travelling along unit `direction` (radius 0: a single ray).
+    Beam {
+        center: DVec3,
+        direction: DVec3,
+        radius: f64,
+    },
+    /// An isotropic point source.
+    Point { position: DVec3 },
+    /// A point source emitting uniformly into the cone of `half_angle` (radians) about unit `axis`.
+    Spot {
+        position: DVec3,
+        axis: DVec3,
+        half_angle: f64,
+    },
+    /// A Lambertian rectangle of `size` about `center`, emitting to the side of unit `normal`;
+    /// `right` (unit, ⟂ normal) is its first side.
+    Area {
+        center: DVec3,
+        normal: DVec3,
+        right: DVec3,
+        size: [f64; 2],
+    },
+}
+
+impl Light {
+    /// A start position and unit direction from four uniform numbers (each with its density over
+    /// the light's area and directions, so every photon carries the same power).
+    pub fn sample(&self, u: [f64; 4]) -> (DVec3, DVec3) {
+        match *self {
+            Light::Beam {
+                center,
+                direction,
+                radius,
+            } => {
+                let (a, b) = orthonormal_basis(direction);
+                let r = radius * u[0].sqrt();
+                let phi = 2.0 * PI * u[1];
+                (center + (a * phi.cos() + b * phi.sin()) * r, direction)
+            }
+            Light::Point { position } => (position, uniform_sphere(u[0], u[1])),
+            Light::Spot {
+                position,
+                axis,
+                half_angle,
+            } => {
+                // uniform in solid angle over the cap: cos θ uniform in [cos α, 1]
+                let mu = 1.0 - u[0] * (1.0 - half_angle.cos());
+                (
+                    position,
+                    crate::math::direction_about(axis, mu, 2.0 * PI * u[1]),
+                )
+            }
+            Light::Area {
+                center,
+                normal,
+                right,
+                size,
+            } => {
+                let up = normal.cross(right);
+                let x = center + right * ((u[0] - 0.5) * size[0]) + up * ((u[1] - 0.5) * size[1]);
+                // cosine-weighted hemisphere about the normal
+                let mu = u[2].sqrt();
+                (x, crate::math::direction_about(normal, mu, 2.0 * PI * u[3]))
+            }
+        }
+    }
+}
+
+/// What a sensor reports.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SensorKind {
+    /// The power crossing a plane away from the volume (total reflectance or transmittance).
+    Flux,
+    /// The irradiance on a rectangle of pixels (a bare sensor or a screen): power per pixel area.
+    Screen,
+}
+
+/// A plane outside the volume that records the light crossing it after the light has left the
+/// volume (straight rays, index `n_out`): whole (a flux sensor without a size) or as pixels.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Sensor {
+    pub name: String,
+    pub kind: SensorKind,
+    pub center: DVec3,
+    /// Unit normal pointing away from the volume: light is counted crossing along it.
+    pub normal: DVec3,
+    /// Unit vectors along the rectangle's sides (`up = normal × right`).
+    pub right: DVec3,
+    pub up: DVec3,
+    /// Side lengths; `None`: the whole plane (flux sensors only).
+    pub size: Option<[f64; 2]>,
+    /// Pixel counts along `right` and `up` (`[1, 1]` for flux sensors).
+    pub pixels: [usize; 2],
+}
+
+impl Sensor {
+    /// A sensor facing away from the volume: `normal` is flipped if it points towards it.
+    pub fn new(
+        name: String,
+        kind: SensorKind,
+        center: DVec3,
+        normal: DVec3,
+        size: Option<[f64; 2]>,
+        pixels: [usize; 2],
+    ) -> Self {
+        let normal = if normal.dot(center) < 0.0 {
+            -normal
+        } else {
+            normal
+        };
+        let (right, up) = orthonormal_basis(normal);
+        Sensor {
+            name,
+            kind,
+            center,
+            normal,
+            right,
+            up,
+            size,
+            pixels,
+        }
+    }
+
+    pub fn pixel_count(&self) -> usize {
+        self.pixels[0] * self.pixels[1]
+    }
+
+    /// Where the straight ray `x + t d` (after it left the volume) crosses the sensor: the pixel
+    /// index (row-major from the lower left, `right` fastest) and the distance `t`.
+    #[inline]
+    pub fn hit(&self, x: DVec3, d: DVec3) -> Option<(usize, f64)> {
+        let cos = d.dot(self.normal);
+        if cos <= 0.0 {
+            return None;
+        }
+        let t = (self.center - x).dot(self.normal) / cos;
+        // a ray leaving the volume on the plane itself (a sensor on a face) counts
+        if t < -1e-9 * (1.0 + self.center.length()) {
+            return None;
+        }
+        let t = t.max(0.0);
+        let rel = x + d * t - self.center;
+        let Some(size) = self.size else {
+            return Some((0, t));
+        };
+        let a = rel.dot(self.right) / size[0] + 0.5;
+        let b = rel.dot(self.up) / size[1] + 0.5;
+        if !(0.0..1.0).contains(&a) || !(0.0..1.0).contains(&b) {
+            return None;
+        }
+        let i = ((a * self.pixels[0] as f64) as usize).min(self.pixels[0] - 1);
+        let j = ((b * self.pixels[1] as f64) as usize).min(self.pixels[1] - 1);
+        Some((j * self.pixels[0] + i, t))
+    }
+
+    /// The area of one pixel (`None` for an unbounded plane).
+    pub fn pixel_area(&self) -> Option<f64> {
+        self.size
+            .map(|s| s[0] * s[1] / (self.pixels[0] * self.pixels[1]) as f64)
+    }
+}
+
+/// Time-of-flight bins: optical path lengths `∫ n ds` from the light, in `bins` equal bins over
+/// `[0, max_path)` (paper 002, Eq. 14); light arriving later is not recorded.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Transient {
+    pub bins: usize,
+    pub max_path: f64,
+}
+
+/// A refractive render: the volume, its light, the sensors, and how rays are stepped.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RenderScene {
+    pub volume: Volume,
+    pub light: Light,
+    pub sensors: Vec<Sensor>,
+    pub transient: Option<Transient>,
+    /// Leapfrog step in the σ-form (geometric length ≈ `n · step`), where `n` varies.
+    pub step: f64,
+    /// Most leapfrog steps of one free flight.
+    pub max_steps: usize,
+}
+
+impl RenderScene {
+    /// Time bins per pixel (1 without a transient).
+    pub fn bins(&self) -> usize {
+        self.transient.map_or(1, |t| t.bins)
+    }
+}

@@ -1,0 +1,142 @@
+//! `lightpath render` from the command line: shards merge to the single run's bytes, the thread
+//! count changes nothing, and bad scenes are refused by key.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn lightpath(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_lightpath"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("lightpath-render-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+/// `render.json` without what depends on the wall clock.
+fn results(dir: &Path) -> serde_json::Value {
+    let mut v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("render.json")).unwrap()).unwrap();
+    let o = v.as_object_mut().unwrap();
+    o.remove("seconds");
+    let s = o["statistics"].as_object_mut().unwrap();
+    s.remove("photons_per_second");
+    s.remove("steps_per_second");
+    v
+}
+
+fn config(name: &str) -> String {
+    format!("{}/configs/{name}", env!("CARGO_MANIFEST_DIR"))
+}
+
+#[test]
+fn shards_merge_to_the_single_run_and_threads_change_nothing() {
+    let cfg = config("render_luneburg.toml");
+    let run = |dir: &Path, extra: &[&str]| {
+        let d = dir.display().to_string();
+        let mut args = vec!["render", &cfg, "--out", &d, "--samples", "6000", "--quiet"];
+        args.extend_from_slice(extra);
+        let o = lightpath(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    };
+    let whole = tmp("whole");
+    run(&whole, &["--threads", "2"]);
+    let one = tmp("one-thread");
+    run(&one, &["--threads", "1"]);
+    assert_eq!(results(&whole), results(&one));
+    assert_eq!(
+        std::fs::read(whole.join("screen_antipode.exr")).unwrap(),
+        std::fs::read(one.join("screen_antipode.exr")).unwrap()
+    );
+    let (a, b, merged) = (tmp("shard-a"), tmp("shard-b"), tmp("merged"));
+    run(&a, &["--shard", "0/2"]);
+    run(&b, &["--shard", "1/2"]);
+    let o = lightpath(&[
+        "merge",
+        &a.display().to_string(),
+        &b.display().to_string(),
+        "--out",
+        &merged.display().to_string(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let mut m = results(&merged);
+    let mut w = results(&whole);
+    // merged shards have no wall time
+    for v in [&mut m, &mut w] {
+        v.as_object_mut().unwrap().remove("seconds");
+    }
+    assert_eq!(m, w);
+    assert_eq!(
+        std::fs::read(whole.join("screen_antipode.exr")).unwrap(),
+        std::fs::read(merged.join("screen_antipode.exr")).unwrap()
+    );
+    // the physics holds together: nothing absorbed in a clear-host lens, all light escapes
+    assert_eq!(w["escaped"]["mean"], 1.0);
+    for d in [whole, one, a, b, merged] {
+        let _ = std::fs::remove_dir_all(d);
+    }
+}
+
+#[test]
+fn bad_render_scenes_are_refused_by_key() {
+    let base = std::fs::read_to_string(config("render_slab.toml")).unwrap();
+    let cases: &[(&str, &str, &str)] = &[
+        (
+            "center = [0.0, 0.0, 0.5]",
+            "center = [0.0, 0.0, 0.2]",
+            "sensor[0].center",
+        ),
+        (
+            "bounds = { kind = \"box\", size = [200.0, 200.0, 1.0] }",
+            "bounds = { kind = \"everywhere\" }",
+            "field.bounds",
+        ),
+        ("mfp = 0.5", "mfp = 0.5\nslab = 1.0", "medium.slab"),
+        (
+            "name = \"reflectance\"",
+            "name = \"transmittance\"",
+            "sensor[1].name",
+        ),
+        ("bins = 100", "bins = 0", "transient.bins"),
+        (
+            "profiles = [{ kind = \"constant\", n = 1.5 }]",
+            "profiles = [{ kind = \"linear\", n0 = 1.5, gradient = [0.0, 0.0, 0.1] }]\n",
+            "render.step",
+        ),
+        ("radius = 0.0", "radius = -1.0", "light.radius"),
+        (
+            "direction = [0.0, 0.0, 1.0]",
+            "direction = [0.0, 0.0, 0.0]",
+            "light.direction",
+        ),
+    ];
+    let dir = tmp("bad");
+    std::fs::create_dir_all(&dir).unwrap();
+    for (i, (from, to, key)) in cases.iter().enumerate() {
+        assert!(base.contains(from), "{from}");
+        let mut text = base.replacen(from, to, 1);
+        if *key == "render.step" {
+            text = text.replace("[render]", "[render]\nstep = 0.1");
+        }
+        let path = dir.join(format!("bad{i}.toml"));
+        std::fs::write(&path, text).unwrap();
+        let o = lightpath(&[
+            "render",
+            &path.display().to_string(),
+            "--out",
+            &dir.join("out").display().to_string(),
+            "--quiet",
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{to}: {err}");
+        assert!(
+            err.contains(key),
+            "{to}: the error should name {key}: {err}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(dir);
+}

@@ -1,0 +1,400 @@
+//! The refractive renderer against closed forms and an independent tracer: energy balance, the
+//! Fresnel slab (with its multiple internal reflections and their arrival times), a scattering slab
+//! with mismatched faces against a plain slab tracer written here, a Luneburg lens focusing a beam
+//! on its antipode, and a beam bending along the closed-form ray of a linear-gradient tank.
+
+use glam::DVec3;
+use lightpath::eikonal::{BoundedField, Bounds, Profile};
+use lightpath::math::{Rng, stream_rng, uniform};
+use lightpath::mc::{Estimate, Plan, estimate};
+use lightpath::medium::{PhaseFunction, Scattering};
+use lightpath::rrte::{
+    Light, ParticleTracer, RenderScene, Sensor, SensorKind, Total, Transient, Volume,
+};
+
+fn slab_volume(
+    profile: Profile,
+    n_out: f64,
+    thickness: f64,
+    sigma_s: f64,
+    sigma_a: f64,
+    g: f64,
+) -> Volume {
+    Volume {
+        field: BoundedField::single(
+            profile,
+            Bounds::Box {
+                half: DVec3::new(500.0, 500.0, 0.5 * thickness),
+            },
+            n_out,
+        ),
+        sigma_s,
+        sigma_a,
+        scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g }),
+    }
+}
+
+fn flux(name: &str, z: f64) -> Sensor {
+    Sensor::new(
+        name.into(),
+        SensorKind::Flux,
+        DVec3::new(0.0, 0.0, z),
+        DVec3::Z,
+        None,
+        [1, 1],
+    )
+}
+
+fn beam(z: f64, radius: f64) -> Light {
+    Light::Beam {
+        center: DVec3::new(0.0, 0.0, z),
+        direction: DVec3::Z,
+        radius,
+    }
+}
+
+fn render(scene: &RenderScene, samples: u64, seed: u64) -> (Estimate, ParticleTracer<'_>) {
+    let est = ParticleTracer::new(scene);
+    let e = estimate(&est, &Plan::new(seed, samples, samples / 64));
+    (e, est)
+}
+
+fn value(e: &Estimate, i: usize) -> (f64, f64) {
+    (e.mean[i].re, e.stderr[i])
+}
+
+/// Non-scattering slab of index `n` between faces at ±L/2 in air: transmittance and reflectance of
+/// the incoherent Fresnel series, `T = (1−R)² t / (1 − R² t²)` with `t = exp(−σ_a L)`, and the
+/// arrival of each pass at optical path `z_gap + n L (2k + 1) + ...`, weight `(1−R)² R^{2k} t^{2k+1}`.
+fn fresnel_slab(profile: Profile, n: f64) {
+    let (l, sigma_a) = (1.0, 0.3);
+    let volume = slab_volume(profile, 1.0, l, 0.0, sigma_a, 0.0);
+    let scene = RenderScene {
+        volume,
+        light: beam(-1.1, 0.2),
+        sensors: vec![flux("transmittance", 0.5), flux("reflectance", -0.5)],
+        transient: Some(Transient {
+            bins: 40,
+            max_path: 20.0,
+        }),
+        step: 0.01,
+        max_steps: 100_000,
+    };
+    let (e, est) = render(&scene, 200_000, 7);
+    let r = ((n - 1.0) / (n + 1.0)).powi(2);
+    let t = (-sigma_a * l).exp();
+    let trans = (1.0 - r).powi(2) * t / (1.0 - r * r * t * t);
+    let refl = r + (1.0 - r).powi(2) * r * t * t / (1.0 - r * r * t * t);
+    let sum = |sensor: usize| -> (f64, f64) {
+        let o = est.offset(sensor);
+        let m: f64 = (0..40).map(|b| e.mean[o + b].re).sum();
+        // the bins of one photon are exclusive: the total's error is that of a Bernoulli mean
+        (m, (m * (1.0 - m) / e.samples as f64).sqrt())
+    };
+    let (tm, ts) = sum(0);
+    let (rm, rs) = sum(1);
+    assert!(
+        (tm - trans).abs() < 4.0 * ts,
+        "T = {tm} ± {ts}, closed form {trans}"
+    );
+    assert!(
+        (rm - refl).abs() < 4.0 * rs,
+        "R = {rm} ± {rs}, closed form {refl}"
+    );
+    let (am, as_) = value(&e, est.total(Total::Absorbed));
+    assert!(
+        (tm + rm + am - 1.0).abs() < 1e-12 + 4.0 * as_,
+        "T + R + A = {}",
+        tm + rm + am
+    );
+    // pass k (k = 0, 1, …) arrives at optical path 0.6 (air) + (2k + 1) n L
+    let bin_width = 20.0 / 40.0;
+    let pass = |k: usize| ((0.6 + (2 * k + 1) as f64 * n * l) / bin_width) as usize;
+    let o = est.offset(0);
+    let (m1, s1) = value(&e, o + pass(0));
+    let (m2, s2) = value(&e, o + pass(1));
+    let p1 = (1.0 - r).powi(2) * t;
+    let p2 = p1 * r * r * t * t;
+    assert!((m1 - p1).abs() < 4.0 * s1, "first pass {m1} ± {s1} vs {p1}");
+    // few photons make the second pass: the error of a Bernoulli mean at p2
+    let s2 = s2.max((p2 / e.samples as f64).sqrt());
+    assert!(
+        (m2 - p2).abs() < 4.0 * s2,
+        "second pass {m2} ± {s2} vs {p2}"
+    );
+    let passes: Vec<usize> = (0..10).map(pass).collect();
+    for b in (0..40).filter(|b| !passes.contains(b)) {
+        assert_eq!(e.mean[o + b].re, 0.0, "light in time bin {b}");
+    }
+}
+
+#[test]
+fn a_clear_fresnel_slab_matches_its_closed_form_and_arrival_times() {
+    // straight rays in closed form
+    fresnel_slab(Profile::Constant { n: 1.5 }, 1.5);
+    // the same slab stepped by the leapfrog integrator (a linear profile of zero gradient)
+    fresnel_slab(
+        Profile::Linear {
+            n0: 1.5,
+            gradient: DVec3::ZERO,
+        },
+        1.5,
+    );
+}
+
+#[test]
+fn every_photon_is_absorbed_escapes_or_is_reported() {
+    // no absorption, no roulette: each photon escapes, exactly
+    let volume = Volume {
+        field: BoundedField::single(
+            Profile::Luneburg { radius: 1.0 },
+            Bounds::Sphere { radius: 1.0 },
+            1.33,
+        ),
+        sigma_s: 2.0,
+        sigma_a: 0.0,
+        scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g: 0.7 }),
+    };
+    let scene = RenderScene {
+        volume,
+        light: beam(-2.0, 0.9),
+        sensors: vec![],
+        transient: None,
+        step: 0.01,
+        max_steps: 100_000,
+    };
+    let (e, est) = render(&scene, 20_000, 3);
+    assert_eq!(e.mean[est.total(Total::Escaped)].re, 1.0);
+    assert_eq!(e.stderr[est.total(Total::Escaped)], 0.0);
+    assert_eq!(e.mean[est.total(Total::Unfinished)].re, 0.0);
+    // with absorption (and roulette): absorbed + escaped = 1 within the standard error
+    let mut absorbing = scene.clone();
+    absorbing.volume.sigma_a = 0.5;
+    let (e, est) = render(&absorbing, 20_000, 3);
+    let (a, sa) = value(&e, est.total(Total::Absorbed));
+    let (x, sx) = value(&e, est.total(Total::Escaped));
+    assert!(a > 0.1 && x > 0.1, "absorbed {a}, escaped {x}");
+    assert!(
+        (a + x - 1.0).abs() < 4.0 * (sa * sa + sx * sx).sqrt(),
+        "{a} + {x}"
+    );
+}
+
+/// A plain slab tracer independent of the renderer: analog absorption, straight flights in `μ`
+/// only, Fresnel by the textbook amplitude formulas; returns (R, T) per photon as 0/1 tallies.
+fn plain_slab(n: f64, tau: f64, albedo: f64, g: f64, photons: u64, rng: &mut Rng) -> (f64, f64) {
+    let fresnel = |cos_i: f64, n1: f64, n2: f64| -> f64 {
+        let sin_t = n1 / n2 * (1.0 - cos_i * cos_i).sqrt();
+        if sin_t >= 1.0 {
+            return 1.0;
+        }
+        let cos_t = (1.0 - sin_t * sin_t).sqrt();
+        let rs = (n1 * cos_i - n2 * cos_t) / (n1 * cos_i + n2 * cos_t);
+        let rp = (n2 * cos_i - n1 * cos_t) / (n2 * cos_i + n1 * cos_t);
+        0.5 * (rs * rs + rp * rp)
+    };
+    let (mut r_count, mut t_count) = (0u64, 0u64);
+    for _ in 0..photons {
+        if uniform(rng) < fresnel(1.0, 1.0, n) {
+            r_count += 1;
+            continue;
+        }
+        // optical depth coordinate in [0, tau], direction cosine mu
+        let (mut z, mut mu) = (0.0f64, 1.0f64);
+        loop {
+            let s = -(1.0 - uniform(rng)).ln();
+            let z_new = z + mu * s;
+            if z_new < 0.0 || z_new > tau {
+                let face_top = z_new > tau;
+                z = if face_top { tau } else { 0.0 };
+                if uniform(rng) < fresnel(mu.abs(), n, 1.0) {
+                    mu = -mu;
+                    continue;
+                }
+                if face_top {
+                    t_count += 1;
+                } else {
+                    r_count += 1;
+                }
+                break;
+            }
+            z = z_new;
+            if uniform(rng) >= albedo {
+                break;
+            }
+            // Henyey–Greenstein cosine, then rotate about the old direction
+            let c = if g == 0.0 {
+                1.0 - 2.0 * uniform(rng)
+            } else {
+                let f = (1.0 - g * g) / (1.0 - g + 2.0 * g * uniform(rng));
+                (1.0 + g * g - f * f) / (2.0 * g)
+            };
+            let phi = 2.0 * std::f64::consts::PI * uniform(rng);
+            mu = mu * c
+                + (1.0 - mu * mu).max(0.0).sqrt() * (1.0 - c * c).max(0.0).sqrt() * phi.cos();
+        }
+    }
+    (
+        r_count as f64 / photons as f64,
+        t_count as f64 / photons as f64,
+    )
+}
+
+#[test]
+fn a_scattering_slab_with_fresnel_faces_matches_a_plain_slab_tracer() {
+    let (n, l, sigma_s, sigma_a, g) = (1.4, 1.0, 1.8, 0.2, 0.6);
+    let photons = 100_000;
+    let (r_ref, t_ref) = plain_slab(
+        n,
+        (sigma_s + sigma_a) * l,
+        sigma_s / (sigma_s + sigma_a),
+        g,
+        photons,
+        &mut stream_rng(11, 0),
+    );
+    let ref_err = |p: f64| (p * (1.0 - p) / photons as f64).sqrt();
+    for profile in [
+        Profile::Constant { n },
+        Profile::Linear {
+            n0: n,
+            gradient: DVec3::ZERO,
+        },
+    ] {
+        let scene = RenderScene {
+            volume: slab_volume(profile, 1.0, l, sigma_s, sigma_a, g),
+            light: beam(-1.0, 0.0),
+            sensors: vec![flux("T", 0.5), flux("R", -0.5)],
+            transient: None,
+            step: 0.01,
+            max_steps: 100_000,
+        };
+        let (e, est) = render(&scene, photons, 5);
+        let (t, st) = value(&e, est.offset(0));
+        let (r, sr) = value(&e, est.offset(1));
+        let (a, _) = value(&e, est.total(Total::Absorbed));
+        let lost = 1.0 - t - r - a;
+        assert!(
+            lost.abs() < 0.01,
+            "light lost sideways or unaccounted: {lost}"
+        );
+        let tol_t = 4.0 * (st * st + ref_err(t_ref).powi(2)).sqrt();
+        let tol_r = 4.0 * (sr * sr + ref_err(r_ref).powi(2)).sqrt();
+        assert!(
+            (t - t_ref).abs() < tol_t,
+            "T {t} ± {st} vs plain tracer {t_ref}"
+        );
+        assert!(
+            (r - r_ref).abs() < tol_r,
+            "R {r} ± {sr} vs plain tracer {r_ref}"
+        );
+    }
+}
+
+/// Power-weighted centroid and RMS radius of a screen image about its centre.
+fn spot(e: &Estimate, est: &ParticleTracer, sensor: &Sensor) -> (DVec3, f64, f64) {
+    let o = est.offset(0);
+    let [nx, ny] = sensor.pixels;
+    let size = sensor.size.unwrap();
+    let (mut total, mut c, mut r2) = (0.0, DVec3::ZERO, 0.0);
+    for j in 0..ny {
+        for i in 0..nx {
+            let w = e.mean[o + j * nx + i].re;
+            let a = ((i as f64 + 0.5) / nx as f64 - 0.5) * size[0];
+            let b = ((j as f64 + 0.5) / ny as f64 - 0.5) * size[1];
+            let p = sensor.center + sensor.right * a + sensor.up * b;
+            total += w;
+            c += p * w;
+            r2 += w * (a * a + b * b);
+        }
+    }
+    (c / total, (r2 / total).sqrt(), total)
+}
+
+#[test]
+fn a_scattering_luneburg_lens_focuses_a_beam_on_its_antipode() {
+    let volume = Volume {
+        field: BoundedField::single(
+            Profile::Luneburg { radius: 1.0 },
+            Bounds::Sphere { radius: 1.0 },
+            1.0,
+        ),
+        sigma_s: 0.05,
+        sigma_a: 0.0,
+        scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g: 0.9 }),
+    };
+    let screen = Sensor::new(
+        "screen".into(),
+        SensorKind::Screen,
+        DVec3::new(0.0, 0.0, 1.0),
+        DVec3::Z,
+        Some([0.5, 0.5]),
+        [51, 51],
+    );
+    let scene = RenderScene {
+        volume,
+        light: beam(-2.0, 0.4),
+        sensors: vec![screen.clone()],
+        transient: None,
+        step: 0.002,
+        max_steps: 100_000,
+    };
+    let (e, est) = render(&scene, 40_000, 9);
+    let (c, rms, total) = spot(&e, &est, &screen);
+    // most light (all but what scattered out of the focus) lands in a spot far smaller than the beam
+    assert!(total > 0.85, "fraction on the screen {total}");
+    assert!(c.truncate().length() < 0.01, "centroid {c}");
+    assert!(rms < 0.05, "RMS spot radius {rms} (beam radius 0.4)");
+    // the brightest pixel is the one at the antipode
+    let o = est.offset(0);
+    let centre = 25 * 51 + 25;
+    let max = (0..51 * 51).max_by(|&a, &b| e.mean[o + a].re.total_cmp(&e.mean[o + b].re));
+    assert_eq!(max, Some(centre));
+}
+
+#[test]
+fn a_beam_in_a_linear_gradient_tank_follows_the_closed_form_ray() {
+    // n = n0 + a y: a ray launched along z at y = 0 follows y(z) = (n0/a)(cosh(a z/n0) − 1)
+    let (n0, a, length) = (1.33, 0.02, 10.0);
+    let volume = Volume {
+        field: BoundedField::single(
+            Profile::Linear {
+                n0,
+                gradient: DVec3::new(0.0, a, 0.0),
+            },
+            Bounds::Box {
+                half: DVec3::new(5.0, 5.0, 0.5 * length),
+            },
+            1.0,
+        ),
+        sigma_s: 0.02,
+        sigma_a: 0.01,
+        scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g: 0.95 }),
+    };
+    let y_exit = n0 / a * ((a * length / n0).cosh() - 1.0);
+    let screen = Sensor::new(
+        "exit".into(),
+        SensorKind::Screen,
+        DVec3::new(0.0, y_exit, 0.5 * length),
+        DVec3::Z,
+        Some([0.6, 0.6]),
+        [61, 61],
+    );
+    let scene = RenderScene {
+        volume,
+        light: beam(-6.0, 0.02),
+        sensors: vec![screen.clone()],
+        transient: None,
+        step: 0.01,
+        max_steps: 100_000,
+    };
+    let (e, est) = render(&scene, 40_000, 13);
+    let (c, _, total) = spot(&e, &est, &screen);
+    assert!(total > 0.7, "fraction near the predicted exit {total}");
+    assert!(y_exit > 0.7, "the test needs a visible bend: {y_exit}");
+    assert!(
+        (c.y - y_exit).abs() < 0.01,
+        "centroid y {} vs closed-form ray {y_exit}",
+        c.y
+    );
+    assert!(c.x.abs() < 0.01, "centroid x {}", c.x);
+}
