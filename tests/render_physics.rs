@@ -73,6 +73,8 @@ fn fresnel_slab(profile: Profile, n: f64) {
         volume,
         light: beam(-1.1, 0.2),
         sensors: vec![flux("transmittance", 0.5), flux("reflectance", -0.5)],
+        probes: vec![],
+        connections: Default::default(),
         transient: Some(Transient {
             bins: 40,
             max_path: 20.0,
@@ -159,6 +161,8 @@ fn every_photon_is_absorbed_escapes_or_is_reported() {
         volume,
         light: beam(-2.0, 0.9),
         sensors: vec![],
+        probes: vec![],
+        connections: Default::default(),
         transient: None,
         step: 0.01,
         max_steps: 100_000,
@@ -264,6 +268,8 @@ fn a_scattering_slab_with_fresnel_faces_matches_a_plain_slab_tracer() {
             volume: slab_volume(profile, 1.0, l, sigma_s, sigma_a, g),
             light: beam(-1.0, 0.0),
             sensors: vec![flux("T", 0.5), flux("R", -0.5)],
+            probes: vec![],
+            connections: Default::default(),
             transient: None,
             step: 0.01,
             max_steps: 100_000,
@@ -334,6 +340,8 @@ fn a_scattering_luneburg_lens_focuses_a_beam_on_its_antipode() {
         volume,
         light: beam(-2.0, 0.4),
         sensors: vec![screen.clone()],
+        probes: vec![],
+        connections: Default::default(),
         transient: None,
         step: 0.002,
         max_steps: 100_000,
@@ -383,6 +391,8 @@ fn a_beam_in_a_linear_gradient_tank_follows_the_closed_form_ray() {
         volume,
         light: beam(-6.0, 0.02),
         sensors: vec![screen.clone()],
+        probes: vec![],
+        connections: Default::default(),
         transient: None,
         step: 0.01,
         max_steps: 100_000,
@@ -397,4 +407,178 @@ fn a_beam_in_a_linear_gradient_tank_follows_the_closed_form_ray() {
         c.y
     );
     assert!(c.x.abs() < 0.01, "centroid x {}", c.x);
+}
+
+fn probe_scene(profile: Profile, sigma_s: f64, g: f64, light: Light, probe: DVec3) -> RenderScene {
+    RenderScene {
+        volume: Volume {
+            field: BoundedField::single(profile, Bounds::Sphere { radius: 1.0 }, 1.0),
+            sigma_s,
+            sigma_a: 0.1 * sigma_s,
+            scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g }),
+        },
+        light,
+        sensors: vec![],
+        probes: vec![lightpath::rrte::Probe {
+            name: "probe".into(),
+            position: probe,
+        }],
+        connections: Default::default(),
+        transient: None,
+        step: 0.004,
+        max_steps: 100_000,
+    }
+}
+
+/// Fluence rate at `y` by brute force: straight flights in a sphere of radius 1 (index matched),
+/// isotropic point source at `x0`, HG scattering (`σ_s`, `σ_a`, `g`), and the track length inside
+/// a ball of radius `eps` about `y` divided by its volume. Independent of the renderer.
+fn ball_fluence(
+    (x0, y, eps): (DVec3, DVec3, f64),
+    (sigma_s, sigma_a, g): (f64, f64, f64),
+    photons: u64,
+    rng: &mut Rng,
+) -> (f64, f64) {
+    let sigma_t = sigma_s + sigma_a;
+    let ball = 4.0 / 3.0 * std::f64::consts::PI * eps.powi(3);
+    let (mut sum, mut sq) = (0.0, 0.0);
+    for _ in 0..photons {
+        let mut x = x0;
+        let z = 1.0 - 2.0 * uniform(rng);
+        let phi = 2.0 * std::f64::consts::PI * uniform(rng);
+        let r = (1.0 - z * z).sqrt();
+        let mut d = DVec3::new(r * phi.cos(), r * phi.sin(), z);
+        let mut tally = 0.0;
+        loop {
+            let s = -(1.0 - uniform(rng)).ln() / sigma_t;
+            // distance to the unit sphere along d
+            let b = x.dot(d);
+            let exit = -b + (b * b - (x.length_squared() - 1.0)).sqrt();
+            let len = s.min(exit);
+            // chord of the segment [0, len] inside the ball about y
+            let p = y - x;
+            let t = p.dot(d);
+            let h2 = p.length_squared() - t * t;
+            if h2 < eps * eps {
+                let half = (eps * eps - h2).sqrt();
+                let (a, c) = ((t - half).max(0.0), (t + half).min(len));
+                if c > a {
+                    tally += c - a;
+                }
+            }
+            if s >= exit || uniform(rng) >= sigma_s / sigma_t {
+                break;
+            }
+            x += d * s;
+            // HG about d
+            let f = (1.0 - g * g) / (1.0 - g + 2.0 * g * uniform(rng));
+            let c = ((1.0 + g * g - f * f) / (2.0 * g)).clamp(-1.0, 1.0);
+            let phi = 2.0 * std::f64::consts::PI * uniform(rng);
+            let (e1, e2) = lightpath::math::orthonormal_basis(d);
+            let sn = (1.0 - c * c).sqrt();
+            d = (d * c + e1 * (sn * phi.cos()) + e2 * (sn * phi.sin())).normalize();
+        }
+        let v = tally / ball;
+        sum += v;
+        sq += v * v;
+    }
+    let n = photons as f64;
+    let mean = sum / n;
+    (mean, ((sq / n - mean * mean) / n).sqrt())
+}
+
+#[test]
+fn a_fluence_probe_matches_a_track_length_tally_with_straight_and_curved_connections() {
+    let (x0, y) = (DVec3::new(0.1, -0.2, 0.0), DVec3::new(0.3, 0.35, -0.2));
+    let (sigma_s, g) = (2.0, 0.5);
+    let (reference, ref_se) = ball_fluence(
+        (x0, y, 0.05),
+        (sigma_s, 0.1 * sigma_s, g),
+        400_000,
+        &mut stream_rng(21, 0),
+    );
+    for profile in [
+        Profile::Constant { n: 1.0 },
+        Profile::Linear {
+            n0: 1.0,
+            gradient: DVec3::ZERO,
+        },
+    ] {
+        let straight = matches!(profile, Profile::Constant { .. });
+        let scene = probe_scene(profile, sigma_s, g, Light::Point { position: x0 }, y);
+        let photons = if straight { 100_000 } else { 5_000 };
+        let (e, est) = render(&scene, photons, 17);
+        let (f, se) = value(&e, est.probe_total(0));
+        let tol = 4.0 * (se * se + ref_se * ref_se).sqrt();
+        assert!(
+            (f - reference).abs() < tol,
+            "{} connections: fluence {f} ± {se} vs track length in a ball {reference} ± {ref_se}",
+            if straight { "straight" } else { "curved" }
+        );
+        // a straight connection always exists; Newton from a random start finds the curved one
+        // mostly (a start pointing away from the probe is a null path of Alg. 3)
+        let found =
+            e.mean[est.total(Total::Connected)].re / e.mean[est.total(Total::Connections)].re;
+        if straight {
+            assert_eq!(found, 1.0);
+        } else {
+            assert!(found > 0.7, "success rate {found}");
+        }
+    }
+}
+
+#[test]
+fn a_probe_in_a_clear_luneburg_lens_sees_the_ray_tube_of_its_curved_path() {
+    // a point source and a probe inside the lens, nothing scattering: the fluence is the source's
+    // intensity over the ray tube's cross-section per solid angle, 1/(4π dA⊥/dω); brute force
+    // counts the rays from the source passing within eps of the probe
+    let (x0, y) = (DVec3::new(0.05, 0.0, -0.85), DVec3::new(-0.05, 0.1, 0.6));
+    let mut scene = probe_scene(
+        Profile::Luneburg { radius: 1.0 },
+        0.0,
+        0.0,
+        Light::Point { position: x0 },
+        y,
+    );
+    scene.volume.sigma_a = 0.0;
+    let (e, est) = render(&scene, 2000, 3);
+    // one path; its weight varies only through Alg. 3's count of restarts
+    let (f, se) = value(&e, est.probe_total(0));
+    let tracer = lightpath::eikonal::Tracer {
+        field: &scene.volume.field,
+        step: 0.01,
+        max_steps: 100_000,
+    };
+    let eps = 0.08;
+    let rays = 300_000;
+    let mut rng = stream_rng(4, 0);
+    let mut hits = 0u64;
+    for _ in 0..rays {
+        let d = lightpath::math::uniform_sphere(uniform(&mut rng), uniform(&mut rng));
+        let mut prev = x0;
+        let mut close = false;
+        tracer.trace_with(x0, d, |p| {
+            // distance from y to the chord prev → p
+            let (a, b) = (prev, p);
+            let ab = b - a;
+            let t = ((y - a).dot(ab) / ab.length_squared().max(1e-300)).clamp(0.0, 1.0);
+            close |= (a + ab * t - y).length() < eps;
+            prev = p;
+        });
+        hits += close as u64;
+    }
+    let p = hits as f64 / rays as f64;
+    let brute = p / (std::f64::consts::PI * eps * eps);
+    let brute_se = (p * (1.0 - p) / rays as f64).sqrt() / (std::f64::consts::PI * eps * eps);
+    // the straight-line value 1/(4π s²) differs: the lens bends the tube
+    let straight = 1.0 / (4.0 * std::f64::consts::PI * (y - x0).length_squared());
+    assert!(
+        (f - straight).abs() > 8.0 * brute_se,
+        "the test must see the bending: {f} vs {straight}"
+    );
+    let tol = 4.0 * (brute_se * brute_se + se * se).sqrt() + 0.01 * f;
+    assert!(
+        (f - brute).abs() < tol,
+        "probe {f} ± {se} vs brute force {brute} ± {brute_se}"
+    );
 }

@@ -8,7 +8,9 @@ use super::{Outcome, Progress};
 use crate::config::RenderTask;
 use crate::error::{Error, Result};
 use crate::io::ResultFile;
-use crate::io::results::{Measured, RenderFile, RenderStatistics, SensorRecord};
+use crate::io::results::{
+    ConnectionStatistics, Measured, ProbeRecord, RenderFile, RenderStatistics, SensorRecord,
+};
 use crate::mc::{Block, Checkpoint, Estimate, Plan, merge, resume};
 use crate::medium::{Geometry, Medium};
 use crate::rrte::{ParticleTracer, SensorKind, Total};
@@ -191,6 +193,41 @@ pub(crate) fn finish(
         }
         sensors.push(record);
     }
+    let mut probes = Vec::new();
+    for (i, p) in scene.probes.iter().enumerate() {
+        let fluence = measured(est.probe_total(i));
+        summary.push(format!(
+            "{} fluence {:.4e} ± {:.1e}",
+            p.name, fluence.mean, fluence.stderr
+        ));
+        let o = est.probe_offset(i);
+        probes.push(ProbeRecord {
+            name: p.name.clone(),
+            position: p.position.to_array(),
+            fluence,
+            per_bin: (o..o + bins).map(|k| e.mean[k].re).collect(),
+            per_bin_stderr: (o..o + bins).map(|k| e.stderr[k]).collect(),
+        });
+    }
+    let total = |t: Total| e.mean[est.total(t)].re;
+    let connections = (!scene.probes.is_empty()).then(|| {
+        let asked = total(Total::Connections);
+        let found = total(Total::Connected);
+        let solves = total(Total::Solves);
+        let ratio = |a: f64, b: f64| if b > 0.0 { a / b } else { 0.0 };
+        ConnectionStatistics {
+            mode: match scene.connections {
+                crate::rrte::Connections::Unbiased => "unbiased",
+                crate::rrte::Connections::First => "first",
+            }
+            .into(),
+            per_photon: asked,
+            success_rate: ratio(found, asked),
+            solves_per_connection: ratio(solves, asked),
+            iterations_per_solve: ratio(total(Total::Iterations), solves),
+            distinct_paths: ratio(total(Total::Distinct), found),
+        }
+    });
     let events = e.mean[est.total(Total::Events)].re;
     let steps = e.mean[est.total(Total::Steps)].re;
     let timed = seconds.is_finite().then_some(seconds);
@@ -201,12 +238,14 @@ pub(crate) fn finish(
         seed: plan.seed,
         chunk: plan.chunk_paths,
         sensors,
+        probes,
         absorbed: measured(est.total(Total::Absorbed)),
         escaped: measured(est.total(Total::Escaped)),
         unfinished: measured(est.total(Total::Unfinished)),
         statistics: RenderStatistics {
             events_per_photon: events,
             steps_per_photon: steps,
+            connections,
             photons_per_second: timed.map(|t| plan.samples() as f64 / t),
             steps_per_second: timed.map(|t| steps * plan.samples() as f64 / t),
         },
@@ -232,7 +271,7 @@ pub(crate) fn finish(
             events,
             steps,
             if summary.is_empty() {
-                "no sensors".into()
+                "no sensors or probes".into()
             } else {
                 summary.join(", ")
             },

@@ -7,7 +7,7 @@ use super::trace::{FieldConfig, check_positive};
 use super::{ConfigError, err};
 use crate::eikonal::Bounds;
 use crate::medium::{PhaseFunction, Scattering};
-use crate::rrte::{Light, RenderScene, Sensor, SensorKind, Transient, Volume};
+use crate::rrte::{Connections, Light, Probe, RenderScene, Sensor, SensorKind, Transient, Volume};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
@@ -75,6 +75,23 @@ pub enum SensorConfig {
         size: [f64; 2],
         pixels: [u64; 2],
     },
+    /// Fluence rate at a point inside the volume, by connections along curved rays.
+    Fluence { name: String, position: [f64; 3] },
+}
+
+/// `[render] connections`.
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum ConnectionsConfig {
+    #[default]
+    Unbiased,
+    First,
+}
+
+impl ConnectionsConfig {
+    fn is_default(&self) -> bool {
+        *self == ConnectionsConfig::Unbiased
+    }
 }
 
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
@@ -101,6 +118,10 @@ pub struct RenderSettings {
     /// Most leapfrog steps of one free flight (a photon past it is reported unfinished).
     #[serde(default = "default_max_steps")]
     pub max_steps: u64,
+    /// Connections to fluence probes: `"unbiased"` (a random stationary path weighted by its
+    /// inverse probability, Alg. 3) or `"first"` (the path found, unweighted).
+    #[serde(default, skip_serializing_if = "ConnectionsConfig::is_default")]
+    pub connections: ConnectionsConfig,
 }
 
 fn default_samples() -> u64 {
@@ -127,6 +148,7 @@ impl Default for RenderSettings {
             chunk: default_chunk(),
             step: default_step(),
             max_steps: default_max_steps(),
+            connections: ConnectionsConfig::Unbiased,
         }
     }
 }
@@ -199,15 +221,36 @@ impl RenderConfig {
             ));
         }
         let mut sensors = Vec::with_capacity(self.sensor.len());
+        let mut probes = Vec::new();
+        let mut names: Vec<&str> = Vec::new();
         for (i, s) in self.sensor.iter().enumerate() {
-            let sensor = sensor(i, s, &volume)?;
-            if sensors.iter().any(|o: &Sensor| o.name == sensor.name) {
+            let name = match s {
+                SensorConfig::Flux { name, .. }
+                | SensorConfig::Screen { name, .. }
+                | SensorConfig::Fluence { name, .. } => name,
+            };
+            check_name(i, name)?;
+            if names.contains(&name.as_str()) {
                 return err(format!(
-                    "sensor[{i}].name = {:?}: another sensor has this name",
-                    sensor.name
+                    "sensor[{i}].name = {name:?}: another sensor has this name"
                 ));
             }
-            sensors.push(sensor);
+            names.push(name);
+            if let SensorConfig::Fluence { name, position } = s {
+                let position = finite(&format!("sensor[{i}].position"), *position)?;
+                if !volume.field.bounds.contains(position) {
+                    return err(format!(
+                        "sensor[{i}].position = {:?}: a fluence probe must lie inside the volume (field.bounds)",
+                        position.to_array()
+                    ));
+                }
+                probes.push(Probe {
+                    name: name.clone(),
+                    position,
+                });
+            } else {
+                sensors.push(sensor(i, s, &volume)?);
+            }
         }
         let transient = match &self.transient {
             None => None,
@@ -242,6 +285,11 @@ impl RenderConfig {
             volume,
             light,
             sensors,
+            probes,
+            connections: match r.connections {
+                ConnectionsConfig::Unbiased => Connections::Unbiased,
+                ConnectionsConfig::First => Connections::First,
+            },
             transient,
             step,
             max_steps: r.max_steps as usize,
@@ -308,6 +356,7 @@ impl RenderConfig {
 fn sensor(i: usize, s: &SensorConfig, volume: &Volume) -> Result<Sensor, ConfigError> {
     let key = |k: &str| format!("sensor[{i}].{k}");
     let (name, kind, center, normal, size, pixels) = match s {
+        SensorConfig::Fluence { .. } => return err("a fluence probe is not a plane"),
         SensorConfig::Flux {
             name,
             center,
@@ -329,17 +378,6 @@ fn sensor(i: usize, s: &SensorConfig, volume: &Volume) -> Result<Sensor, ConfigE
             *pixels,
         ),
     };
-    let ok_name = !name.is_empty()
-        && name.len() <= 64
-        && name
-            .chars()
-            .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-');
-    if !ok_name {
-        return err(format!(
-            "{} = {name:?}: use 1 to 64 letters, digits, '_' or '-' (it names the sensor's files)",
-            key("name")
-        ));
-    }
     let center = finite(&key("center"), *center)?;
     let normal = unit(&key("normal"), *normal)?;
     if let Some(size) = size {
@@ -374,6 +412,22 @@ fn sensor(i: usize, s: &SensorConfig, volume: &Volume) -> Result<Sensor, ConfigE
         size,
         [pixels[0] as usize, pixels[1] as usize],
     ))
+}
+
+/// A sensor's name: it names files.
+fn check_name(i: usize, name: &str) -> Result<(), ConfigError> {
+    let ok = !name.is_empty()
+        && name.len() <= 64
+        && name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-');
+    if ok {
+        Ok(())
+    } else {
+        err(format!(
+            "sensor[{i}].name = {name:?}: use 1 to 64 letters, digits, '_' or '-' (it names the sensor's files)"
+        ))
+    }
 }
 
 /// Where `n` varies, the step must resolve the volume: at least 20 steps across its smallest

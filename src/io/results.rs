@@ -758,11 +758,37 @@ pub struct SensorRecord {
     pub files: Vec<String>,
 }
 
+/// A fluence-rate probe of a render: power per unit area per unit emitted power.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct ProbeRecord {
+    pub name: String,
+    pub position: [f64; 3],
+    pub fluence: Measured,
+    pub per_bin: Vec<f64>,
+    pub per_bin_stderr: Vec<f64>,
+}
+
+/// How the connections to probes went.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct ConnectionStatistics {
+    /// `unbiased` (Alg. 3) or `first`.
+    pub mode: String,
+    pub per_photon: f64,
+    /// Fraction of connections for which a stationary path was found.
+    pub success_rate: f64,
+    pub solves_per_connection: f64,
+    pub iterations_per_solve: f64,
+    /// Distinct stationary paths met per connection found (1 where one path joins two points).
+    pub distinct_paths: f64,
+}
+
 /// How the photons went: per-photon averages and the speed.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct RenderStatistics {
     pub events_per_photon: f64,
     pub steps_per_photon: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub connections: Option<ConnectionStatistics>,
     /// `null` for merged shards.
     pub photons_per_second: Option<f64>,
     pub steps_per_second: Option<f64>,
@@ -778,6 +804,8 @@ pub struct RenderFile {
     pub seed: u64,
     pub chunk: u64,
     pub sensors: Vec<SensorRecord>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub probes: Vec<ProbeRecord>,
     /// Absorbed inside the volume, left it (seen by a sensor or not), and given up (trapped past
     /// the step budget): they add up to 1 within their errors.
     pub absorbed: Measured,

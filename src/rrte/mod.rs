@@ -1,15 +1,19 @@
 //! Refractive radiative transfer (paper 002): light that scatters *and* bends. A volume with an
 //! index field `n(x)` (any [`crate::eikonal`] profile or grid) and homogeneous scattering, bounded
 //! by a sphere, box or cylinder with a smooth dielectric surface (Fresnel reflection and refraction,
-//! total internal reflection); lights outside or inside it; sensors outside it.
+//! total internal reflection); lights outside or inside it; sensors outside it and fluence probes
+//! inside it.
 //!
 //! - [`scene`]: the volume, lights, sensors and time-of-flight bins;
+//! - [`connect`]: point-to-point connections along curved rays (Sec. 4, Algs. 2–3);
 //! - [`flight`]: free flights over geometric length along curved rays (Eq. 5), Fresnel;
-//! - [`particle`]: particle (light) tracing as an engine estimator (results per emitted power).
+//! - [`particle`]: particle (light) tracing as an engine estimator (results per emitted power),
+//!   with next-event connections to fluence probes.
 
+pub mod connect;
 pub mod flight;
 pub mod particle;
 pub mod scene;
 
 pub use particle::{ParticleTracer, Total};
-pub use scene::{Light, RenderScene, Sensor, SensorKind, Transient, Volume};
+pub use scene::{Connections, Light, Probe, RenderScene, Sensor, SensorKind, Transient, Volume};

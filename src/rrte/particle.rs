@@ -13,8 +13,9 @@
 //! `L/n²` of the RRTE enters only where radiance is connected to a point (cameras, next-event
 //! estimation).
 
+use super::connect::Connector;
 use super::flight::{Flight, Flyer, fresnel, reflect};
-use super::scene::RenderScene;
+use super::scene::{Connections, RenderScene};
 use crate::eikonal::Ray;
 use crate::eikonal::trace::refract;
 use crate::math::{C64, Rng, uniform};
@@ -38,16 +39,24 @@ pub enum Total {
     Events = 3,
     /// Leapfrog steps (a count per photon, for statistics).
     Steps = 4,
+    /// Connections to probes asked for, found, Newton solves run, Newton iterations, and distinct
+    /// stationary paths met (counts per photon, for statistics).
+    Connections = 5,
+    Connected = 6,
+    Solves = 7,
+    Iterations = 8,
+    Distinct = 9,
 }
 
 /// How many totals follow the sensors.
-pub const TOTALS: usize = 5;
+pub const TOTALS: usize = 10;
 
 /// The particle tracer of a scene, as an engine estimator.
 pub struct ParticleTracer<'s> {
     scene: &'s RenderScene,
     flyer: Flyer<'s>,
-    /// First output of each sensor.
+    connector: Connector<'s>,
+    /// First output of each sensor, then of each probe.
     offsets: Vec<usize>,
     totals: usize,
 }
@@ -61,11 +70,74 @@ impl<'s> ParticleTracer<'s> {
             offsets.push(at + 1);
             at += 1 + s.pixel_count() * scene.bins();
         }
+        for _ in &scene.probes {
+            // the probe's total fluence rate, then its time bins
+            offsets.push(at + 1);
+            at += 1 + scene.bins();
+        }
         ParticleTracer {
             scene,
             flyer: Flyer::new(&scene.volume, scene.step, scene.max_steps),
+            connector: Connector::new(&scene.volume, scene.step, scene.max_steps),
             offsets,
             totals: at,
+        }
+    }
+
+    /// The first output of probe `i` (its time bins).
+    pub fn probe_offset(&self, i: usize) -> usize {
+        self.offsets[self.scene.sensors.len() + i]
+    }
+
+    /// The output holding probe `i`'s fluence rate over all time bins.
+    pub fn probe_total(&self, i: usize) -> usize {
+        self.probe_offset(i) - 1
+    }
+
+    /// Next-event connections from `x` (inside) to every probe: power `weight` leaving `x` with
+    /// angular density `emit(d)` per steradian along unit `d`, having travelled the optical path
+    /// `opl`. Each probe receives `weight · emit(d) · T / (dA⊥/dω)` over the stationary paths.
+    fn connect(
+        &self,
+        x: DVec3,
+        weight: f64,
+        opl: f64,
+        emit: impl Fn(DVec3) -> f64,
+        rng: &mut Rng,
+        out: &mut [C64],
+    ) {
+        let sigma_t = self.scene.volume.sigma_t();
+        for (i, probe) in self.scene.probes.iter().enumerate() {
+            let s = match self.scene.connections {
+                Connections::Unbiased => self.connector.sample(x, probe.position, rng),
+                Connections::First => self.connector.sample_first(x, probe.position, rng),
+            };
+            out[self.total(Total::Connections)].re += 1.0;
+            out[self.total(Total::Solves)].re += s.solves as f64;
+            out[self.total(Total::Iterations)].re += s.iterations as f64;
+            let Some((c, inverse_p)) = s.path else {
+                continue;
+            };
+            out[self.total(Total::Connected)].re += 1.0;
+            out[self.total(Total::Distinct)].re += s.distinct as f64;
+            let value =
+                weight * emit(c.direction) * (-sigma_t * c.length).exp() / c.spread * inverse_p;
+            if !(value > 0.0 && value.is_finite()) {
+                continue;
+            }
+            let bin = match self.scene.transient {
+                None => 0,
+                Some(tr) => {
+                    let b = ((opl + c.optical_path) / tr.max_path * tr.bins as f64).floor();
+                    if !(0.0..tr.bins as f64).contains(&b) {
+                        continue;
+                    }
+                    b as usize
+                }
+            };
+            let o = self.probe_offset(i);
+            out[o + bin].re += value;
+            out[o - 1].re += value;
         }
     }
 
@@ -124,6 +196,10 @@ impl<'s> ParticleTracer<'s> {
         let mut weight = 1.0;
         // enter the volume from outside, or start inside it
         let mut ray = if bounds.contains(x) {
+            if !self.scene.probes.is_empty() {
+                let light = &self.scene.light;
+                self.connect(x, weight, 0.0, |d| light.intensity(d), rng, out);
+            }
             Ray {
                 x,
                 v: d * self.flyer.n(x),
@@ -181,6 +257,11 @@ impl<'s> ParticleTracer<'s> {
                     events += 1;
                     out[self.total(Total::Absorbed)].re += weight * (1.0 - albedo);
                     weight *= albedo;
+                    let w_in = hit.v.normalize();
+                    if !self.scene.probes.is_empty() {
+                        let phase = |d: DVec3| volume.scattering.eval(w_in.dot(d));
+                        self.connect(hit.x, weight, opl, phase, rng, out);
+                    }
                     if weight < ROULETTE_BELOW {
                         if uniform(rng) >= ROULETTE_SURVIVAL {
                             break;
@@ -192,11 +273,10 @@ impl<'s> ParticleTracer<'s> {
                         break;
                     }
                     let kind = volume.scattering.pick(|| uniform(rng));
-                    let w = hit.v.normalize();
                     let w = volume
                         .scattering
                         .phase(kind)
-                        .sample(w, uniform(rng), uniform(rng));
+                        .sample(w_in, uniform(rng), uniform(rng));
                     ray = Ray {
                         x: hit.x,
                         v: w * self.flyer.n(hit.x),
@@ -274,7 +354,9 @@ impl Estimator for ParticleTracer<'_> {
             };
             (flight / (v.field.n_out * self.scene.step)).clamp(1.0, self.scene.max_steps as f64)
         };
-        STEP_COST * steps + self.scene.sensors.len() as f64
+        // a connection: a few Newton solves of a few iterations, each a flight's worth of steps
+        let connections = self.scene.probes.len() as f64 * if v.homogeneous() { 1.0 } else { 30.0 };
+        STEP_COST * steps * (1.0 + connections) + self.scene.sensors.len() as f64
     }
 }
 

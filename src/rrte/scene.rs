@@ -130,6 +130,49 @@ impl Light {
     }
 }
 
+impl Light {
+    /// Radiant intensity per unit emitted power (per steradian) along unit `d` from the point `x`
+    /// a photon started at: what a connection from the light to a point carries (0 for a beam,
+    /// whose directions are a delta).
+    pub fn intensity(&self, d: DVec3) -> f64 {
+        match *self {
+            Light::Beam { .. } => 0.0,
+            Light::Point { .. } => 1.0 / (4.0 * PI),
+            Light::Spot {
+                axis, half_angle, ..
+            } => {
+                if d.dot(axis) >= half_angle.cos() {
+                    1.0 / (2.0 * PI * (1.0 - half_angle.cos()))
+                } else {
+                    0.0
+                }
+            }
+            Light::Area { normal, .. } => d.dot(normal).max(0.0) / PI,
+        }
+    }
+}
+
+/// A fluence-rate probe at a point inside the volume: power per unit area arriving from all
+/// directions, per unit emitted power, by next-event connections along curved rays from every
+/// scattering event (and from the light, when it starts inside the volume).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Probe {
+    pub name: String,
+    pub position: DVec3,
+}
+
+/// How connections to probes are estimated.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Connections {
+    /// One stationary path drawn at random, weighted by its estimated inverse probability
+    /// (paper 002, Alg. 3): unbiased when several paths join two points.
+    #[default]
+    Unbiased,
+    /// The first path Newton's method finds, unweighted: faster, and exact where only one path
+    /// joins two points (biased where several do).
+    First,
+}
+
 /// What a sensor reports.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SensorKind {
@@ -238,6 +281,8 @@ pub struct RenderScene {
     pub volume: Volume,
     pub light: Light,
     pub sensors: Vec<Sensor>,
+    pub probes: Vec<Probe>,
+    pub connections: Connections,
     pub transient: Option<Transient>,
     /// Leapfrog step in the σ-form (geometric length ≈ `n · step`), where `n` varies.
     pub step: f64,

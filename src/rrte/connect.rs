@@ -1,0 +1,628 @@
+//! Point-to-point connections through an index field (paper 002, Sec. 4): the curved rays from a
+//! point `x` inside the volume that pass through a point `y` inside it — boundary-value problems
+//! solved as initial-value problems.
+//!
+//! A ray from `x` with unit direction `w` (velocity `v0 = n(x) w` in the σ-form) is traced to its
+//! closest approach to `y`, where `(x_s − y)·v_s = 0` (the type-2 condition of Sec. 4 and App. B).
+//! The residual is the miss perpendicular to the arriving direction; its Jacobian with respect to
+//! `w` comes from the forward sensitivities `∂x/∂v0` carried along the leapfrog (Alg. 2) and
+//! projected perpendicular to the ray, which removes the `∂s*/∂v0` term of Eq. 20. Newton's method
+//! on this 2×2 system (the paper uses BFGS on `½|x_s − y|²`) converges quadratically near a
+//! solution; the same 2×2 matrix at the solution is the ray tube's spreading `dA⊥/dω` at `y`, the
+//! exact geometry term of a curved connection (`s²` for a straight one).
+//!
+//! Between two points there can be several stationary paths. [`Connector::sample`] draws one by
+//! starting Newton from a random direction and estimates the inverse probability of having drawn
+//! it by restarting until the same path is found again (Alg. 3, after Booth 2007 and Zeltner et
+//! al. 2020): `Σ_k f(C_k)` is then estimated without bias by `f(C)/p(C)`.
+
+use super::scene::Volume;
+use crate::eikonal::trace::force_jacobian;
+use crate::eikonal::{IndexField, Ray, Tracer};
+use crate::math::{Rng, orthonormal_basis, uniform, uniform_sphere};
+use glam::{DMat3, DVec3};
+
+/// A stationary path from `x` to `y`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Connection {
+    /// Unit direction leaving `x`.
+    pub direction: DVec3,
+    /// The ray's state at its closest approach to `y` (within the tolerance of it).
+    pub arrival: Ray,
+    /// Geometric length `∫ ds` (for transmittance) and optical path `∫ n ds`.
+    pub length: f64,
+    pub optical_path: f64,
+    /// The ray tube's cross-section at `y` per unit solid angle at `x`, `dA⊥/dω`: the
+    /// irradiance at `y` of a source of unit intensity at `x` is `1/spread`.
+    pub spread: f64,
+    /// Newton iterations it took.
+    pub iterations: usize,
+}
+
+/// A path from a point inside the volume that leaves it travelling along a given direction (an
+/// orthographic camera's): the direction BVP of a connection through the surface.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Exit {
+    /// Unit direction leaving `x`.
+    pub direction: DVec3,
+    /// Where the path leaves the volume, and its direction after refraction there.
+    pub surface: DVec3,
+    pub outgoing: DVec3,
+    /// Geometric length and optical path inside.
+    pub length: f64,
+    pub optical_path: f64,
+    /// `1 − R` of the Fresnel reflectance at the exit.
+    pub transmission: f64,
+    /// `dω_out/dω_x`: how the solid angle of directions leaving `x` maps onto outgoing directions
+    /// (1 for straight rays through a matched surface); a source of intensity `I` at `x` has
+    /// intensity `I · transmission / jacobian` along the outgoing direction.
+    pub jacobian: f64,
+    pub iterations: usize,
+}
+
+/// How a [`Connector::sample`] went: the path (if the solver converged) with its inverse
+/// probability, and the work done.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Sampled<T = Connection> {
+    pub path: Option<(T, f64)>,
+    /// Solver runs and Newton iterations in total.
+    pub solves: usize,
+    pub iterations: usize,
+    /// Distinct stationary paths met while estimating the inverse probability.
+    pub distinct: usize,
+}
+
+/// Solves connections in one volume.
+pub struct Connector<'v> {
+    volume: &'v Volume,
+    tracer: Tracer<'v>,
+    straight: bool,
+    /// Largest perpendicular miss accepted as a hit.
+    pub tolerance: f64,
+    pub max_iterations: usize,
+    /// Restarts at most, when estimating an inverse probability (beyond it the count so far is
+    /// used: a bias only for paths drawn less often than once in this many tries).
+    pub max_restarts: usize,
+}
+
+/// Largest change of direction of one Newton step (radians): keeps the solver in the basin it
+/// started in.
+const MAX_TURN: f64 = 0.3;
+/// Directions closer than this are the same stationary path.
+const SAME_PATH: f64 = 1e-5;
+
+impl<'v> Connector<'v> {
+    pub fn new(volume: &'v Volume, step: f64, max_steps: usize) -> Self {
+        let size = volume
+            .field
+            .bounds
+            .half_extent()
+            .map_or(1.0, |h| h.max_element());
+        Connector {
+            volume,
+            tracer: Tracer {
+                field: &volume.field,
+                step,
+                max_steps,
+            },
+            straight: volume.homogeneous(),
+            tolerance: 1e-9 * size,
+            max_iterations: 40,
+            max_restarts: 10_000,
+        }
+    }
+
+    /// Trace from `x` along unit `w` to the closest approach to `y`, carrying `∂x/∂v0`; `None` if
+    /// the ray leaves the volume or runs out of steps first.
+    fn shoot(&self, x: DVec3, w: DVec3, y: DVec3) -> Option<(Ray, DMat3, f64, f64)> {
+        let field = &self.volume.field;
+        let t = &self.tracer;
+        let h = t.step;
+        let mut r = Ray {
+            x,
+            v: w * field.n(x),
+        };
+        let away = |r: &Ray| (r.x - y).dot(r.v);
+        // a ray that starts moving away may turn back (a lens's long way round): the closest
+        // approach is where it stops approaching after it has started to
+        let mut approached = away(&r) < 0.0;
+        let (mut xv, mut vv) = (DMat3::ZERO, DMat3::IDENTITY);
+        let (mut length, mut opl) = (0.0, 0.0);
+        // one leapfrog step of size `h` with the sensitivities (Alg. 2)
+        let step = |r: Ray, xv: DMat3, vv: DMat3, h: f64| {
+            let hv = vv + force_jacobian(field, r.x) * (0.5 * h) * xv;
+            let next = t.leapfrog(r, h);
+            let xv = xv + hv * h;
+            let vv = hv + force_jacobian(field, next.x) * (0.5 * h) * xv;
+            (next, xv, vv)
+        };
+        for _ in 0..t.max_steps {
+            let next = t.leapfrog(r, h);
+            if !field.bounds.contains(next.x) {
+                return None;
+            }
+            let (end, tau) = if approached && away(&next) >= 0.0 {
+                // the closest approach lies in this step: bisect on (x − y)·v
+                let (mut lo, mut hi) = (0.0, h);
+                for _ in 0..60 {
+                    let mid = 0.5 * (lo + hi);
+                    if away(&t.leapfrog(r, mid)) < 0.0 {
+                        lo = mid
+                    } else {
+                        hi = mid
+                    }
+                    if hi - lo < 1e-15 * h {
+                        break;
+                    }
+                }
+                (t.leapfrog(r, lo), Some(lo))
+            } else {
+                (next, None)
+            };
+            let chord = (end.x - r.x).length();
+            length += chord;
+            opl += 0.5 * (field.n(r.x) + field.n(end.x)) * chord;
+            let (s, a, b) = step(r, xv, vv, tau.unwrap_or(h));
+            (r, xv, vv) = (s, a, b);
+            if tau.is_some() {
+                return Some((r, xv, length, opl));
+            }
+            approached |= away(&r) < 0.0;
+        }
+        None
+    }
+
+    /// The stationary path Newton's method reaches from the initial direction `w0`, if any.
+    pub fn solve(&self, x: DVec3, y: DVec3, w0: DVec3) -> Option<Connection> {
+        if self.straight {
+            return self.straight_line(x, y);
+        }
+        let n_x = self.volume.field.n(x);
+        let mut w = w0.normalize();
+        for iteration in 0..self.max_iterations {
+            let (end, xv, length, optical_path) = self.shoot(x, w, y)?;
+            let t = end.v.normalize();
+            let (f1, f2) = orthonormal_basis(t);
+            let (e1, e2) = orthonormal_basis(w);
+            let d = end.x - y;
+            let r = [f1.dot(d), f2.dot(d)];
+            // ∂(miss⊥)/∂(direction angles): the sensitivities times dv0/dw = n(x)
+            let (c1, c2) = (xv * e1 * n_x, xv * e2 * n_x);
+            let m = [[f1.dot(c1), f1.dot(c2)], [f2.dot(c1), f2.dot(c2)]];
+            let det = m[0][0] * m[1][1] - m[0][1] * m[1][0];
+            if (r[0] * r[0] + r[1] * r[1]).sqrt() <= self.tolerance {
+                return (det.abs() > 0.0).then_some(Connection {
+                    direction: w,
+                    arrival: end,
+                    length,
+                    optical_path,
+                    spread: det.abs(),
+                    iterations: iteration + 1,
+                });
+            }
+            if det == 0.0 || !det.is_finite() {
+                return None;
+            }
+            let mut da = -(m[1][1] * r[0] - m[0][1] * r[1]) / det;
+            let mut db = -(-m[1][0] * r[0] + m[0][0] * r[1]) / det;
+            let turn = (da * da + db * db).sqrt();
+            if turn > MAX_TURN {
+                (da, db) = (da * MAX_TURN / turn, db * MAX_TURN / turn);
+            }
+            w = (w + e1 * da + e2 * db).normalize();
+        }
+        None
+    }
+
+    /// The one straight path through constant `n`.
+    fn straight_line(&self, x: DVec3, y: DVec3) -> Option<Connection> {
+        let d = y - x;
+        let s = d.length();
+        if s == 0.0 {
+            return None;
+        }
+        let n = self.volume.field.n(x);
+        let w = d / s;
+        Some(Connection {
+            direction: w,
+            arrival: Ray { x: y, v: w * n },
+            length: s,
+            optical_path: n * s,
+            spread: s * s,
+            iterations: 0,
+        })
+    }
+
+    /// A random initial direction at `x` for a path to `y`: half the time near the straight line
+    /// (where most paths start), half the time uniform (so every stationary path can be drawn).
+    fn initial(&self, x: DVec3, y: DVec3, rng: &mut Rng) -> DVec3 {
+        let u = uniform_sphere(uniform(rng), uniform(rng));
+        if uniform(rng) < 0.5 {
+            let toward = (y - x).normalize();
+            (toward + u * 0.5).normalize()
+        } else {
+            u
+        }
+    }
+
+    /// The path Newton's method finds from one random start, counted once (the biased variant of
+    /// Alg. 3: exact where a single path joins the points).
+    pub fn sample_first(&self, x: DVec3, y: DVec3, rng: &mut Rng) -> Sampled {
+        if self.straight {
+            return self.sample(x, y, rng);
+        }
+        first(
+            |rng| self.initial(x, y, rng),
+            |w| self.solve(x, y, w).map(|c| (c, c.direction, c.iterations)),
+            rng,
+        )
+    }
+
+    /// One stationary path from `x` to `y` drawn at random, with an unbiased estimate of the
+    /// inverse probability of drawing it (Alg. 3; `1` where `n` is constant: one path).
+    pub fn sample(&self, x: DVec3, y: DVec3, rng: &mut Rng) -> Sampled {
+        if self.straight {
+            return Sampled {
+                path: self.straight_line(x, y).map(|c| (c, 1.0)),
+                solves: 1,
+                iterations: 0,
+                distinct: 1,
+            };
+        }
+        restarts(
+            self.max_restarts,
+            |rng| self.initial(x, y, rng),
+            |w| self.solve(x, y, w).map(|c| (c, c.direction, c.iterations)),
+            rng,
+        )
+    }
+
+    /// A path from `x` leaving the volume along unit `c`, drawn like [`Connector::sample`]
+    /// (`first`: the biased variant).
+    pub fn sample_exit(
+        &self,
+        x: DVec3,
+        c: DVec3,
+        first_only: bool,
+        rng: &mut Rng,
+    ) -> Sampled<Exit> {
+        let start = |rng: &mut Rng| {
+            let u = uniform_sphere(uniform(rng), uniform(rng));
+            if uniform(rng) < 0.5 {
+                (c + u * 0.5).normalize()
+            } else {
+                u
+            }
+        };
+        let solve = |w| {
+            self.solve_exit(x, c, w)
+                .map(|e| (e, e.direction, e.iterations))
+        };
+        if first_only {
+            first(start, solve, rng)
+        } else {
+            restarts(self.max_restarts, start, solve, rng)
+        }
+    }
+
+    /// Trace from `x` along unit `w` to where the ray leaves the volume, carrying `∂x/∂v0` and
+    /// `∂v/∂v0`; `None` if it runs out of steps.
+    fn shoot_out(&self, x: DVec3, w: DVec3) -> Option<(Ray, DMat3, DMat3, f64, f64)> {
+        let field = &self.volume.field;
+        let t = &self.tracer;
+        let h = t.step;
+        let mut r = Ray {
+            x,
+            v: w * field.n(x),
+        };
+        let (mut xv, mut vv) = (DMat3::ZERO, DMat3::IDENTITY);
+        let (mut length, mut opl) = (0.0, 0.0);
+        for _ in 0..t.max_steps {
+            let next = t.leapfrog(r, h);
+            let tau = if field.bounds.contains(next.x) {
+                h
+            } else {
+                t.boundary_step(r, h)
+            };
+            let hv = vv + force_jacobian(field, r.x) * (0.5 * tau) * xv;
+            let end = t.leapfrog(r, tau);
+            xv += hv * tau;
+            vv = hv + force_jacobian(field, end.x) * (0.5 * tau) * xv;
+            let chord = (end.x - r.x).length();
+            length += chord;
+            opl += 0.5 * (field.n(r.x) + field.n(end.x)) * chord;
+            r = end;
+            if tau < h {
+                return Some((r, xv, vv, length, opl));
+            }
+        }
+        None
+    }
+
+    /// The outgoing direction of the ray leaving `x` along `w`, where it leaves, and the
+    /// derivatives of the outgoing direction along the two angles of `w` (`e1`, `e2` of its
+    /// frame): the sensitivities carried to the exit, with the exit time's shift (paper 002,
+    /// Eqs. 11–12) and the refraction at the surface.
+    #[allow(clippy::type_complexity)]
+    fn exit_map(&self, x: DVec3, w: DVec3) -> Option<(Exit, [DVec3; 2])> {
+        let field = &self.volume.field;
+        let (end, xv, vv, length, optical_path) = self.shoot_out(x, w)?;
+        let normal = field.bounds.normal(end.x)?;
+        let v = end.v;
+        let nv = normal.dot(v);
+        if nv <= 0.0 {
+            return None;
+        }
+        let (n_in, n_out) = (field.n(end.x), field.n_out);
+        let eta = n_in / n_out;
+        let force = {
+            let (n, g, _) = field.eval(end.x);
+            g * n
+        };
+        let outgoing = |d: DVec3, at: DVec3| -> Option<DVec3> {
+            let nrm = field.bounds.normal(at)?;
+            crate::eikonal::trace::refract(d, -nrm, eta).ok()
+        };
+        let d_in = v.normalize();
+        let out = outgoing(d_in, end.x)?;
+        let n_x = field.n(x);
+        let (e1, e2) = orthonormal_basis(w);
+        let mut deriv = [DVec3::ZERO; 2];
+        for (k, e) in [e1, e2].into_iter().enumerate() {
+            let dv0 = e * n_x;
+            let (dxs, dvs) = (xv * dv0, vv * dv0);
+            // the exit moves along the ray as v0 changes: g(x) = 0 fixes σ* (Eq. 11)
+            let dsigma = -normal.dot(dxs) / nv;
+            let dx = dxs + v * dsigma;
+            let dv = dvs + force * dsigma;
+            let dd = (dv - d_in * d_in.dot(dv)) / v.length();
+            // the refraction's derivative by central differences of the closed form
+            let hstep = 1e-6;
+            let plus = outgoing((d_in + dd * hstep).normalize(), end.x + dx * hstep)?;
+            let minus = outgoing((d_in - dd * hstep).normalize(), end.x - dx * hstep)?;
+            deriv[k] = (plus - minus) / (2.0 * hstep);
+        }
+        let transmission = 1.0 - super::flight::fresnel(d_in.dot(normal), eta);
+        Some((
+            Exit {
+                direction: w,
+                surface: end.x,
+                outgoing: out,
+                length,
+                optical_path,
+                transmission,
+                jacobian: 0.0,
+                iterations: 0,
+            },
+            deriv,
+        ))
+    }
+
+    /// The path Newton's method reaches from `w0` that leaves the volume along unit `c`.
+    pub fn solve_exit(&self, x: DVec3, c: DVec3, w0: DVec3) -> Option<Exit> {
+        let (f1, f2) = orthonormal_basis(c);
+        let mut w = w0.normalize();
+        for iteration in 0..self.max_iterations {
+            let (mut exit, [d1, d2]) = self.exit_map(x, w)?;
+            let out = exit.outgoing;
+            let r = [f1.dot(out), f2.dot(out)];
+            let m = [[f1.dot(d1), f1.dot(d2)], [f2.dot(d1), f2.dot(d2)]];
+            let det = m[0][0] * m[1][1] - m[0][1] * m[1][0];
+            if (r[0] * r[0] + r[1] * r[1]).sqrt() <= 1e-10 && out.dot(c) > 0.0 {
+                exit.jacobian = det.abs();
+                exit.iterations = iteration + 1;
+                return (det.abs() > 0.0 && det.is_finite()).then_some(exit);
+            }
+            if det == 0.0 || !det.is_finite() {
+                return None;
+            }
+            let (e1, e2) = orthonormal_basis(w);
+            let mut da = -(m[1][1] * r[0] - m[0][1] * r[1]) / det;
+            let mut db = -(-m[1][0] * r[0] + m[0][0] * r[1]) / det;
+            let turn = (da * da + db * db).sqrt();
+            if turn > MAX_TURN {
+                (da, db) = (da * MAX_TURN / turn, db * MAX_TURN / turn);
+            }
+            w = (w + e1 * da + e2 * db).normalize();
+        }
+        None
+    }
+}
+
+/// The path found from one random start, counted once.
+fn first<T>(
+    start: impl Fn(&mut Rng) -> DVec3,
+    solve: impl Fn(DVec3) -> Option<(T, DVec3, usize)>,
+    rng: &mut Rng,
+) -> Sampled<T> {
+    let found = solve(start(rng));
+    Sampled {
+        iterations: found.as_ref().map_or(0, |f| f.2),
+        path: found.map(|f| (f.0, 1.0)),
+        solves: 1,
+        distinct: 1,
+    }
+}
+
+/// Alg. 3: a path found from a random start, and the number of restarts until the same path
+/// (same initial direction) is found again — an unbiased estimate of its inverse probability.
+fn restarts<T>(
+    max_restarts: usize,
+    start: impl Fn(&mut Rng) -> DVec3,
+    solve: impl Fn(DVec3) -> Option<(T, DVec3, usize)>,
+    rng: &mut Rng,
+) -> Sampled<T> {
+    let mut out = Sampled {
+        path: None,
+        solves: 1,
+        iterations: 0,
+        distinct: 0,
+    };
+    let Some((c, dir, its)) = solve(start(rng)) else {
+        return out;
+    };
+    out.iterations += its;
+    let mut seen = vec![dir];
+    let mut count = 1.0;
+    for _ in 0..max_restarts {
+        out.solves += 1;
+        match solve(start(rng)) {
+            Some((_, again, its)) if (again - dir).length() < SAME_PATH => {
+                out.iterations += its;
+                break;
+            }
+            Some((_, other, its)) => {
+                out.iterations += its;
+                if !seen.iter().any(|s| (*s - other).length() < SAME_PATH) {
+                    seen.push(other);
+                }
+            }
+            None => {}
+        }
+        count += 1.0;
+    }
+    out.distinct = seen.len();
+    out.path = Some((c, count));
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::eikonal::{BoundedField, Bounds, Profile};
+    use crate::medium::{PhaseFunction, Scattering};
+
+    fn volume(profile: Profile, bounds: Bounds, n_out: f64) -> Volume {
+        Volume {
+            field: BoundedField::single(profile, bounds, n_out),
+            sigma_s: 0.0,
+            sigma_a: 0.0,
+            scattering: Scattering::single(PhaseFunction::Isotropic),
+        }
+    }
+
+    #[test]
+    fn a_connection_through_a_luneburg_lens_is_the_closed_form_ellipse() {
+        // n² = 2 − r²: in the σ-form x(σ) = x0 cos σ + v0 sin σ, so the path from x0 to y has
+        // v0 = (y − x0 cos σ)/sin σ with |v0|² = 2 − |x0|², cos σ the positive root of
+        // 2u² − 2(x0·y)u + |x0|² + |y|² − 2 = 0
+        let v = volume(
+            Profile::Luneburg { radius: 1.0 },
+            Bounds::Sphere { radius: 1.0 },
+            1.0,
+        );
+        let c = Connector::new(&v, 1e-3, 100_000);
+        let (x0, y) = (DVec3::new(0.3, -0.2, 0.1), DVec3::new(-0.1, 0.4, 0.35));
+        let (a, b, p) = (y.length_squared(), x0.length_squared(), x0.dot(y));
+        let u = (2.0 * p + (4.0 * p * p - 8.0 * (a + b - 2.0)).sqrt()) / 4.0;
+        let sigma = u.acos();
+        let v0 = (y - x0 * u) / sigma.sin();
+        assert!((v0.length_squared() - (2.0 - b)).abs() < 1e-12);
+        let found = c.solve(x0, y, (y - x0).normalize()).expect("converges");
+        assert!(
+            (found.direction - v0.normalize()).length() < 1e-5,
+            "{} vs {}",
+            found.direction,
+            v0.normalize()
+        );
+        assert!((found.arrival.x - y).length() <= c.tolerance * 1.0001);
+        // Hamilton's equations hold along it: |v| = n at the end (the leapfrog's invariant)
+        let n_y = (2.0 - y.length_squared()).sqrt();
+        assert!((found.arrival.v.length() - n_y).abs() < 1e-6);
+        // the spread: x(σ) = x0 cos σ + v0 sin σ, ∂x/∂v0 = sin σ I, so dA⊥/dω = (n(x0) sin σ)²
+        // times the cosine factor of the projection (σ* moves with v0 along the ray only)
+        let n0 = (2.0 - b).sqrt();
+        let t = found.arrival.v.normalize();
+        let w = found.direction;
+        let (e1, e2) = orthonormal_basis(w);
+        let (f1, f2) = orthonormal_basis(t);
+        let k = n0 * sigma.sin();
+        let m = [
+            [f1.dot(e1) * k, f1.dot(e2) * k],
+            [f2.dot(e1) * k, f2.dot(e2) * k],
+        ];
+        let expected = (m[0][0] * m[1][1] - m[0][1] * m[1][0]).abs();
+        assert!(
+            (found.spread - expected).abs() < 1e-4 * expected,
+            "{} vs {expected}",
+            found.spread
+        );
+    }
+
+    #[test]
+    fn a_straight_connection_spreads_as_the_distance_squared() {
+        let v = volume(
+            Profile::Linear {
+                n0: 1.4,
+                gradient: DVec3::ZERO,
+            },
+            Bounds::Sphere { radius: 2.0 },
+            1.0,
+        );
+        let c = Connector::new(&v, 1e-2, 100_000);
+        let (x, y) = (DVec3::new(0.5, 0.1, -0.3), DVec3::new(-0.4, 0.2, 0.9));
+        // a poor start, 50° off the line
+        let start = ((y - x).normalize() + DVec3::X).normalize();
+        let found = c.solve(x, y, start).expect("converges from a poor start");
+        let s = (y - x).length();
+        assert!(
+            (found.spread - s * s).abs() < 1e-9 * s * s,
+            "{}",
+            found.spread
+        );
+        assert!((found.length - s).abs() < 1e-9);
+        assert!((found.optical_path - 1.4 * s).abs() < 1e-9);
+    }
+
+    #[test]
+    fn two_points_in_a_maxwell_fish_eye_have_two_paths_and_alg3_counts_them() {
+        // rays of n = 2/(1 + r²) are circles; through two points and the image −x/|x|² of the
+        // first passes one circle, so exactly two arcs join them
+        let v = volume(
+            Profile::MaxwellFishEye { radius: 1.0 },
+            Bounds::Sphere { radius: 4.0 },
+            2.0 / 17.0,
+        );
+        let c = Connector::new(&v, 2e-3, 200_000);
+        let (x, y) = (DVec3::new(0.5, 0.0, 0.0), DVec3::new(0.2, 0.6, 0.3));
+        let mut rng = crate::math::stream_rng(5, 0);
+        let mut found: Vec<Connection> = Vec::new();
+        for _ in 0..200 {
+            if let Some(p) = c.solve(x, y, c.initial(x, y, &mut rng))
+                && !found
+                    .iter()
+                    .any(|f| (f.direction - p.direction).length() < SAME_PATH)
+            {
+                found.push(p);
+            }
+        }
+        assert_eq!(found.len(), 2, "{found:?}");
+        // both arcs lie on the circle through x, y and the image of x: equal distance from its
+        // centre at every point we have (the ends)
+        for p in &found {
+            assert!((p.arrival.x - y).length() <= c.tolerance * 1.0001);
+        }
+        // Alg. 3: E[1/p(C)] over draws is the number of paths; the draws of each path average 1
+        let trials = 400;
+        let mut sum = [0.0f64; 2];
+        let mut sq = 0.0;
+        for _ in 0..trials {
+            let s = c.sample(x, y, &mut rng);
+            if let Some((p, inv)) = s.path {
+                let k = found
+                    .iter()
+                    .position(|f| (f.direction - p.direction).length() < SAME_PATH)
+                    .expect("a known path");
+                sum[k] += inv;
+                sq += inv * inv;
+            }
+        }
+        let n = trials as f64;
+        let total = (sum[0] + sum[1]) / n;
+        let se = ((sq / n - total * total) / n).sqrt();
+        assert!((total - 2.0).abs() < 4.0 * se, "Σ 1/p = {total} ± {se}");
+        for s in sum {
+            assert!((s / n - 1.0).abs() < 4.0 * se + 0.1, "{sum:?}");
+        }
+    }
+}
