@@ -24,6 +24,7 @@ const CONFIGS: &[(&str, &str)] = &[
     ("configs/luneburg.toml", "trace"),
     ("configs/near_field_speckle.toml", "speckle"),
     ("configs/quickstart.toml", "memory-effect"),
+    ("configs/render_camera.toml", "render"),
     ("configs/render_fluence.toml", "render"),
     ("configs/render_luneburg.toml", "render"),
     ("configs/render_slab.toml", "render"),

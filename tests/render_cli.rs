@@ -140,3 +140,55 @@ fn bad_render_scenes_are_refused_by_key() {
     }
     let _ = std::fs::remove_dir_all(dir);
 }
+
+#[test]
+fn probes_and_cameras_are_checked_by_key() {
+    let dir = tmp("bad-probes");
+    std::fs::create_dir_all(&dir).unwrap();
+    let cases: &[(&str, &str, &str, &str)] = &[
+        (
+            "render_fluence.toml",
+            "position = [0.0, 0.0, 0.6]",
+            "position = [0.0, 0.0, 1.6]",
+            "sensor[2].position",
+        ),
+        (
+            "render_camera.toml",
+            "direction = [1.0, 0.0, 0.0]",
+            "direction = [0.0, 0.0, 0.0]",
+            "sensor[0].direction",
+        ),
+        (
+            "render_camera.toml",
+            "pixels = [64, 64]",
+            "pixels = [64, 0]",
+            "sensor[0].pixels[1]",
+        ),
+        (
+            "render_camera.toml",
+            "step = 0.005",
+            "step = 0.005\nconnections = \"all\"",
+            "render.connections",
+        ),
+    ];
+    for (i, (file, from, to, key)) in cases.iter().enumerate() {
+        let base = std::fs::read_to_string(config(file)).unwrap();
+        assert!(base.contains(from), "{file}: {from}");
+        let path = dir.join(format!("bad{i}.toml"));
+        std::fs::write(&path, base.replacen(from, to, 1)).unwrap();
+        let o = lightpath(&[
+            "render",
+            &path.display().to_string(),
+            "--out",
+            &dir.join("out").display().to_string(),
+            "--quiet",
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{to}: {err}");
+        assert!(
+            err.contains(key),
+            "{to}: the error should name {key}: {err}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(dir);
+}

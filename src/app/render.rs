@@ -9,7 +9,8 @@ use crate::config::RenderTask;
 use crate::error::{Error, Result};
 use crate::io::ResultFile;
 use crate::io::results::{
-    ConnectionStatistics, Measured, ProbeRecord, RenderFile, RenderStatistics, SensorRecord,
+    CameraRecord, ConnectionStatistics, Measured, ProbeRecord, RenderFile, RenderStatistics,
+    SensorRecord,
 };
 use crate::mc::{Block, Checkpoint, Estimate, Plan, merge, resume};
 use crate::medium::{Geometry, Medium};
@@ -17,8 +18,14 @@ use crate::rrte::{ParticleTracer, SensorKind, Total};
 use std::path::Path;
 
 /// The files a render writes (screens add `screen_<name>.exr`, `screen_<name>.png` and, with time
-/// bins, `screen_<name>_t<bin>.exr`).
-pub const FILES: &[&str] = &["render.json", "screen_*.exr", "screen_*.png"];
+/// bins, `screen_<name>_t<bin>.exr`; cameras the same as `camera_<name>…`).
+pub const FILES: &[&str] = &[
+    "render.json",
+    "screen_*.exr",
+    "screen_*.png",
+    "camera_*.exr",
+    "camera_*.png",
+];
 
 /// Run the render of `task` into `out`.
 pub fn run(mut task: RenderTask, opts: &RunOptions, out: &Path) -> Result<Outcome> {
@@ -136,59 +143,27 @@ pub(crate) fn finish(
         };
         match (s.kind, s.pixel_area()) {
             (SensorKind::Screen, Some(area)) => {
-                let [w, h] = s.pixels;
-                let image = |b: usize| -> (Vec<f64>, Vec<f64>) {
-                    let at = o + b * n;
-                    (
-                        (at..at + n).map(|k| e.mean[k].re / area).collect(),
-                        (at..at + n).map(|k| e.stderr[k] / area).collect(),
-                    )
-                };
-                // the time-integrated image; its error from the bins' (exclusive per photon)
-                let mut total = vec![0.0; n];
-                let mut var = vec![0.0; n];
-                for b in 0..bins {
-                    let (v, se) = image(b);
-                    for k in 0..n {
-                        total[k] += v[k];
-                        var[k] += se[k] * se[k];
-                    }
-                    if bins > 1 {
-                        let name = format!("screen_{}_t{b:04}.exr", s.name);
-                        crate::io::exr::write_with_error(&out.join(&name), &v, &se, w, h)?;
-                        record.files.push(name);
-                    }
-                }
-                let se: Vec<f64> = var.iter().map(|v| v.sqrt()).collect();
-                let name = format!("screen_{}.exr", s.name);
-                crate::io::exr::write_with_error(&out.join(&name), &total, &se, w, h)?;
-                record.files.insert(0, name.clone());
-                files.push(out.join(name));
-                let max = total.iter().cloned().fold(0.0, f64::max);
-                let preview: Vec<f64> = (0..n)
-                    .map(|k| {
-                        // rows top-down in the PNG, as the sensor's up axis
-                        let (x, y) = (k % w, k / w);
-                        let v = total[(h - 1 - y) * w + x];
-                        if max > 0.0 { (v / max).sqrt() } else { 0.0 }
-                    })
-                    .collect();
-                let png = out.join(format!("screen_{}.png", s.name));
-                crate::io::plot::heat_maps(
-                    &png,
-                    &format!("√irradiance, max {max:.2e}"),
-                    &[(s.name.clone(), preview)],
-                    w,
-                    h,
+                let names = write_images(
+                    out,
+                    &format!("screen_{}", s.name),
+                    Frames {
+                        est: &est,
+                        e: &e,
+                        first: o,
+                        size: s.pixels,
+                        scale: 1.0 / area,
+                    },
+                    "√irradiance",
+                    &mut files,
                 )?;
-                files.push(png);
+                record.files = names;
                 record.pixels = Some(s.pixels);
                 record.pixel_area = Some(area);
             }
             _ => {
-                let at = o;
-                record.per_bin = Some((at..at + n * bins).map(|k| e.mean[k].re).collect());
-                record.per_bin_stderr = Some((at..at + n * bins).map(|k| e.stderr[k]).collect());
+                let at = |b| est.frame(o, n, Some(b));
+                record.per_bin = Some((0..bins).map(|b| e.mean[at(b)].re).collect());
+                record.per_bin_stderr = Some((0..bins).map(|b| e.stderr[at(b)]).collect());
             }
         }
         sensors.push(record);
@@ -209,8 +184,40 @@ pub(crate) fn finish(
             per_bin_stderr: (o..o + bins).map(|k| e.stderr[k]).collect(),
         });
     }
+    let mut cameras = Vec::new();
+    for (i, c) in scene.cameras.iter().enumerate() {
+        let intensity = Measured {
+            mean: e.mean[est.camera_total(i)].re * c.pixel_area(),
+            stderr: e.stderr[est.camera_total(i)] * c.pixel_area(),
+        };
+        summary.push(format!(
+            "{} intensity {:.4e} ± {:.1e}",
+            c.name, intensity.mean, intensity.stderr
+        ));
+        let names = write_images(
+            out,
+            &format!("camera_{}", c.name),
+            Frames {
+                est: &est,
+                e: &e,
+                first: est.camera_offset(i),
+                size: c.pixels,
+                scale: 1.0,
+            },
+            "√radiance",
+            &mut files,
+        )?;
+        cameras.push(CameraRecord {
+            name: c.name.clone(),
+            direction: c.direction.to_array(),
+            intensity,
+            pixels: c.pixels,
+            pixel_area: c.pixel_area(),
+            files: names,
+        });
+    }
     let total = |t: Total| e.mean[est.total(t)].re;
-    let connections = (!scene.probes.is_empty()).then(|| {
+    let connections = (!scene.probes.is_empty() || !scene.cameras.is_empty()).then(|| {
         let asked = total(Total::Connections);
         let found = total(Total::Connected);
         let solves = total(Total::Solves);
@@ -239,6 +246,7 @@ pub(crate) fn finish(
         chunk: plan.chunk_paths,
         sensors,
         probes,
+        cameras,
         absorbed: measured(est.total(Total::Absorbed)),
         escaped: measured(est.total(Total::Escaped)),
         unfinished: measured(est.total(Total::Unfinished)),
@@ -280,4 +288,69 @@ pub(crate) fn finish(
             timed.map_or(String::new(), |t| format!(" in {t:.1} s"))
         ),
     })
+}
+
+/// The frames of one image (a screen or a camera) in an estimate, scaled by `scale` (`1/area`
+/// turns a screen's power per pixel into irradiance).
+struct Frames<'a> {
+    est: &'a ParticleTracer<'a>,
+    e: &'a Estimate,
+    first: usize,
+    size: [usize; 2],
+    scale: f64,
+}
+
+/// Write `<stem>.exr` (the time-integrated image with its standard error), with time bins one
+/// `<stem>_t<bin>.exr` per bin, and a square-root preview `<stem>.png`; the EXR names, the
+/// integrated one first.
+fn write_images(
+    out: &Path,
+    stem: &str,
+    f: Frames,
+    label: &str,
+    files: &mut Vec<std::path::PathBuf>,
+) -> Result<Vec<String>> {
+    let [w, h] = f.size;
+    let n = w * h;
+    let frame = |bin: Option<usize>| -> (Vec<f64>, Vec<f64>) {
+        let at = f.est.frame(f.first, n, bin);
+        (
+            (at..at + n).map(|k| f.e.mean[k].re * f.scale).collect(),
+            (at..at + n).map(|k| f.e.stderr[k] * f.scale).collect(),
+        )
+    };
+    let mut names = Vec::new();
+    let (total, se) = frame(None);
+    let name = format!("{stem}.exr");
+    crate::io::exr::write_with_error(&out.join(&name), &total, &se, w, h)?;
+    files.push(out.join(&name));
+    names.push(name);
+    let bins = f.est.bins();
+    if bins > 1 {
+        for b in 0..bins {
+            let (v, se) = frame(Some(b));
+            let name = format!("{stem}_t{b:04}.exr");
+            crate::io::exr::write_with_error(&out.join(&name), &v, &se, w, h)?;
+            names.push(name);
+        }
+    }
+    let max = total.iter().cloned().fold(0.0, f64::max);
+    let preview: Vec<f64> = (0..n)
+        .map(|k| {
+            // rows top-down in the PNG, as the image's up axis
+            let (x, y) = (k % w, k / w);
+            let v = total[(h - 1 - y) * w + x];
+            if max > 0.0 { (v / max).sqrt() } else { 0.0 }
+        })
+        .collect();
+    let png = out.join(format!("{stem}.png"));
+    crate::io::plot::heat_maps(
+        &png,
+        &format!("{label}, max {max:.2e}"),
+        &[(stem.to_string(), preview)],
+        w,
+        h,
+    )?;
+    files.push(png);
+    Ok(names)
 }

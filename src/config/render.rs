@@ -7,7 +7,9 @@ use super::trace::{FieldConfig, check_positive};
 use super::{ConfigError, err};
 use crate::eikonal::Bounds;
 use crate::medium::{PhaseFunction, Scattering};
-use crate::rrte::{Connections, Light, Probe, RenderScene, Sensor, SensorKind, Transient, Volume};
+use crate::rrte::{
+    Camera, Connections, Light, Probe, RenderScene, Sensor, SensorKind, Transient, Volume,
+};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
@@ -59,13 +61,16 @@ pub enum LightConfig {
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum SensorConfig {
-    /// The power crossing a plane away from the volume (a rectangle when `size` is given).
+    /// The power crossing a plane away from the volume (a rectangle when `size` is given; within
+    /// `acceptance_deg` of the normal when given).
     Flux {
         name: String,
         center: [f64; 3],
         normal: [f64; 3],
         #[serde(default, skip_serializing_if = "Option::is_none")]
         size: Option<[f64; 2]>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        acceptance_deg: Option<f64>,
     },
     /// Irradiance on a rectangle of pixels.
     Screen {
@@ -77,6 +82,15 @@ pub enum SensorConfig {
     },
     /// Fluence rate at a point inside the volume, by connections along curved rays.
     Fluence { name: String, position: [f64; 3] },
+    /// An orthographic camera: the radiance travelling along `direction` (it looks along
+    /// `−direction`) over `size` about `center` in `pixels`, by connections through the surface.
+    Camera {
+        name: String,
+        center: [f64; 3],
+        direction: [f64; 3],
+        size: [f64; 2],
+        pixels: [u64; 2],
+    },
 }
 
 /// `[render] connections`.
@@ -222,12 +236,14 @@ impl RenderConfig {
         }
         let mut sensors = Vec::with_capacity(self.sensor.len());
         let mut probes = Vec::new();
+        let mut cameras = Vec::new();
         let mut names: Vec<&str> = Vec::new();
         for (i, s) in self.sensor.iter().enumerate() {
             let name = match s {
                 SensorConfig::Flux { name, .. }
                 | SensorConfig::Screen { name, .. }
-                | SensorConfig::Fluence { name, .. } => name,
+                | SensorConfig::Fluence { name, .. }
+                | SensorConfig::Camera { name, .. } => name,
             };
             check_name(i, name)?;
             if names.contains(&name.as_str()) {
@@ -236,7 +252,36 @@ impl RenderConfig {
                 ));
             }
             names.push(name);
-            if let SensorConfig::Fluence { name, position } = s {
+            if let SensorConfig::Camera {
+                name,
+                center,
+                direction,
+                size,
+                pixels,
+            } = s
+            {
+                let key = |k: &str| format!("sensor[{i}].{k}");
+                let direction = unit(&key("direction"), *direction)?;
+                let center = finite(&key("center"), *center)?;
+                for (a, v) in size.iter().enumerate() {
+                    positive(&key(&format!("size[{a}]")), *v)?;
+                }
+                for (a, &p) in pixels.iter().enumerate() {
+                    if !(1..=MAX_PIXELS).contains(&p) {
+                        return err(format!(
+                            "{} = {p}: must be within [1, {MAX_PIXELS}]",
+                            key(&format!("pixels[{a}]"))
+                        ));
+                    }
+                }
+                cameras.push(Camera::new(
+                    name.clone(),
+                    direction,
+                    center,
+                    *size,
+                    [pixels[0] as usize, pixels[1] as usize],
+                ));
+            } else if let SensorConfig::Fluence { name, position } = s {
                 let position = finite(&format!("sensor[{i}].position"), *position)?;
                 if !volume.field.bounds.contains(position) {
                     return err(format!(
@@ -286,6 +331,7 @@ impl RenderConfig {
             light,
             sensors,
             probes,
+            cameras,
             connections: match r.connections {
                 ConnectionsConfig::Unbiased => Connections::Unbiased,
                 ConnectionsConfig::First => Connections::First,
@@ -355,14 +401,28 @@ impl RenderConfig {
 /// Sensor `i`, checked to lie outside the volume (it records light that has left it).
 fn sensor(i: usize, s: &SensorConfig, volume: &Volume) -> Result<Sensor, ConfigError> {
     let key = |k: &str| format!("sensor[{i}].{k}");
+    let mut acceptance = None;
     let (name, kind, center, normal, size, pixels) = match s {
-        SensorConfig::Fluence { .. } => return err("a fluence probe is not a plane"),
+        SensorConfig::Fluence { .. } | SensorConfig::Camera { .. } => {
+            return err("a fluence probe or camera is not a plane");
+        }
         SensorConfig::Flux {
             name,
             center,
             normal,
             size,
-        } => (name, SensorKind::Flux, center, normal, *size, [1, 1]),
+            acceptance_deg,
+        } => {
+            if let Some(a) = *acceptance_deg {
+                if !(a > 0.0 && a <= 90.0) {
+                    return err(format!(
+                        "sensor[{i}].acceptance_deg = {a}: must be within (0, 90]"
+                    ));
+                }
+                acceptance = Some(a.to_radians());
+            }
+            (name, SensorKind::Flux, center, normal, *size, [1, 1])
+        }
         SensorConfig::Screen {
             name,
             center,
@@ -404,14 +464,16 @@ fn sensor(i: usize, s: &SensorConfig, volume: &Volume) -> Result<Sensor, ConfigE
             center.to_array()
         ));
     }
-    Ok(Sensor::new(
+    let mut sensor = Sensor::new(
         name.clone(),
         kind,
         center,
         normal,
         size,
         [pixels[0] as usize, pixels[1] as usize],
-    ))
+    );
+    sensor.acceptance = acceptance;
+    Ok(sensor)
 }
 
 /// A sensor's name: it names files.

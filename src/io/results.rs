@@ -768,7 +768,23 @@ pub struct ProbeRecord {
     pub per_bin_stderr: Vec<f64>,
 }
 
-/// How the connections to probes went.
+/// An orthographic camera of a render.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct CameraRecord {
+    pub name: String,
+    /// The direction of the light it records.
+    pub direction: [f64; 3],
+    /// Radiant intensity along `direction` (the image summed times the pixel area), per unit
+    /// emitted power and steradian.
+    pub intensity: Measured,
+    pub pixels: [usize; 2],
+    pub pixel_area: f64,
+    /// `camera_<name>.exr` (channels `Y`, radiance per unit emitted power, and `stderr`), then one
+    /// per time bin.
+    pub files: Vec<String>,
+}
+
+/// How the connections to probes and cameras went.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct ConnectionStatistics {
     /// `unbiased` (Alg. 3) or `first`.
@@ -806,6 +822,8 @@ pub struct RenderFile {
     pub sensors: Vec<SensorRecord>,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub probes: Vec<ProbeRecord>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub cameras: Vec<CameraRecord>,
     /// Absorbed inside the volume, left it (seen by a sensor or not), and given up (trapped past
     /// the step budget): they add up to 1 within their errors.
     pub absorbed: Measured,

@@ -16,4 +16,6 @@ pub mod particle;
 pub mod scene;
 
 pub use particle::{ParticleTracer, Total};
-pub use scene::{Connections, Light, Probe, RenderScene, Sensor, SensorKind, Transient, Volume};
+pub use scene::{
+    Camera, Connections, Light, Probe, RenderScene, Sensor, SensorKind, Transient, Volume,
+};

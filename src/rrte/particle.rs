@@ -65,15 +65,23 @@ impl<'s> ParticleTracer<'s> {
     pub fn new(scene: &'s RenderScene) -> Self {
         let mut offsets = Vec::with_capacity(scene.sensors.len());
         let mut at = 0;
+        // with time bins, images hold the time-integrated frame first (its own errors: one
+        // photon can reach a camera in several bins)
+        let frames = scene.bins() + usize::from(scene.bins() > 1);
         for s in &scene.sensors {
             // the sensor's total power, then its images
             offsets.push(at + 1);
-            at += 1 + s.pixel_count() * scene.bins();
+            at += 1 + s.pixel_count() * frames;
         }
         for _ in &scene.probes {
             // the probe's total fluence rate, then its time bins
             offsets.push(at + 1);
             at += 1 + scene.bins();
+        }
+        for c in &scene.cameras {
+            // the camera's radiance summed over its pixels and bins, then its images
+            offsets.push(at + 1);
+            at += 1 + c.pixel_count() * frames;
         }
         ParticleTracer {
             scene,
@@ -89,14 +97,30 @@ impl<'s> ParticleTracer<'s> {
         self.offsets[self.scene.sensors.len() + i]
     }
 
+    /// The first output of camera `i` (its images, time bin after time bin).
+    pub fn camera_offset(&self, i: usize) -> usize {
+        self.offsets[self.scene.sensors.len() + self.scene.probes.len() + i]
+    }
+
+    /// The output holding the sum of camera `i`'s pixels over all time bins.
+    pub fn camera_total(&self, i: usize) -> usize {
+        self.camera_offset(i) - 1
+    }
+
     /// The output holding probe `i`'s fluence rate over all time bins.
     pub fn probe_total(&self, i: usize) -> usize {
         self.probe_offset(i) - 1
     }
 
-    /// Next-event connections from `x` (inside) to every probe: power `weight` leaving `x` with
-    /// angular density `emit(d)` per steradian along unit `d`, having travelled the optical path
-    /// `opl`. Each probe receives `weight · emit(d) · T / (dA⊥/dω)` over the stationary paths.
+    /// Whether scattering events are connected to probes or cameras.
+    fn connects(&self) -> bool {
+        !self.scene.probes.is_empty() || !self.scene.cameras.is_empty()
+    }
+
+    /// Next-event connections from `x` (inside) to every probe and camera: power `weight` leaving
+    /// `x` with angular density `emit(d)` per steradian along unit `d`, having travelled the
+    /// optical path `opl`. A probe receives `weight · emit(d) · T / (dA⊥/dω)` over the stationary
+    /// paths; a camera's pixel `weight · emit(d) · T · (1 − R) / (dω_out/dω) / pixel area`.
     fn connect(
         &self,
         x: DVec3,
@@ -139,12 +163,90 @@ impl<'s> ParticleTracer<'s> {
             out[o + bin].re += value;
             out[o - 1].re += value;
         }
+        let first_only = self.scene.connections == Connections::First;
+        let n_out = self.scene.volume.field.n_out;
+        for (i, cam) in self.scene.cameras.iter().enumerate() {
+            let s = self
+                .connector
+                .sample_exit(x, cam.direction, first_only, rng);
+            out[self.total(Total::Connections)].re += 1.0;
+            out[self.total(Total::Solves)].re += s.solves as f64;
+            out[self.total(Total::Iterations)].re += s.iterations as f64;
+            let Some((e, inverse_p)) = s.path else {
+                continue;
+            };
+            out[self.total(Total::Connected)].re += 1.0;
+            out[self.total(Total::Distinct)].re += s.distinct as f64;
+            let Some(pixel) = cam.pixel(e.surface) else {
+                continue;
+            };
+            let value = weight * emit(e.direction) * (-sigma_t * e.length).exp() * e.transmission
+                / e.jacobian
+                / cam.pixel_area()
+                * inverse_p;
+            if !(value > 0.0 && value.is_finite()) {
+                continue;
+            }
+            let bin = match self.scene.transient {
+                None => 0,
+                Some(tr) => {
+                    let outside = n_out * (cam.center - e.surface).dot(cam.direction).max(0.0);
+                    let b =
+                        ((opl + e.optical_path + outside) / tr.max_path * tr.bins as f64).floor();
+                    if !(0.0..tr.bins as f64).contains(&b) {
+                        continue;
+                    }
+                    b as usize
+                }
+            };
+            self.record(
+                out,
+                self.camera_offset(i),
+                cam.pixel_count(),
+                bin,
+                pixel,
+                value,
+            );
+        }
     }
 
-    /// The first output of sensor `i` (its values follow, time bin after time bin, each bin a
+    /// The first output of sensor `i` (its images follow, see [`ParticleTracer::frame`]; each a
     /// row-major image).
     pub fn offset(&self, i: usize) -> usize {
         self.offsets[i]
+    }
+
+    /// The first output of a frame of an image of `pixels` pixels starting at `first` (a sensor's
+    /// or camera's offset): time bin `bin`, or (`None`) the time-integrated frame.
+    pub fn frame(&self, first: usize, pixels: usize, bin: Option<usize>) -> usize {
+        let binned = usize::from(self.scene.bins() > 1);
+        match bin {
+            None => first,
+            Some(b) => first + (b + binned) * pixels,
+        }
+    }
+
+    /// Add `value` to `pixel` of the image at `first` in time bin `bin` (and to the integrated
+    /// frame and the total before it).
+    fn record(
+        &self,
+        out: &mut [C64],
+        first: usize,
+        pixels: usize,
+        bin: usize,
+        pixel: usize,
+        value: f64,
+    ) {
+        out[self.frame(first, pixels, Some(bin)) + pixel].re += value;
+        if self.scene.bins() > 1 {
+            out[first + pixel].re += value;
+        }
+        out[first - 1].re += value;
+    }
+
+    /// Time bins of every image (1 without a transient).
+    pub fn bins(&self) -> usize {
+        self.scene.bins()
     }
 
     /// The output holding the total power sensor `i` recorded (all pixels and time bins).
@@ -176,8 +278,7 @@ impl<'s> ParticleTracer<'s> {
                     b as usize
                 }
             };
-            out[offset + bin * s.pixel_count() + pixel].re += weight;
-            out[offset - 1].re += weight;
+            self.record(out, offset, s.pixel_count(), bin, pixel, weight);
         }
     }
 
@@ -196,7 +297,7 @@ impl<'s> ParticleTracer<'s> {
         let mut weight = 1.0;
         // enter the volume from outside, or start inside it
         let mut ray = if bounds.contains(x) {
-            if !self.scene.probes.is_empty() {
+            if self.connects() {
                 let light = &self.scene.light;
                 self.connect(x, weight, 0.0, |d| light.intensity(d), rng, out);
             }
@@ -258,7 +359,7 @@ impl<'s> ParticleTracer<'s> {
                     out[self.total(Total::Absorbed)].re += weight * (1.0 - albedo);
                     weight *= albedo;
                     let w_in = hit.v.normalize();
-                    if !self.scene.probes.is_empty() {
+                    if self.connects() {
                         let phase = |d: DVec3| volume.scattering.eval(w_in.dot(d));
                         self.connect(hit.x, weight, opl, phase, rng, out);
                     }
@@ -355,7 +456,8 @@ impl Estimator for ParticleTracer<'_> {
             (flight / (v.field.n_out * self.scene.step)).clamp(1.0, self.scene.max_steps as f64)
         };
         // a connection: a few Newton solves of a few iterations, each a flight's worth of steps
-        let connections = self.scene.probes.len() as f64 * if v.homogeneous() { 1.0 } else { 30.0 };
+        let connections = self.scene.probes.len() as f64 * if v.homogeneous() { 1.0 } else { 30.0 }
+            + self.scene.cameras.len() as f64 * 30.0;
         STEP_COST * steps * (1.0 + connections) + self.scene.sensors.len() as f64
     }
 }

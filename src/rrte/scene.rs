@@ -161,6 +161,65 @@ pub struct Probe {
     pub position: DVec3,
 }
 
+/// An orthographic camera outside the volume: the radiance travelling along unit `direction` (the
+/// camera looks along `−direction`), averaged over each pixel of a rectangle in the image plane
+/// through `center` (perpendicular to `direction`), per unit emitted power. Every scattering event
+/// (and a light inside the volume) is connected to it by the path leaving the volume along
+/// `direction`, refracted at the surface.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Camera {
+    pub name: String,
+    pub direction: DVec3,
+    pub center: DVec3,
+    pub right: DVec3,
+    pub up: DVec3,
+    pub size: [f64; 2],
+    pub pixels: [usize; 2],
+}
+
+impl Camera {
+    pub fn new(
+        name: String,
+        direction: DVec3,
+        center: DVec3,
+        size: [f64; 2],
+        pixels: [usize; 2],
+    ) -> Self {
+        let (right, up) = orthonormal_basis(direction);
+        Camera {
+            name,
+            direction,
+            center,
+            right,
+            up,
+            size,
+            pixels,
+        }
+    }
+
+    pub fn pixel_count(&self) -> usize {
+        self.pixels[0] * self.pixels[1]
+    }
+
+    pub fn pixel_area(&self) -> f64 {
+        self.size[0] * self.size[1] / self.pixel_count() as f64
+    }
+
+    /// The pixel (row-major from the lower left, `right` fastest) that light leaving the volume
+    /// at `x` along the camera's direction lands in.
+    pub fn pixel(&self, x: DVec3) -> Option<usize> {
+        let rel = x - self.center;
+        let a = rel.dot(self.right) / self.size[0] + 0.5;
+        let b = rel.dot(self.up) / self.size[1] + 0.5;
+        if !(0.0..1.0).contains(&a) || !(0.0..1.0).contains(&b) {
+            return None;
+        }
+        let i = ((a * self.pixels[0] as f64) as usize).min(self.pixels[0] - 1);
+        let j = ((b * self.pixels[1] as f64) as usize).min(self.pixels[1] - 1);
+        Some(j * self.pixels[0] + i)
+    }
+}
+
 /// How connections to probes are estimated.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum Connections {
@@ -198,6 +257,9 @@ pub struct Sensor {
     pub size: Option<[f64; 2]>,
     /// Pixel counts along `right` and `up` (`[1, 1]` for flux sensors).
     pub pixels: [usize; 2],
+    /// Light is counted only within this angle of the normal (radians; a detector behind a
+    /// collimator); `None`: every direction.
+    pub acceptance: Option<f64>,
 }
 
 impl Sensor {
@@ -225,6 +287,7 @@ impl Sensor {
             up,
             size,
             pixels,
+            acceptance: None,
         }
     }
 
@@ -237,7 +300,7 @@ impl Sensor {
     #[inline]
     pub fn hit(&self, x: DVec3, d: DVec3) -> Option<(usize, f64)> {
         let cos = d.dot(self.normal);
-        if cos <= 0.0 {
+        if cos <= 0.0 || self.acceptance.is_some_and(|a| cos < a.cos()) {
             return None;
         }
         let t = (self.center - x).dot(self.normal) / cos;
@@ -282,6 +345,7 @@ pub struct RenderScene {
     pub light: Light,
     pub sensors: Vec<Sensor>,
     pub probes: Vec<Probe>,
+    pub cameras: Vec<Camera>,
     pub connections: Connections,
     pub transient: Option<Transient>,
     /// Leapfrog step in the σ-form (geometric length ≈ `n · step`), where `n` varies.
