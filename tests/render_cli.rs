@@ -166,6 +166,18 @@ fn probes_and_cameras_are_checked_by_key() {
         ),
         (
             "render_camera.toml",
+            "position = [2.5, 1.0, 2.5]",
+            "position = [0.5, 0.0, 0.0]",
+            "sensor[1].position",
+        ),
+        (
+            "render_camera.toml",
+            "fov_deg = 45.0",
+            "fov_deg = 180.0",
+            "sensor[1].fov_deg",
+        ),
+        (
+            "render_camera.toml",
             "step = 0.005",
             "step = 0.005\nconnections = \"all\"",
             "render.connections",

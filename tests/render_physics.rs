@@ -75,6 +75,7 @@ fn fresnel_slab(profile: Profile, n: f64) {
         sensors: vec![flux("transmittance", 0.5), flux("reflectance", -0.5)],
         probes: vec![],
         cameras: vec![],
+        pinholes: vec![],
         connections: Default::default(),
         transient: Some(Transient {
             bins: 40,
@@ -165,6 +166,7 @@ fn every_photon_is_absorbed_escapes_or_is_reported() {
         sensors: vec![],
         probes: vec![],
         cameras: vec![],
+        pinholes: vec![],
         connections: Default::default(),
         transient: None,
         step: 0.01,
@@ -273,6 +275,7 @@ fn a_scattering_slab_with_fresnel_faces_matches_a_plain_slab_tracer() {
             sensors: vec![flux("T", 0.5), flux("R", -0.5)],
             probes: vec![],
             cameras: vec![],
+            pinholes: vec![],
             connections: Default::default(),
             transient: None,
             step: 0.01,
@@ -346,6 +349,7 @@ fn a_scattering_luneburg_lens_focuses_a_beam_on_its_antipode() {
         sensors: vec![screen.clone()],
         probes: vec![],
         cameras: vec![],
+        pinholes: vec![],
         connections: Default::default(),
         transient: None,
         step: 0.002,
@@ -398,6 +402,7 @@ fn a_beam_in_a_linear_gradient_tank_follows_the_closed_form_ray() {
         sensors: vec![screen.clone()],
         probes: vec![],
         cameras: vec![],
+        pinholes: vec![],
         connections: Default::default(),
         transient: None,
         step: 0.01,
@@ -430,6 +435,7 @@ fn probe_scene(profile: Profile, sigma_s: f64, g: f64, light: Light, probe: DVec
             position: probe,
         }],
         cameras: vec![],
+        pinholes: vec![],
         connections: Default::default(),
         transient: None,
         step: 0.004,
@@ -591,7 +597,7 @@ fn a_probe_in_a_clear_luneburg_lens_sees_the_ray_tube_of_its_curved_path() {
 }
 
 #[test]
-fn an_orthographic_camera_sees_the_intensity_a_collimated_detector_counts() {
+fn orthographic_and_pinhole_cameras_see_the_intensity_a_collimated_detector_counts() {
     // a scattering Luneburg lens lit by a beam along z, seen from the side (+x): the camera
     // connects every scattering event through the surface to the direction +x (a direction BVP on
     // curved rays), a flux detector behind a 10° collimator counts the photons leaving along it;
@@ -623,6 +629,7 @@ fn an_orthographic_camera_sees_the_intensity_a_collimated_detector_counts() {
         sensors: vec![detector],
         probes: vec![],
         cameras: vec![],
+        pinholes: vec![],
         connections: Default::default(),
         transient: None,
         step: 0.005,
@@ -641,6 +648,20 @@ fn an_orthographic_camera_sees_the_intensity_a_collimated_detector_counts() {
         [2.2, 2.2],
         [11, 11],
     ));
+    // and a pinhole far along +x: its irradiance times the distance² is the same intensity (to
+    // (R/D)² = 0.25 %), through connections that end at a point outside
+    let distance = 20.0;
+    scene.pinholes.push(
+        lightpath::rrte::Pinhole::looking_at(
+            "far".into(),
+            DVec3::new(distance, 0.0, 0.0),
+            DVec3::ZERO,
+            DVec3::Y,
+            8f64.to_radians(),
+            [11, 11],
+        )
+        .unwrap(),
+    );
     let (e, est) = render(&scene, 4_000, 37);
     let cam = &scene.cameras[0];
     let (sum, s_sum) = value(&e, est.camera_total(0));
@@ -649,6 +670,21 @@ fn an_orthographic_camera_sees_the_intensity_a_collimated_detector_counts() {
     assert!(
         (i - reference).abs() < tol,
         "camera intensity {i} ± {si} vs collimated detector {reference} ± {ref_se}"
+    );
+    let (irr, s_irr) = value(&e, est.pinhole_total(0));
+    let (ip, sip) = (irr * distance * distance, s_irr * distance * distance);
+    let tol = 4.0 * (sip * sip + ref_se * ref_se).sqrt();
+    assert!(
+        (ip - reference).abs() < tol,
+        "pinhole irradiance × D² {ip} ± {sip} vs collimated detector {reference} ± {ref_se}"
+    );
+    // its image sums to the irradiance: Σ L · cos³θ · pixel area (θ ≤ 4°)
+    let pin = &scene.pinholes[0];
+    let o = est.frame(est.pinhole_offset(0), 121, None);
+    let image: f64 = (0..121).map(|k| e.mean[o + k].re).sum::<f64>() * pin.pixel_area();
+    assert!(
+        (image - irr).abs() < 0.01 * irr,
+        "image {image} vs irradiance {irr}"
     );
     // the image is of the lens: nothing outside the disc of radius 1 it projects to
     let o = est.frame(est.camera_offset(0), 121, None);

@@ -209,15 +209,51 @@ pub(crate) fn finish(
         )?;
         cameras.push(CameraRecord {
             name: c.name.clone(),
-            direction: c.direction.to_array(),
-            intensity,
+            kind: "orthographic".into(),
+            direction: Some(c.direction.to_array()),
+            intensity: Some(intensity),
+            position: None,
+            irradiance: None,
+            pixels: c.pixels,
+            pixel_area: c.pixel_area(),
+            files: names,
+        });
+    }
+    for (i, c) in scene.pinholes.iter().enumerate() {
+        let irradiance = measured(est.pinhole_total(i));
+        summary.push(format!(
+            "{} irradiance {:.4e} ± {:.1e}",
+            c.name, irradiance.mean, irradiance.stderr
+        ));
+        let names = write_images(
+            out,
+            &format!("camera_{}", c.name),
+            Frames {
+                est: &est,
+                e: &e,
+                first: est.pinhole_offset(i),
+                size: c.pixels,
+                scale: 1.0,
+            },
+            "√radiance",
+            &mut files,
+        )?;
+        cameras.push(CameraRecord {
+            name: c.name.clone(),
+            kind: "pinhole".into(),
+            direction: None,
+            intensity: None,
+            position: Some(c.position.to_array()),
+            irradiance: Some(irradiance),
             pixels: c.pixels,
             pixel_area: c.pixel_area(),
             files: names,
         });
     }
     let total = |t: Total| e.mean[est.total(t)].re;
-    let connections = (!scene.probes.is_empty() || !scene.cameras.is_empty()).then(|| {
+    let connects =
+        !(scene.probes.is_empty() && scene.cameras.is_empty() && scene.pinholes.is_empty());
+    let connections = connects.then(|| {
         let asked = total(Total::Connections);
         let found = total(Total::Connected);
         let solves = total(Total::Solves);

@@ -91,6 +91,22 @@ pub enum SensorConfig {
         size: [f64; 2],
         pixels: [u64; 2],
     },
+    /// A pinhole camera at `position` looking at `look_at` (`up`: the image's vertical), with a
+    /// vertical field of view `fov_deg`: radiance through the pinhole, by connections through the
+    /// surface.
+    Pinhole {
+        name: String,
+        position: [f64; 3],
+        look_at: [f64; 3],
+        #[serde(default = "default_up")]
+        up: [f64; 3],
+        fov_deg: f64,
+        pixels: [u64; 2],
+    },
+}
+
+fn default_up() -> [f64; 3] {
+    [0.0, 1.0, 0.0]
 }
 
 /// `[render] connections`.
@@ -237,13 +253,15 @@ impl RenderConfig {
         let mut sensors = Vec::with_capacity(self.sensor.len());
         let mut probes = Vec::new();
         let mut cameras = Vec::new();
+        let mut pinholes = Vec::new();
         let mut names: Vec<&str> = Vec::new();
         for (i, s) in self.sensor.iter().enumerate() {
             let name = match s {
                 SensorConfig::Flux { name, .. }
                 | SensorConfig::Screen { name, .. }
                 | SensorConfig::Fluence { name, .. }
-                | SensorConfig::Camera { name, .. } => name,
+                | SensorConfig::Camera { name, .. }
+                | SensorConfig::Pinhole { name, .. } => name,
             };
             check_name(i, name)?;
             if names.contains(&name.as_str()) {
@@ -252,7 +270,49 @@ impl RenderConfig {
                 ));
             }
             names.push(name);
-            if let SensorConfig::Camera {
+            if let SensorConfig::Pinhole {
+                name,
+                position,
+                look_at,
+                up,
+                fov_deg,
+                pixels,
+            } = s
+            {
+                let key = |k: &str| format!("sensor[{i}].{k}");
+                let position = finite(&key("position"), *position)?;
+                let target = finite(&key("look_at"), *look_at)?;
+                let up = unit(&key("up"), *up)?;
+                if !(*fov_deg > 0.0 && *fov_deg < 170.0) {
+                    return err(format!(
+                        "{} = {fov_deg}: must be within (0, 170)",
+                        key("fov_deg")
+                    ));
+                }
+                let pixels = check_pixels(i, *pixels)?;
+                if volume.field.bounds.contains(position) {
+                    return err(format!(
+                        "{} = {:?}: the pinhole must lie outside the volume (field.bounds)",
+                        key("position"),
+                        position.to_array()
+                    ));
+                }
+                let camera = crate::rrte::Pinhole::looking_at(
+                    name.clone(),
+                    position,
+                    target,
+                    up,
+                    fov_deg.to_radians(),
+                    pixels,
+                )
+                .ok_or_else(|| {
+                    super::ConfigError(format!(
+                        "{}: look_at must differ from position, and up must not be parallel to the view",
+                        key("look_at")
+                    ))
+                })?;
+                pinholes.push(camera);
+            } else if let SensorConfig::Camera {
                 name,
                 center,
                 direction,
@@ -266,21 +326,8 @@ impl RenderConfig {
                 for (a, v) in size.iter().enumerate() {
                     positive(&key(&format!("size[{a}]")), *v)?;
                 }
-                for (a, &p) in pixels.iter().enumerate() {
-                    if !(1..=MAX_PIXELS).contains(&p) {
-                        return err(format!(
-                            "{} = {p}: must be within [1, {MAX_PIXELS}]",
-                            key(&format!("pixels[{a}]"))
-                        ));
-                    }
-                }
-                cameras.push(Camera::new(
-                    name.clone(),
-                    direction,
-                    center,
-                    *size,
-                    [pixels[0] as usize, pixels[1] as usize],
-                ));
+                let pixels = check_pixels(i, *pixels)?;
+                cameras.push(Camera::new(name.clone(), direction, center, *size, pixels));
             } else if let SensorConfig::Fluence { name, position } = s {
                 let position = finite(&format!("sensor[{i}].position"), *position)?;
                 if !volume.field.bounds.contains(position) {
@@ -332,6 +379,7 @@ impl RenderConfig {
             sensors,
             probes,
             cameras,
+            pinholes,
             connections: match r.connections {
                 ConnectionsConfig::Unbiased => Connections::Unbiased,
                 ConnectionsConfig::First => Connections::First,
@@ -403,7 +451,9 @@ fn sensor(i: usize, s: &SensorConfig, volume: &Volume) -> Result<Sensor, ConfigE
     let key = |k: &str| format!("sensor[{i}].{k}");
     let mut acceptance = None;
     let (name, kind, center, normal, size, pixels) = match s {
-        SensorConfig::Fluence { .. } | SensorConfig::Camera { .. } => {
+        SensorConfig::Fluence { .. }
+        | SensorConfig::Camera { .. }
+        | SensorConfig::Pinhole { .. } => {
             return err("a fluence probe or camera is not a plane");
         }
         SensorConfig::Flux {
@@ -474,6 +524,18 @@ fn sensor(i: usize, s: &SensorConfig, volume: &Volume) -> Result<Sensor, ConfigE
     );
     sensor.acceptance = acceptance;
     Ok(sensor)
+}
+
+/// A sensor's pixel counts.
+fn check_pixels(i: usize, pixels: [u64; 2]) -> Result<[usize; 2], ConfigError> {
+    for (a, &p) in pixels.iter().enumerate() {
+        if !(1..=MAX_PIXELS).contains(&p) {
+            return err(format!(
+                "sensor[{i}].pixels[{a}] = {p}: must be within [1, {MAX_PIXELS}]"
+            ));
+        }
+    }
+    Ok([pixels[0] as usize, pixels[1] as usize])
 }
 
 /// A sensor's name: it names files.

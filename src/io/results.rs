@@ -768,16 +768,26 @@ pub struct ProbeRecord {
     pub per_bin_stderr: Vec<f64>,
 }
 
-/// An orthographic camera of a render.
+/// A camera of a render: orthographic or pinhole.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct CameraRecord {
     pub name: String,
-    /// The direction of the light it records.
-    pub direction: [f64; 3],
-    /// Radiant intensity along `direction` (the image summed times the pixel area), per unit
-    /// emitted power and steradian.
-    pub intensity: Measured,
+    /// `orthographic` or `pinhole`.
+    pub kind: String,
+    /// Orthographic: the direction of the light it records, and the radiant intensity along it
+    /// (the image summed times the pixel area) per unit emitted power and steradian.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub direction: Option<[f64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub intensity: Option<Measured>,
+    /// Pinhole: where it is, and the irradiance there from its field of view, per unit emitted
+    /// power.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub position: Option<[f64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub irradiance: Option<Measured>,
     pub pixels: [usize; 2],
+    /// Orthographic: a pixel's area; pinhole: its area in the image plane at unit distance.
     pub pixel_area: f64,
     /// `camera_<name>.exr` (channels `Y`, radiance per unit emitted power, and `stderr`), then one
     /// per time bin.

@@ -48,14 +48,16 @@ pub struct Exit {
     /// Where the path leaves the volume, and its direction after refraction there.
     pub surface: DVec3,
     pub outgoing: DVec3,
-    /// Geometric length and optical path inside.
+    /// Geometric length inside, and the optical path (to the point, for a path through one).
     pub length: f64,
     pub optical_path: f64,
     /// `1 − R` of the Fresnel reflectance at the exit.
     pub transmission: f64,
-    /// `dω_out/dω_x`: how the solid angle of directions leaving `x` maps onto outgoing directions
-    /// (1 for straight rays through a matched surface); a source of intensity `I` at `x` has
-    /// intensity `I · transmission / jacobian` along the outgoing direction.
+    /// For [`Connector::solve_exit`], `dω_out/dω_x`: how the solid angle of directions leaving
+    /// `x` maps onto outgoing directions (1 for straight rays through a matched surface); a source
+    /// of intensity `I` at `x` has intensity `I · transmission / jacobian` along the outgoing
+    /// direction. For [`Connector::solve_through`], the ray tube's cross-section at the point per
+    /// unit solid angle at `x`, `dA⊥/dω`.
     pub jacobian: f64,
     pub iterations: usize,
 }
@@ -200,16 +202,7 @@ impl<'v> Connector<'v> {
                     iterations: iteration + 1,
                 });
             }
-            if det == 0.0 || !det.is_finite() {
-                return None;
-            }
-            let mut da = -(m[1][1] * r[0] - m[0][1] * r[1]) / det;
-            let mut db = -(-m[1][0] * r[0] + m[0][0] * r[1]) / det;
-            let turn = (da * da + db * db).sqrt();
-            if turn > MAX_TURN {
-                (da, db) = (da * MAX_TURN / turn, db * MAX_TURN / turn);
-            }
-            w = (w + e1 * da + e2 * db).normalize();
+            w = newton_turn(w, m, det, r)?;
         }
         None
     }
@@ -344,7 +337,7 @@ impl<'v> Connector<'v> {
     /// frame): the sensitivities carried to the exit, with the exit time's shift (paper 002,
     /// Eqs. 11–12) and the refraction at the surface.
     #[allow(clippy::type_complexity)]
-    fn exit_map(&self, x: DVec3, w: DVec3) -> Option<(Exit, [DVec3; 2])> {
+    fn exit_map(&self, x: DVec3, w: DVec3) -> Option<(Exit, [DVec3; 2], [DVec3; 2])> {
         let field = &self.volume.field;
         let (end, xv, vv, length, optical_path) = self.shoot_out(x, w)?;
         let normal = field.bounds.normal(end.x)?;
@@ -368,12 +361,14 @@ impl<'v> Connector<'v> {
         let n_x = field.n(x);
         let (e1, e2) = orthonormal_basis(w);
         let mut deriv = [DVec3::ZERO; 2];
+        let mut moved = [DVec3::ZERO; 2];
         for (k, e) in [e1, e2].into_iter().enumerate() {
             let dv0 = e * n_x;
             let (dxs, dvs) = (xv * dv0, vv * dv0);
             // the exit moves along the ray as v0 changes: g(x) = 0 fixes σ* (Eq. 11)
             let dsigma = -normal.dot(dxs) / nv;
             let dx = dxs + v * dsigma;
+            moved[k] = dx;
             let dv = dvs + force * dsigma;
             let dd = (dv - d_in * d_in.dot(dv)) / v.length();
             // the refraction's derivative by central differences of the closed form
@@ -395,7 +390,60 @@ impl<'v> Connector<'v> {
                 iterations: 0,
             },
             deriv,
+            moved,
         ))
+    }
+
+    /// The path Newton's method reaches from `w0` that leaves the volume and passes through the
+    /// point `p` outside it (a pinhole), in a straight line from the surface. Its `jacobian` is the
+    /// ray tube's cross-section at `p` per unit solid angle at `x` (`dA⊥/dω`): the irradiance at
+    /// `p` of a source of intensity `I` at `x` is `I · transmission / jacobian`.
+    pub fn solve_through(&self, x: DVec3, p: DVec3, w0: DVec3) -> Option<Exit> {
+        let mut w = w0.normalize();
+        for iteration in 0..self.max_iterations {
+            let (mut exit, dout, dsurf) = self.exit_map(x, w)?;
+            let o = exit.outgoing;
+            let t = (p - exit.surface).dot(o);
+            if t <= 0.0 {
+                return None;
+            }
+            let (f1, f2) = orthonormal_basis(o);
+            let miss = exit.surface + o * t - p;
+            let r = [f1.dot(miss), f2.dot(miss)];
+            // the line's displacement at p: the exit point's plus the turn of its direction
+            let c1 = dsurf[0] + dout[0] * t;
+            let c2 = dsurf[1] + dout[1] * t;
+            let m = [[f1.dot(c1), f1.dot(c2)], [f2.dot(c1), f2.dot(c2)]];
+            let det = m[0][0] * m[1][1] - m[0][1] * m[1][0];
+            if (r[0] * r[0] + r[1] * r[1]).sqrt() <= self.tolerance {
+                exit.jacobian = det.abs();
+                exit.iterations = iteration + 1;
+                exit.optical_path += self.volume.field.n_out * t;
+                return (det.abs() > 0.0 && det.is_finite()).then_some(exit);
+            }
+            w = newton_turn(w, m, det, r)?;
+        }
+        None
+    }
+
+    /// A path from `x` through the point `p` outside, drawn like [`Connector::sample`].
+    pub fn sample_through(
+        &self,
+        x: DVec3,
+        p: DVec3,
+        first_only: bool,
+        rng: &mut Rng,
+    ) -> Sampled<Exit> {
+        let start = |rng: &mut Rng| self.initial(x, p, rng);
+        let solve = |w| {
+            self.solve_through(x, p, w)
+                .map(|e| (e, e.direction, e.iterations))
+        };
+        if first_only {
+            first(start, solve, rng)
+        } else {
+            restarts(self.max_restarts, start, solve, rng)
+        }
     }
 
     /// The path Newton's method reaches from `w0` that leaves the volume along unit `c`.
@@ -403,7 +451,7 @@ impl<'v> Connector<'v> {
         let (f1, f2) = orthonormal_basis(c);
         let mut w = w0.normalize();
         for iteration in 0..self.max_iterations {
-            let (mut exit, [d1, d2]) = self.exit_map(x, w)?;
+            let (mut exit, [d1, d2], _) = self.exit_map(x, w)?;
             let out = exit.outgoing;
             let r = [f1.dot(out), f2.dot(out)];
             let m = [[f1.dot(d1), f1.dot(d2)], [f2.dot(d1), f2.dot(d2)]];
@@ -413,20 +461,26 @@ impl<'v> Connector<'v> {
                 exit.iterations = iteration + 1;
                 return (det.abs() > 0.0 && det.is_finite()).then_some(exit);
             }
-            if det == 0.0 || !det.is_finite() {
-                return None;
-            }
-            let (e1, e2) = orthonormal_basis(w);
-            let mut da = -(m[1][1] * r[0] - m[0][1] * r[1]) / det;
-            let mut db = -(-m[1][0] * r[0] + m[0][0] * r[1]) / det;
-            let turn = (da * da + db * db).sqrt();
-            if turn > MAX_TURN {
-                (da, db) = (da * MAX_TURN / turn, db * MAX_TURN / turn);
-            }
-            w = (w + e1 * da + e2 * db).normalize();
+            w = newton_turn(w, m, det, r)?;
         }
         None
     }
+}
+
+/// One Newton step on the direction `w` for the 2×2 system `m δ = −r` in the angles of `w`'s
+/// frame, at most [`MAX_TURN`] long; `None` if `m` is singular.
+fn newton_turn(w: DVec3, m: [[f64; 2]; 2], det: f64, r: [f64; 2]) -> Option<DVec3> {
+    if det == 0.0 || !det.is_finite() {
+        return None;
+    }
+    let (e1, e2) = orthonormal_basis(w);
+    let mut da = -(m[1][1] * r[0] - m[0][1] * r[1]) / det;
+    let mut db = -(-m[1][0] * r[0] + m[0][0] * r[1]) / det;
+    let turn = (da * da + db * db).sqrt();
+    if turn > MAX_TURN {
+        (da, db) = (da * MAX_TURN / turn, db * MAX_TURN / turn);
+    }
+    Some((w + e1 * da + e2 * db).normalize())
 }
 
 /// The path found from one random start, counted once.

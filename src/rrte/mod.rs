@@ -17,5 +17,5 @@ pub mod scene;
 
 pub use particle::{ParticleTracer, Total};
 pub use scene::{
-    Camera, Connections, Light, Probe, RenderScene, Sensor, SensorKind, Transient, Volume,
+    Camera, Connections, Light, Pinhole, Probe, RenderScene, Sensor, SensorKind, Transient, Volume,
 };

@@ -83,6 +83,11 @@ impl<'s> ParticleTracer<'s> {
             offsets.push(at + 1);
             at += 1 + c.pixel_count() * frames;
         }
+        for c in &scene.pinholes {
+            // the irradiance at the pinhole from its field of view, then its images
+            offsets.push(at + 1);
+            at += 1 + c.pixel_count() * frames;
+        }
         ParticleTracer {
             scene,
             flyer: Flyer::new(&scene.volume, scene.step, scene.max_steps),
@@ -102,6 +107,17 @@ impl<'s> ParticleTracer<'s> {
         self.offsets[self.scene.sensors.len() + self.scene.probes.len() + i]
     }
 
+    /// The first output of pinhole camera `i` (its images).
+    pub fn pinhole_offset(&self, i: usize) -> usize {
+        let s = self.scene;
+        self.offsets[s.sensors.len() + s.probes.len() + s.cameras.len() + i]
+    }
+
+    /// The output holding the irradiance at pinhole `i` from its field of view.
+    pub fn pinhole_total(&self, i: usize) -> usize {
+        self.pinhole_offset(i) - 1
+    }
+
     /// The output holding the sum of camera `i`'s pixels over all time bins.
     pub fn camera_total(&self, i: usize) -> usize {
         self.camera_offset(i) - 1
@@ -114,7 +130,9 @@ impl<'s> ParticleTracer<'s> {
 
     /// Whether scattering events are connected to probes or cameras.
     fn connects(&self) -> bool {
-        !self.scene.probes.is_empty() || !self.scene.cameras.is_empty()
+        !self.scene.probes.is_empty()
+            || !self.scene.cameras.is_empty()
+            || !self.scene.pinholes.is_empty()
     }
 
     /// Next-event connections from `x` (inside) to every probe and camera: power `weight` leaving
@@ -208,6 +226,38 @@ impl<'s> ParticleTracer<'s> {
                 value,
             );
         }
+        for (i, cam) in self.scene.pinholes.iter().enumerate() {
+            let s = self
+                .connector
+                .sample_through(x, cam.position, first_only, rng);
+            out[self.total(Total::Connections)].re += 1.0;
+            out[self.total(Total::Solves)].re += s.solves as f64;
+            out[self.total(Total::Iterations)].re += s.iterations as f64;
+            let Some((e, inverse_p)) = s.path else {
+                continue;
+            };
+            out[self.total(Total::Connected)].re += 1.0;
+            out[self.total(Total::Distinct)].re += s.distinct as f64;
+            let Some((pixel, cos)) = cam.pixel(e.outgoing) else {
+                continue;
+            };
+            // irradiance at the pinhole, and radiance over the pixel's image-plane area
+            // (dω = cos³θ dA at unit distance)
+            let irradiance =
+                weight * emit(e.direction) * (-sigma_t * e.length).exp() * e.transmission
+                    / e.jacobian
+                    * inverse_p;
+            if !(irradiance > 0.0 && irradiance.is_finite()) {
+                continue;
+            }
+            let Some(bin) = self.bin(opl + e.optical_path) else {
+                continue;
+            };
+            let o = self.pinhole_offset(i);
+            let radiance = irradiance / (cos * cos * cos * cam.pixel_area());
+            self.record_image(out, o, cam.pixel_count(), bin, pixel, radiance);
+            out[o - 1].re += irradiance;
+        }
     }
 
     /// The first output of sensor `i` (its images follow, see [`ParticleTracer::frame`]; each a
@@ -237,11 +287,35 @@ impl<'s> ParticleTracer<'s> {
         pixel: usize,
         value: f64,
     ) {
+        self.record_image(out, first, pixels, bin, pixel, value);
+        out[first - 1].re += value;
+    }
+
+    /// [`ParticleTracer::record`] without the total.
+    fn record_image(
+        &self,
+        out: &mut [C64],
+        first: usize,
+        pixels: usize,
+        bin: usize,
+        pixel: usize,
+        value: f64,
+    ) {
         out[self.frame(first, pixels, Some(bin)) + pixel].re += value;
         if self.scene.bins() > 1 {
             out[first + pixel].re += value;
         }
-        out[first - 1].re += value;
+    }
+
+    /// The time bin of optical path `path` (`None` past the last bin).
+    fn bin(&self, path: f64) -> Option<usize> {
+        match self.scene.transient {
+            None => Some(0),
+            Some(tr) => {
+                let b = (path / tr.max_path * tr.bins as f64).floor();
+                (0.0..tr.bins as f64).contains(&b).then_some(b as usize)
+            }
+        }
     }
 
     /// Time bins of every image (1 without a transient).
@@ -457,7 +531,7 @@ impl Estimator for ParticleTracer<'_> {
         };
         // a connection: a few Newton solves of a few iterations, each a flight's worth of steps
         let connections = self.scene.probes.len() as f64 * if v.homogeneous() { 1.0 } else { 30.0 }
-            + self.scene.cameras.len() as f64 * 30.0;
+            + (self.scene.cameras.len() + self.scene.pinholes.len()) as f64 * 30.0;
         STEP_COST * steps * (1.0 + connections) + self.scene.sensors.len() as f64
     }
 }

@@ -220,6 +220,76 @@ impl Camera {
     }
 }
 
+/// A pinhole camera outside the volume at `position`, looking along unit `forward` with `up`
+/// (unit, ⟂ forward) and `right = forward × up`: each pixel holds the radiance arriving at the
+/// pinhole, averaged over the pixel's area in the image plane at unit distance (`tan_half`: half
+/// the image's extent there, per side). Every scattering event (and a light inside the volume) is
+/// connected to the pinhole by the path leaving the volume and running straight through it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Pinhole {
+    pub name: String,
+    pub position: DVec3,
+    pub forward: DVec3,
+    pub up: DVec3,
+    pub right: DVec3,
+    pub tan_half: [f64; 2],
+    pub pixels: [usize; 2],
+}
+
+impl Pinhole {
+    /// A pinhole at `position` looking at `target`, `up` giving the image's vertical (made
+    /// perpendicular), the vertical field of view `fov` (radians) and the pixel counts.
+    pub fn looking_at(
+        name: String,
+        position: DVec3,
+        target: DVec3,
+        up: DVec3,
+        fov: f64,
+        pixels: [usize; 2],
+    ) -> Option<Self> {
+        let forward = (target - position).try_normalize()?;
+        let up = (up - forward * up.dot(forward)).try_normalize()?;
+        let right = forward.cross(up);
+        let th = (0.5 * fov).tan();
+        Some(Pinhole {
+            name,
+            position,
+            forward,
+            up,
+            right,
+            tan_half: [th * pixels[0] as f64 / pixels[1] as f64, th],
+            pixels,
+        })
+    }
+
+    pub fn pixel_count(&self) -> usize {
+        self.pixels[0] * self.pixels[1]
+    }
+
+    /// The area of one pixel in the image plane at unit distance.
+    pub fn pixel_area(&self) -> f64 {
+        4.0 * self.tan_half[0] * self.tan_half[1] / self.pixel_count() as f64
+    }
+
+    /// The pixel seeing light that arrives travelling along unit `d`, and the cosine of its angle
+    /// to the axis.
+    pub fn pixel(&self, d: DVec3) -> Option<(usize, f64)> {
+        let v = -d;
+        let cos = v.dot(self.forward);
+        if cos <= 0.0 {
+            return None;
+        }
+        let a = (v.dot(self.right) / cos / self.tan_half[0] + 1.0) * 0.5;
+        let b = (v.dot(self.up) / cos / self.tan_half[1] + 1.0) * 0.5;
+        if !(0.0..1.0).contains(&a) || !(0.0..1.0).contains(&b) {
+            return None;
+        }
+        let i = ((a * self.pixels[0] as f64) as usize).min(self.pixels[0] - 1);
+        let j = ((b * self.pixels[1] as f64) as usize).min(self.pixels[1] - 1);
+        Some((j * self.pixels[0] + i, cos))
+    }
+}
+
 /// How connections to probes are estimated.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum Connections {
@@ -346,6 +416,7 @@ pub struct RenderScene {
     pub sensors: Vec<Sensor>,
     pub probes: Vec<Probe>,
     pub cameras: Vec<Camera>,
+    pub pinholes: Vec<Pinhole>,
     pub connections: Connections,
     pub transient: Option<Transient>,
     /// Leapfrog step in the σ-form (geometric length ≈ `n · step`), where `n` varies.
