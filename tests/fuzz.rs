@@ -29,6 +29,7 @@ const CONFIGS: &[(&str, &str)] = &[
     ("configs/render_luneburg.toml", "render"),
     ("configs/render_slab.toml", "render"),
     ("configs/render_tank.toml", "render"),
+    ("configs/render_ultrasonic.toml", "render"),
     ("configs/speckle_grid.toml", "speckle"),
     ("configs/tabulated.toml", "covariance"),
     ("configs/tilt_shift.toml", "tilt-shift"),

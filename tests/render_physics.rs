@@ -76,6 +76,7 @@ fn fresnel_slab(profile: Profile, n: f64) {
         probes: vec![],
         cameras: vec![],
         pinholes: vec![],
+        modulation: None,
         connections: Default::default(),
         transient: Some(Transient {
             bins: 40,
@@ -167,6 +168,7 @@ fn every_photon_is_absorbed_escapes_or_is_reported() {
         probes: vec![],
         cameras: vec![],
         pinholes: vec![],
+        modulation: None,
         connections: Default::default(),
         transient: None,
         step: 0.01,
@@ -276,6 +278,7 @@ fn a_scattering_slab_with_fresnel_faces_matches_a_plain_slab_tracer() {
             probes: vec![],
             cameras: vec![],
             pinholes: vec![],
+            modulation: None,
             connections: Default::default(),
             transient: None,
             step: 0.01,
@@ -350,6 +353,7 @@ fn a_scattering_luneburg_lens_focuses_a_beam_on_its_antipode() {
         probes: vec![],
         cameras: vec![],
         pinholes: vec![],
+        modulation: None,
         connections: Default::default(),
         transient: None,
         step: 0.002,
@@ -403,6 +407,7 @@ fn a_beam_in_a_linear_gradient_tank_follows_the_closed_form_ray() {
         probes: vec![],
         cameras: vec![],
         pinholes: vec![],
+        modulation: None,
         connections: Default::default(),
         transient: None,
         step: 0.01,
@@ -436,6 +441,7 @@ fn probe_scene(profile: Profile, sigma_s: f64, g: f64, light: Light, probe: DVec
         }],
         cameras: vec![],
         pinholes: vec![],
+        modulation: None,
         connections: Default::default(),
         transient: None,
         step: 0.004,
@@ -630,6 +636,7 @@ fn orthographic_and_pinhole_cameras_see_the_intensity_a_collimated_detector_coun
         probes: vec![],
         cameras: vec![],
         pinholes: vec![],
+        modulation: None,
         connections: Default::default(),
         transient: None,
         step: 0.005,
@@ -700,4 +707,110 @@ fn orthographic_and_pinhole_cameras_see_the_intensity_a_collimated_detector_coun
             }
         }
     }
+}
+
+/// An ultrasonic GRIN lens (m = 0) in clear water under a beam, with a small flux window at the
+/// exit face whose power depends on how strongly the field focuses.
+fn ultrasonic_lens(n_max: f64) -> RenderScene {
+    let mut window = flux("window", 5.0);
+    window.size = Some([0.2, 0.2]);
+    RenderScene {
+        volume: Volume {
+            field: BoundedField::single(
+                Profile::Ultrasonic {
+                    n0: 1.33,
+                    n_max,
+                    k_r: 2.0,
+                    m: 0,
+                },
+                Bounds::Cylinder {
+                    radius: 3.0,
+                    half_length: 5.0,
+                },
+                1.33,
+            ),
+            sigma_s: 0.0,
+            sigma_a: 0.0,
+            scattering: Scattering::single(PhaseFunction::Isotropic),
+        },
+        light: beam(-6.0, 0.4),
+        sensors: vec![window],
+        probes: vec![],
+        cameras: vec![],
+        pinholes: vec![],
+        modulation: None,
+        connections: Default::default(),
+        transient: None,
+        step: 0.05,
+        max_steps: 100_000,
+    }
+}
+
+#[test]
+fn a_modulated_ultrasonic_field_averages_its_phases() {
+    let n_max = 0.01;
+    // the time average by sampling a phase per photon
+    let mut modulated = ultrasonic_lens(n_max);
+    modulated.modulation = Some(lightpath::rrte::Modulation::Sinusoidal);
+    let (e, est) = render(&modulated, 40_000, 41);
+    let (m, sm) = value(&e, est.power(0));
+    // against the midpoint rule over 16 frozen phases θ in (−π/2, π/2), n_max sin θ
+    let k = 16;
+    let (mut avg, mut var) = (0.0, 0.0);
+    for i in 0..k {
+        let theta = std::f64::consts::PI * ((i as f64 + 0.5) / k as f64 - 0.5);
+        let frozen = ultrasonic_lens(n_max * theta.sin());
+        let (e, est) = render(&frozen, 5_000, 43 + i as u64);
+        let (p, sp) = value(&e, est.power(0));
+        avg += p / k as f64;
+        var += sp * sp / (k * k) as f64;
+    }
+    let tol = 4.0 * (sm * sm + var).sqrt();
+    assert!(
+        (m - avg).abs() < tol,
+        "modulated {m} ± {sm} vs phase average {avg} ± {}",
+        var.sqrt()
+    );
+    // the static field at full amplitude focuses more: the test sees the modulation
+    let fixed = ultrasonic_lens(n_max);
+    let (e, est) = render(&fixed, 20_000, 47);
+    let (st, sst) = value(&e, est.power(0));
+    assert!(
+        st - m > 4.0 * (sst * sst + sm * sm).sqrt(),
+        "static {st} ± {sst} vs modulated {m}"
+    );
+}
+
+#[test]
+fn a_strobed_field_is_the_field_at_its_phase() {
+    let text = |modulation: &str| {
+        format!(
+            "[field]\nprofiles = [{{ kind = \"ultrasonic\", n0 = 1.33, n_max = 0.01, k_r = 2.0, m = 0 }}]\nbounds = {{ kind = \"cylinder\", radius = 3.0, half_length = 5.0 }}\nn_out = 1.33\n[light]\nkind = \"beam\"\ncenter = [0.0, 0.0, -6.0]\ndirection = [0.0, 0.0, 1.0]\n{modulation}"
+        )
+    };
+    let scene = |m: &str| match lightpath::config::load_text(&text(m)).unwrap() {
+        lightpath::config::Task::Render(t) => t.scene,
+        _ => panic!("a render"),
+    };
+    let n_max = |s: &RenderScene| match s.volume.field.profiles[0] {
+        Profile::Ultrasonic { n_max, .. } => n_max,
+        _ => panic!("ultrasonic"),
+    };
+    // at the peak the field is the static one, bit for bit; at 30° half of it; at −90° inverted
+    assert_eq!(
+        scene("[modulation]\nkind = \"strobed\"\nphase_deg = 90.0\n"),
+        scene("")
+    );
+    let half = scene("[modulation]\nkind = \"strobed\"\nphase_deg = 30.0\n");
+    assert!((n_max(&half) - 0.005).abs() < 1e-15);
+    assert_eq!(
+        n_max(&scene(
+            "[modulation]\nkind = \"strobed\"\nphase_deg = -90.0\n"
+        )),
+        -0.01
+    );
+    // a continuous modulation keeps the static amplitude and samples the phase per photon
+    let cw = scene("[modulation]\nkind = \"sinusoidal\"\n");
+    assert_eq!(n_max(&cw), 0.01);
+    assert_eq!(cw.modulation, Some(lightpath::rrte::Modulation::Sinusoidal));
 }

@@ -8,7 +8,8 @@ use super::{ConfigError, err};
 use crate::eikonal::Bounds;
 use crate::medium::{PhaseFunction, Scattering};
 use crate::rrte::{
-    Camera, Connections, Light, Probe, RenderScene, Sensor, SensorKind, Transient, Volume,
+    Camera, Connections, Light, Modulation, Probe, RenderScene, Sensor, SensorKind, Transient,
+    Volume,
 };
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -28,6 +29,9 @@ pub struct RenderConfig {
     pub sensor: Vec<SensorConfig>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub transient: Option<TransientConfig>,
+    /// How the ultrasonic profiles' amplitudes change in time (absent: static).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub modulation: Option<ModulationConfig>,
     #[serde(default)]
     pub render: RenderSettings,
 }
@@ -124,6 +128,16 @@ impl ConnectionsConfig {
     }
 }
 
+/// `[modulation]`: the ultrasonic amplitudes as `n_max sin Ωt`.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum ModulationConfig {
+    /// Continuous light integrated over whole periods: every phase equally (paper 002, Eq. 22).
+    Sinusoidal {},
+    /// Light pulsed in step with the ultrasound: the field frozen at `phase_deg` (90: the peak).
+    Strobed { phase_deg: f64 },
+}
+
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct TransientConfig {
@@ -208,6 +222,40 @@ impl RenderConfig {
                 "field.bounds: a render needs a bounded volume (kind = \"sphere\", \"box\" or \"cylinder\") for light to leave",
             );
         }
+        let modulation = match &self.modulation {
+            None => None,
+            Some(m) => {
+                let base = field.clone();
+                let ultrasonic = field
+                    .profiles
+                    .iter()
+                    .any(|p| matches!(p, crate::eikonal::Profile::Ultrasonic { .. }));
+                if !ultrasonic {
+                    return err(
+                        "modulation: the field has no ultrasonic profile whose amplitude could oscillate",
+                    );
+                }
+                match *m {
+                    ModulationConfig::Sinusoidal {} => {
+                        // every phase must give a valid field: check the amplitude's sign flipped
+                        crate::rrte::particle::modulate(&mut field, &base, -1.0);
+                        check_positive(&field)?;
+                        field = base;
+                        Some(Modulation::Sinusoidal)
+                    }
+                    ModulationConfig::Strobed { phase_deg } => {
+                        if !phase_deg.is_finite() || phase_deg.abs() > 360.0 {
+                            return err(format!(
+                                "modulation.phase_deg = {phase_deg}: must be within [-360, 360]"
+                            ));
+                        }
+                        let s = phase_deg.to_radians().sin();
+                        crate::rrte::particle::modulate(&mut field, &base, s);
+                        None
+                    }
+                }
+            }
+        };
         check_positive(&field)?;
         field.n_out = positive("field.n_out", field.n_out)?;
         let (sigma_s, sigma_a, scattering) = match &self.medium {
@@ -380,6 +428,7 @@ impl RenderConfig {
             probes,
             cameras,
             pinholes,
+            modulation,
             connections: match r.connections {
                 ConnectionsConfig::Unbiased => Connections::Unbiased,
                 ConnectionsConfig::First => Connections::First,

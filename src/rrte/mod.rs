@@ -8,7 +8,8 @@
 //! - [`connect`]: point-to-point connections along curved rays (Sec. 4, Algs. 2–3);
 //! - [`flight`]: free flights over geometric length along curved rays (Eq. 5), Fresnel;
 //! - [`particle`]: particle (light) tracing as an engine estimator (results per emitted power),
-//!   with next-event connections to fluence probes.
+//!   with next-event connections to fluence probes and cameras, and ultrasonic fields met at a
+//!   random phase per photon.
 
 pub mod connect;
 pub mod flight;
@@ -17,5 +18,6 @@ pub mod scene;
 
 pub use particle::{ParticleTracer, Total};
 pub use scene::{
-    Camera, Connections, Light, Pinhole, Probe, RenderScene, Sensor, SensorKind, Transient, Volume,
+    Camera, Connections, Light, Modulation, Pinhole, Probe, RenderScene, Sensor, SensorKind,
+    Transient, Volume,
 };

@@ -15,7 +15,7 @@
 
 use super::connect::Connector;
 use super::flight::{Flight, Flyer, fresnel, reflect};
-use super::scene::{Connections, RenderScene};
+use super::scene::{Connections, Modulation, RenderScene, Volume};
 use crate::eikonal::Ray;
 use crate::eikonal::trace::refract;
 use crate::math::{C64, Rng, uniform};
@@ -51,11 +51,25 @@ pub enum Total {
 /// How many totals follow the sensors.
 pub const TOTALS: usize = 10;
 
+/// The integrators of one volume: free flights and connections.
+struct Tools<'v> {
+    flyer: Flyer<'v>,
+    connector: Connector<'v>,
+}
+
+impl<'v> Tools<'v> {
+    fn new(volume: &'v Volume, scene: &RenderScene) -> Self {
+        Tools {
+            flyer: Flyer::new(volume, scene.step, scene.max_steps),
+            connector: Connector::new(volume, scene.step, scene.max_steps),
+        }
+    }
+}
+
 /// The particle tracer of a scene, as an engine estimator.
 pub struct ParticleTracer<'s> {
     scene: &'s RenderScene,
-    flyer: Flyer<'s>,
-    connector: Connector<'s>,
+    tools: Tools<'s>,
     /// First output of each sensor, then of each probe.
     offsets: Vec<usize>,
     totals: usize,
@@ -90,8 +104,7 @@ impl<'s> ParticleTracer<'s> {
         }
         ParticleTracer {
             scene,
-            flyer: Flyer::new(&scene.volume, scene.step, scene.max_steps),
-            connector: Connector::new(&scene.volume, scene.step, scene.max_steps),
+            tools: Tools::new(&scene.volume, scene),
             offsets,
             totals: at,
         }
@@ -139,8 +152,10 @@ impl<'s> ParticleTracer<'s> {
     /// `x` with angular density `emit(d)` per steradian along unit `d`, having travelled the
     /// optical path `opl`. A probe receives `weight · emit(d) · T / (dA⊥/dω)` over the stationary
     /// paths; a camera's pixel `weight · emit(d) · T · (1 − R) / (dω_out/dω) / pixel area`.
+    #[allow(clippy::too_many_arguments)]
     fn connect(
         &self,
+        t: &Tools,
         x: DVec3,
         weight: f64,
         opl: f64,
@@ -151,8 +166,8 @@ impl<'s> ParticleTracer<'s> {
         let sigma_t = self.scene.volume.sigma_t();
         for (i, probe) in self.scene.probes.iter().enumerate() {
             let s = match self.scene.connections {
-                Connections::Unbiased => self.connector.sample(x, probe.position, rng),
-                Connections::First => self.connector.sample_first(x, probe.position, rng),
+                Connections::Unbiased => t.connector.sample(x, probe.position, rng),
+                Connections::First => t.connector.sample_first(x, probe.position, rng),
             };
             out[self.total(Total::Connections)].re += 1.0;
             out[self.total(Total::Solves)].re += s.solves as f64;
@@ -184,9 +199,7 @@ impl<'s> ParticleTracer<'s> {
         let first_only = self.scene.connections == Connections::First;
         let n_out = self.scene.volume.field.n_out;
         for (i, cam) in self.scene.cameras.iter().enumerate() {
-            let s = self
-                .connector
-                .sample_exit(x, cam.direction, first_only, rng);
+            let s = t.connector.sample_exit(x, cam.direction, first_only, rng);
             out[self.total(Total::Connections)].re += 1.0;
             out[self.total(Total::Solves)].re += s.solves as f64;
             out[self.total(Total::Iterations)].re += s.iterations as f64;
@@ -227,9 +240,7 @@ impl<'s> ParticleTracer<'s> {
             );
         }
         for (i, cam) in self.scene.pinholes.iter().enumerate() {
-            let s = self
-                .connector
-                .sample_through(x, cam.position, first_only, rng);
+            let s = t.connector.sample_through(x, cam.position, first_only, rng);
             out[self.total(Total::Connections)].re += 1.0;
             out[self.total(Total::Solves)].re += s.solves as f64;
             out[self.total(Total::Iterations)].re += s.iterations as f64;
@@ -357,7 +368,7 @@ impl<'s> ParticleTracer<'s> {
     }
 
     /// Trace one photon, adding its contributions to `out`.
-    fn photon(&self, rng: &mut Rng, out: &mut [C64]) {
+    fn photon(&self, t: &Tools, rng: &mut Rng, out: &mut [C64]) {
         let volume = &self.scene.volume;
         let bounds = &volume.field.bounds;
         let n_out = volume.field.n_out;
@@ -373,11 +384,11 @@ impl<'s> ParticleTracer<'s> {
         let mut ray = if bounds.contains(x) {
             if self.connects() {
                 let light = &self.scene.light;
-                self.connect(x, weight, 0.0, |d| light.intensity(d), rng, out);
+                self.connect(t, x, weight, 0.0, |d| light.intensity(d), rng, out);
             }
             Ray {
                 x,
-                v: d * self.flyer.n(x),
+                v: d * t.flyer.n(x),
             }
         } else {
             match bounds.interval(x, d) {
@@ -385,7 +396,7 @@ impl<'s> ParticleTracer<'s> {
                     let surface = x + d * t0;
                     opl += n_out * t0;
                     let inside = x + d * crate::eikonal::trace::entry_parameter(t0);
-                    let n_in = self.flyer.n(inside);
+                    let n_in = t.flyer.n(inside);
                     let normal = bounds.normal(surface).unwrap_or(-d);
                     let r = fresnel(d.dot(normal), n_out / n_in);
                     if r > 0.0 && uniform(rng) < r {
@@ -421,7 +432,7 @@ impl<'s> ParticleTracer<'s> {
             } else {
                 f64::INFINITY
             };
-            let (flight, k) = self.flyer.fly(ray, distance);
+            let (flight, k) = t.flyer.fly(ray, distance);
             steps += k;
             match flight {
                 Flight::Collision {
@@ -435,7 +446,7 @@ impl<'s> ParticleTracer<'s> {
                     let w_in = hit.v.normalize();
                     if self.connects() {
                         let phase = |d: DVec3| volume.scattering.eval(w_in.dot(d));
-                        self.connect(hit.x, weight, opl, phase, rng, out);
+                        self.connect(t, hit.x, weight, opl, phase, rng, out);
                     }
                     if weight < ROULETTE_BELOW {
                         if uniform(rng) >= ROULETTE_SURVIVAL {
@@ -454,7 +465,7 @@ impl<'s> ParticleTracer<'s> {
                         .sample(w_in, uniform(rng), uniform(rng));
                     ray = Ray {
                         x: hit.x,
-                        v: w * self.flyer.n(hit.x),
+                        v: w * t.flyer.n(hit.x),
                     };
                 }
                 Flight::Boundary {
@@ -462,7 +473,7 @@ impl<'s> ParticleTracer<'s> {
                     optical_path,
                 } => {
                     opl += optical_path;
-                    let n_in = self.flyer.n(end.x);
+                    let n_in = t.flyer.n(end.x);
                     let d = end.v.normalize();
                     let normal = bounds.normal(end.x).unwrap_or(d);
                     let r = fresnel(d.dot(normal), n_in / n_out);
@@ -495,17 +506,30 @@ impl<'s> ParticleTracer<'s> {
 }
 
 impl Estimator for ParticleTracer<'_> {
-    type Scratch = ();
+    /// With a time-modulated field, each thread's copy of the volume, set to each photon's phase.
+    type Scratch = Option<Volume>;
 
     fn outputs(&self) -> usize {
         self.totals + TOTALS
     }
 
-    fn scratch(&self) {}
+    fn scratch(&self) -> Option<Volume> {
+        self.scene.modulation.map(|_| self.scene.volume.clone())
+    }
 
-    fn run_chunk(&self, rng: &mut Rng, paths: u64, _: &mut (), out: &mut [C64]) {
+    fn run_chunk(&self, rng: &mut Rng, paths: u64, scratch: &mut Option<Volume>, out: &mut [C64]) {
         for _ in 0..paths {
-            self.photon(rng, out);
+            match (self.scene.modulation, scratch.as_mut()) {
+                (Some(Modulation::Sinusoidal), Some(volume)) => {
+                    // the photon meets the field at a uniformly random time of the period
+                    // (paper 002, App. C, Eq. 22): every ultrasonic amplitude times sin θ
+                    let theta = std::f64::consts::PI * (uniform(rng) - 0.5);
+                    modulate(&mut volume.field, &self.scene.volume.field, theta.sin());
+                    let tools = Tools::new(volume, self.scene);
+                    self.photon(&tools, rng, out);
+                }
+                _ => self.photon(&self.tools, rng, out),
+            }
         }
     }
 
@@ -538,3 +562,18 @@ impl Estimator for ParticleTracer<'_> {
 
 /// The cost of one leapfrog step of an analytic field, in output updates.
 const STEP_COST: f64 = 100.0;
+
+/// Set every ultrasonic profile of `field` to `scale` times its amplitude in `base` (the same
+/// field unmodulated).
+pub fn modulate(
+    field: &mut crate::eikonal::BoundedField,
+    base: &crate::eikonal::BoundedField,
+    scale: f64,
+) {
+    use crate::eikonal::Profile;
+    for (p, b) in field.profiles.iter_mut().zip(&base.profiles) {
+        if let (Profile::Ultrasonic { n_max, .. }, Profile::Ultrasonic { n_max: n0, .. }) = (p, b) {
+            *n_max = n0 * scale;
+        }
+    }
+}

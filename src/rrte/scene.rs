@@ -290,6 +290,15 @@ impl Pinhole {
     }
 }
 
+/// How the index field changes in time as the light meets it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Modulation {
+    /// Every ultrasonic amplitude oscillates as `n_max sin Ωt` and the sensor integrates over
+    /// whole periods (continuous-wave light): each photon meets the field at a uniformly random
+    /// phase (paper 002, App. C, Eq. 22).
+    Sinusoidal,
+}
+
 /// How connections to probes are estimated.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum Connections {
@@ -417,6 +426,8 @@ pub struct RenderScene {
     pub probes: Vec<Probe>,
     pub cameras: Vec<Camera>,
     pub pinholes: Vec<Pinhole>,
+    /// `None`: the field is static.
+    pub modulation: Option<Modulation>,
     pub connections: Connections,
     pub transient: Option<Transient>,
     /// Leapfrog step in the σ-form (geometric length ≈ `n · step`), where `n` varies.
