@@ -185,6 +185,22 @@ pub(crate) fn finish(
         });
     }
     let mut cameras = Vec::new();
+    let mut camera_images = |name: &str, first: usize, size: [usize; 2]| {
+        let frames = Frames {
+            est: &est,
+            e: &e,
+            first,
+            size,
+            scale: 1.0,
+        };
+        write_images(
+            out,
+            &format!("camera_{name}"),
+            frames,
+            "√radiance",
+            &mut files,
+        )
+    };
     for (i, c) in scene.cameras.iter().enumerate() {
         let intensity = Measured {
             mean: e.mean[est.camera_total(i)].re * c.pixel_area(),
@@ -194,19 +210,7 @@ pub(crate) fn finish(
             "{} intensity {:.4e} ± {:.1e}",
             c.name, intensity.mean, intensity.stderr
         ));
-        let names = write_images(
-            out,
-            &format!("camera_{}", c.name),
-            Frames {
-                est: &est,
-                e: &e,
-                first: est.camera_offset(i),
-                size: c.pixels,
-                scale: 1.0,
-            },
-            "√radiance",
-            &mut files,
-        )?;
+        let names = camera_images(&c.name, est.camera_offset(i), c.pixels)?;
         cameras.push(CameraRecord {
             name: c.name.clone(),
             kind: "orthographic".into(),
@@ -225,19 +229,7 @@ pub(crate) fn finish(
             "{} irradiance {:.4e} ± {:.1e}",
             c.name, irradiance.mean, irradiance.stderr
         ));
-        let names = write_images(
-            out,
-            &format!("camera_{}", c.name),
-            Frames {
-                est: &est,
-                e: &e,
-                first: est.pinhole_offset(i),
-                size: c.pixels,
-                scale: 1.0,
-            },
-            "√radiance",
-            &mut files,
-        )?;
+        let names = camera_images(&c.name, est.pinhole_offset(i), c.pixels)?;
         cameras.push(CameraRecord {
             name: c.name.clone(),
             kind: "pinhole".into(),

@@ -23,7 +23,7 @@ pub struct Harmonic {
 }
 
 /// Number of trapezoid nodes for argument `z = k r` and order `m`: aliasing error below 1e-16.
-fn nodes(z: f64, m: u32) -> usize {
+pub(crate) fn nodes(z: f64, m: u32) -> usize {
     (z + m as f64 + 12.0 * z.cbrt() + 24.0).ceil() as usize
 }
 

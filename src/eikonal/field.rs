@@ -294,6 +294,29 @@ impl BoundedField {
             n_out,
         }
     }
+
+    /// The work of one evaluation of `(n, ∇n, ∇²n)` inside the bounds, in evaluations of a
+    /// simple analytic profile (for time estimates): an ultrasonic profile sums as many plane
+    /// waves as its Bessel argument needs at the bounds' widest radius, a grid its taps.
+    pub fn evaluation_cost(&self) -> f64 {
+        let radius = self
+            .bounds
+            .half_extent()
+            .map_or(0.0, |h| (h.x * h.x + h.y * h.y).sqrt());
+        self.profiles
+            .iter()
+            .map(|p| match p {
+                Profile::Ultrasonic { k_r, m, .. } => {
+                    super::bessel::nodes(k_r.abs() * radius, *m) as f64
+                }
+                Profile::Grid(g) => match g.interp {
+                    super::grid::Interp::Tricubic => 64.0,
+                    super::grid::Interp::Trilinear => 8.0,
+                },
+                _ => 1.0,
+            })
+            .sum()
+    }
 }
 
 impl IndexField for BoundedField {

@@ -13,7 +13,7 @@
 //! `L/n²` of the RRTE enters only where radiance is connected to a point (cameras, next-event
 //! estimation).
 
-use super::connect::Connector;
+use super::connect::{Connector, Sampled};
 use super::flight::{Flight, Flyer, fresnel, reflect};
 use super::scene::{Connections, Modulation, RenderScene, Volume};
 use crate::eikonal::Ray;
@@ -169,28 +169,16 @@ impl<'s> ParticleTracer<'s> {
                 Connections::Unbiased => t.connector.sample(x, probe.position, rng),
                 Connections::First => t.connector.sample_first(x, probe.position, rng),
             };
-            out[self.total(Total::Connections)].re += 1.0;
-            out[self.total(Total::Solves)].re += s.solves as f64;
-            out[self.total(Total::Iterations)].re += s.iterations as f64;
-            let Some((c, inverse_p)) = s.path else {
+            let Some((c, inverse_p)) = self.tally(s, out) else {
                 continue;
             };
-            out[self.total(Total::Connected)].re += 1.0;
-            out[self.total(Total::Distinct)].re += s.distinct as f64;
             let value =
                 weight * emit(c.direction) * (-sigma_t * c.length).exp() / c.spread * inverse_p;
             if !(value > 0.0 && value.is_finite()) {
                 continue;
             }
-            let bin = match self.scene.transient {
-                None => 0,
-                Some(tr) => {
-                    let b = ((opl + c.optical_path) / tr.max_path * tr.bins as f64).floor();
-                    if !(0.0..tr.bins as f64).contains(&b) {
-                        continue;
-                    }
-                    b as usize
-                }
+            let Some(bin) = self.bin(opl + c.optical_path) else {
+                continue;
             };
             let o = self.probe_offset(i);
             out[o + bin].re += value;
@@ -200,14 +188,9 @@ impl<'s> ParticleTracer<'s> {
         let n_out = self.scene.volume.field.n_out;
         for (i, cam) in self.scene.cameras.iter().enumerate() {
             let s = t.connector.sample_exit(x, cam.direction, first_only, rng);
-            out[self.total(Total::Connections)].re += 1.0;
-            out[self.total(Total::Solves)].re += s.solves as f64;
-            out[self.total(Total::Iterations)].re += s.iterations as f64;
-            let Some((e, inverse_p)) = s.path else {
+            let Some((e, inverse_p)) = self.tally(s, out) else {
                 continue;
             };
-            out[self.total(Total::Connected)].re += 1.0;
-            out[self.total(Total::Distinct)].re += s.distinct as f64;
             let Some(pixel) = cam.pixel(e.surface) else {
                 continue;
             };
@@ -218,17 +201,9 @@ impl<'s> ParticleTracer<'s> {
             if !(value > 0.0 && value.is_finite()) {
                 continue;
             }
-            let bin = match self.scene.transient {
-                None => 0,
-                Some(tr) => {
-                    let outside = n_out * (cam.center - e.surface).dot(cam.direction).max(0.0);
-                    let b =
-                        ((opl + e.optical_path + outside) / tr.max_path * tr.bins as f64).floor();
-                    if !(0.0..tr.bins as f64).contains(&b) {
-                        continue;
-                    }
-                    b as usize
-                }
+            let outside = n_out * (cam.center - e.surface).dot(cam.direction).max(0.0);
+            let Some(bin) = self.bin(opl + e.optical_path + outside) else {
+                continue;
             };
             self.record(
                 out,
@@ -241,14 +216,9 @@ impl<'s> ParticleTracer<'s> {
         }
         for (i, cam) in self.scene.pinholes.iter().enumerate() {
             let s = t.connector.sample_through(x, cam.position, first_only, rng);
-            out[self.total(Total::Connections)].re += 1.0;
-            out[self.total(Total::Solves)].re += s.solves as f64;
-            out[self.total(Total::Iterations)].re += s.iterations as f64;
-            let Some((e, inverse_p)) = s.path else {
+            let Some((e, inverse_p)) = self.tally(s, out) else {
                 continue;
             };
-            out[self.total(Total::Connected)].re += 1.0;
-            out[self.total(Total::Distinct)].re += s.distinct as f64;
             let Some((pixel, cos)) = cam.pixel(e.outgoing) else {
                 continue;
             };
@@ -269,6 +239,18 @@ impl<'s> ParticleTracer<'s> {
             self.record_image(out, o, cam.pixel_count(), bin, pixel, radiance);
             out[o - 1].re += irradiance;
         }
+    }
+
+    /// Count a connection's work in the statistics, and return its path and inverse probability.
+    fn tally<T>(&self, s: Sampled<T>, out: &mut [C64]) -> Option<(T, f64)> {
+        out[self.total(Total::Connections)].re += 1.0;
+        out[self.total(Total::Solves)].re += s.solves as f64;
+        out[self.total(Total::Iterations)].re += s.iterations as f64;
+        if s.path.is_some() {
+            out[self.total(Total::Connected)].re += 1.0;
+            out[self.total(Total::Distinct)].re += s.distinct as f64;
+        }
+        s.path
     }
 
     /// The first output of sensor `i` (its images follow, see [`ParticleTracer::frame`]; each a
@@ -353,15 +335,8 @@ impl<'s> ParticleTracer<'s> {
             let Some((pixel, t)) = s.hit(x, d) else {
                 continue;
             };
-            let bin = match self.scene.transient {
-                None => 0,
-                Some(tr) => {
-                    let b = ((opl + n_out * t) / tr.max_path * tr.bins as f64).floor();
-                    if !(0.0..tr.bins as f64).contains(&b) {
-                        continue;
-                    }
-                    b as usize
-                }
+            let Some(bin) = self.bin(opl + n_out * t) else {
+                continue;
             };
             self.record(out, offset, s.pixel_count(), bin, pixel, weight);
         }
@@ -553,6 +528,8 @@ impl Estimator for ParticleTracer<'_> {
             };
             (flight / (v.field.n_out * self.scene.step)).clamp(1.0, self.scene.max_steps as f64)
         };
+        // each step evaluates the field (an ultrasonic profile sums many plane waves)
+        let steps = steps * v.field.evaluation_cost();
         // a connection: a few Newton solves of a few iterations, each a flight's worth of steps
         let connections = self.scene.probes.len() as f64 * if v.homogeneous() { 1.0 } else { 30.0 }
             + (self.scene.cameras.len() + self.scene.pinholes.len()) as f64 * 30.0;
@@ -560,7 +537,7 @@ impl Estimator for ParticleTracer<'_> {
     }
 }
 
-/// The cost of one leapfrog step of an analytic field, in output updates.
+/// The cost of one leapfrog step of a simple analytic field, in output updates.
 const STEP_COST: f64 = 100.0;
 
 /// Set every ultrasonic profile of `field` to `scale` times its amplitude in `base` (the same
