@@ -63,9 +63,21 @@ pub fn check<E: Estimator>(
     }
     let threads = rayon::current_num_threads();
     let gb = memory_gb(est, kept, chunks);
+    // what the outputs come from, and what makes a run cheaper, in the command's own terms
+    let (outputs_from, fewer) = if what == "render" {
+        (
+            "the sensors' and cameras' pixels and time bins",
+            "fewer pixels or time bins, fewer probes or cameras (each connection is a few Newton solves), a coarser render.step",
+        )
+    } else {
+        (
+            "the lights × views asked for",
+            "a thinner or more absorbing medium (a longer mfp), fewer lights or views",
+        )
+    };
     if gb > budget.max_memory_gb {
         return Err(Error::input(format!(
-            "{what}: {} outputs (from the lights × views asked for) need an estimated {gb:.1} GB on {threads} threads, beyond --max-memory-gb {}. Use fewer lights or views (a coarser ring or grid), fewer --threads, or raise --max-memory-gb",
+            "{what}: {} outputs (from {outputs_from}) need an estimated {gb:.1} GB on {threads} threads, beyond --max-memory-gb {}. Use fewer outputs, fewer --threads, or raise --max-memory-gb",
             est.outputs(),
             budget.max_memory_gb
         )));
@@ -103,8 +115,8 @@ pub fn check<E: Estimator>(
     if seconds > 60.0 * budget.max_minutes {
         let tau = medium.sigma_s * medium.geometry.smallest_extent();
         return Err(Error::input(format!(
-            "{what}: {paths:.3e} paths of ~{events:.3e} scattering events each, updating {} outputs at each (optical thickness σ_s·d = {tau:.3e} over the smallest extent, albedo {:.6}, g = {:.3}) would take an estimated {} on {threads} threads, beyond --max-minutes {}. Use fewer samples, a thinner or more absorbing medium (a longer mfp), fewer lights or views, more --threads or shards, or raise --max-minutes",
-            est.outputs(),
+            "{what}: {paths:.3e} paths of ~{events:.3e} scattering events each, at a cost of {:.3e} output updates each (optical thickness σ_s·d = {tau:.3e} over the smallest extent, albedo {:.6}, g = {:.3}) would take an estimated {} on {threads} threads, beyond --max-minutes {}. Use fewer samples, {fewer}, more --threads or shards, or raise --max-minutes",
+            est.event_cost().max(1.0),
             medium.albedo(),
             medium.mean_cosine(),
             duration(seconds),
