@@ -29,6 +29,22 @@ fn results(dir: &Path) -> serde_json::Value {
     v
 }
 
+/// Write `text` to `path` and check that `lightpath render` refuses it (exit 2) naming `key`.
+fn refused(path: &Path, text: &str, key: &str) {
+    std::fs::write(path, text).unwrap();
+    let out = path.with_extension("out");
+    let o = lightpath(&[
+        "render",
+        &path.display().to_string(),
+        "--out",
+        &out.display().to_string(),
+        "--quiet",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{}: {err}", path.display());
+    assert!(err.contains(key), "the error should name {key}: {err}");
+}
+
 fn config(name: &str) -> String {
     format!("{}/configs/{name}", env!("CARGO_MANIFEST_DIR"))
 }
@@ -122,21 +138,7 @@ fn bad_render_scenes_are_refused_by_key() {
         if *key == "render.step" {
             text = text.replace("[render]", "[render]\nstep = 0.1");
         }
-        let path = dir.join(format!("bad{i}.toml"));
-        std::fs::write(&path, text).unwrap();
-        let o = lightpath(&[
-            "render",
-            &path.display().to_string(),
-            "--out",
-            &dir.join("out").display().to_string(),
-            "--quiet",
-        ]);
-        let err = String::from_utf8_lossy(&o.stderr);
-        assert_eq!(o.status.code(), Some(2), "{to}: {err}");
-        assert!(
-            err.contains(key),
-            "{to}: the error should name {key}: {err}"
-        );
+        refused(&dir.join(format!("bad{i}.toml")), &text, key);
     }
     let _ = std::fs::remove_dir_all(dir);
 }
@@ -186,20 +188,10 @@ fn probes_and_cameras_are_checked_by_key() {
     for (i, (file, from, to, key)) in cases.iter().enumerate() {
         let base = std::fs::read_to_string(config(file)).unwrap();
         assert!(base.contains(from), "{file}: {from}");
-        let path = dir.join(format!("bad{i}.toml"));
-        std::fs::write(&path, base.replacen(from, to, 1)).unwrap();
-        let o = lightpath(&[
-            "render",
-            &path.display().to_string(),
-            "--out",
-            &dir.join("out").display().to_string(),
-            "--quiet",
-        ]);
-        let err = String::from_utf8_lossy(&o.stderr);
-        assert_eq!(o.status.code(), Some(2), "{to}: {err}");
-        assert!(
-            err.contains(key),
-            "{to}: the error should name {key}: {err}"
+        refused(
+            &dir.join(format!("bad{i}.toml")),
+            &base.replacen(from, to, 1),
+            key,
         );
     }
     let _ = std::fs::remove_dir_all(dir);

@@ -53,6 +53,35 @@ fn beam(z: f64, radius: f64) -> Light {
     }
 }
 
+/// A scene with nothing but its step set: lights, sensors and the volume are given by each test
+/// (`RenderScene { volume, light, sensors, ..bare(step) }`).
+fn bare(step: f64) -> RenderScene {
+    RenderScene {
+        volume: Volume {
+            field: BoundedField::single(
+                Profile::Constant { n: 1.0 },
+                Bounds::Sphere { radius: 1.0 },
+                1.0,
+            ),
+            sigma_s: 0.0,
+            sigma_a: 0.0,
+            scattering: Scattering::single(PhaseFunction::Isotropic),
+        },
+        light: Light::Point {
+            position: DVec3::ZERO,
+        },
+        sensors: vec![],
+        probes: vec![],
+        cameras: vec![],
+        pinholes: vec![],
+        modulation: None,
+        connections: Default::default(),
+        transient: None,
+        step,
+        max_steps: 100_000,
+    }
+}
+
 fn render(scene: &RenderScene, samples: u64, seed: u64) -> (Estimate, ParticleTracer<'_>) {
     let est = ParticleTracer::new(scene);
     let e = estimate(&est, &Plan::new(seed, samples, samples / 64));
@@ -73,17 +102,11 @@ fn fresnel_slab(profile: Profile, n: f64) {
         volume,
         light: beam(-1.1, 0.2),
         sensors: vec![flux("transmittance", 0.5), flux("reflectance", -0.5)],
-        probes: vec![],
-        cameras: vec![],
-        pinholes: vec![],
-        modulation: None,
-        connections: Default::default(),
         transient: Some(Transient {
             bins: 40,
             max_path: 20.0,
         }),
-        step: 0.01,
-        max_steps: 100_000,
+        ..bare(0.01)
     };
     let (e, est) = render(&scene, 200_000, 7);
     let r = ((n - 1.0) / (n + 1.0)).powi(2);
@@ -165,14 +188,7 @@ fn every_photon_is_absorbed_escapes_or_is_reported() {
         volume,
         light: beam(-2.0, 0.9),
         sensors: vec![],
-        probes: vec![],
-        cameras: vec![],
-        pinholes: vec![],
-        modulation: None,
-        connections: Default::default(),
-        transient: None,
-        step: 0.01,
-        max_steps: 100_000,
+        ..bare(0.01)
     };
     let (e, est) = render(&scene, 20_000, 3);
     assert_eq!(e.mean[est.total(Total::Escaped)].re, 1.0);
@@ -275,14 +291,7 @@ fn a_scattering_slab_with_fresnel_faces_matches_a_plain_slab_tracer() {
             volume: slab_volume(profile, 1.0, l, sigma_s, sigma_a, g),
             light: beam(-1.0, 0.0),
             sensors: vec![flux("T", 0.5), flux("R", -0.5)],
-            probes: vec![],
-            cameras: vec![],
-            pinholes: vec![],
-            modulation: None,
-            connections: Default::default(),
-            transient: None,
-            step: 0.01,
-            max_steps: 100_000,
+            ..bare(0.01)
         };
         let (e, est) = render(&scene, photons, 5);
         let (t, st) = value(&e, est.offset(0));
@@ -350,14 +359,7 @@ fn a_scattering_luneburg_lens_focuses_a_beam_on_its_antipode() {
         volume,
         light: beam(-2.0, 0.4),
         sensors: vec![screen.clone()],
-        probes: vec![],
-        cameras: vec![],
-        pinholes: vec![],
-        modulation: None,
-        connections: Default::default(),
-        transient: None,
-        step: 0.002,
-        max_steps: 100_000,
+        ..bare(0.002)
     };
     let (e, est) = render(&scene, 40_000, 9);
     let (c, rms, total) = spot(&e, &est, &screen);
@@ -404,14 +406,7 @@ fn a_beam_in_a_linear_gradient_tank_follows_the_closed_form_ray() {
         volume,
         light: beam(-6.0, 0.02),
         sensors: vec![screen.clone()],
-        probes: vec![],
-        cameras: vec![],
-        pinholes: vec![],
-        modulation: None,
-        connections: Default::default(),
-        transient: None,
-        step: 0.01,
-        max_steps: 100_000,
+        ..bare(0.01)
     };
     let (e, est) = render(&scene, 40_000, 13);
     let (c, _, total) = spot(&e, &est, &screen);
@@ -633,14 +628,7 @@ fn orthographic_and_pinhole_cameras_see_the_intensity_a_collimated_detector_coun
         volume,
         light: beam(-2.0, 0.6),
         sensors: vec![detector],
-        probes: vec![],
-        cameras: vec![],
-        pinholes: vec![],
-        modulation: None,
-        connections: Default::default(),
-        transient: None,
-        step: 0.005,
-        max_steps: 100_000,
+        ..bare(0.005)
     };
     let (e, est) = render(&base, 400_000, 31);
     let (p, sp) = value(&e, est.power(0));
@@ -735,14 +723,7 @@ fn ultrasonic_lens(n_max: f64) -> RenderScene {
         },
         light: beam(-6.0, 0.4),
         sensors: vec![window],
-        probes: vec![],
-        cameras: vec![],
-        pinholes: vec![],
-        modulation: None,
-        connections: Default::default(),
-        transient: None,
-        step: 0.05,
-        max_steps: 100_000,
+        ..bare(0.05)
     }
 }
 
