@@ -9,9 +9,9 @@
 //! give total reflectance and transmittance, and `absorbed + escaped + unfinished = 1` in
 //! expectation (and exactly for each photon when no roulette is played).
 //!
-//! Flux is conserved along ray tubes, so a photon's power needs no `n²` factor: the basic radiance
-//! `L/n²` of the RRTE enters only where radiance is connected to a point (cameras, next-event
-//! estimation).
+//! Flux is conserved along ray tubes, so a photon's power needs no `n²` factor; connections to
+//! probes and cameras carry the tube's exact cross-section (see [`super::connect`]), which is what
+//! the conservation of basic radiance `L/n²` of the RRTE expresses.
 
 use super::connect::{Connector, Sampled};
 use super::flight::{Flight, Flyer, fresnel, reflect};
