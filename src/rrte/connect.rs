@@ -17,8 +17,8 @@
 //! al. 2020): `Σ_k f(C_k)` is then estimated without bias by `f(C)/p(C)`.
 
 use super::scene::Volume;
-use crate::eikonal::trace::force_jacobian;
-use crate::eikonal::{IndexField, Ray, Tracer};
+use crate::eikonal::trace::jacobian_of;
+use crate::eikonal::{BoundedField, IndexField, Ray, Tracer};
 use crate::math::{Rng, orthonormal_basis, uniform, uniform_sphere};
 use glam::{DMat3, DVec3};
 
@@ -87,9 +87,61 @@ pub struct Connector<'v> {
     pub max_restarts: usize,
 }
 
+/// A ray with its sensitivities to the initial velocity, `∂x/∂v0` and `∂v/∂v0`, and the field at
+/// its position (`n`, the force `n∇n` and its Jacobian), so that a step evaluates the field once.
+#[derive(Clone, Copy)]
+struct Tangent {
+    r: Ray,
+    xv: DMat3,
+    vv: DMat3,
+    n: f64,
+    force: DVec3,
+    jacobian: DMat3,
+}
+
+impl Tangent {
+    /// The ray leaving `x` along unit `w` (`|v| = n(x)`).
+    fn start(field: &BoundedField, x: DVec3, w: DVec3) -> Self {
+        let (n, g, h) = field.eval(x);
+        Tangent {
+            r: Ray { x, v: w * n },
+            xv: DMat3::ZERO,
+            vv: DMat3::IDENTITY,
+            n,
+            force: g * n,
+            jacobian: jacobian_of(n, g, h),
+        }
+    }
+
+    /// One leapfrog step of size `h` with the sensitivities (paper 002, Alg. 2); the position and
+    /// velocity are those of [`Tracer::leapfrog`], bit for bit.
+    fn step(&self, field: &BoundedField, h: f64) -> Self {
+        let v_half = self.r.v + self.force * (0.5 * h);
+        let x = self.r.x + v_half * h;
+        let (n, g, hess) = field.eval(x);
+        let force = g * n;
+        let jacobian = jacobian_of(n, g, hess);
+        let hv = self.vv + self.jacobian * (0.5 * h) * self.xv;
+        let xv = self.xv + hv * h;
+        Tangent {
+            r: Ray {
+                x,
+                v: v_half + force * (0.5 * h),
+            },
+            xv,
+            vv: hv + jacobian * (0.5 * h) * xv,
+            n,
+            force,
+            jacobian,
+        }
+    }
+}
+
 /// Largest change of direction of one Newton step (radians): keeps the solver in the basin it
 /// started in.
 const MAX_TURN: f64 = 0.3;
+/// Distinct stationary paths a connection tells apart (for statistics).
+const MAX_DISTINCT: usize = 16;
 /// Directions closer than this are the same stationary path.
 const SAME_PATH: f64 = 1e-5;
 
@@ -120,35 +172,24 @@ impl<'v> Connector<'v> {
         let field = &self.volume.field;
         let t = &self.tracer;
         let h = t.step;
-        let mut r = Ray {
-            x,
-            v: w * field.n(x),
-        };
+        let mut s = Tangent::start(field, x, w);
         let away = |r: &Ray| (r.x - y).dot(r.v);
         // a ray that starts moving away may turn back (a lens's long way round): the closest
         // approach is where it stops approaching after it has started to
-        let mut approached = away(&r) < 0.0;
-        let (mut xv, mut vv) = (DMat3::ZERO, DMat3::IDENTITY);
+        let mut approached = away(&s.r) < 0.0;
         let (mut length, mut opl) = (0.0, 0.0);
-        // one leapfrog step of size `h` with the sensitivities (Alg. 2)
-        let step = |r: Ray, xv: DMat3, vv: DMat3, h: f64| {
-            let hv = vv + force_jacobian(field, r.x) * (0.5 * h) * xv;
-            let next = t.leapfrog(r, h);
-            let xv = xv + hv * h;
-            let vv = hv + force_jacobian(field, next.x) * (0.5 * h) * xv;
-            (next, xv, vv)
-        };
         for _ in 0..t.max_steps {
-            let next = t.leapfrog(r, h);
-            if !field.bounds.contains(next.x) {
+            let mut next = s.step(field, h);
+            if !field.bounds.contains(next.r.x) {
                 return None;
             }
-            let (end, tau) = if approached && away(&next) >= 0.0 {
+            let closest = approached && away(&next.r) >= 0.0;
+            if closest {
                 // the closest approach lies in this step: bisect on (x − y)·v
                 let (mut lo, mut hi) = (0.0, h);
                 for _ in 0..60 {
                     let mid = 0.5 * (lo + hi);
-                    if away(&t.leapfrog(r, mid)) < 0.0 {
+                    if away(&t.leapfrog(s.r, mid)) < 0.0 {
                         lo = mid
                     } else {
                         hi = mid
@@ -157,19 +198,16 @@ impl<'v> Connector<'v> {
                         break;
                     }
                 }
-                (t.leapfrog(r, lo), Some(lo))
-            } else {
-                (next, None)
-            };
-            let chord = (end.x - r.x).length();
-            length += chord;
-            opl += 0.5 * (field.n(r.x) + field.n(end.x)) * chord;
-            let (s, a, b) = step(r, xv, vv, tau.unwrap_or(h));
-            (r, xv, vv) = (s, a, b);
-            if tau.is_some() {
-                return Some((r, xv, length, opl));
+                next = s.step(field, lo);
             }
-            approached |= away(&r) < 0.0;
+            let chord = (next.r.x - s.r.x).length();
+            length += chord;
+            opl += 0.5 * (s.n + next.n) * chord;
+            s = next;
+            if closest {
+                return Some((s.r, s.xv, length, opl));
+            }
+            approached |= away(&s.r) < 0.0;
         }
         None
     }
@@ -304,29 +342,20 @@ impl<'v> Connector<'v> {
         let field = &self.volume.field;
         let t = &self.tracer;
         let h = t.step;
-        let mut r = Ray {
-            x,
-            v: w * field.n(x),
-        };
-        let (mut xv, mut vv) = (DMat3::ZERO, DMat3::IDENTITY);
+        let mut s = Tangent::start(field, x, w);
         let (mut length, mut opl) = (0.0, 0.0);
         for _ in 0..t.max_steps {
-            let next = t.leapfrog(r, h);
-            let tau = if field.bounds.contains(next.x) {
-                h
-            } else {
-                t.boundary_step(r, h)
-            };
-            let hv = vv + force_jacobian(field, r.x) * (0.5 * tau) * xv;
-            let end = t.leapfrog(r, tau);
-            xv += hv * tau;
-            vv = hv + force_jacobian(field, end.x) * (0.5 * tau) * xv;
-            let chord = (end.x - r.x).length();
+            let mut next = s.step(field, h);
+            let leaves = !field.bounds.contains(next.r.x);
+            if leaves {
+                next = s.step(field, t.boundary_step(s.r, h));
+            }
+            let chord = (next.r.x - s.r.x).length();
             length += chord;
-            opl += 0.5 * (field.n(r.x) + field.n(end.x)) * chord;
-            r = end;
-            if tau < h {
-                return Some((r, xv, vv, length, opl));
+            opl += 0.5 * (s.n + next.n) * chord;
+            s = next;
+            if leaves {
+                return Some((s.r, s.xv, s.vv, length, opl));
             }
         }
         None
@@ -516,7 +545,10 @@ fn restarts<T>(
         return out;
     };
     out.iterations += its;
-    let mut seen = vec![dir];
+    // distinct paths met, without allocating (past the array's size they are no longer told apart)
+    let mut seen = [DVec3::ZERO; MAX_DISTINCT];
+    seen[0] = dir;
+    let mut distinct = 1;
     let mut count = 1.0;
     for _ in 0..max_restarts {
         out.solves += 1;
@@ -527,15 +559,20 @@ fn restarts<T>(
             }
             Some((_, other, its)) => {
                 out.iterations += its;
-                if !seen.iter().any(|s| (*s - other).length() < SAME_PATH) {
-                    seen.push(other);
+                if distinct < MAX_DISTINCT
+                    && !seen[..distinct]
+                        .iter()
+                        .any(|s| (*s - other).length() < SAME_PATH)
+                {
+                    seen[distinct] = other;
+                    distinct += 1;
                 }
             }
             None => {}
         }
         count += 1.0;
     }
-    out.distinct = seen.len();
+    out.distinct = distinct;
     out.path = Some((c, count));
     out
 }
@@ -658,8 +695,9 @@ mod tests {
         }
         // Alg. 3: E[1/p(C)] over draws is the number of paths; the draws of each path average 1
         let trials = 400;
-        let mut sum = [0.0f64; 2];
-        let mut sq = 0.0;
+        // per draw, each path's share: 1/p when it is the one drawn, else 0
+        let (mut sum, mut sq) = ([0.0f64; 2], [0.0f64; 2]);
+        let mut sq_total = 0.0;
         for _ in 0..trials {
             let s = c.sample(x, y, &mut rng);
             if let Some((p, inv)) = s.path {
@@ -668,15 +706,20 @@ mod tests {
                     .position(|f| (f.direction - p.direction).length() < SAME_PATH)
                     .expect("a known path");
                 sum[k] += inv;
-                sq += inv * inv;
+                sq[k] += inv * inv;
+                sq_total += inv * inv;
             }
         }
         let n = trials as f64;
-        let total = (sum[0] + sum[1]) / n;
-        let se = ((sq / n - total * total) / n).sqrt();
+        let mean_se = |sum: f64, sq: f64| {
+            let m = sum / n;
+            (m, ((sq / n - m * m) / n).sqrt())
+        };
+        let (total, se) = mean_se(sum[0] + sum[1], sq_total);
         assert!((total - 2.0).abs() < 4.0 * se, "Σ 1/p = {total} ± {se}");
-        for s in sum {
-            assert!((s / n - 1.0).abs() < 4.0 * se + 0.1, "{sum:?}");
+        for k in 0..2 {
+            let (m, se) = mean_se(sum[k], sq[k]);
+            assert!((m - 1.0).abs() < 4.0 * se, "path {k}: {m} ± {se}");
         }
     }
 }
