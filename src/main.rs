@@ -498,7 +498,7 @@ fn main() -> ExitCode {
     {
         return match app::compare::compare(a, b, *tolerance, plot.as_deref()) {
             Ok((report, agree)) => {
-                println!("{report}");
+                say(&report);
                 if agree {
                     ExitCode::SUCCESS
                 } else {
@@ -513,9 +513,9 @@ fn main() -> ExitCode {
     }
     match dispatch(cli.command) {
         Ok(o) => {
-            println!("{}", o.summary.trim_end());
+            say(o.summary.trim_end());
             for f in o.files {
-                println!("wrote {}", f.display());
+                say(&format!("wrote {}", f.display()));
             }
             match o.not_converged {
                 Some(warning) => {
@@ -530,4 +530,11 @@ fn main() -> ExitCode {
             ExitCode::from(2)
         }
     }
+}
+
+/// Print a line of a finished command's report; a reader that went away (`| head`) is no error:
+/// the results are already written.
+fn say(line: &str) {
+    use std::io::Write;
+    let _ = writeln!(std::io::stdout(), "{line}");
 }

@@ -147,6 +147,8 @@ fn adjoint_matches_tape_and_finite_differences() {
         ],
         bounds: Bounds::Everywhere,
         n_out: 1.0,
+        scale: 1.0,
+        offset: 0.0,
     };
     let lune = BoundedField::single(Profile::Luneburg { radius: 1.3 }, Bounds::Everywhere, 1.0);
     let ultrasonic = BoundedField::single(
@@ -748,6 +750,8 @@ fn exit_adjoint_matches_finite_differences() {
                     half_length: 3.0,
                 },
                 n_out: 1.0,
+                scale: 1.0,
+                offset: 0.0,
             },
             DVec3::new(0.05, 0.02, -3.2),
             DVec3::new(0.5, 0.03, 0.866).normalize(),

@@ -207,6 +207,8 @@ fn luneburg_problem(
             profiles: vec![],
             bounds: Bounds::Sphere { radius: 1.0 },
             n_out: 1.0,
+            scale: 1.0,
+            offset: 0.0,
         },
         levels,
         interp: Interp::Tricubic,

@@ -196,3 +196,174 @@ fn probes_and_cameras_are_checked_by_key() {
     }
     let _ = std::fs::remove_dir_all(dir);
 }
+
+#[test]
+fn spectra_are_checked_by_key() {
+    let dir = tmp("bad-spectra");
+    std::fs::create_dir_all(&dir).unwrap();
+    let base = std::fs::read_to_string(config("render_spectral.toml")).unwrap();
+    let inside = "inside = [\"bk7\", \"f2\"]";
+    let range = "range_nm = [380.0, 780.0]";
+    let cases: &[(&str, &str, &str)] = &[
+        (
+            inside,
+            "inside = [\"bk7\", \"crown\"]",
+            "spectrum.inside[1]",
+        ),
+        (inside, "inside = [\"bk7\", \"bk7\"]", "spectrum.inside"),
+        (
+            inside,
+            "inside = [\"bk7\", \"f2\", \"fused_silica\"]",
+            "spectrum.inside",
+        ),
+        (range, "range_nm = [300.0, 780.0]", "spectrum.range_nm"),
+        (
+            range,
+            "range_nm = [380.0, 780.0]\nwavelength_nm = 532.0",
+            "spectrum: range_nm",
+        ),
+        // a resonance at 500 nm, inside the light's range
+        (
+            inside,
+            "inside = [\"bk7\", \"odd\"]\n[[spectrum.material]]\nname = \"odd\"\nkind = \"sellmeier\"\nb = [1.0]\nc = [0.25]",
+            "spectrum.inside[1]",
+        ),
+        (
+            inside,
+            "inside = [\"bk7\", \"odd\"]\n[[spectrum.material]]\nname = \"odd\"\nkind = \"sellmeier\"\nb = [1.0, 0.2]\nc = [0.01]",
+            "spectrum.material[0]",
+        ),
+    ];
+    for (i, (from, to, key)) in cases.iter().enumerate() {
+        assert!(base.contains(from), "{from}");
+        refused(
+            &dir.join(format!("bad{i}.toml")),
+            &base.replacen(from, to, 1),
+            key,
+        );
+    }
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// A white-light render writes RGB images with a standard error per channel, and says so.
+#[test]
+fn white_light_renders_rgb_images() {
+    let out = tmp("rgb");
+    let o = lightpath(&[
+        "render",
+        &config("render_spectral.toml"),
+        "--out",
+        &out.display().to_string(),
+        "--samples",
+        "3000",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(
+        results(&out)["channels"],
+        serde_json::json!(["R", "G", "B"])
+    );
+    for file in [
+        "screen_caustic.exr",
+        "screen_caustic_t0003.exr",
+        "camera_view.exr",
+    ] {
+        let image = exr::prelude::read_all_flat_layers_from_file(out.join(file)).unwrap();
+        let names: Vec<String> = image.layer_data[0]
+            .channel_data
+            .list
+            .iter()
+            .map(|c| c.name.to_string())
+            .collect();
+        assert_eq!(
+            names,
+            ["B", "G", "R", "stderr.B", "stderr.G", "stderr.R"],
+            "{file}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(out);
+}
+
+#[test]
+fn densities_are_checked_by_key() {
+    let dir = tmp("bad-densities");
+    std::fs::create_dir_all(&dir).unwrap();
+    let base = std::fs::read_to_string(config("render_density.toml")).unwrap();
+    let cases: &[(&str, &str, &str)] = &[
+        ("  0.05, 0.05,", "  -0.05, 0.05,", "density.values"),
+        (
+            "origin = [-1.0, -1.0, -1.0]",
+            "origin = [-0.9, -1.0, -1.0]",
+            "density: the grid spans",
+        ),
+        ("dims = [7, 7, 7]", "dims = [7, 7, 6]", "density: grid"),
+        (
+            "interp = \"trilinear\"",
+            "interp = \"nearest\"",
+            "density.interp",
+        ),
+        // a tricubic B-spline rings below zero next to the cloud's steep edge
+        (
+            "interp = \"trilinear\"",
+            "interp = \"tricubic\"",
+            "density.values",
+        ),
+    ];
+    for (i, (from, to, key)) in cases.iter().enumerate() {
+        assert!(base.contains(from), "{from}");
+        refused(
+            &dir.join(format!("bad{i}.toml")),
+            &base.replacen(from, to, 1),
+            key,
+        );
+    }
+    // a density needs a medium to scale
+    let start = base.find("[medium]").unwrap();
+    let end = base.find("[density]").unwrap();
+    let bare = format!("{}{}", &base[..start], &base[end..]);
+    refused(
+        &dir.join("no_medium.toml"),
+        &bare,
+        "density: the volume has no [medium]",
+    );
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[test]
+fn surfaces_are_checked_by_key() {
+    let dir = tmp("bad-surfaces");
+    std::fs::create_dir_all(&dir).unwrap();
+    let base = std::fs::read_to_string(config("render_spectral.toml")).unwrap();
+    let cases: &[(&str, &str, &str)] = &[
+        ("albedo = 0.8", "albedo = 1.2", "surface[0].albedo"),
+        (
+            "center = [0.0, -1.22, 0.0]",
+            "center = [0.0, -0.5, 0.0]",
+            "surface[0].center",
+        ),
+        (
+            "normal = [0.0, 1.0, 0.0]",
+            "normal = [0.0, 0.0, 0.0]",
+            "surface[0].normal",
+        ),
+        (
+            "size = [8.0, 8.0]",
+            "size = [8.0, -1.0]",
+            "surface[0].size[1]",
+        ),
+        (
+            "albedo = 0.8",
+            "albedo = 0.8\n\n[[surface]]\nname = \"floor\"\ncenter = [0.0, 3.0, 0.0]\nnormal = [0.0, 1.0, 0.0]\nalbedo = 0.0",
+            "surface[1].name",
+        ),
+    ];
+    for (i, (from, to, key)) in cases.iter().enumerate() {
+        assert!(base.contains(from), "{from}");
+        refused(
+            &dir.join(format!("bad{i}.toml")),
+            &base.replacen(from, to, 1),
+            key,
+        );
+    }
+    let _ = std::fs::remove_dir_all(dir);
+}

@@ -31,6 +31,7 @@ fn slab_volume(
         sigma_s,
         sigma_a,
         scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g }),
+        density: None,
     }
 }
 
@@ -66,6 +67,7 @@ fn bare(step: f64) -> RenderScene {
             sigma_s: 0.0,
             sigma_a: 0.0,
             scattering: Scattering::single(PhaseFunction::Isotropic),
+            density: None,
         },
         light: Light::Point {
             position: DVec3::ZERO,
@@ -74,9 +76,11 @@ fn bare(step: f64) -> RenderScene {
         probes: vec![],
         cameras: vec![],
         pinholes: vec![],
+        surfaces: vec![],
         modulation: None,
         connections: Default::default(),
         transient: None,
+        spectrum: None,
         step,
         max_steps: 100_000,
     }
@@ -114,8 +118,8 @@ fn fresnel_slab(profile: Profile, n: f64) {
     let trans = (1.0 - r).powi(2) * t / (1.0 - r * r * t * t);
     let refl = r + (1.0 - r).powi(2) * r * t * t / (1.0 - r * r * t * t);
     let sum = |sensor: usize| -> (f64, f64) {
-        let o = est.offset(sensor);
-        let m: f64 = (0..40).map(|b| e.mean[est.frame(o, 1, Some(b))].re).sum();
+        let o = est.sensor_image(sensor);
+        let m: f64 = (0..40).map(|b| e.mean[o.plane(Some(b), 0)].re).sum();
         // the bins of one photon are exclusive: the total's error is that of a Bernoulli mean
         (m, (m * (1.0 - m) / e.samples as f64).sqrt())
     };
@@ -138,8 +142,8 @@ fn fresnel_slab(profile: Profile, n: f64) {
     // pass k (k = 0, 1, …) arrives at optical path 0.6 (air) + (2k + 1) n L
     let bin_width = 20.0 / 40.0;
     let pass = |k: usize| ((0.6 + (2 * k + 1) as f64 * n * l) / bin_width) as usize;
-    let o = est.offset(0);
-    let bin = |b: usize| est.frame(o, 1, Some(b));
+    let o = est.sensor_image(0);
+    let bin = |b: usize| o.plane(Some(b), 0);
     let (m1, s1) = value(&e, bin(pass(0)));
     let (m2, s2) = value(&e, bin(pass(1)));
     let p1 = (1.0 - r).powi(2) * t;
@@ -183,6 +187,7 @@ fn every_photon_is_absorbed_escapes_or_is_reported() {
         sigma_s: 2.0,
         sigma_a: 0.0,
         scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g: 0.7 }),
+        density: None,
     };
     let scene = RenderScene {
         volume,
@@ -294,8 +299,8 @@ fn a_scattering_slab_with_fresnel_faces_matches_a_plain_slab_tracer() {
             ..bare(0.01)
         };
         let (e, est) = render(&scene, photons, 5);
-        let (t, st) = value(&e, est.offset(0));
-        let (r, sr) = value(&e, est.offset(1));
+        let (t, st) = value(&e, est.sensor_image(0).first);
+        let (r, sr) = value(&e, est.sensor_image(1).first);
         let (a, _) = value(&e, est.total(Total::Absorbed));
         let lost = 1.0 - t - r - a;
         assert!(
@@ -317,7 +322,7 @@ fn a_scattering_slab_with_fresnel_faces_matches_a_plain_slab_tracer() {
 
 /// Power-weighted centroid and RMS radius of a screen image about its centre.
 fn spot(e: &Estimate, est: &ParticleTracer, sensor: &Sensor) -> (DVec3, f64, f64) {
-    let o = est.offset(0);
+    let o = est.sensor_image(0).first;
     let [nx, ny] = sensor.pixels;
     let size = sensor.size.unwrap();
     let (mut total, mut c, mut r2) = (0.0, DVec3::ZERO, 0.0);
@@ -346,6 +351,7 @@ fn a_scattering_luneburg_lens_focuses_a_beam_on_its_antipode() {
         sigma_s: 0.05,
         sigma_a: 0.0,
         scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g: 0.9 }),
+        density: None,
     };
     let screen = Sensor::new(
         "screen".into(),
@@ -368,7 +374,7 @@ fn a_scattering_luneburg_lens_focuses_a_beam_on_its_antipode() {
     assert!(c.truncate().length() < 0.01, "centroid {c}");
     assert!(rms < 0.05, "RMS spot radius {rms} (beam radius 0.4)");
     // the brightest pixel is the one at the antipode
-    let o = est.offset(0);
+    let o = est.sensor_image(0).first;
     let centre = 25 * 51 + 25;
     let max = (0..51 * 51).max_by(|&a, &b| e.mean[o + a].re.total_cmp(&e.mean[o + b].re));
     assert_eq!(max, Some(centre));
@@ -392,6 +398,7 @@ fn a_beam_in_a_linear_gradient_tank_follows_the_closed_form_ray() {
         sigma_s: 0.02,
         sigma_a: 0.01,
         scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g: 0.95 }),
+        density: None,
     };
     let y_exit = n0 / a * ((a * length / n0).cosh() - 1.0);
     let screen = Sensor::new(
@@ -427,6 +434,7 @@ fn probe_scene(profile: Profile, sigma_s: f64, g: f64, light: Light, probe: DVec
             sigma_s,
             sigma_a: 0.1 * sigma_s,
             scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g }),
+            density: None,
         },
         light,
         sensors: vec![],
@@ -436,9 +444,11 @@ fn probe_scene(profile: Profile, sigma_s: f64, g: f64, light: Light, probe: DVec
         }],
         cameras: vec![],
         pinholes: vec![],
+        surfaces: vec![],
         modulation: None,
         connections: Default::default(),
         transient: None,
+        spectrum: None,
         step: 0.004,
         max_steps: 100_000,
     }
@@ -612,6 +622,7 @@ fn orthographic_and_pinhole_cameras_see_the_intensity_a_collimated_detector_coun
         sigma_s: 1.0,
         sigma_a: 0.1,
         scattering: Scattering::single(PhaseFunction::Isotropic),
+        density: None,
     };
     let mut detector = flux("collimated", 0.0);
     detector = Sensor::new(
@@ -659,14 +670,14 @@ fn orthographic_and_pinhole_cameras_see_the_intensity_a_collimated_detector_coun
     );
     let (e, est) = render(&scene, 4_000, 37);
     let cam = &scene.cameras[0];
-    let (sum, s_sum) = value(&e, est.camera_total(0));
+    let (sum, s_sum) = value(&e, est.camera_image(0).total());
     let (i, si) = (sum * cam.pixel_area(), s_sum * cam.pixel_area());
     let tol = 4.0 * (si * si + ref_se * ref_se).sqrt();
     assert!(
         (i - reference).abs() < tol,
         "camera intensity {i} ± {si} vs collimated detector {reference} ± {ref_se}"
     );
-    let (irr, s_irr) = value(&e, est.pinhole_total(0));
+    let (irr, s_irr) = value(&e, est.pinhole_image(0).total());
     let (ip, sip) = (irr * distance * distance, s_irr * distance * distance);
     let tol = 4.0 * (sip * sip + ref_se * ref_se).sqrt();
     assert!(
@@ -675,14 +686,14 @@ fn orthographic_and_pinhole_cameras_see_the_intensity_a_collimated_detector_coun
     );
     // its image sums to the irradiance: Σ L · cos³θ · pixel area (θ ≤ 4°)
     let pin = &scene.pinholes[0];
-    let o = est.frame(est.pinhole_offset(0), 121, None);
+    let o = est.pinhole_image(0).plane(None, 0);
     let image: f64 = (0..121).map(|k| e.mean[o + k].re).sum::<f64>() * pin.pixel_area();
     assert!(
         (image - irr).abs() < 0.01 * irr,
         "image {image} vs irradiance {irr}"
     );
     // the image is of the lens: nothing outside the disc of radius 1 it projects to
-    let o = est.frame(est.camera_offset(0), 121, None);
+    let o = est.camera_image(0).plane(None, 0);
     for j in 0..11 {
         for k in 0..11 {
             let (a, b) = ((k as f64 + 0.5) * 0.2 - 1.1, (j as f64 + 0.5) * 0.2 - 1.1);
@@ -720,6 +731,7 @@ fn ultrasonic_lens(n_max: f64) -> RenderScene {
             sigma_s: 0.0,
             sigma_a: 0.0,
             scattering: Scattering::single(PhaseFunction::Isotropic),
+            density: None,
         },
         light: beam(-6.0, 0.4),
         sensors: vec![window],

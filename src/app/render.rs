@@ -10,11 +10,11 @@ use crate::error::{Error, Result};
 use crate::io::ResultFile;
 use crate::io::results::{
     CameraRecord, ConnectionStatistics, Measured, ProbeRecord, RenderFile, RenderStatistics,
-    SensorRecord,
+    SensorRecord, SurfaceRecord,
 };
 use crate::mc::{Block, Checkpoint, Estimate, Plan, merge, resume};
 use crate::medium::{Geometry, Medium};
-use crate::rrte::{ParticleTracer, SensorKind, Total};
+use crate::rrte::{ImageLayout, ParticleTracer, SensorKind, Total};
 use std::path::Path;
 
 /// The files a render writes (screens add `screen_<name>.exr`, `screen_<name>.png` and, with time
@@ -48,7 +48,7 @@ pub fn describe(task: &RenderTask) -> String {
     let s = &task.scene;
     let v = &s.volume;
     format!(
-        "render config: {} index profile(s) ({}), σ_s = {}, σ_a = {}, {} sensor(s) with {} output(s){}; ~{:.3} scattering events per photon",
+        "render config: {} index profile(s) ({}), σ_s = {}, σ_a = {}, {} sensor(s) with {} output(s){}{}; ~{:.3} scattering events per photon",
         v.field.profiles.len(),
         if v.homogeneous() {
             "constant n: straight rays"
@@ -61,6 +61,15 @@ pub fn describe(task: &RenderTask) -> String {
         crate::mc::Estimator::outputs(&ParticleTracer::new(s)),
         s.transient
             .map_or(String::new(), |t| format!(", {} time bins", t.bins)),
+        s.spectrum
+            .as_ref()
+            .map_or(String::new(), |sp| match sp.channels() {
+                1 => format!(", one line at {} nm", sp.range_nm[0]),
+                _ => format!(
+                    ", white light over {}–{} nm in RGB",
+                    sp.range_nm[0], sp.range_nm[1]
+                ),
+            }),
         crate::speckle::paths::expected_events(&proxy_medium(task)),
     )
 }
@@ -119,8 +128,7 @@ pub(crate) fn finish(
     let mut sensors = Vec::new();
     let mut summary = Vec::new();
     for (i, s) in scene.sensors.iter().enumerate() {
-        let o = est.offset(i);
-        let n = s.pixel_count();
+        let image = est.sensor_image(i);
         let power = measured(est.power(i));
         summary.push(format!(
             "{} {:.4} ± {:.4}",
@@ -147,9 +155,8 @@ pub(crate) fn finish(
                     out,
                     &format!("screen_{}", s.name),
                     Frames {
-                        est: &est,
                         e: &e,
-                        first: o,
+                        image,
                         size: s.pixels,
                         scale: 1.0 / area,
                     },
@@ -161,7 +168,7 @@ pub(crate) fn finish(
                 record.pixel_area = Some(area);
             }
             _ => {
-                let at = |b| est.frame(o, n, Some(b));
+                let at = |b| image.plane(Some(b), 0);
                 record.per_bin = Some((0..bins).map(|b| e.mean[at(b)].re).collect());
                 record.per_bin_stderr = Some((0..bins).map(|b| e.stderr[at(b)]).collect());
             }
@@ -185,11 +192,10 @@ pub(crate) fn finish(
         });
     }
     let mut cameras = Vec::new();
-    let mut camera_images = |name: &str, first: usize, size: [usize; 2]| {
+    let mut camera_images = |name: &str, image: ImageLayout, size: [usize; 2]| {
         let frames = Frames {
-            est: &est,
             e: &e,
-            first,
+            image,
             size,
             scale: 1.0,
         };
@@ -202,15 +208,16 @@ pub(crate) fn finish(
         )
     };
     for (i, c) in scene.cameras.iter().enumerate() {
+        let image = est.camera_image(i);
         let intensity = Measured {
-            mean: e.mean[est.camera_total(i)].re * c.pixel_area(),
-            stderr: e.stderr[est.camera_total(i)] * c.pixel_area(),
+            mean: e.mean[image.total()].re * c.pixel_area(),
+            stderr: e.stderr[image.total()] * c.pixel_area(),
         };
         summary.push(format!(
             "{} intensity {:.4e} ± {:.1e}",
             c.name, intensity.mean, intensity.stderr
         ));
-        let names = camera_images(&c.name, est.camera_offset(i), c.pixels)?;
+        let names = camera_images(&c.name, image, c.pixels)?;
         cameras.push(CameraRecord {
             name: c.name.clone(),
             kind: "orthographic".into(),
@@ -224,12 +231,13 @@ pub(crate) fn finish(
         });
     }
     for (i, c) in scene.pinholes.iter().enumerate() {
-        let irradiance = measured(est.pinhole_total(i));
+        let image = est.pinhole_image(i);
+        let irradiance = measured(image.total());
         summary.push(format!(
             "{} irradiance {:.4e} ± {:.1e}",
             c.name, irradiance.mean, irradiance.stderr
         ));
-        let names = camera_images(&c.name, est.pinhole_offset(i), c.pixels)?;
+        let names = camera_images(&c.name, image, c.pixels)?;
         cameras.push(CameraRecord {
             name: c.name.clone(),
             kind: "pinhole".into(),
@@ -242,6 +250,27 @@ pub(crate) fn finish(
             files: names,
         });
     }
+    let surfaces = scene
+        .surfaces
+        .iter()
+        .enumerate()
+        .map(|(i, s)| {
+            let incident = measured(est.surface_power(i));
+            summary.push(format!(
+                "{} incident {:.4} ± {:.4}",
+                s.name, incident.mean, incident.stderr
+            ));
+            SurfaceRecord {
+                name: s.name.clone(),
+                albedo: s.albedo,
+                absorbed: Measured {
+                    mean: incident.mean * (1.0 - s.albedo),
+                    stderr: incident.stderr * (1.0 - s.albedo),
+                },
+                incident,
+            }
+        })
+        .collect();
     let total = |t: Total| e.mean[est.total(t)].re;
     let connects =
         !(scene.probes.is_empty() && scene.cameras.is_empty() && scene.pinholes.is_empty());
@@ -275,7 +304,18 @@ pub(crate) fn finish(
         sensors,
         probes,
         cameras,
+        channels: if scene.channels() == 3 {
+            RGB.0.to_vec()
+        } else {
+            MONO.0.to_vec()
+        }
+        .into_iter()
+        .map(String::from)
+        .collect(),
+        surfaces,
         absorbed: measured(est.total(Total::Absorbed)),
+        absorbed_by_surfaces: (!scene.surfaces.is_empty())
+            .then(|| measured(est.total(Total::SurfaceAbsorbed))),
         escaped: measured(est.total(Total::Escaped)),
         unfinished: measured(est.total(Total::Unfinished)),
         statistics: RenderStatistics {
@@ -321,16 +361,20 @@ pub(crate) fn finish(
 /// The frames of one image (a screen or a camera) in an estimate, scaled by `scale` (`1/area`
 /// turns a screen's power per pixel into irradiance).
 struct Frames<'a> {
-    est: &'a ParticleTracer<'a>,
     e: &'a Estimate,
-    first: usize,
+    image: ImageLayout,
     size: [usize; 2],
     scale: f64,
 }
 
-/// Write `<stem>.exr` (the time-integrated image with its standard error), with time bins one
-/// `<stem>_t<bin>.exr` per bin, and a square-root preview `<stem>.png`; the EXR names, the
-/// integrated one first.
+/// The EXR channel names of an image's planes and of their standard errors.
+const MONO: ([&str; 1], [&str; 1]) = (["Y"], ["stderr"]);
+const RGB: ([&str; 3], [&str; 3]) = (["R", "G", "B"], ["stderr.R", "stderr.G", "stderr.B"]);
+
+/// Write `<stem>.exr` (the time-integrated image with its standard error: channels `Y`,
+/// `stderr`, or `R`, `G`, `B` and `stderr.R`… in colour), with time bins one `<stem>_t<bin>.exr`
+/// per bin, and a preview `<stem>.png` (square root of the values, sRGB-encoded in colour); the
+/// EXR names, the integrated one first.
 fn write_images(
     out: &Path,
     stem: &str,
@@ -340,45 +384,73 @@ fn write_images(
 ) -> Result<Vec<String>> {
     let [w, h] = f.size;
     let n = w * h;
-    let frame = |bin: Option<usize>| -> (Vec<f64>, Vec<f64>) {
-        let at = f.est.frame(f.first, n, bin);
-        (
-            (at..at + n).map(|k| f.e.mean[k].re * f.scale).collect(),
-            (at..at + n).map(|k| f.e.stderr[k] * f.scale).collect(),
-        )
+    let channels = f.image.channels;
+    // each channel's values and standard errors in one frame, the top row first (the images hold
+    // rows from the bottom, along the sensor's or camera's up axis; EXR viewers show row 0 on top)
+    let frame = |bin: Option<usize>| -> Vec<(Vec<f64>, Vec<f64>)> {
+        (0..channels)
+            .map(|c| {
+                let at = f.image.plane(bin, c);
+                let top_down = |k: usize| at + (h - 1 - k / w) * w + k % w;
+                (
+                    (0..n).map(|k| f.e.mean[top_down(k)].re * f.scale).collect(),
+                    (0..n).map(|k| f.e.stderr[top_down(k)] * f.scale).collect(),
+                )
+            })
+            .collect()
     };
-    let mut names = Vec::new();
-    let (total, se) = frame(None);
+    let (names, errors): (&[&str], &[&str]) = if channels == 3 {
+        (&RGB.0, &RGB.1)
+    } else {
+        (&MONO.0, &MONO.1)
+    };
+    let write = |name: &str, planes: &[(Vec<f64>, Vec<f64>)]| -> Result<()> {
+        let mut list: Vec<(&str, &[f64])> = Vec::new();
+        for (c, (v, se)) in planes.iter().enumerate() {
+            list.push((names[c], v));
+            list.push((errors[c], se));
+        }
+        crate::io::exr::write_planes(&out.join(name), &list, w, h)
+    };
+    let mut written = Vec::new();
+    let total = frame(None);
     let name = format!("{stem}.exr");
-    crate::io::exr::write_with_error(&out.join(&name), &total, &se, w, h)?;
+    write(&name, &total)?;
     files.push(out.join(&name));
-    names.push(name);
-    let bins = f.est.bins();
+    written.push(name);
+    let bins = f.image.bins;
     if bins > 1 {
         for b in 0..bins {
-            let (v, se) = frame(Some(b));
             let name = format!("{stem}_t{b:04}.exr");
-            crate::io::exr::write_with_error(&out.join(&name), &v, &se, w, h)?;
-            names.push(name);
+            write(&name, &frame(Some(b)))?;
+            written.push(name);
         }
     }
-    let max = total.iter().cloned().fold(0.0, f64::max);
-    let preview: Vec<f64> = (0..n)
-        .map(|k| {
-            // rows top-down in the PNG, as the image's up axis
-            let (x, y) = (k % w, k / w);
-            let v = total[(h - 1 - y) * w + x];
-            if max > 0.0 { (v / max).sqrt() } else { 0.0 }
-        })
-        .collect();
+    let max = total
+        .iter()
+        .flat_map(|(v, _)| v.iter())
+        .cloned()
+        .fold(0.0, f64::max);
+    // the plot's rows run upwards from its bottom: back to the images' own order
+    let at = |k: usize| (h - 1 - k / w) * w + k % w;
+    let scaled = |v: f64| {
+        if max > 0.0 {
+            (v / max).max(0.0).sqrt()
+        } else {
+            0.0
+        }
+    };
     let png = out.join(format!("{stem}.png"));
-    crate::io::plot::heat_maps(
-        &png,
-        &format!("{label}, max {max:.2e}"),
-        &[(stem.to_string(), preview)],
-        w,
-        h,
-    )?;
+    let title = format!("{label}, max {max:.2e}");
+    if channels == 3 {
+        let rgb: Vec<[f64; 3]> = (0..n)
+            .map(|k| [0, 1, 2].map(|c| scaled(total[c].0[at(k)])))
+            .collect();
+        crate::io::plot::colour_image(&png, &title, stem, &rgb, w, h)?;
+    } else {
+        let preview: Vec<f64> = (0..n).map(|k| scaled(total[0].0[at(k)])).collect();
+        crate::io::plot::heat_maps(&png, &title, &[(stem.to_string(), preview)], w, h)?;
+    }
     files.push(png);
-    Ok(names)
+    Ok(written)
 }

@@ -8,8 +8,8 @@ use super::{ConfigError, err};
 use crate::eikonal::Bounds;
 use crate::medium::{PhaseFunction, Scattering};
 use crate::rrte::{
-    Camera, Connections, Light, Modulation, Probe, RenderScene, Sensor, SensorKind, Transient,
-    Volume,
+    Camera, Connections, Density, Dispersion, Light, Material, Modulation, Probe, RenderScene,
+    Sensor, SensorKind, Spectrum, Surface, Transient, Volume,
 };
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -24,14 +24,24 @@ pub struct RenderConfig {
     /// Bulk scattering inside the field's bounds (absent: a clear volume).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub medium: Option<MediumConfig>,
+    /// A density on a grid scaling the medium's coefficients (absent: homogeneous).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub density: Option<DensityConfig>,
     pub light: LightConfig,
     #[serde(default)]
     pub sensor: Vec<SensorConfig>,
+    /// Diffuse or black surfaces outside the volume (a floor, walls).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub surface: Vec<SurfaceConfig>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub transient: Option<TransientConfig>,
     /// How the ultrasonic profiles' amplitudes change in time (absent: static).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub modulation: Option<ModulationConfig>,
+    /// Each photon's vacuum wavelength and the dispersion of the indices (absent: one unnamed
+    /// wavelength, the field as given, one-channel images).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub spectrum: Option<SpectrumConfig>,
     #[serde(default)]
     pub render: RenderSettings,
 }
@@ -136,6 +146,245 @@ pub enum ModulationConfig {
     Sinusoidal {},
     /// Light pulsed in step with the ultrasound: the field frozen at `phase_deg` (90: the peak).
     Strobed { phase_deg: f64 },
+}
+
+/// `[[surface]]`: a Lambertian plane or rectangle outside the volume reflecting `albedo` of the
+/// light reaching it (0: black), on both sides.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SurfaceConfig {
+    pub name: String,
+    pub center: [f64; 3],
+    pub normal: [f64; 3],
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub size: Option<[f64; 2]>,
+    pub albedo: f64,
+}
+
+/// `[density]`: samples of `ρ(x)` on a regular grid (x fastest), interpolated trilinearly (default)
+/// or tricubically, scaling `σ_s` and `σ_a` of `[medium]`.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct DensityConfig {
+    pub dims: [u64; 3],
+    pub origin: [f64; 3],
+    pub spacing: f64,
+    pub values: Vec<f64>,
+    #[serde(default = "trilinear")]
+    pub interp: String,
+}
+
+fn trilinear() -> String {
+    "trilinear".into()
+}
+
+impl DensityConfig {
+    fn build(&self, field: &crate::eikonal::BoundedField) -> Result<Density, ConfigError> {
+        let grid = match super::trace::grid_profile(
+            "density",
+            self.dims,
+            self.origin,
+            self.spacing,
+            self.values.clone(),
+            &self.interp,
+        )? {
+            crate::eikonal::Profile::Grid(g) => g,
+            _ => unreachable!("grid_profile builds grids"),
+        };
+        // the grid must cover the volume (outside it the edge values would be repeated silently)
+        if let Some(half) = field.bounds.half_extent() {
+            let lo = grid.origin;
+            let hi = lo
+                + DVec3::new(
+                    (grid.dims[0] - 1) as f64,
+                    (grid.dims[1] - 1) as f64,
+                    (grid.dims[2] - 1) as f64,
+                ) * grid.spacing;
+            let slack = 1e-9 * half.max_element();
+            if (lo - (-half)).max_element() > slack || (half - hi).max_element() > slack {
+                return err(format!(
+                    "density: the grid spans {:?} to {:?}, which does not cover the volume's bounds ±{:?} (field.bounds)",
+                    lo.to_array(),
+                    hi.to_array(),
+                    half.to_array()
+                ));
+            }
+        }
+        Density::new(grid).map_err(|e| ConfigError(format!("density.values: {e}")))
+    }
+}
+
+/// `[spectrum]`: white light over `range_nm` (RGB images) or one line `wavelength_nm`; the field
+/// and `n_out` are given at `reference_nm` and follow the materials named in `inside` (one, or
+/// two mixed in place) and `outside`.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SpectrumConfig {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub range_nm: Option<[f64; 2]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub wavelength_nm: Option<f64>,
+    #[serde(default = "default_reference_nm")]
+    pub reference_nm: f64,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub inside: Vec<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub outside: Option<String>,
+    /// Materials beyond the catalogue, by name.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub material: Vec<MaterialConfig>,
+}
+
+/// The helium d line, where glass catalogues quote `n_d`.
+fn default_reference_nm() -> f64 {
+    587.56
+}
+
+/// `[[spectrum.material]]`: a dispersion formula (wavelength in µm, as catalogues quote them).
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum MaterialConfig {
+    /// `n = a + b/λ² + c/λ⁴`.
+    Cauchy {
+        name: String,
+        a: f64,
+        #[serde(default)]
+        b: f64,
+        #[serde(default)]
+        c: f64,
+    },
+    /// `n² = 1 + Σ b_i λ²/(λ² − c_i)`.
+    Sellmeier {
+        name: String,
+        b: Vec<f64>,
+        c: Vec<f64>,
+    },
+}
+
+impl SpectrumConfig {
+    fn build(&self) -> Result<Spectrum, ConfigError> {
+        let range = match (self.range_nm, self.wavelength_nm) {
+            (Some(_), Some(_)) => {
+                return err(
+                    "spectrum: range_nm (white light, RGB images) and wavelength_nm (one line) exclude each other",
+                );
+            }
+            (None, Some(l)) => {
+                if !(200.0..=20_000.0).contains(&l) {
+                    return err(format!(
+                        "spectrum.wavelength_nm = {l}: must be within [200, 20000] nm"
+                    ));
+                }
+                [l, l]
+            }
+            (Some([lo, hi]), None) => {
+                if !(360.0 <= lo && lo < hi && hi <= 830.0) {
+                    return err(format!(
+                        "spectrum.range_nm = [{lo}, {hi}]: must be an increasing range within [360, 830] nm (where the eye's colour matching functions are defined)"
+                    ));
+                }
+                [lo, hi]
+            }
+            (None, None) => [380.0, 780.0],
+        };
+        let reference = self.reference_nm;
+        if !(200.0..=20_000.0).contains(&reference) {
+            return err(format!(
+                "spectrum.reference_nm = {reference}: must be within [200, 20000] nm"
+            ));
+        }
+        let mut custom = Vec::new();
+        for (i, m) in self.material.iter().enumerate() {
+            let key = format!("spectrum.material[{i}]");
+            let (name, material) = match m {
+                MaterialConfig::Cauchy { name, a, b, c } => {
+                    if ![a, b, c].iter().all(|v| v.is_finite()) {
+                        return err(format!("{key}: a, b and c must be finite"));
+                    }
+                    (
+                        name,
+                        Material::Cauchy {
+                            a: *a,
+                            b: *b,
+                            c: *c,
+                        },
+                    )
+                }
+                MaterialConfig::Sellmeier { name, b, c } => {
+                    if b.len() != c.len() || !(1..=6).contains(&b.len()) {
+                        return err(format!(
+                            "{key}: b has {} terms and c {}: they must pair up, 1 to 6 terms",
+                            b.len(),
+                            c.len()
+                        ));
+                    }
+                    if !b.iter().chain(c).all(|v| v.is_finite()) {
+                        return err(format!("{key}: b and c must be finite"));
+                    }
+                    let terms = b.iter().copied().zip(c.iter().copied()).collect();
+                    (name, Material::Sellmeier { terms })
+                }
+            };
+            check_name(&format!("{key}.name"), name)?;
+            if custom.iter().any(|(n, _)| n == name) {
+                return err(format!("{key}.name = \"{name}\": defined twice"));
+            }
+            custom.push((name.clone(), material));
+        }
+        // a material by name, its index checked over the wavelengths photons will carry
+        let material = |key: &str, name: &str| -> Result<Material, ConfigError> {
+            let m = custom
+                .iter()
+                .find(|(n, _)| n == name)
+                .map(|(_, m)| m.clone())
+                .or_else(|| Material::named(name));
+            let Some(m) = m else {
+                let mut known: Vec<&str> = Material::NAMES.to_vec();
+                known.extend(custom.iter().map(|(n, _)| n.as_str()));
+                return err(format!(
+                    "{key} = \"{name}\": no such material; known: {} (or define it in [[spectrum.material]])",
+                    known.join(", ")
+                ));
+            };
+            let nodes = (0..=64).map(|k| range[0] + (range[1] - range[0]) * k as f64 / 64.0);
+            for l in nodes.chain([reference]) {
+                let n = m.index(l);
+                if !(n > 0.0 && n <= 10.0) {
+                    return err(format!(
+                        "{key} = \"{name}\": its index at {l:.1} nm is {n}: it must be a real index within (0, 10] over spectrum.range_nm and at reference_nm"
+                    ));
+                }
+            }
+            Ok(m)
+        };
+        let inside = match self.inside.as_slice() {
+            [] => None,
+            [one] => Some(Dispersion::Scaled(material("spectrum.inside[0]", one)?)),
+            [first, second] => {
+                let (m1, m2) = (
+                    material("spectrum.inside[0]", first)?,
+                    material("spectrum.inside[1]", second)?,
+                );
+                if (m1.index(reference) - m2.index(reference)).abs() < 1e-6 {
+                    return err(format!(
+                        "spectrum.inside = [\"{first}\", \"{second}\"]: the two materials have the same index at reference_nm, so the field cannot say how they mix"
+                    ));
+                }
+                Some(Dispersion::Mixed(m1, m2))
+            }
+            more => {
+                return err(format!(
+                    "spectrum.inside names {} materials: one (the field scaled with it) or two (mixed in place)",
+                    more.len()
+                ));
+            }
+        };
+        let outside = match &self.outside {
+            Some(name) => Some(material("spectrum.outside", name)?),
+            None => None,
+        };
+        Ok(Spectrum::new(range, reference, inside, outside))
+    }
 }
 
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
@@ -285,11 +534,21 @@ impl RenderConfig {
                 bulk
             }
         };
+        let density = match &self.density {
+            None => None,
+            Some(_) if self.medium.is_none() => {
+                return err(
+                    "density: the volume has no [medium] whose coefficients it could scale",
+                );
+            }
+            Some(d) => Some(d.build(&field)?),
+        };
         let volume = Volume {
             field,
             sigma_s,
             sigma_a,
             scattering,
+            density,
         };
         let light = self.light()?;
         if self.sensor.len() > MAX_SENSORS {
@@ -311,7 +570,7 @@ impl RenderConfig {
                 | SensorConfig::Camera { name, .. }
                 | SensorConfig::Pinhole { name, .. } => name,
             };
-            check_name(i, name)?;
+            check_name(&format!("sensor[{i}].name"), name)?;
             if names.contains(&name.as_str()) {
                 return err(format!(
                     "sensor[{i}].name = {name:?}: another sensor has this name"
@@ -392,6 +651,23 @@ impl RenderConfig {
                 sensors.push(sensor(i, s, &volume)?);
             }
         }
+        if self.surface.len() > MAX_SENSORS {
+            return err(format!(
+                "surface: {} surfaces; at most {MAX_SENSORS}",
+                self.surface.len()
+            ));
+        }
+        let mut surfaces: Vec<Surface> = Vec::with_capacity(self.surface.len());
+        for (i, s) in self.surface.iter().enumerate() {
+            let made = surface(i, s, &volume)?;
+            if surfaces.iter().any(|o| o.name == made.name) {
+                return err(format!(
+                    "surface[{i}].name = \"{}\": two surfaces share it",
+                    made.name
+                ));
+            }
+            surfaces.push(made);
+        }
         let transient = match &self.transient {
             None => None,
             Some(t) => {
@@ -428,12 +704,14 @@ impl RenderConfig {
             probes,
             cameras,
             pinholes,
+            surfaces,
             modulation,
             connections: match r.connections {
                 ConnectionsConfig::Unbiased => Connections::Unbiased,
                 ConnectionsConfig::First => Connections::First,
             },
             transient,
+            spectrum: self.spectrum.as_ref().map(|s| s.build()).transpose()?,
             step,
             max_steps: r.max_steps as usize,
         };
@@ -552,17 +830,13 @@ fn sensor(i: usize, s: &SensorConfig, volume: &Volume) -> Result<Sensor, ConfigE
             ));
         }
     }
-    // the volume lies within x·n ≤ h(n) and x·n ≥ −h(−n): the plane must not cut it
-    let offset = center.dot(normal);
-    let (h_plus, h_minus) = (volume.support(normal), volume.support(-normal));
-    let slack = 1e-9 * (1.0 + offset.abs());
-    if offset < h_plus - slack && offset > -h_minus + slack {
-        return err(format!(
-            "{} = {:?}: the sensor's plane cuts through the volume; sensors record light after it leaves, so place the plane outside the field's bounds or on a face",
-            key("center"),
-            center.to_array()
-        ));
-    }
+    outside_volume(
+        &key("center"),
+        center,
+        normal,
+        volume,
+        "sensors record light after it leaves",
+    )?;
     let mut sensor = Sensor::new(
         name.clone(),
         kind,
@@ -573,6 +847,61 @@ fn sensor(i: usize, s: &SensorConfig, volume: &Volume) -> Result<Sensor, ConfigE
     );
     sensor.acceptance = acceptance;
     Ok(sensor)
+}
+
+/// Refuse a plane through `center` with unit `normal` that cuts the volume (`why` it must not).
+fn outside_volume(
+    key: &str,
+    center: DVec3,
+    normal: DVec3,
+    volume: &Volume,
+    why: &str,
+) -> Result<(), ConfigError> {
+    // the volume lies within x·n ≤ h(n) and x·n ≥ −h(−n)
+    let offset = center.dot(normal);
+    let (h_plus, h_minus) = (volume.support(normal), volume.support(-normal));
+    let slack = 1e-9 * (1.0 + offset.abs());
+    if offset < h_plus - slack && offset > -h_minus + slack {
+        return err(format!(
+            "{key} = {:?}: the plane cuts through the volume; {why}, so place it outside the field's bounds or on a face",
+            center.to_array()
+        ));
+    }
+    Ok(())
+}
+
+/// A surface from its keys.
+fn surface(i: usize, s: &SurfaceConfig, volume: &Volume) -> Result<Surface, ConfigError> {
+    let key = |k: &str| format!("surface[{i}].{k}");
+    check_name(&key("name"), &s.name)?;
+    let center = finite(&key("center"), s.center)?;
+    let normal = unit(&key("normal"), s.normal)?;
+    if let Some(size) = s.size {
+        for (a, v) in size.iter().enumerate() {
+            positive(&key(&format!("size[{a}]")), *v)?;
+        }
+    }
+    if !(0.0..=1.0).contains(&s.albedo) {
+        return err(format!(
+            "{} = {}: must be within [0, 1] (0: black)",
+            key("albedo"),
+            s.albedo
+        ));
+    }
+    outside_volume(
+        &key("center"),
+        center,
+        normal,
+        volume,
+        "surfaces lie outside the volume",
+    )?;
+    Ok(Surface::new(
+        s.name.clone(),
+        center,
+        normal,
+        s.size,
+        s.albedo,
+    ))
 }
 
 /// A sensor's pixel counts.
@@ -588,7 +917,7 @@ fn check_pixels(i: usize, pixels: [u64; 2]) -> Result<[usize; 2], ConfigError> {
 }
 
 /// A sensor's name: it names files.
-fn check_name(i: usize, name: &str) -> Result<(), ConfigError> {
+fn check_name(key: &str, name: &str) -> Result<(), ConfigError> {
     let ok = !name.is_empty()
         && name.len() <= 64
         && name
@@ -598,7 +927,7 @@ fn check_name(i: usize, name: &str) -> Result<(), ConfigError> {
         Ok(())
     } else {
         err(format!(
-            "sensor[{i}].name = {name:?}: use 1 to 64 letters, digits, '_' or '-' (it names the sensor's files)"
+            "{key} = {name:?}: use 1 to 64 letters, digits, '_' or '-'"
         ))
     }
 }

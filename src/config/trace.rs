@@ -59,6 +59,11 @@ pub enum ProfileConfig {
         n0: f64,
         coefficients: Vec<f64>,
     },
+    /// `n = n0 + Σ_k c_k r^k` about the origin (`coefficients = [c1, c2, …]`).
+    SphericalPolynomial {
+        n0: f64,
+        coefficients: Vec<f64>,
+    },
     /// `n = n0 + n_max J_m(k_r r) cos(m φ)` (paper 002, Eq. 15).
     Ultrasonic {
         n0: f64,
@@ -254,21 +259,17 @@ impl FieldConfig {
                 ProfileConfig::RadialPolynomial {
                     n0,
                     ref coefficients,
-                } => {
-                    if let Some(c) = coefficients.iter().find(|c| !c.is_finite()) {
-                        return err(format!("{k}.coefficients: {c} is not a finite number"));
-                    }
-                    if coefficients.len() > 16 {
-                        return err(format!(
-                            "{k}.coefficients: {} given, at most 16",
-                            coefficients.len()
-                        ));
-                    }
-                    Profile::RadialPolynomial {
-                        n0: pos(&format!("{k}.n0"), n0)?,
-                        coefficients: coefficients.clone(),
-                    }
-                }
+                } => Profile::RadialPolynomial {
+                    n0: pos(&format!("{k}.n0"), n0)?,
+                    coefficients: polynomial(&k, coefficients)?,
+                },
+                ProfileConfig::SphericalPolynomial {
+                    n0,
+                    ref coefficients,
+                } => Profile::SphericalPolynomial {
+                    n0: pos(&format!("{k}.n0"), n0)?,
+                    coefficients: polynomial(&k, coefficients)?,
+                },
                 ProfileConfig::Grid {
                     dims,
                     origin,
@@ -322,13 +323,29 @@ impl FieldConfig {
             profiles,
             bounds,
             n_out: pos("field.n_out", f.n_out)?,
+            scale: 1.0,
+            offset: 0.0,
         };
         Ok(field)
     }
 }
 
+/// A polynomial profile's coefficients, checked: finite, at most 16.
+fn polynomial(key: &str, coefficients: &[f64]) -> Result<Vec<f64>, ConfigError> {
+    if let Some(c) = coefficients.iter().find(|c| !c.is_finite()) {
+        return err(format!("{key}.coefficients: {c} is not a finite number"));
+    }
+    if coefficients.len() > 16 {
+        return err(format!(
+            "{key}.coefficients: {} given, at most 16",
+            coefficients.len()
+        ));
+    }
+    Ok(coefficients.to_vec())
+}
+
 /// A grid profile from its keys (`key` names it in messages).
-fn grid_profile(
+pub(crate) fn grid_profile(
     key: &str,
     dims: [u64; 3],
     origin: [f64; 3],

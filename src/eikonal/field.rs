@@ -50,6 +50,13 @@ pub enum Profile {
         n0: f64,
         coefficients: Vec<f64>,
     },
+    /// Spherically symmetric polynomial `n = n0 + Σ_k c_k r^k` (`k = 1, 2, …`, `r` the distance from
+    /// the origin): `c1 = (n_s − n_c)/R` mixes two glasses linearly from centre to surface, as the
+    /// heterogeneous crown/flint sphere of paper 002 (Sec. 7.1).
+    SphericalPolynomial {
+        n0: f64,
+        coefficients: Vec<f64>,
+    },
     /// Ultrasonically sculpted index `n = n0 + n_max J_m(k_r r) cos(m φ)` (paper 002, Eq. 15; `r`, `φ`
     /// cylindrical about the z axis; the time factor `sin Ωt` folded into `n_max`).
     Ultrasonic {
@@ -87,6 +94,7 @@ impl Profile {
             Profile::SechFibre { .. } => "sech_fibre",
             Profile::Ultrasonic { .. } => "ultrasonic",
             Profile::RadialPolynomial { .. } => "radial_polynomial",
+            Profile::SphericalPolynomial { .. } => "spherical_polynomial",
             Profile::Grid(_) => "grid",
         }
     }
@@ -136,6 +144,29 @@ impl Profile {
                     (qm2, qm1) = (qm1, qm1 * q);
                 }
                 quadratic((f, f1, f2), DVec3::new(1.0, 1.0, 0.0), x)
+            }
+            Profile::SphericalPolynomial {
+                n0,
+                ref coefficients,
+            } => {
+                let r = x.length();
+                let (mut f, mut f1, mut f2) = (n0, 0.0, 0.0);
+                // r^{k-2}, r^{k-1} as k runs up (r^{-1} never used: its factor k − 1 is 0)
+                let (mut rm2, mut rm1) = (0.0, 1.0);
+                for (i, c) in coefficients.iter().enumerate() {
+                    let k = (i + 1) as f64;
+                    f += c * rm1 * r;
+                    f1 += k * c * rm1;
+                    f2 += k * (k - 1.0) * c * rm2;
+                    (rm2, rm1) = (rm1, rm1 * r);
+                }
+                if r < 1e-12 {
+                    // the centre: smooth when c1 = 0 (∇²n → 2 c2 I); a cone point otherwise
+                    return (n0, DVec3::ZERO, DMat3::from_diagonal(DVec3::splat(f2)));
+                }
+                let e = x / r;
+                let perp = DMat3::IDENTITY - outer(e, e);
+                (f, e * f1, outer(e, e) * f2 + perp * (f1 / r))
             }
             Profile::SechFibre { n0, alpha } => {
                 let rho = (x.x * x.x + x.y * x.y).sqrt();
@@ -284,15 +315,26 @@ pub struct BoundedField {
     pub profiles: Vec<Profile>,
     pub bounds: Bounds,
     pub n_out: f64,
+    /// Inside, `n = offset + scale · Σ profiles`: 1 and 0 except in a dispersive render, which
+    /// maps the field given at a reference wavelength to each photon's wavelength (the parameter
+    /// derivatives of [`Profile::dparam`] are of the profiles alone).
+    pub scale: f64,
+    pub offset: f64,
 }
 
 impl BoundedField {
-    pub fn single(profile: Profile, bounds: Bounds, n_out: f64) -> Self {
+    pub fn new(profiles: Vec<Profile>, bounds: Bounds, n_out: f64) -> Self {
         BoundedField {
-            profiles: vec![profile],
+            profiles,
             bounds,
             n_out,
+            scale: 1.0,
+            offset: 0.0,
         }
+    }
+
+    pub fn single(profile: Profile, bounds: Bounds, n_out: f64) -> Self {
+        Self::new(vec![profile], bounds, n_out)
     }
 
     /// The work of one evaluation of `(n, ∇n, ∇²n)` inside the bounds, in evaluations of a
@@ -324,32 +366,39 @@ impl IndexField for BoundedField {
         if !self.bounds.contains(x) {
             return self.n_out;
         }
-        self.profiles.iter().map(|p| p.eval(x).0).sum()
+        self.offset + self.scale * self.profiles.iter().map(|p| p.eval(x).0).sum::<f64>()
     }
     fn grad(&self, x: DVec3) -> DVec3 {
         if !self.bounds.contains(x) {
             return DVec3::ZERO;
         }
-        self.profiles.iter().map(|p| p.eval(x).1).sum()
+        self.scale * self.profiles.iter().map(|p| p.eval(x).1).sum::<DVec3>()
     }
     fn hessian(&self, x: DVec3) -> DMat3 {
         if !self.bounds.contains(x) {
             return DMat3::ZERO;
         }
-        self.profiles
-            .iter()
-            .fold(DMat3::ZERO, |acc, p| acc + p.eval(x).2)
+        self.scale
+            * self
+                .profiles
+                .iter()
+                .fold(DMat3::ZERO, |acc, p| acc + p.eval(x).2)
     }
     fn eval(&self, x: DVec3) -> (f64, DVec3, DMat3) {
         if !self.bounds.contains(x) {
             return (self.n_out, DVec3::ZERO, DMat3::ZERO);
         }
-        self.profiles
-            .iter()
-            .fold((0.0, DVec3::ZERO, DMat3::ZERO), |(n, g, h), p| {
-                let (pn, pg, ph) = p.eval(x);
-                (n + pn, g + pg, h + ph)
-            })
+        let (n, g, h) =
+            self.profiles
+                .iter()
+                .fold((0.0, DVec3::ZERO, DMat3::ZERO), |(n, g, h), p| {
+                    let (pn, pg, ph) = p.eval(x);
+                    (n + pn, g + pg, h + ph)
+                });
+        if self.scale == 1.0 && self.offset == 0.0 {
+            return (n, g, h);
+        }
+        (self.offset + self.scale * n, g * self.scale, h * self.scale)
     }
 }
 
@@ -369,10 +418,13 @@ impl Profile {
             (Profile::ParabolicFibre { alpha, .. }, 1) | (Profile::SechFibre { alpha, .. }, 1) => {
                 Some(alpha)
             }
-            (Profile::Ultrasonic { n0, .. }, 0) | (Profile::RadialPolynomial { n0, .. }, 0) => {
-                Some(n0)
-            }
-            (Profile::RadialPolynomial { coefficients, .. }, k) if k >= 1 => {
+            (Profile::Ultrasonic { n0, .. }, 0)
+            | (Profile::RadialPolynomial { n0, .. }, 0)
+            | (Profile::SphericalPolynomial { n0, .. }, 0) => Some(n0),
+            (Profile::RadialPolynomial { coefficients, .. }, k)
+            | (Profile::SphericalPolynomial { coefficients, .. }, k)
+                if k >= 1 =>
+            {
                 coefficients.get_mut(k - 1)
             }
             (Profile::Ultrasonic { n_max, .. }, 1) => Some(n_max),
@@ -390,7 +442,8 @@ impl Profile {
             Profile::Luneburg { .. } | Profile::MaxwellFishEye { .. } => &["radius"],
             Profile::ParabolicFibre { .. } | Profile::SechFibre { .. } => &["n0", "alpha"],
             Profile::Ultrasonic { .. } => &["n0", "n_max", "k_r"],
-            Profile::RadialPolynomial { coefficients, .. } => {
+            Profile::RadialPolynomial { coefficients, .. }
+            | Profile::SphericalPolynomial { coefficients, .. } => {
                 return match name {
                     "n0" => Some(0),
                     _ => name
@@ -409,7 +462,8 @@ impl Profile {
     /// `(∂n/∂θ, ∇(∂n/∂θ))` for analytic parameter `which` of this profile, or `None` if not
     /// differentiable here. Parameters: Constant `[n]`; Linear `[n0, gx, gy, gz]`; Luneburg `[R]`;
     /// Maxwell fish-eye `[R]`; parabolic and sech fibres `[n0, α]`; ultrasonic
-    /// `[n0, n_max, k_r]`; radial polynomial `[n0, c1, c2, …]`; grid: coefficient index.
+    /// `[n0, n_max, k_r]`; radial and spherical polynomials `[n0, c1, c2, …]`; grid: coefficient
+    /// index.
     pub fn dparam(&self, x: DVec3, which: usize) -> Option<(f64, DVec3)> {
         let eval = || self.eval(x);
         match (self, which) {
@@ -443,8 +497,18 @@ impl Profile {
                 Some((n / n0, grad / *n0))
             }
             (Profile::Grid(g), k) if k < g.coef.len() => Some(g.dcoef(x, k)),
-            (Profile::Ultrasonic { .. }, 0) | (Profile::RadialPolynomial { .. }, 0) => {
-                Some((1.0, DVec3::ZERO))
+            (Profile::Ultrasonic { .. }, 0)
+            | (Profile::RadialPolynomial { .. }, 0)
+            | (Profile::SphericalPolynomial { .. }, 0) => Some((1.0, DVec3::ZERO)),
+            (Profile::SphericalPolynomial { coefficients, .. }, k) if k <= coefficients.len() => {
+                // ∂n/∂c_k = r^k, ∇ = k r^{k−2} x (0 at the centre)
+                let r = x.length();
+                let g = if r > 0.0 {
+                    k as f64 * r.powi(k as i32 - 2)
+                } else {
+                    0.0
+                };
+                Some((r.powi(k as i32), x * g))
             }
             (Profile::RadialPolynomial { coefficients, .. }, k) if k <= coefficients.len() => {
                 // ∂n/∂c_k = ρ^{2k}, ∇ = 2k ρ^{2k−2} (x, y, 0)
@@ -521,6 +585,10 @@ mod tests {
             Profile::RadialPolynomial {
                 n0: 1.5,
                 coefficients: vec![-0.2, 0.05, -0.01],
+            },
+            Profile::SphericalPolynomial {
+                n0: 1.62,
+                coefficients: vec![-0.1, 0.04, -0.02],
             },
         ]
     }

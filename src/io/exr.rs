@@ -13,7 +13,6 @@ pub fn write_fields(
     width: usize,
     height: usize,
 ) -> crate::Result<Vec<std::path::PathBuf>> {
-    use exr::prelude::*;
     let views = width * height;
     let mut files = Vec::new();
     let stem = path
@@ -23,20 +22,15 @@ pub fn write_fields(
     for l in 0..lights {
         let file = path.with_file_name(format!("{stem}_l{l}.exr"));
         let field = &u[l * views..(l + 1) * views];
-        let pixels = SpecificChannels::build()
-            .with_channel("I")
-            .with_channel("im")
-            .with_channel("re")
-            .with_pixel_fn(|p: Vec2<usize>| {
-                let z = field[p.y() * width + p.x()];
-                (z.norm_sqr() as f32, z.im as f32, z.re as f32)
-            });
-        let mut bytes = std::io::Cursor::new(Vec::new());
-        Image::from_channels((width, height), pixels)
-            .write()
-            .to_buffered(&mut bytes)
-            .map_err(|e| crate::Error::input(format!("{}: {e}", file.display())))?;
-        write_file(&file, bytes.get_ref())?;
+        let re: Vec<f64> = field.iter().map(|z| z.re).collect();
+        let im: Vec<f64> = field.iter().map(|z| z.im).collect();
+        let intensity: Vec<f64> = field.iter().map(|z| z.norm_sqr()).collect();
+        write_planes(
+            &file,
+            &[("I", &intensity), ("im", &im), ("re", &re)],
+            width,
+            height,
+        )?;
         files.push(file);
     }
     Ok(files)
@@ -50,16 +44,7 @@ pub fn write_scalar(
     height: usize,
     name: &str,
 ) -> crate::Result<()> {
-    use exr::prelude::*;
-    let pixels = SpecificChannels::build()
-        .with_channel(name)
-        .with_pixel_fn(|p: Vec2<usize>| (values[p.y() * width + p.x()] as f32,));
-    let mut bytes = std::io::Cursor::new(Vec::new());
-    Image::from_channels((width, height), pixels)
-        .write()
-        .to_buffered(&mut bytes)
-        .map_err(|e| crate::Error::input(format!("{}: {e}", path.display())))?;
-    write_file(path, bytes.get_ref())
+    write_planes(path, &[(name, values)], width, height)
 }
 
 /// Write a `width × height` image (row-major) with its per-pixel standard error: channels `Y`
@@ -71,16 +56,33 @@ pub fn write_with_error(
     width: usize,
     height: usize,
 ) -> crate::Result<()> {
+    write_planes(path, &[("Y", values), ("stderr", stderr)], width, height)
+}
+
+/// Write named `width × height` planes (row-major, 32-bit float channels; rows from the bottom
+/// as the values run) into one EXR file.
+pub fn write_planes(
+    path: &Path,
+    planes: &[(&str, &[f64])],
+    width: usize,
+    height: usize,
+) -> crate::Result<()> {
     use exr::prelude::*;
-    let pixels = SpecificChannels::build()
-        .with_channel("Y")
-        .with_channel("stderr")
-        .with_pixel_fn(|p: Vec2<usize>| {
-            let i = p.y() * width + p.x();
-            (values[i] as f32, stderr[i] as f32)
-        });
+    let list = planes
+        .iter()
+        .map(|(name, v)| {
+            let samples = (0..width * height).map(|i| v[i] as f32).collect();
+            AnyChannel::new(*name, FlatSamples::F32(samples))
+        })
+        .collect::<Vec<_>>();
+    let layer = Layer::new(
+        (width, height),
+        LayerAttributes::default(),
+        Encoding::default(),
+        AnyChannels::sort(SmallVec::from_vec(list)),
+    );
     let mut bytes = std::io::Cursor::new(Vec::new());
-    Image::from_channels((width, height), pixels)
+    Image::from_layer(layer)
         .write()
         .to_buffered(&mut bytes)
         .map_err(|e| crate::Error::input(format!("{}: {e}", path.display())))?;

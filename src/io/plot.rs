@@ -33,8 +33,8 @@ fn register_font() {
     });
 }
 
-/// Heat maps side by side, one per panel title, values in `[0, 1]` (row-major `ny × nx`), with
-/// a grey scale from black (0) to white (1).
+/// Heat maps side by side, one per panel title, values in `[0, 1]` (row-major `ny × nx`, row 0 at
+/// the bottom), with a grey scale from black (0) to white (1).
 pub fn heat_maps(
     path: &Path,
     title: &str,
@@ -42,27 +42,68 @@ pub fn heat_maps(
     nx: usize,
     ny: usize,
 ) -> crate::Result<()> {
+    let names: Vec<&str> = panels.iter().map(|(n, _)| n.as_str()).collect();
+    pixel_panels(path, title, &names, nx, ny, |p, i| {
+        let g = (255.0 * panels[p].1[i].clamp(0.0, 1.0)) as u8;
+        RGBColor(g, g, g)
+    })
+}
+
+/// One colour image, linear values in `[0, 1]` per channel (row-major `ny × nx`, row 0 at the
+/// bottom), encoded with
+/// the sRGB transfer curve.
+pub fn colour_image(
+    path: &Path,
+    title: &str,
+    name: &str,
+    rgb: &[[f64; 3]],
+    nx: usize,
+    ny: usize,
+) -> crate::Result<()> {
+    let encode = |v: f64| {
+        let v = v.clamp(0.0, 1.0);
+        let s = if v <= 0.0031308 {
+            12.92 * v
+        } else {
+            1.055 * v.powf(1.0 / 2.4) - 0.055
+        };
+        (255.0 * s).round() as u8
+    };
+    pixel_panels(path, title, &[name], nx, ny, |_, i| {
+        let [r, g, b] = rgb[i].map(encode);
+        RGBColor(r, g, b)
+    })
+}
+
+/// Panels of `nx × ny` pixels side by side, pixel `i` of panel `p` coloured `colour(p, i)`.
+fn pixel_panels(
+    path: &Path,
+    title: &str,
+    names: &[&str],
+    nx: usize,
+    ny: usize,
+    colour: impl Fn(usize, usize) -> RGBColor,
+) -> crate::Result<()> {
     register_font();
     let e = |e: &dyn std::fmt::Display| e.to_string();
     let side = 260u32;
-    let width = side * panels.len().max(1) as u32 + 20;
+    let width = side * names.len().max(1) as u32 + 20;
     let staged = crate::io::staging_name(path);
     let root = BitMapBackend::new(&staged, (width, side + 70)).into_drawing_area();
     root.fill(&WHITE).map_err(|x| e(&x))?;
     let root = root.titled(title, ("sans-serif", 20)).map_err(|x| e(&x))?;
-    let areas = root.split_evenly((1, panels.len().max(1)));
-    for ((name, values), area) in panels.iter().zip(areas) {
+    let areas = root.split_evenly((1, names.len().max(1)));
+    for (p, (name, area)) in names.iter().zip(areas).enumerate() {
         let mut chart = ChartBuilder::on(&area)
-            .caption(name, ("sans-serif", 15))
+            .caption(*name, ("sans-serif", 15))
             .margin(8)
             .build_cartesian_2d(0..nx, 0..ny)
             .map_err(|x| e(&x))?;
+        let colour = &colour;
         chart
             .draw_series((0..ny).flat_map(|y| {
                 (0..nx).map(move |x| {
-                    let v = values[y * nx + x].clamp(0.0, 1.0);
-                    let g = (255.0 * v) as u8;
-                    Rectangle::new([(x, y), (x + 1, y + 1)], RGBColor(g, g, g).filled())
+                    Rectangle::new([(x, y), (x + 1, y + 1)], colour(p, y * nx + x).filled())
                 })
             }))
             .map_err(|x| e(&x))?;

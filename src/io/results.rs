@@ -758,6 +758,17 @@ pub struct SensorRecord {
     pub files: Vec<String>,
 }
 
+/// A diffuse or black surface of a render: the power reaching it and what it absorbed.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct SurfaceRecord {
+    pub name: String,
+    pub albedo: f64,
+    /// Fraction of the emitted power reaching the surface (each bounce counted).
+    pub incident: Measured,
+    /// `(1 − albedo)` of it.
+    pub absorbed: Measured,
+}
+
 /// A fluence-rate probe of a render: power per unit area per unit emitted power.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct ProbeRecord {
@@ -834,9 +845,18 @@ pub struct RenderFile {
     pub probes: Vec<ProbeRecord>,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub cameras: Vec<CameraRecord>,
+    /// The channels of screen and camera images: `["Y"]`, or `["R", "G", "B"]` (linear sRGB,
+    /// white-balanced to the light) with a white `[spectrum]`.
+    #[serde(default)]
+    pub channels: Vec<String>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub surfaces: Vec<SurfaceRecord>,
     /// Absorbed inside the volume, left it (seen by a sensor or not), and given up (trapped past
     /// the step budget): they add up to 1 within their errors.
     pub absorbed: Measured,
+    /// Absorbed by the surfaces (with surfaces: the four add up to 1).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub absorbed_by_surfaces: Option<Measured>,
     pub escaped: Measured,
     pub unfinished: Measured,
     pub statistics: RenderStatistics,

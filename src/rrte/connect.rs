@@ -589,6 +589,7 @@ mod tests {
             sigma_s: 0.0,
             sigma_a: 0.0,
             scattering: Scattering::single(PhaseFunction::Isotropic),
+            density: None,
         }
     }
 

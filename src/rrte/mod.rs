@@ -1,23 +1,26 @@
 //! Refractive radiative transfer (paper 002): light that scatters *and* bends. A volume with an
-//! index field `n(x)` (any [`crate::eikonal`] profile or grid) and homogeneous scattering, bounded
-//! by a sphere, box or cylinder with a smooth dielectric surface (Fresnel reflection and refraction,
-//! total internal reflection); lights outside or inside it; sensors outside it and fluence probes
-//! inside it.
+//! index field `n(x)` (any [`crate::eikonal`] profile or grid, dispersive if asked) and scattering
+//! (homogeneous or scaled by a density grid), bounded by a sphere, box or cylinder with a smooth
+//! dielectric surface (Fresnel reflection and refraction, total internal reflection); lights
+//! outside or inside it; sensors outside it and fluence probes inside it.
 //!
 //! - [`scene`]: the volume, lights, sensors and time-of-flight bins;
 //! - [`connect`]: point-to-point connections along curved rays (Sec. 4, Algs. 2–3);
 //! - [`flight`]: free flights over geometric length along curved rays (Eq. 5), Fresnel;
 //! - [`particle`]: particle (light) tracing as an engine estimator (results per emitted power),
 //!   with next-event connections to fluence probes and cameras, and ultrasonic fields met at a
-//!   random phase per photon.
+//!   random phase per photon;
+//! - [`spectrum`]: dispersive indices (Cauchy, Sellmeier, mixtures), wavelengths and colour.
 
 pub mod connect;
 pub mod flight;
 pub mod particle;
 pub mod scene;
+pub mod spectrum;
 
-pub use particle::{ParticleTracer, Total};
+pub use particle::{ImageLayout, ParticleTracer, Total};
 pub use scene::{
-    Camera, Connections, Light, Modulation, Pinhole, Probe, RenderScene, Sensor, SensorKind,
-    Transient, Volume,
+    Camera, Connections, Density, Light, Modulation, Pinhole, Probe, RenderScene, Sensor,
+    SensorKind, Surface, Transient, Volume,
 };
+pub use spectrum::{Dispersion, Material, Spectrum};

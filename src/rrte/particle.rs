@@ -2,12 +2,14 @@
 //!
 //! Photons leave the light with equal power, refract or reflect at the volume's surface with the
 //! Fresnel probabilities, fly along curved rays (free-flight lengths drawn over geometric length,
-//! paper 002 Eq. 5), scatter by the phase function with their weight times the albedo (the rest is
-//! tallied as absorbed), and play Russian roulette once their weight is small. A photon that leaves
-//! the volume travels straight and is recorded by every sensor plane it crosses, in the time bin of
-//! its optical path length (Eq. 14). Each output is a fraction of the emitted power, so flux sensors
-//! give total reflectance and transmittance, and `absorbed + escaped + unfinished = 1` in
-//! expectation (and exactly for each photon when no roulette is played).
+//! paper 002 Eq. 5; against the majorant in a heterogeneous medium, kept where the density says),
+//! scatter by the phase function with their weight times the albedo (the rest is tallied as
+//! absorbed), and play Russian roulette once their weight is small. A photon that leaves the
+//! volume travels straight to the next surface (diffusely reflected from there) or away, and is
+//! recorded by every sensor plane it crosses, in the time bin of its optical path length (Eq. 14).
+//! Each output is a fraction of the emitted power, so flux sensors give total reflectance and
+//! transmittance, and the power absorbed (in the volume and by surfaces), escaped and unfinished
+//! adds up to 1 in expectation (and exactly for each photon when no roulette is played).
 //!
 //! Flux is conserved along ray tubes, so a photon's power needs no `n²` factor; connections to
 //! probes and cameras carry the tube's exact cross-section (see [`super::connect`]), which is what
@@ -15,7 +17,7 @@
 
 use super::connect::{Connector, Sampled};
 use super::flight::{Flight, Flyer, fresnel, reflect};
-use super::scene::{Connections, Modulation, RenderScene, Volume};
+use super::scene::{Connections, Modulation, RenderScene, SensorKind, Volume};
 use crate::eikonal::Ray;
 use crate::eikonal::trace::refract;
 use crate::math::{C64, Rng, uniform};
@@ -31,7 +33,7 @@ pub const MAX_EVENTS: usize = 1_000_000;
 pub enum Total {
     /// Power absorbed inside the volume.
     Absorbed = 0,
-    /// Power that left the volume (recorded by a sensor or not).
+    /// Power that left the scene for good (recorded by a sensor or not).
     Escaped = 1,
     /// Power of photons given up: trapped beyond the step budget or [`MAX_EVENTS`].
     Unfinished = 2,
@@ -46,22 +48,73 @@ pub enum Total {
     Solves = 7,
     Iterations = 8,
     Distinct = 9,
+    /// Power absorbed by the surfaces.
+    SurfaceAbsorbed = 10,
 }
 
 /// How many totals follow the sensors.
-pub const TOTALS: usize = 10;
+pub const TOTALS: usize = 11;
 
-/// The integrators of one volume: free flights and connections.
+/// The integrators of one volume (free flights and connections), and the photon's weights in
+/// the colour channels (its wavelength's, see [`super::spectrum`]).
 struct Tools<'v> {
     flyer: Flyer<'v>,
     connector: Connector<'v>,
+    colour: [f64; 3],
 }
 
 impl<'v> Tools<'v> {
-    fn new(volume: &'v Volume, scene: &RenderScene) -> Self {
+    fn new(volume: &'v Volume, scene: &RenderScene, colour: [f64; 3]) -> Self {
         Tools {
             flyer: Flyer::new(volume, scene.step, scene.max_steps),
             connector: Connector::new(volume, scene.step, scene.max_steps),
+            colour,
+        }
+    }
+}
+
+/// Where an image lies among the outputs: after its total (`first − 1`), frame after frame (with
+/// time bins the time-integrated frame first, with its own errors: one photon can reach an image
+/// in several bins), each frame channel after channel, each channel a row-major image.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ImageLayout {
+    pub first: usize,
+    pub pixels: usize,
+    pub channels: usize,
+    /// Time bins (1: no transient, and no separate integrated frame).
+    pub bins: usize,
+}
+
+impl ImageLayout {
+    /// The first output of `channel` in time bin `bin`, or (`None`) in the time-integrated frame.
+    pub fn plane(&self, bin: Option<usize>, channel: usize) -> usize {
+        let frame = match bin {
+            None => 0,
+            Some(b) => b + usize::from(self.bins > 1),
+        };
+        self.first + (frame * self.channels + channel) * self.pixels
+    }
+
+    /// Outputs the image takes (its total not counted).
+    fn len(&self) -> usize {
+        let frames = self.bins + usize::from(self.bins > 1);
+        frames * self.channels * self.pixels
+    }
+
+    /// The output holding the image's total (all pixels, bins and no colour weights).
+    pub fn total(&self) -> usize {
+        self.first - 1
+    }
+
+    /// Add `value` (weighted by `colour` in each channel) to `pixel` in time bin `bin`, and to the
+    /// integrated frame.
+    fn add(&self, out: &mut [C64], bin: usize, pixel: usize, value: f64, colour: &[f64; 3]) {
+        for (c, w) in colour.iter().enumerate().take(self.channels) {
+            let v = if self.channels == 1 { value } else { value * w };
+            out[self.plane(Some(bin), c) + pixel].re += v;
+            if self.bins > 1 {
+                out[self.plane(None, c) + pixel].re += v;
+            }
         }
     }
 }
@@ -70,70 +123,87 @@ impl<'v> Tools<'v> {
 pub struct ParticleTracer<'s> {
     scene: &'s RenderScene,
     tools: Tools<'s>,
-    /// First output of each sensor, then of each probe.
-    offsets: Vec<usize>,
+    /// The images of the sensors, then of the cameras, then of the pinholes.
+    images: Vec<ImageLayout>,
+    /// The first output of each probe (its time bins; its total before).
+    probes: Vec<usize>,
+    /// The power reaching each surface.
+    surface_offset: usize,
     totals: usize,
 }
 
 impl<'s> ParticleTracer<'s> {
     pub fn new(scene: &'s RenderScene) -> Self {
-        let mut offsets = Vec::with_capacity(scene.sensors.len());
+        let mut images = Vec::new();
         let mut at = 0;
-        // with time bins, images hold the time-integrated frame first (its own errors: one
-        // photon can reach a camera in several bins)
-        let frames = scene.bins() + usize::from(scene.bins() > 1);
+        let bins = scene.bins();
+        let image = |pixels: usize, channels: usize, at: &mut usize| {
+            // the image's total, then its planes
+            let i = ImageLayout {
+                first: *at + 1,
+                pixels,
+                channels,
+                bins,
+            };
+            *at += 1 + i.len();
+            i
+        };
         for s in &scene.sensors {
-            // the sensor's total power, then its images
-            offsets.push(at + 1);
-            at += 1 + s.pixel_count() * frames;
+            // a flux sensor's power per time bin has no colour
+            let channels = match s.kind {
+                SensorKind::Flux => 1,
+                SensorKind::Screen => scene.channels(),
+            };
+            images.push(image(s.pixel_count(), channels, &mut at));
         }
+        let mut probes = Vec::new();
         for _ in &scene.probes {
             // the probe's total fluence rate, then its time bins
-            offsets.push(at + 1);
-            at += 1 + scene.bins();
+            probes.push(at + 1);
+            at += 1 + bins;
         }
         for c in &scene.cameras {
-            // the camera's radiance summed over its pixels and bins, then its images
-            offsets.push(at + 1);
-            at += 1 + c.pixel_count() * frames;
+            images.push(image(c.pixel_count(), scene.channels(), &mut at));
         }
         for c in &scene.pinholes {
-            // the irradiance at the pinhole from its field of view, then its images
-            offsets.push(at + 1);
-            at += 1 + c.pixel_count() * frames;
+            images.push(image(c.pixel_count(), scene.channels(), &mut at));
         }
+        let surface_offset = at;
+        at += scene.surfaces.len();
         ParticleTracer {
             scene,
-            tools: Tools::new(&scene.volume, scene),
-            offsets,
+            tools: Tools::new(&scene.volume, scene, [1.0; 3]),
+            images,
+            probes,
+            surface_offset,
             totals: at,
         }
     }
 
+    /// The image of sensor `i` (a flux sensor's: one pixel, one channel, its power per bin).
+    pub fn sensor_image(&self, i: usize) -> ImageLayout {
+        self.images[i]
+    }
+
+    /// The image of orthographic camera `i`; its total sums the radiance over pixels and bins.
+    pub fn camera_image(&self, i: usize) -> ImageLayout {
+        self.images[self.scene.sensors.len() + i]
+    }
+
+    /// The image of pinhole camera `i`; its total is the irradiance at the pinhole from its field
+    /// of view.
+    pub fn pinhole_image(&self, i: usize) -> ImageLayout {
+        self.images[self.scene.sensors.len() + self.scene.cameras.len() + i]
+    }
+
+    /// The output holding the power reaching surface `i` (it absorbs `1 − albedo` of it).
+    pub fn surface_power(&self, i: usize) -> usize {
+        self.surface_offset + i
+    }
+
     /// The first output of probe `i` (its time bins).
     pub fn probe_offset(&self, i: usize) -> usize {
-        self.offsets[self.scene.sensors.len() + i]
-    }
-
-    /// The first output of camera `i` (its images, time bin after time bin).
-    pub fn camera_offset(&self, i: usize) -> usize {
-        self.offsets[self.scene.sensors.len() + self.scene.probes.len() + i]
-    }
-
-    /// The first output of pinhole camera `i` (its images).
-    pub fn pinhole_offset(&self, i: usize) -> usize {
-        let s = self.scene;
-        self.offsets[s.sensors.len() + s.probes.len() + s.cameras.len() + i]
-    }
-
-    /// The output holding the irradiance at pinhole `i` from its field of view.
-    pub fn pinhole_total(&self, i: usize) -> usize {
-        self.pinhole_offset(i) - 1
-    }
-
-    /// The output holding the sum of camera `i`'s pixels over all time bins.
-    pub fn camera_total(&self, i: usize) -> usize {
-        self.camera_offset(i) - 1
+        self.probes[i]
     }
 
     /// The output holding probe `i`'s fluence rate over all time bins.
@@ -163,7 +233,6 @@ impl<'s> ParticleTracer<'s> {
         rng: &mut Rng,
         out: &mut [C64],
     ) {
-        let sigma_t = self.scene.volume.sigma_t();
         for (i, probe) in self.scene.probes.iter().enumerate() {
             let s = match self.scene.connections {
                 Connections::Unbiased => t.connector.sample(x, probe.position, rng),
@@ -172,8 +241,8 @@ impl<'s> ParticleTracer<'s> {
             let Some((c, inverse_p)) = self.tally(s, out) else {
                 continue;
             };
-            let value =
-                weight * emit(c.direction) * (-sigma_t * c.length).exp() / c.spread * inverse_p;
+            let transmittance = self.transmittance(t, x, c.direction, c.length, rng);
+            let value = weight * emit(c.direction) * transmittance / c.spread * inverse_p;
             if !(value > 0.0 && value.is_finite()) {
                 continue;
             }
@@ -185,7 +254,7 @@ impl<'s> ParticleTracer<'s> {
             out[o - 1].re += value;
         }
         let first_only = self.scene.connections == Connections::First;
-        let n_out = self.scene.volume.field.n_out;
+        let n_out = t.flyer.volume.field.n_out;
         for (i, cam) in self.scene.cameras.iter().enumerate() {
             let s = t.connector.sample_exit(x, cam.direction, first_only, rng);
             let Some((e, inverse_p)) = self.tally(s, out) else {
@@ -194,25 +263,24 @@ impl<'s> ParticleTracer<'s> {
             let Some(pixel) = cam.pixel(e.surface) else {
                 continue;
             };
-            let value = weight * emit(e.direction) * (-sigma_t * e.length).exp() * e.transmission
+            let to_plane = (cam.center - e.surface).dot(cam.direction).max(0.0);
+            if self.scene.blocked(e.surface, cam.direction, to_plane) {
+                continue;
+            }
+            let transmittance = self.transmittance(t, x, e.direction, e.length, rng);
+            let value = weight * emit(e.direction) * transmittance * e.transmission
                 / e.jacobian
                 / cam.pixel_area()
                 * inverse_p;
             if !(value > 0.0 && value.is_finite()) {
                 continue;
             }
-            let outside = n_out * (cam.center - e.surface).dot(cam.direction).max(0.0);
-            let Some(bin) = self.bin(opl + e.optical_path + outside) else {
+            let Some(bin) = self.bin(opl + e.optical_path + n_out * to_plane) else {
                 continue;
             };
-            self.record(
-                out,
-                self.camera_offset(i),
-                cam.pixel_count(),
-                bin,
-                pixel,
-                value,
-            );
+            let image = self.camera_image(i);
+            image.add(out, bin, pixel, value, &t.colour);
+            out[image.total()].re += value;
         }
         for (i, cam) in self.scene.pinholes.iter().enumerate() {
             let s = t.connector.sample_through(x, cam.position, first_only, rng);
@@ -222,22 +290,61 @@ impl<'s> ParticleTracer<'s> {
             let Some((pixel, cos)) = cam.pixel(e.outgoing) else {
                 continue;
             };
+            let to_pinhole = (cam.position - e.surface).dot(e.outgoing);
+            if self.scene.blocked(e.surface, e.outgoing, to_pinhole) {
+                continue;
+            }
             // irradiance at the pinhole, and radiance over the pixel's image-plane area
             // (dω = cos³θ dA at unit distance)
-            let irradiance =
-                weight * emit(e.direction) * (-sigma_t * e.length).exp() * e.transmission
-                    / e.jacobian
-                    * inverse_p;
+            let transmittance = self.transmittance(t, x, e.direction, e.length, rng);
+            let irradiance = weight * emit(e.direction) * transmittance * e.transmission
+                / e.jacobian
+                * inverse_p;
             if !(irradiance > 0.0 && irradiance.is_finite()) {
                 continue;
             }
             let Some(bin) = self.bin(opl + e.optical_path) else {
                 continue;
             };
-            let o = self.pinhole_offset(i);
+            let image = self.pinhole_image(i);
             let radiance = irradiance / (cos * cos * cos * cam.pixel_area());
-            self.record_image(out, o, cam.pixel_count(), bin, pixel, radiance);
-            out[o - 1].re += irradiance;
+            image.add(out, bin, pixel, radiance, &t.colour);
+            out[image.total()].re += irradiance;
+        }
+    }
+
+    /// The transmittance along the connection leaving `x` along unit `w` for geometric length
+    /// `length` inside the volume: `exp(−σ_t length)` in a homogeneous medium; with a density, an
+    /// unbiased ratio-tracking estimate (Novák et al. 2014): tentative collisions against the
+    /// majorant along the same curved ray, each keeping `1 − ρ/max ρ` of the light.
+    fn transmittance(&self, t: &Tools, x: DVec3, w: DVec3, length: f64, rng: &mut Rng) -> f64 {
+        let volume = t.flyer.volume;
+        let Some(density) = &volume.density else {
+            return (-volume.sigma_t() * length).exp();
+        };
+        let majorant = volume.majorant();
+        if majorant <= 0.0 {
+            return 1.0;
+        }
+        let mut ray = Ray {
+            x,
+            v: w * t.flyer.n(x),
+        };
+        let (mut travelled, mut kept) = (0.0, 1.0);
+        loop {
+            let d = -(1.0 - uniform(rng)).ln() / majorant;
+            if travelled + d >= length {
+                return kept;
+            }
+            match t.flyer.fly(ray, d).0 {
+                Flight::Collision { ray: at, .. } => {
+                    travelled += d;
+                    kept *= 1.0 - density.at(at.x) / density.max;
+                    ray = at;
+                }
+                // the path leaves the volume (round-off at an exit connection's end)
+                _ => return kept,
+            }
         }
     }
 
@@ -251,53 +358,6 @@ impl<'s> ParticleTracer<'s> {
             out[self.total(Total::Distinct)].re += s.distinct as f64;
         }
         s.path
-    }
-
-    /// The first output of sensor `i` (its images follow, see [`ParticleTracer::frame`]; each a
-    /// row-major image).
-    pub fn offset(&self, i: usize) -> usize {
-        self.offsets[i]
-    }
-
-    /// The first output of a frame of an image of `pixels` pixels starting at `first` (a sensor's
-    /// or camera's offset): time bin `bin`, or (`None`) the time-integrated frame.
-    pub fn frame(&self, first: usize, pixels: usize, bin: Option<usize>) -> usize {
-        let binned = usize::from(self.scene.bins() > 1);
-        match bin {
-            None => first,
-            Some(b) => first + (b + binned) * pixels,
-        }
-    }
-
-    /// Add `value` to `pixel` of the image at `first` in time bin `bin` (and to the integrated
-    /// frame and the total before it).
-    fn record(
-        &self,
-        out: &mut [C64],
-        first: usize,
-        pixels: usize,
-        bin: usize,
-        pixel: usize,
-        value: f64,
-    ) {
-        self.record_image(out, first, pixels, bin, pixel, value);
-        out[first - 1].re += value;
-    }
-
-    /// [`ParticleTracer::record`] without the total.
-    fn record_image(
-        &self,
-        out: &mut [C64],
-        first: usize,
-        pixels: usize,
-        bin: usize,
-        pixel: usize,
-        value: f64,
-    ) {
-        out[self.frame(first, pixels, Some(bin)) + pixel].re += value;
-        if self.scene.bins() > 1 {
-            out[first + pixel].re += value;
-        }
     }
 
     /// The time bin of optical path `path` (`None` past the last bin).
@@ -318,7 +378,7 @@ impl<'s> ParticleTracer<'s> {
 
     /// The output holding the total power sensor `i` recorded (all pixels and time bins).
     pub fn power(&self, i: usize) -> usize {
-        self.offsets[i] - 1
+        self.images[i].total()
     }
 
     /// The output index of total `t`.
@@ -326,112 +386,291 @@ impl<'s> ParticleTracer<'s> {
         self.totals + t as usize
     }
 
-    /// Record a photon of `weight` that left the volume at `x` along unit `d`, having travelled the
-    /// optical path `opl`.
-    fn escape(&self, x: DVec3, d: DVec3, weight: f64, opl: f64, out: &mut [C64]) {
-        out[self.total(Total::Escaped)].re += weight;
-        let n_out = self.scene.volume.field.n_out;
-        for (s, &offset) in self.scene.sensors.iter().zip(&self.offsets) {
-            let Some((pixel, t)) = s.hit(x, d) else {
+    /// Record the sensors the straight segment from `x` along unit `d` crosses within `length`
+    /// (outside the volume), at the optical path `opl` of its start.
+    #[allow(clippy::too_many_arguments)]
+    fn cross_sensors(
+        &self,
+        t: &Tools,
+        x: DVec3,
+        d: DVec3,
+        length: f64,
+        weight: f64,
+        opl: f64,
+        out: &mut [C64],
+    ) {
+        let n_out = t.flyer.volume.field.n_out;
+        for (s, image) in self.scene.sensors.iter().zip(&self.images) {
+            let Some((pixel, distance)) = s.hit(x, d) else {
                 continue;
             };
-            let Some(bin) = self.bin(opl + n_out * t) else {
+            if distance >= length {
+                continue;
+            }
+            let Some(bin) = self.bin(opl + n_out * distance) else {
                 continue;
             };
-            self.record(out, offset, s.pixel_count(), bin, pixel, weight);
+            image.add(out, bin, pixel, weight, &t.colour);
+            out[image.total()].re += weight;
         }
     }
 
     /// Trace one photon, adding its contributions to `out`.
     fn photon(&self, t: &Tools, rng: &mut Rng, out: &mut [C64]) {
-        let volume = &self.scene.volume;
-        let bounds = &volume.field.bounds;
-        let n_out = volume.field.n_out;
-        let (mut x, mut d) =
+        let (x, d) =
             self.scene
                 .light
                 .sample([uniform(rng), uniform(rng), uniform(rng), uniform(rng)]);
-        let mut opl = 0.0;
-        let mut steps = 0usize;
-        let mut events = 0usize;
-        let mut weight = 1.0;
-        // enter the volume from outside, or start inside it
-        let mut ray = if bounds.contains(x) {
+        let mut p = Photon {
+            weight: 1.0,
+            opl: 0.0,
+            events: 0,
+            steps: 0,
+        };
+        let mut leg = if t.flyer.volume.field.bounds.contains(x) {
             if self.connects() {
                 let light = &self.scene.light;
-                self.connect(t, x, weight, 0.0, |d| light.intensity(d), rng, out);
+                self.connect(t, x, 1.0, 0.0, |d| light.intensity(d), rng, out);
             }
-            Ray {
+            Leg::Inside(Ray {
                 x,
                 v: d * t.flyer.n(x),
-            }
+            })
         } else {
-            match bounds.interval(x, d) {
-                Some((t0, t1)) if t1 > 0.0 && t0 >= 0.0 => {
-                    let surface = x + d * t0;
-                    opl += n_out * t0;
-                    let inside = x + d * crate::eikonal::trace::entry_parameter(t0);
-                    let n_in = t.flyer.n(inside);
-                    let normal = bounds.normal(surface).unwrap_or(-d);
-                    let r = fresnel(d.dot(normal), n_out / n_in);
-                    if r > 0.0 && uniform(rng) < r {
-                        self.escape(surface, reflect(d, normal), weight, opl, out);
-                        return;
-                    }
-                    match refract(d, normal, n_out / n_in) {
-                        Ok(t) => d = t,
-                        Err(reflected) => {
-                            self.escape(surface, reflected, weight, opl, out);
-                            return;
-                        }
-                    }
-                    x = inside;
-                    Ray { x, v: d * n_in }
-                }
-                // it misses the volume
-                _ => {
-                    self.escape(x, d, weight, opl, out);
-                    return;
-                }
+            Leg::Outside {
+                x,
+                d,
+                left_volume: false,
             }
-        };
-        let sigma_t = volume.sigma_t();
-        let albedo = volume.albedo();
-        let finish = |out: &mut [C64], events: usize, steps: usize| {
-            out[self.total(Total::Events)].re += events as f64;
-            out[self.total(Total::Steps)].re += steps as f64;
         };
         loop {
-            let distance = if sigma_t > 0.0 {
-                -(1.0 - uniform(rng)).ln() / sigma_t
+            let next = match leg {
+                Leg::Inside(ray) => self.inside(t, ray, &mut p, rng, out),
+                Leg::Outside { x, d, left_volume } => {
+                    self.outside(t, x, d, left_volume, &mut p, rng, out)
+                }
+            };
+            match next {
+                Some(l) => leg = l,
+                None => break,
+            }
+        }
+        out[self.total(Total::Events)].re += p.events as f64;
+        out[self.total(Total::Steps)].re += p.steps as f64;
+    }
+
+    /// A straight leg outside the volume from `x` along unit `d`: into the volume (with the Fresnel
+    /// split at its surface), onto a surface (absorbed, or reflected diffusely after connecting
+    /// the cameras to the lit point), or away for good, recording the sensors crossed on the way.
+    /// `left_volume`: the leg starts where the photon left the (convex) volume, so it cannot
+    /// re-enter it.
+    #[allow(clippy::too_many_arguments)]
+    fn outside(
+        &self,
+        t: &Tools,
+        x: DVec3,
+        d: DVec3,
+        left_volume: bool,
+        p: &mut Photon,
+        rng: &mut Rng,
+        out: &mut [C64],
+    ) -> Option<Leg> {
+        let volume = t.flyer.volume;
+        let bounds = &volume.field.bounds;
+        let n_out = volume.field.n_out;
+        let entry = match bounds.interval(x, d) {
+            Some((t0, t1)) if !left_volume && t1 > 0.0 && t0 >= 0.0 => Some(t0),
+            _ => None,
+        };
+        let surface = self.scene.surface_hit(x, d);
+        let end = match (entry, surface) {
+            (Some(a), Some((_, b))) => a.min(b),
+            (Some(a), None) => a,
+            (None, Some((_, b))) => b,
+            (None, None) => f64::INFINITY,
+        };
+        self.cross_sensors(t, x, d, end, p.weight, p.opl, out);
+        match (entry, surface) {
+            (Some(t0), _) if t0 == end => {
+                let at = x + d * t0;
+                p.opl += n_out * t0;
+                let inside = x + d * crate::eikonal::trace::entry_parameter(t0);
+                let n_in = t.flyer.n(inside);
+                let normal = bounds.normal(at).unwrap_or(-d);
+                let r = fresnel(d.dot(normal), n_out / n_in);
+                if r > 0.0 && uniform(rng) < r {
+                    return Some(Leg::Outside {
+                        x: at,
+                        d: reflect(d, normal),
+                        left_volume: true,
+                    });
+                }
+                match refract(d, normal, n_out / n_in) {
+                    Ok(w) => Some(Leg::Inside(Ray {
+                        x: inside,
+                        v: w * n_in,
+                    })),
+                    Err(reflected) => Some(Leg::Outside {
+                        x: at,
+                        d: reflected,
+                        left_volume: true,
+                    }),
+                }
+            }
+            (_, Some((i, distance))) => {
+                let s = &self.scene.surfaces[i];
+                let y = x + d * distance;
+                p.opl += n_out * distance;
+                out[self.surface_offset + i].re += p.weight;
+                out[self.total(Total::SurfaceAbsorbed)].re += p.weight * (1.0 - s.albedo);
+                p.weight *= s.albedo;
+                if p.weight <= 0.0 {
+                    return None;
+                }
+                // the lit side; Lambertian: intensity cos θ / π per unit power, and the photon
+                // leaves cosine-distributed
+                let facing = if d.dot(s.normal) < 0.0 {
+                    s.normal
+                } else {
+                    -s.normal
+                };
+                self.connect_from_surface(t, y, facing, p, out);
+                if !p.roulette(rng) {
+                    return None;
+                }
+                let mu = uniform(rng).sqrt();
+                let w = crate::math::direction_about(
+                    facing,
+                    mu,
+                    2.0 * std::f64::consts::PI * uniform(rng),
+                );
+                Some(Leg::Outside {
+                    x: y,
+                    d: w,
+                    left_volume: false,
+                })
+            }
+            _ => {
+                out[self.total(Total::Escaped)].re += p.weight;
+                None
+            }
+        }
+    }
+
+    /// Connect a lit point `y` of a surface (unit `facing` normal on the lit side) to every camera
+    /// it sees in a straight line, past neither the volume nor another surface. Light reaching
+    /// a camera from a surface through the volume, and probes, are not connected.
+    fn connect_from_surface(
+        &self,
+        t: &Tools,
+        y: DVec3,
+        facing: DVec3,
+        p: &Photon,
+        out: &mut [C64],
+    ) {
+        let bounds = &t.flyer.volume.field.bounds;
+        let n_out = t.flyer.volume.field.n_out;
+        let through_volume = |w: DVec3, length: f64| {
+            bounds
+                .interval(y, w)
+                .is_some_and(|(t0, t1)| t1 > 0.0 && t0 < length)
+        };
+        let intensity = |w: DVec3| p.weight * w.dot(facing).max(0.0) / std::f64::consts::PI;
+        for (i, cam) in self.scene.cameras.iter().enumerate() {
+            let w = cam.direction;
+            let value = intensity(w) / cam.pixel_area();
+            let Some(pixel) = cam.pixel(y) else {
+                continue;
+            };
+            let to_plane = (cam.center - y).dot(w).max(0.0);
+            if value <= 0.0
+                || through_volume(w, f64::INFINITY)
+                || self.scene.blocked(y, w, to_plane)
+            {
+                continue;
+            }
+            let Some(bin) = self.bin(p.opl + n_out * to_plane) else {
+                continue;
+            };
+            let image = self.camera_image(i);
+            image.add(out, bin, pixel, value, &t.colour);
+            out[image.total()].re += value;
+        }
+        for (i, cam) in self.scene.pinholes.iter().enumerate() {
+            let v = cam.position - y;
+            let distance = v.length();
+            let w = v / distance;
+            let irradiance = intensity(w) / (distance * distance);
+            let Some((pixel, cos)) = cam.pixel(w) else {
+                continue;
+            };
+            if !(irradiance > 0.0 && irradiance.is_finite())
+                || through_volume(w, distance)
+                || self.scene.blocked(y, w, distance)
+            {
+                continue;
+            }
+            let Some(bin) = self.bin(p.opl + n_out * distance) else {
+                continue;
+            };
+            let image = self.pinhole_image(i);
+            let radiance = irradiance / (cos * cos * cos * cam.pixel_area());
+            image.add(out, bin, pixel, radiance, &t.colour);
+            out[image.total()].re += irradiance;
+        }
+    }
+
+    /// Free flights and scattering inside the volume from `ray` until the photon leaves (the next
+    /// leg), is absorbed, or is given up.
+    fn inside(
+        &self,
+        t: &Tools,
+        mut ray: Ray,
+        p: &mut Photon,
+        rng: &mut Rng,
+        out: &mut [C64],
+    ) -> Option<Leg> {
+        let volume = t.flyer.volume;
+        let bounds = &volume.field.bounds;
+        let n_out = volume.field.n_out;
+        let majorant = volume.majorant();
+        let albedo = volume.albedo();
+        loop {
+            let distance = if majorant > 0.0 {
+                -(1.0 - uniform(rng)).ln() / majorant
             } else {
                 f64::INFINITY
             };
             let (flight, k) = t.flyer.fly(ray, distance);
-            steps += k;
+            p.steps += k;
             match flight {
                 Flight::Collision {
                     ray: hit,
                     optical_path,
                 } => {
-                    opl += optical_path;
-                    events += 1;
-                    out[self.total(Total::Absorbed)].re += weight * (1.0 - albedo);
-                    weight *= albedo;
+                    p.opl += optical_path;
+                    if let Some(density) = &volume.density {
+                        // delta tracking: a real collision with probability ρ(x)/max ρ, else
+                        // the flight goes on unchanged
+                        if uniform(rng) * density.max >= density.at(hit.x) {
+                            ray = hit;
+                            continue;
+                        }
+                    }
+                    p.events += 1;
+                    out[self.total(Total::Absorbed)].re += p.weight * (1.0 - albedo);
+                    p.weight *= albedo;
                     let w_in = hit.v.normalize();
                     if self.connects() {
                         let phase = |d: DVec3| volume.scattering.eval(w_in.dot(d));
-                        self.connect(t, hit.x, weight, opl, phase, rng, out);
+                        self.connect(t, hit.x, p.weight, p.opl, phase, rng, out);
                     }
-                    if weight < ROULETTE_BELOW {
-                        if uniform(rng) >= ROULETTE_SURVIVAL {
-                            break;
-                        }
-                        weight /= ROULETTE_SURVIVAL;
+                    if !p.roulette(rng) {
+                        return None;
                     }
-                    if events >= MAX_EVENTS {
-                        out[self.total(Total::Unfinished)].re += weight;
-                        break;
+                    if p.events >= MAX_EVENTS {
+                        out[self.total(Total::Unfinished)].re += p.weight;
+                        return None;
                     }
                     let kind = volume.scattering.pick(|| uniform(rng));
                     let w = volume
@@ -447,22 +686,21 @@ impl<'s> ParticleTracer<'s> {
                     ray: end,
                     optical_path,
                 } => {
-                    opl += optical_path;
+                    p.opl += optical_path;
                     let n_in = t.flyer.n(end.x);
                     let d = end.v.normalize();
                     let normal = bounds.normal(end.x).unwrap_or(d);
                     let r = fresnel(d.dot(normal), n_in / n_out);
-                    let leaves = match refract(d, -normal, n_in / n_out) {
-                        Ok(t) if r == 0.0 || uniform(rng) >= r => Some(t),
-                        _ => None,
-                    };
-                    match leaves {
-                        Some(t) => {
-                            self.escape(end.x, t, weight, opl, out);
-                            break;
+                    match refract(d, -normal, n_in / n_out) {
+                        Ok(leaving) if r == 0.0 || uniform(rng) >= r => {
+                            return Some(Leg::Outside {
+                                x: end.x,
+                                d: leaving,
+                                left_volume: true,
+                            });
                         }
-                        None => {
-                            // Fresnel or total internal reflection: back inside
+                        // Fresnel or total internal reflection: back inside
+                        _ => {
                             ray = Ray {
                                 x: end.x,
                                 v: reflect(d, normal) * n_in,
@@ -471,17 +709,49 @@ impl<'s> ParticleTracer<'s> {
                     }
                 }
                 Flight::Stuck { .. } => {
-                    out[self.total(Total::Unfinished)].re += weight;
-                    break;
+                    out[self.total(Total::Unfinished)].re += p.weight;
+                    return None;
                 }
             }
         }
-        finish(out, events, steps);
+    }
+}
+
+/// Where a photon is: inside the volume with its ray, or on a straight leg outside it.
+#[derive(Clone, Copy)]
+enum Leg {
+    Inside(Ray),
+    Outside {
+        x: DVec3,
+        d: DVec3,
+        left_volume: bool,
+    },
+}
+
+/// A photon's state across its legs.
+struct Photon {
+    weight: f64,
+    opl: f64,
+    events: usize,
+    steps: usize,
+}
+
+impl Photon {
+    /// Russian roulette once the weight is small: `false` if the photon dies.
+    fn roulette(&mut self, rng: &mut Rng) -> bool {
+        if self.weight < ROULETTE_BELOW {
+            if uniform(rng) >= ROULETTE_SURVIVAL {
+                return false;
+            }
+            self.weight /= ROULETTE_SURVIVAL;
+        }
+        true
     }
 }
 
 impl Estimator for ParticleTracer<'_> {
-    /// With a time-modulated field, each thread's copy of the volume, set to each photon's phase.
+    /// With a time-modulated or dispersive field, each thread's copy of the volume, set to each
+    /// photon's phase and wavelength.
     type Scratch = Option<Volume>;
 
     fn outputs(&self) -> usize {
@@ -489,22 +759,37 @@ impl Estimator for ParticleTracer<'_> {
     }
 
     fn scratch(&self) -> Option<Volume> {
-        self.scene.modulation.map(|_| self.scene.volume.clone())
+        (self.scene.modulation.is_some() || self.scene.spectrum.is_some())
+            .then(|| self.scene.volume.clone())
     }
 
     fn run_chunk(&self, rng: &mut Rng, paths: u64, scratch: &mut Option<Volume>, out: &mut [C64]) {
         for _ in 0..paths {
-            match (self.scene.modulation, scratch.as_mut()) {
-                (Some(Modulation::Sinusoidal), Some(volume)) => {
-                    // the photon meets the field at a uniformly random time of the period
-                    // (paper 002, App. C, Eq. 22): every ultrasonic amplitude times sin θ
-                    let theta = std::f64::consts::PI * (uniform(rng) - 0.5);
-                    modulate(&mut volume.field, &self.scene.volume.field, theta.sin());
-                    let tools = Tools::new(volume, self.scene);
-                    self.photon(&tools, rng, out);
-                }
-                _ => self.photon(&self.tools, rng, out),
+            let Some(volume) = scratch.as_mut() else {
+                self.photon(&self.tools, rng, out);
+                continue;
+            };
+            let base = &self.scene.volume.field;
+            if let Some(Modulation::Sinusoidal) = self.scene.modulation {
+                // the photon meets the field at a uniformly random time of the period
+                // (paper 002, App. C, Eq. 22): every ultrasonic amplitude times sin θ
+                let theta = std::f64::consts::PI * (uniform(rng) - 0.5);
+                modulate(&mut volume.field, base, theta.sin());
             }
+            let mut colour = [1.0; 3];
+            if let Some(spectrum) = &self.scene.spectrum {
+                // a single line draws nothing: its photons meet the random numbers of a render
+                // without a spectrum
+                let lambda = if spectrum.channels() == 1 {
+                    spectrum.range_nm[0]
+                } else {
+                    spectrum.sample(uniform(rng))
+                };
+                spectrum.disperse(&mut volume.field, base, lambda);
+                colour = spectrum.colour(lambda);
+            }
+            let tools = Tools::new(volume, self.scene, colour);
+            self.photon(&tools, rng, out);
         }
     }
 

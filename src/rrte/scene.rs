@@ -1,6 +1,7 @@
 //! What a refractive render holds: a scattering volume with an index field, a light, and sensors
 //! outside the volume that record the light leaving it.
 
+use crate::eikonal::grid::{GridField, Interp};
 use crate::eikonal::{BoundedField, Bounds, Profile};
 use crate::math::{orthonormal_basis, uniform_sphere};
 use crate::medium::Scattering;
@@ -8,21 +9,66 @@ use glam::DVec3;
 use std::f64::consts::PI;
 
 /// A refractive, scattering volume: the index field `n(x)` inside its bounds (`n_out` outside, a
-/// smooth dielectric interface where the two differ), and homogeneous bulk scattering.
+/// smooth dielectric interface where the two differ), and bulk scattering, homogeneous or scaled by
+/// a density.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Volume {
     pub field: BoundedField,
-    /// Scattering coefficient `σ_s` (1/length), inside the bounds.
+    /// Scattering coefficient `σ_s` (1/length) inside the bounds, at density 1.
     pub sigma_s: f64,
-    /// Absorption coefficient `σ_a` (1/length), inside the bounds.
+    /// Absorption coefficient `σ_a` (1/length) inside the bounds, at density 1.
     pub sigma_a: f64,
     pub scattering: Scattering,
+    /// `None`: homogeneous; else `σ_s ρ(x)` and `σ_a ρ(x)` (the albedo stays constant).
+    pub density: Option<Density>,
+}
+
+/// A density `ρ(x) ≥ 0` scaling both coefficients (a heterogeneous medium), sampled on a grid:
+/// flights are drawn against the majorant `σ_t · max ρ` and kept as collisions with probability
+/// `ρ(x)/max ρ` (delta tracking), transmittances along connections estimated by ratio tracking.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Density {
+    pub grid: GridField,
+    /// A bound on `ρ` everywhere: the largest sample (trilinear) or B-spline coefficient
+    /// (tricubic: every value is a convex combination of coefficients).
+    pub max: f64,
+}
+
+impl Density {
+    /// The density of `grid`, refused (with the reason) where it could be negative or is zero
+    /// everywhere.
+    pub fn new(grid: GridField) -> Result<Self, String> {
+        if let Some(c) = grid.coef.iter().find(|c| !(**c >= 0.0 && c.is_finite())) {
+            return Err(match grid.interp {
+                Interp::Trilinear => format!("a sample is {c}: densities must be finite and >= 0"),
+                Interp::Tricubic => format!(
+                    "a B-spline coefficient is {c}: the tricubic interpolant would go negative (ringing next to sharp edges); use interp = \"trilinear\""
+                ),
+            });
+        }
+        let max = grid.coef.iter().cloned().fold(0.0, f64::max);
+        if max <= 0.0 {
+            return Err("every sample is 0: leave the medium out instead".into());
+        }
+        Ok(Density { grid, max })
+    }
+
+    /// `ρ(x)`.
+    #[inline]
+    pub fn at(&self, x: DVec3) -> f64 {
+        self.grid.eval(x).0
+    }
 }
 
 impl Volume {
-    /// Extinction `σ_t = σ_s + σ_a`.
+    /// Extinction `σ_t = σ_s + σ_a` (at density 1).
     pub fn sigma_t(&self) -> f64 {
         self.sigma_s + self.sigma_a
+    }
+
+    /// The extinction free flights are drawn against: `σ_t` times the density's bound.
+    pub fn majorant(&self) -> f64 {
+        self.sigma_t() * self.density.as_ref().map_or(1.0, |d| d.max)
     }
 
     /// Single-scattering albedo (1 when nothing interacts).
@@ -409,6 +455,65 @@ impl Sensor {
     }
 }
 
+/// A diffuse (Lambertian) or black surface outside the volume: a plane, or a rectangle of `size`
+/// about `center` (a floor, a tank wall). Both sides reflect `albedo` of the light reaching them,
+/// uniformly in radiance; the rest is absorbed.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Surface {
+    pub name: String,
+    pub center: DVec3,
+    /// Unit normal; `right` and `up` span the rectangle (`up = normal × right`).
+    pub normal: DVec3,
+    pub right: DVec3,
+    pub up: DVec3,
+    /// Side lengths; `None`: the whole plane.
+    pub size: Option<[f64; 2]>,
+    pub albedo: f64,
+}
+
+impl Surface {
+    pub fn new(
+        name: String,
+        center: DVec3,
+        normal: DVec3,
+        size: Option<[f64; 2]>,
+        albedo: f64,
+    ) -> Self {
+        let (right, up) = orthonormal_basis(normal);
+        Surface {
+            name,
+            center,
+            normal,
+            right,
+            up,
+            size,
+            albedo,
+        }
+    }
+
+    /// The distance along unit `d` from `x` to the surface, if the ray meets it ahead (a start on
+    /// the surface itself does not count).
+    #[inline]
+    pub fn hit(&self, x: DVec3, d: DVec3) -> Option<f64> {
+        let cos = d.dot(self.normal);
+        if cos == 0.0 {
+            return None;
+        }
+        let t = (self.center - x).dot(self.normal) / cos;
+        // (a NaN distance fails too)
+        if t.is_nan() || t <= 1e-9 * (1.0 + (x - self.center).length()) {
+            return None;
+        }
+        if let Some(size) = self.size {
+            let rel = x + d * t - self.center;
+            if rel.dot(self.right).abs() > 0.5 * size[0] || rel.dot(self.up).abs() > 0.5 * size[1] {
+                return None;
+            }
+        }
+        Some(t)
+    }
+}
+
 /// Time-of-flight bins: optical path lengths `∫ n ds` from the light, in `bins` equal bins over
 /// `[0, max_path)` (paper 002, Eq. 14); light arriving later is not recorded.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -426,10 +531,14 @@ pub struct RenderScene {
     pub probes: Vec<Probe>,
     pub cameras: Vec<Camera>,
     pub pinholes: Vec<Pinhole>,
+    /// Diffuse or black surfaces outside the volume.
+    pub surfaces: Vec<Surface>,
     /// `None`: the field is static.
     pub modulation: Option<Modulation>,
     pub connections: Connections,
     pub transient: Option<Transient>,
+    /// `None`: one unnamed wavelength, the field as given.
+    pub spectrum: Option<super::spectrum::Spectrum>,
     /// Leapfrog step in the σ-form (geometric length ≈ `n · step`), where `n` varies.
     pub step: f64,
     /// Most leapfrog steps of one free flight.
@@ -440,5 +549,27 @@ impl RenderScene {
     /// Time bins per pixel (1 without a transient).
     pub fn bins(&self) -> usize {
         self.transient.map_or(1, |t| t.bins)
+    }
+
+    /// The nearest surface the straight ray from `x` along unit `d` meets, and its distance.
+    pub fn surface_hit(&self, x: DVec3, d: DVec3) -> Option<(usize, f64)> {
+        self.surfaces
+            .iter()
+            .enumerate()
+            .filter_map(|(i, s)| s.hit(x, d).map(|t| (i, t)))
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+    }
+
+    /// Whether the straight segment from `x` along unit `d` for `length` (outside the volume)
+    /// is blocked by a surface.
+    pub fn blocked(&self, x: DVec3, d: DVec3, length: f64) -> bool {
+        self.surfaces
+            .iter()
+            .any(|s| s.hit(x, d).is_some_and(|t| t < length))
+    }
+
+    /// Colour channels of screen and camera images (3 for a white spectrum, else 1).
+    pub fn channels(&self) -> usize {
+        self.spectrum.as_ref().map_or(1, |s| s.channels())
     }
 }
