@@ -367,3 +367,57 @@ fn surfaces_are_checked_by_key() {
     }
     let _ = std::fs::remove_dir_all(dir);
 }
+
+#[test]
+fn path_tracing_is_checked_and_runs() {
+    let dir = tmp("path");
+    std::fs::create_dir_all(&dir).unwrap();
+    let base = std::fs::read_to_string(config("render_path.toml")).unwrap();
+    let light = "kind = \"point\"\nposition = [0.3, -0.2, -0.4]";
+    let cases: &[(&str, &str, &str)] = &[
+        (
+            light,
+            "kind = \"beam\"\ncenter = [0.0, 0.0, -2.0]\ndirection = [0.0, 0.0, 1.0]",
+            "light.kind",
+        ),
+        (
+            "[render]",
+            "[[sensor]]\nkind = \"flux\"\nname = \"below\"\ncenter = [0.0, 0.0, -3.0]\nnormal = [0.0, 0.0, -1.0]\n\n[render]",
+            "sensor[1].kind",
+        ),
+        ("kind = \"pinhole\"", "kind = \"fluence\"", "sensor[0].kind"),
+        (
+            "estimator = \"path\"",
+            "estimator = \"bidirectional\"",
+            "render.estimator",
+        ),
+    ];
+    for (i, (from, to, key)) in cases.iter().enumerate() {
+        assert!(base.contains(from), "{from}");
+        let text = base.replacen(from, to, 1);
+        // a fluence probe needs no pinhole keys
+        let text = if *key == "sensor[0].kind" {
+            text.replace("position = [3.0, 1.0, 1.5]", "position = [0.0, 0.0, 0.0]")
+                .replace("look_at = [0.0, 0.0, -0.3]\nup = [0.0, 0.0, 1.0]\nfov_deg = 50.0\npixels = [64, 64]\n", "")
+        } else {
+            text
+        };
+        refused(&dir.join(format!("bad{i}.toml")), &text, key);
+    }
+    let out = dir.join("run");
+    let o = lightpath(&[
+        "render",
+        &config("render_path.toml"),
+        "--out",
+        &out.display().to_string(),
+        "--samples",
+        "2000",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r = results(&out);
+    assert_eq!(r["estimator"], "path_tracing");
+    assert!(r.get("absorbed").is_none() && r.get("surfaces").is_none());
+    assert!(r["cameras"][0]["irradiance"]["mean"].as_f64().unwrap() > 0.0);
+    let _ = std::fs::remove_dir_all(dir);
+}

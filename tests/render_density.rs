@@ -80,6 +80,7 @@ fn slab(profile: Profile, sigma_s: f64, sigma_a: f64, g: f64) -> RenderScene {
         surfaces: vec![],
         modulation: None,
         connections: Default::default(),
+        tracing: Default::default(),
         transient: None,
         spectrum: None,
         step: 0.01,

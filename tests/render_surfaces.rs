@@ -48,6 +48,7 @@ fn scene(n: f64, sigma_s: f64, albedo: f64, x: f64) -> RenderScene {
         )],
         modulation: None,
         connections: Default::default(),
+        tracing: Default::default(),
         transient: None,
         spectrum: None,
         step: 0.005,

@@ -48,7 +48,12 @@ pub fn describe(task: &RenderTask) -> String {
     let s = &task.scene;
     let v = &s.volume;
     format!(
-        "render config: {} index profile(s) ({}), σ_s = {}, σ_a = {}, {} sensor(s) with {} output(s){}{}; ~{:.3} scattering events per photon",
+        "render config{}: {} index profile(s) ({}), σ_s = {}, σ_a = {}, {} sensor(s) with {} output(s){}{}; ~{:.3} scattering events per photon",
+        if s.tracing == crate::rrte::Tracing::FromCameras {
+            " (path tracing from the cameras)"
+        } else {
+            ""
+        },
         v.field.profiles.len(),
         if v.homogeneous() {
             "constant n: straight rays"
@@ -250,9 +255,12 @@ pub(crate) fn finish(
             files: names,
         });
     }
-    let surfaces = scene
+    // path tracing from the cameras follows no light to the surfaces
+    let particles = scene.tracing == crate::rrte::Tracing::FromLight;
+    let surfaces: Vec<SurfaceRecord> = scene
         .surfaces
         .iter()
+        .filter(|_| particles)
         .enumerate()
         .map(|(i, s)| {
             let incident = measured(est.surface_power(i));
@@ -295,9 +303,15 @@ pub(crate) fn finish(
     let events = e.mean[est.total(Total::Events)].re;
     let steps = e.mean[est.total(Total::Steps)].re;
     let timed = seconds.is_finite().then_some(seconds);
+    let power = |t: Total| particles.then(|| measured(est.total(t)));
     let file = RenderFile {
         format_version: crate::io::results::FORMAT_VERSION,
-        estimator: "particle_tracing".into(),
+        estimator: if particles {
+            "particle_tracing"
+        } else {
+            "path_tracing"
+        }
+        .into(),
         samples: plan.samples(),
         seed: plan.seed,
         chunk: plan.chunk_paths,
@@ -313,11 +327,14 @@ pub(crate) fn finish(
         .map(String::from)
         .collect(),
         surfaces,
-        absorbed: measured(est.total(Total::Absorbed)),
-        absorbed_by_surfaces: (!scene.surfaces.is_empty())
-            .then(|| measured(est.total(Total::SurfaceAbsorbed))),
-        escaped: measured(est.total(Total::Escaped)),
-        unfinished: measured(est.total(Total::Unfinished)),
+        absorbed: power(Total::Absorbed),
+        absorbed_by_surfaces: if scene.surfaces.is_empty() {
+            None
+        } else {
+            power(Total::SurfaceAbsorbed)
+        },
+        escaped: power(Total::Escaped),
+        unfinished: power(Total::Unfinished),
         statistics: RenderStatistics {
             events_per_photon: events,
             steps_per_photon: steps,
@@ -332,7 +349,7 @@ pub(crate) fn finish(
     let path = out.join(RenderFile::NAME);
     file.write(&path)?;
     files.insert(0, path);
-    let unfinished = file.unfinished.mean;
+    let unfinished = file.unfinished.map_or(0.0, |u| u.mean);
     if unfinished > 1e-3 {
         eprintln!(
             "warning: {unfinished:.2e} of the power was given up (photons trapped past render.max_steps steps in one flight); raise render.max_steps or check the field"
@@ -342,8 +359,9 @@ pub(crate) fn finish(
         not_converged: None,
         files,
         summary: format!(
-            "rendered {} photons ({:.2} events, {:.0} steps each): {}; absorbed {:.4}, escaped {:.4}{}",
+            "rendered {} {} ({:.2} events, {:.0} steps each): {}{}{}",
             plan.samples(),
+            if particles { "photons" } else { "camera paths" },
             events,
             steps,
             if summary.is_empty() {
@@ -351,8 +369,10 @@ pub(crate) fn finish(
             } else {
                 summary.join(", ")
             },
-            file.absorbed.mean,
-            file.escaped.mean,
+            match (file.absorbed, file.escaped) {
+                (Some(a), Some(e)) => format!("; absorbed {:.4}, escaped {:.4}", a.mean, e.mean),
+                _ => String::new(),
+            },
             timed.map_or(String::new(), |t| format!(" in {t:.1} s"))
         ),
     })
@@ -426,11 +446,16 @@ fn write_images(
             written.push(name);
         }
     }
-    let max = total
-        .iter()
-        .flat_map(|(v, _)| v.iter())
-        .cloned()
-        .fold(0.0, f64::max);
+    // the preview's white: the 99.5th percentile, so that a few bright pixels (a point light
+    // seen directly, fireflies) do not leave the rest black
+    let mut sorted: Vec<f64> = total.iter().flat_map(|(v, _)| v.iter().cloned()).collect();
+    sorted.sort_by(f64::total_cmp);
+    let max = sorted
+        .get((sorted.len() as f64 * 0.995) as usize)
+        .or(sorted.last())
+        .copied()
+        .unwrap_or(0.0)
+        .max(0.0);
     // the plot's rows run upwards from its bottom: back to the images' own order
     let at = |k: usize| (h - 1 - k / w) * w + k % w;
     let scaled = |v: f64| {
@@ -441,7 +466,7 @@ fn write_images(
         }
     };
     let png = out.join(format!("{stem}.png"));
-    let title = format!("{label}, max {max:.2e}");
+    let title = format!("{label}, white at {max:.2e}");
     if channels == 3 {
         let rgb: Vec<[f64; 3]> = (0..n)
             .map(|k| [0, 1, 2].map(|c| scaled(total[c].0[at(k)])))

@@ -9,7 +9,7 @@ use crate::eikonal::Bounds;
 use crate::medium::{PhaseFunction, Scattering};
 use crate::rrte::{
     Camera, Connections, Density, Dispersion, Light, Material, Modulation, Probe, RenderScene,
-    Sensor, SensorKind, Spectrum, Surface, Transient, Volume,
+    Sensor, SensorKind, Spectrum, Surface, Tracing, Transient, Volume,
 };
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -415,6 +415,25 @@ pub struct RenderSettings {
     /// inverse probability, Alg. 3) or `"first"` (the path found, unweighted).
     #[serde(default, skip_serializing_if = "ConnectionsConfig::is_default")]
     pub connections: ConnectionsConfig,
+    /// `"particle"` (photons from the light; every sensor kind) or `"path"` (paths from the
+    /// pinhole cameras, connected to the light).
+    #[serde(default, skip_serializing_if = "EstimatorConfig::is_default")]
+    pub estimator: EstimatorConfig,
+}
+
+/// `[render] estimator`.
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum EstimatorConfig {
+    #[default]
+    Particle,
+    Path,
+}
+
+impl EstimatorConfig {
+    fn is_default(&self) -> bool {
+        *self == EstimatorConfig::Particle
+    }
 }
 
 fn default_samples() -> u64 {
@@ -442,6 +461,7 @@ impl Default for RenderSettings {
             step: default_step(),
             max_steps: default_max_steps(),
             connections: ConnectionsConfig::Unbiased,
+            estimator: EstimatorConfig::Particle,
         }
     }
 }
@@ -710,13 +730,47 @@ impl RenderConfig {
                 ConnectionsConfig::Unbiased => Connections::Unbiased,
                 ConnectionsConfig::First => Connections::First,
             },
+            tracing: match r.estimator {
+                EstimatorConfig::Particle => Tracing::FromLight,
+                EstimatorConfig::Path => Tracing::FromCameras,
+            },
             transient,
             spectrum: self.spectrum.as_ref().map(|s| s.build()).transpose()?,
             step,
             max_steps: r.max_steps as usize,
         };
         check_step(&scene)?;
+        if scene.tracing == Tracing::FromCameras {
+            self.check_path_tracing(&scene)?;
+        }
         Ok(scene)
+    }
+
+    /// Path tracing renders pinhole cameras lit by a light it can connect to.
+    fn check_path_tracing(&self, scene: &RenderScene) -> Result<(), ConfigError> {
+        for (i, s) in self.sensor.iter().enumerate() {
+            let kind = match s {
+                SensorConfig::Pinhole { .. } => continue,
+                SensorConfig::Flux { .. } => "flux",
+                SensorConfig::Screen { .. } => "screen",
+                SensorConfig::Fluence { .. } => "fluence",
+                SensorConfig::Camera { .. } => "camera",
+            };
+            return err(format!(
+                "sensor[{i}].kind = \"{kind}\": render.estimator = \"path\" renders pinhole cameras only; use the particle estimator for {kind} sensors"
+            ));
+        }
+        if scene.pinholes.is_empty() {
+            return err(
+                "render.estimator = \"path\": no pinhole camera to trace paths from ([[sensor]] kind = \"pinhole\")",
+            );
+        }
+        if matches!(scene.light, Light::Beam { .. }) {
+            return err(
+                "light.kind = \"beam\": a beam's directions are a delta, so paths from the cameras cannot be connected to it; use render.estimator = \"particle\"",
+            );
+        }
+        Ok(())
     }
 
     fn light(&self) -> Result<Light, ConfigError> {

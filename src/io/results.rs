@@ -853,12 +853,16 @@ pub struct RenderFile {
     pub surfaces: Vec<SurfaceRecord>,
     /// Absorbed inside the volume, left it (seen by a sensor or not), and given up (trapped past
     /// the step budget): they add up to 1 within their errors.
-    pub absorbed: Measured,
+    /// (Particle tracing only: path tracing from the cameras does not follow the light's power.)
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub absorbed: Option<Measured>,
     /// Absorbed by the surfaces (with surfaces: the four add up to 1).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub absorbed_by_surfaces: Option<Measured>,
-    pub escaped: Measured,
-    pub unfinished: Measured,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub escaped: Option<Measured>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub unfinished: Option<Measured>,
     pub statistics: RenderStatistics,
     /// Wall time; `null` for merged shards.
     pub seconds: Option<f64>,

@@ -79,6 +79,8 @@ pub struct Connector<'v> {
     volume: &'v Volume,
     tracer: Tracer<'v>,
     straight: bool,
+    /// `n` constant inside and equal to `n_out`: paths leaving the volume are straight lines.
+    matched: bool,
     /// Largest perpendicular miss accepted as a hit.
     pub tolerance: f64,
     pub max_iterations: usize,
@@ -160,6 +162,7 @@ impl<'v> Connector<'v> {
                 max_steps,
             },
             straight: volume.homogeneous(),
+            matched: volume.homogeneous() && volume.field.n(DVec3::ZERO) == volume.field.n_out,
             tolerance: 1e-9 * size,
             max_iterations: 40,
             max_restarts: 10_000,
@@ -308,6 +311,45 @@ impl<'v> Connector<'v> {
         )
     }
 
+    /// Whether `n` is constant inside and equal to `n_out` (index-matched straight rays).
+    pub fn matched(&self) -> bool {
+        self.matched
+    }
+
+    /// The straight path from `x` inside an index-matched volume along unit `w`, leaving it (and
+    /// reaching the point `to_point` away): its exit, with `jacobian` the spread `s²` at that
+    /// point (1 for a direction).
+    fn straight_exit(&self, x: DVec3, w: DVec3, to_point: Option<f64>) -> Sampled<Exit> {
+        let n = self.volume.field.n_out;
+        let path = self.volume.field.bounds.interval(x, w).and_then(|(_, t1)| {
+            let exit = t1.max(0.0);
+            let (optical_path, jacobian) = match to_point {
+                Some(s) if s > exit => (n * s, s * s),
+                Some(_) => return None,
+                None => (n * exit, 1.0),
+            };
+            Some((
+                Exit {
+                    direction: w,
+                    surface: x + w * exit,
+                    outgoing: w,
+                    length: exit,
+                    optical_path,
+                    transmission: 1.0,
+                    jacobian,
+                    iterations: 0,
+                },
+                1.0,
+            ))
+        });
+        Sampled {
+            path,
+            solves: 1,
+            iterations: 0,
+            distinct: 1,
+        }
+    }
+
     /// A path from `x` leaving the volume along unit `c`, drawn like [`Connector::sample`]
     /// (`first`: the biased variant).
     pub fn sample_exit(
@@ -317,6 +359,9 @@ impl<'v> Connector<'v> {
         first_only: bool,
         rng: &mut Rng,
     ) -> Sampled<Exit> {
+        if self.matched {
+            return self.straight_exit(x, c, None);
+        }
         let start = |rng: &mut Rng| {
             let u = uniform_sphere(uniform(rng), uniform(rng));
             if uniform(rng) < 0.5 {
@@ -463,6 +508,11 @@ impl<'v> Connector<'v> {
         first_only: bool,
         rng: &mut Rng,
     ) -> Sampled<Exit> {
+        if self.matched {
+            let d = p - x;
+            let s = d.length();
+            return self.straight_exit(x, d / s, Some(s));
+        }
         let start = |rng: &mut Rng| self.initial(x, p, rng);
         let solve = |w| {
             self.solve_through(x, p, w)

@@ -10,17 +10,19 @@
 //! - [`particle`]: particle (light) tracing as an engine estimator (results per emitted power),
 //!   with next-event connections to fluence probes and cameras, and ultrasonic fields met at a
 //!   random phase per photon;
+//! - [`path`]: path tracing from pinhole cameras, connected to the light at every event;
 //! - [`spectrum`]: dispersive indices (Cauchy, Sellmeier, mixtures), wavelengths and colour.
 
 pub mod connect;
 pub mod flight;
 pub mod particle;
+pub mod path;
 pub mod scene;
 pub mod spectrum;
 
 pub use particle::{ImageLayout, ParticleTracer, Total};
 pub use scene::{
     Camera, Connections, Density, Light, Modulation, Pinhole, Probe, RenderScene, Sensor,
-    SensorKind, Surface, Transient, Volume,
+    SensorKind, Surface, Tracing, Transient, Volume,
 };
 pub use spectrum::{Dispersion, Material, Spectrum};

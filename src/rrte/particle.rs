@@ -17,7 +17,7 @@
 
 use super::connect::{Connector, Sampled};
 use super::flight::{Flight, Flyer, fresnel, reflect};
-use super::scene::{Connections, Modulation, RenderScene, SensorKind, Volume};
+use super::scene::{Connections, Modulation, RenderScene, SensorKind, Tracing, Volume};
 use crate::eikonal::Ray;
 use crate::eikonal::trace::refract;
 use crate::math::{C64, Rng, uniform};
@@ -57,10 +57,10 @@ pub const TOTALS: usize = 11;
 
 /// The integrators of one volume (free flights and connections), and the photon's weights in
 /// the colour channels (its wavelength's, see [`super::spectrum`]).
-struct Tools<'v> {
-    flyer: Flyer<'v>,
-    connector: Connector<'v>,
-    colour: [f64; 3],
+pub(super) struct Tools<'v> {
+    pub(super) flyer: Flyer<'v>,
+    pub(super) connector: Connector<'v>,
+    pub(super) colour: [f64; 3],
 }
 
 impl<'v> Tools<'v> {
@@ -108,7 +108,14 @@ impl ImageLayout {
 
     /// Add `value` (weighted by `colour` in each channel) to `pixel` in time bin `bin`, and to the
     /// integrated frame.
-    fn add(&self, out: &mut [C64], bin: usize, pixel: usize, value: f64, colour: &[f64; 3]) {
+    pub(super) fn add(
+        &self,
+        out: &mut [C64],
+        bin: usize,
+        pixel: usize,
+        value: f64,
+        colour: &[f64; 3],
+    ) {
         for (c, w) in colour.iter().enumerate().take(self.channels) {
             let v = if self.channels == 1 { value } else { value * w };
             out[self.plane(Some(bin), c) + pixel].re += v;
@@ -121,7 +128,7 @@ impl ImageLayout {
 
 /// The particle tracer of a scene, as an engine estimator.
 pub struct ParticleTracer<'s> {
-    scene: &'s RenderScene,
+    pub(super) scene: &'s RenderScene,
     tools: Tools<'s>,
     /// The images of the sensors, then of the cameras, then of the pinholes.
     images: Vec<ImageLayout>,
@@ -223,7 +230,7 @@ impl<'s> ParticleTracer<'s> {
     /// optical path `opl`. A probe receives `weight · emit(d) · T / (dA⊥/dω)` over the stationary
     /// paths; a camera's pixel `weight · emit(d) · T · (1 − R) / (dω_out/dω) / pixel area`.
     #[allow(clippy::too_many_arguments)]
-    fn connect(
+    pub(super) fn connect(
         &self,
         t: &Tools,
         x: DVec3,
@@ -317,7 +324,14 @@ impl<'s> ParticleTracer<'s> {
     /// `length` inside the volume: `exp(−σ_t length)` in a homogeneous medium; with a density, an
     /// unbiased ratio-tracking estimate (Novák et al. 2014): tentative collisions against the
     /// majorant along the same curved ray, each keeping `1 − ρ/max ρ` of the light.
-    fn transmittance(&self, t: &Tools, x: DVec3, w: DVec3, length: f64, rng: &mut Rng) -> f64 {
+    pub(super) fn transmittance(
+        &self,
+        t: &Tools,
+        x: DVec3,
+        w: DVec3,
+        length: f64,
+        rng: &mut Rng,
+    ) -> f64 {
         let volume = t.flyer.volume;
         let Some(density) = &volume.density else {
             return (-volume.sigma_t() * length).exp();
@@ -348,8 +362,37 @@ impl<'s> ParticleTracer<'s> {
         }
     }
 
+    /// The transmittance of the straight segment from `y` outside the volume along unit `w` for
+    /// `length`: 1 if it misses the volume, its attenuation through an index-matched volume of
+    /// constant `n` (the line runs straight through it), `None` through a refracting one (the
+    /// path would bend: not connected).
+    pub(super) fn past_volume(
+        &self,
+        t: &Tools,
+        y: DVec3,
+        w: DVec3,
+        length: f64,
+        rng: &mut Rng,
+    ) -> Option<f64> {
+        match t.flyer.volume.field.bounds.interval(y, w) {
+            Some((t0, t1)) if t1 > 0.0 && t0 < length => {
+                if !t.connector.matched() {
+                    return None;
+                }
+                let a = crate::eikonal::trace::entry_parameter(t0.max(0.0));
+                let b = t1.min(length);
+                Some(if b > a {
+                    self.transmittance(t, y + w * a, w, b - a, rng)
+                } else {
+                    1.0
+                })
+            }
+            _ => Some(1.0),
+        }
+    }
+
     /// Count a connection's work in the statistics, and return its path and inverse probability.
-    fn tally<T>(&self, s: Sampled<T>, out: &mut [C64]) -> Option<(T, f64)> {
+    pub(super) fn tally<T>(&self, s: Sampled<T>, out: &mut [C64]) -> Option<(T, f64)> {
         out[self.total(Total::Connections)].re += 1.0;
         out[self.total(Total::Solves)].re += s.solves as f64;
         out[self.total(Total::Iterations)].re += s.iterations as f64;
@@ -361,7 +404,7 @@ impl<'s> ParticleTracer<'s> {
     }
 
     /// The time bin of optical path `path` (`None` past the last bin).
-    fn bin(&self, path: f64) -> Option<usize> {
+    pub(super) fn bin(&self, path: f64) -> Option<usize> {
         match self.scene.transient {
             None => Some(0),
             Some(tr) => {
@@ -412,6 +455,14 @@ impl<'s> ParticleTracer<'s> {
             };
             image.add(out, bin, pixel, weight, &t.colour);
             out[image.total()].re += weight;
+        }
+    }
+
+    /// One sample: a photon from the light, or a path from each camera.
+    fn sample(&self, t: &Tools, rng: &mut Rng, out: &mut [C64]) {
+        match self.scene.tracing {
+            Tracing::FromLight => self.photon(t, rng, out),
+            Tracing::FromCameras => self.camera_paths(t, rng, out),
         }
     }
 
@@ -534,7 +585,7 @@ impl<'s> ParticleTracer<'s> {
                 } else {
                     -s.normal
                 };
-                self.connect_from_surface(t, y, facing, p, out);
+                self.connect_from_surface(t, y, facing, p, rng, out);
                 if !p.roulette(rng) {
                     return None;
                 }
@@ -566,35 +617,30 @@ impl<'s> ParticleTracer<'s> {
         y: DVec3,
         facing: DVec3,
         p: &Photon,
+        rng: &mut Rng,
         out: &mut [C64],
     ) {
-        let bounds = &t.flyer.volume.field.bounds;
         let n_out = t.flyer.volume.field.n_out;
-        let through_volume = |w: DVec3, length: f64| {
-            bounds
-                .interval(y, w)
-                .is_some_and(|(t0, t1)| t1 > 0.0 && t0 < length)
-        };
         let intensity = |w: DVec3| p.weight * w.dot(facing).max(0.0) / std::f64::consts::PI;
         for (i, cam) in self.scene.cameras.iter().enumerate() {
             let w = cam.direction;
-            let value = intensity(w) / cam.pixel_area();
             let Some(pixel) = cam.pixel(y) else {
                 continue;
             };
             let to_plane = (cam.center - y).dot(w).max(0.0);
-            if value <= 0.0
-                || through_volume(w, f64::INFINITY)
-                || self.scene.blocked(y, w, to_plane)
-            {
+            let value = intensity(w) / cam.pixel_area();
+            if value <= 0.0 || self.scene.blocked(y, w, to_plane) {
                 continue;
             }
+            let Some(transmittance) = self.past_volume(t, y, w, f64::INFINITY, rng) else {
+                continue;
+            };
             let Some(bin) = self.bin(p.opl + n_out * to_plane) else {
                 continue;
             };
             let image = self.camera_image(i);
-            image.add(out, bin, pixel, value, &t.colour);
-            out[image.total()].re += value;
+            image.add(out, bin, pixel, value * transmittance, &t.colour);
+            out[image.total()].re += value * transmittance;
         }
         for (i, cam) in self.scene.pinholes.iter().enumerate() {
             let v = cam.position - y;
@@ -604,16 +650,17 @@ impl<'s> ParticleTracer<'s> {
             let Some((pixel, cos)) = cam.pixel(w) else {
                 continue;
             };
-            if !(irradiance > 0.0 && irradiance.is_finite())
-                || through_volume(w, distance)
-                || self.scene.blocked(y, w, distance)
-            {
+            if !(irradiance > 0.0 && irradiance.is_finite()) || self.scene.blocked(y, w, distance) {
                 continue;
             }
+            let Some(transmittance) = self.past_volume(t, y, w, distance, rng) else {
+                continue;
+            };
             let Some(bin) = self.bin(p.opl + n_out * distance) else {
                 continue;
             };
             let image = self.pinhole_image(i);
+            let irradiance = irradiance * transmittance;
             let radiance = irradiance / (cos * cos * cos * cam.pixel_area());
             image.add(out, bin, pixel, radiance, &t.colour);
             out[image.total()].re += irradiance;
@@ -766,7 +813,7 @@ impl Estimator for ParticleTracer<'_> {
     fn run_chunk(&self, rng: &mut Rng, paths: u64, scratch: &mut Option<Volume>, out: &mut [C64]) {
         for _ in 0..paths {
             let Some(volume) = scratch.as_mut() else {
-                self.photon(&self.tools, rng, out);
+                self.sample(&self.tools, rng, out);
                 continue;
             };
             let base = &self.scene.volume.field;
@@ -789,7 +836,7 @@ impl Estimator for ParticleTracer<'_> {
                 colour = spectrum.colour(lambda);
             }
             let tools = Tools::new(volume, self.scene, colour);
-            self.photon(&tools, rng, out);
+            self.sample(&tools, rng, out);
         }
     }
 

@@ -357,6 +357,16 @@ pub enum Connections {
     First,
 }
 
+/// Which way paths are traced.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Tracing {
+    /// Particle tracing: photons from the light, connected to probes and cameras.
+    #[default]
+    FromLight,
+    /// Path tracing: paths from the pinhole cameras, connected to the light.
+    FromCameras,
+}
+
 /// What a sensor reports.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SensorKind {
@@ -536,6 +546,7 @@ pub struct RenderScene {
     /// `None`: the field is static.
     pub modulation: Option<Modulation>,
     pub connections: Connections,
+    pub tracing: Tracing,
     pub transient: Option<Transient>,
     /// `None`: one unnamed wavelength, the field as given.
     pub spectrum: Option<super::spectrum::Spectrum>,

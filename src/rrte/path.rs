@@ -1,0 +1,444 @@
+//! Path tracing from the cameras: the same images as particle tracing, estimated backwards.
+//!
+//! A path starts at a pinhole through a uniformly drawn point of a uniformly drawn pixel, runs
+//! straight to the volume or a surface, refracts or reflects at the volume's surface with the
+//! Fresnel probabilities, flies along curved rays over geometric length (delta tracking through a
+//! density), and scatters by the phase function (or diffusely off a surface) carrying the albedo.
+//! At every scattering event the light is connected to it: through the volume by a boundary-value
+//! connection (a curved ray to a light inside, or a ray leaving the volume and running straight to
+//! a light outside, solved as in [`super::connect`]), or in a straight line from a surface.
+//!
+//! The estimate is carried in basic radiance `B = L/n²`, which the RRTE conserves along rays and
+//! transmits across an interface as `(1 − R) B` (paper 002, Table 1): no `n²` appears along the
+//! path. A point source of intensity `I` at `q` gives the event at `x` the irradiance
+//! `I T (1 − R) n_x² / (n_q² dA_q/dω_x)`, where `dA_q/dω_x` is the ray tube's cross-section at `q`
+//! per solid angle at `x` that the connection solves for (reciprocity of the two-point étendue,
+//! `n_x² dA_x dω_x = n_q² dA_q dω_q`); in basic radiance the `n_x²` cancels. The camera sees
+//! `L = n_out² B`.
+//!
+//! A beam cannot be connected to (its directions are a delta); a light inside the volume is
+//! connected to the cameras directly, as in particle tracing, and one outside is not imaged itself. The connections do not reflect inside the surface, so light that reaches its first
+//! scattering event only after a reflection inside the surface is missed (particle tracing misses
+//! the mirror case, light leaving its last event by such a reflection): with index-matched
+//! surfaces the two estimate the same images.
+
+use super::connect::Sampled;
+use super::flight::{Flight, fresnel, reflect};
+use super::particle::{ParticleTracer, Tools};
+use super::scene::Light;
+use crate::eikonal::Ray;
+use crate::eikonal::trace::refract;
+use crate::math::{C64, Rng, uniform};
+use crate::speckle::paths::{ROULETTE_BELOW, ROULETTE_SURVIVAL};
+use glam::DVec3;
+use std::f64::consts::PI;
+
+/// A camera path's state: throughput in basic radiance, optical path from the camera, counts.
+struct Walk {
+    beta: f64,
+    opl: f64,
+    events: usize,
+    steps: usize,
+}
+
+impl Walk {
+    /// Russian roulette once the throughput is small: `false` if the path ends.
+    fn roulette(&mut self, rng: &mut Rng) -> bool {
+        if self.beta < ROULETTE_BELOW {
+            if uniform(rng) >= ROULETTE_SURVIVAL {
+                return false;
+            }
+            self.beta /= ROULETTE_SURVIVAL;
+        }
+        true
+    }
+}
+
+/// Where the camera path is.
+#[derive(Clone, Copy)]
+enum Leg {
+    Inside(Ray),
+    Outside {
+        x: DVec3,
+        d: DVec3,
+        left_volume: bool,
+    },
+}
+
+/// What a camera path adds to its pixel: radiance samples in their time bins.
+struct Pixel {
+    image: usize,
+    pixel: usize,
+    /// Pixels of the camera: a uniformly drawn pixel's sample counts this many times.
+    count: f64,
+    /// `cos³θ` times the image-plane area: turns a radiance sample into the irradiance at the
+    /// pinhole from its field of view.
+    to_irradiance: f64,
+}
+
+impl ParticleTracer<'_> {
+    /// One camera path per pinhole camera, adding its radiance samples to `out`; and, for a light
+    /// inside the volume, its direct light connected to the cameras as particle tracing does (a
+    /// point cannot be hit by a path).
+    pub(super) fn camera_paths(&self, t: &Tools, rng: &mut Rng, out: &mut [C64]) {
+        let scene = self.scene;
+        if let Some(q) = self.light_point(rng)
+            && t.flyer.volume.field.bounds.contains(q)
+        {
+            let light = &scene.light;
+            self.connect(t, q, 1.0, 0.0, |d| light.intensity(d), rng, out);
+        }
+        for (i, cam) in scene.pinholes.iter().enumerate() {
+            // a uniform point of a uniform pixel on the image plane at unit distance
+            let [nx, ny] = cam.pixels;
+            let a = uniform(rng);
+            let b = uniform(rng);
+            let (px, py) = (
+                ((a * nx as f64) as usize).min(nx - 1),
+                ((b * ny as f64) as usize).min(ny - 1),
+            );
+            let v = cam.forward
+                + cam.right * ((2.0 * a - 1.0) * cam.tan_half[0])
+                + cam.up * ((2.0 * b - 1.0) * cam.tan_half[1]);
+            let d = v.normalize();
+            let cos = d.dot(cam.forward);
+            let pixel = Pixel {
+                image: i,
+                pixel: py * nx + px,
+                count: cam.pixel_count() as f64,
+                to_irradiance: cos * cos * cos * 4.0 * cam.tan_half[0] * cam.tan_half[1],
+            };
+            self.camera_path(t, cam.position, d, &pixel, rng, out);
+        }
+    }
+
+    /// Record the radiance sample `radiance` (at the camera) arriving with optical path `opl`.
+    fn record_sample(&self, t: &Tools, p: &Pixel, radiance: f64, opl: f64, out: &mut [C64]) {
+        if !(radiance > 0.0 && radiance.is_finite()) {
+            return;
+        }
+        let Some(bin) = self.bin(opl) else {
+            return;
+        };
+        let image = self.pinhole_image(p.image);
+        image.add(out, bin, p.pixel, radiance * p.count, &t.colour);
+        out[image.total()].re += radiance * p.to_irradiance;
+    }
+
+    /// Trace the camera path leaving `x` along unit `d` (outside the volume).
+    fn camera_path(
+        &self,
+        t: &Tools,
+        x: DVec3,
+        d: DVec3,
+        pixel: &Pixel,
+        rng: &mut Rng,
+        out: &mut [C64],
+    ) {
+        let mut w = Walk {
+            beta: 1.0,
+            opl: 0.0,
+            events: 0,
+            steps: 0,
+        };
+        let mut leg = Leg::Outside {
+            x,
+            d,
+            left_volume: false,
+        };
+        loop {
+            let next = match leg {
+                Leg::Inside(ray) => self.camera_inside(t, ray, &mut w, pixel, rng, out),
+                Leg::Outside { x, d, left_volume } => {
+                    self.camera_outside(t, x, d, left_volume, &mut w, pixel, rng, out)
+                }
+            };
+            match next {
+                Some(l) => leg = l,
+                None => break,
+            }
+        }
+        out[self.total(super::Total::Events)].re += w.events as f64;
+        out[self.total(super::Total::Steps)].re += w.steps as f64;
+    }
+
+    /// A straight leg of the camera path outside the volume: into the volume (Fresnel), onto a
+    /// surface (a diffuse event, connected to the light), or away.
+    #[allow(clippy::too_many_arguments)]
+    fn camera_outside(
+        &self,
+        t: &Tools,
+        x: DVec3,
+        d: DVec3,
+        left_volume: bool,
+        w: &mut Walk,
+        pixel: &Pixel,
+        rng: &mut Rng,
+        out: &mut [C64],
+    ) -> Option<Leg> {
+        let volume = t.flyer.volume;
+        let bounds = &volume.field.bounds;
+        let n_out = volume.field.n_out;
+        let entry = match bounds.interval(x, d) {
+            Some((t0, t1)) if !left_volume && t1 > 0.0 && t0 >= 0.0 => Some(t0),
+            _ => None,
+        };
+        let surface = self.scene.surface_hit(x, d);
+        match (entry, surface) {
+            (Some(t0), s) if s.is_none_or(|(_, ts)| t0 <= ts) => {
+                let at = x + d * t0;
+                w.opl += n_out * t0;
+                let inside = x + d * crate::eikonal::trace::entry_parameter(t0);
+                let n_in = t.flyer.n(inside);
+                let normal = bounds.normal(at).unwrap_or(-d);
+                let r = fresnel(d.dot(normal), n_out / n_in);
+                if r > 0.0 && uniform(rng) < r {
+                    return Some(Leg::Outside {
+                        x: at,
+                        d: reflect(d, normal),
+                        left_volume: true,
+                    });
+                }
+                match refract(d, normal, n_out / n_in) {
+                    Ok(dir) => Some(Leg::Inside(Ray {
+                        x: inside,
+                        v: dir * n_in,
+                    })),
+                    Err(reflected) => Some(Leg::Outside {
+                        x: at,
+                        d: reflected,
+                        left_volume: true,
+                    }),
+                }
+            }
+            (_, Some((i, distance))) => {
+                let s = &self.scene.surfaces[i];
+                let y = x + d * distance;
+                w.opl += n_out * distance;
+                if s.albedo <= 0.0 {
+                    return None;
+                }
+                w.beta *= s.albedo;
+                w.events += 1;
+                let facing = if d.dot(s.normal) < 0.0 {
+                    s.normal
+                } else {
+                    -s.normal
+                };
+                self.light_to_surface(t, y, facing, w, pixel, rng, out);
+                if !w.roulette(rng) {
+                    return None;
+                }
+                let mu = uniform(rng).sqrt();
+                let dir = crate::math::direction_about(facing, mu, 2.0 * PI * uniform(rng));
+                Some(Leg::Outside {
+                    x: y,
+                    d: dir,
+                    left_volume: false,
+                })
+            }
+            _ => None,
+        }
+    }
+
+    /// Connect the light outside the volume to the lit point `y` of a surface in a straight line
+    /// (past no other surface, and through the volume only where it is index-matched): Lambertian
+    /// radiance `albedo E / π`.
+    #[allow(clippy::too_many_arguments)]
+    fn light_to_surface(
+        &self,
+        t: &Tools,
+        y: DVec3,
+        facing: DVec3,
+        w: &Walk,
+        pixel: &Pixel,
+        rng: &mut Rng,
+        out: &mut [C64],
+    ) {
+        let bounds = &t.flyer.volume.field.bounds;
+        let n_out = t.flyer.volume.field.n_out;
+        let Some(q) = self.light_point(rng) else {
+            return;
+        };
+        if bounds.contains(q) {
+            return;
+        }
+        let v = q - y;
+        let distance = v.length();
+        let dir = v / distance;
+        let cos = dir.dot(facing);
+        if cos <= 0.0 || self.scene.blocked(y, dir, distance) {
+            return;
+        }
+        let Some(transmittance) = self.past_volume(t, y, dir, distance, rng) else {
+            return;
+        };
+        // the surface's albedo is already in β: the Lambertian BRDF's 1/π remains
+        let irradiance =
+            self.scene.light.intensity(-dir) * cos * transmittance / (distance * distance);
+        self.record_sample(
+            t,
+            pixel,
+            w.beta * irradiance / PI,
+            w.opl + n_out * distance,
+            out,
+        );
+    }
+
+    /// A point of the light to connect to (`None` for a beam).
+    fn light_point(&self, rng: &mut Rng) -> Option<DVec3> {
+        match self.scene.light {
+            Light::Beam { .. } => None,
+            Light::Point { position } | Light::Spot { position, .. } => Some(position),
+            Light::Area { .. } => {
+                let (x, _) = self
+                    .scene
+                    .light
+                    .sample([uniform(rng), uniform(rng), 0.5, 0.5]);
+                Some(x)
+            }
+        }
+    }
+
+    /// Connect the light to the scattering event at `x` inside the volume, where the camera path
+    /// arrived travelling along unit `u`; `beta` already holds the albedo.
+    #[allow(clippy::too_many_arguments)]
+    fn light_to_event(
+        &self,
+        t: &Tools,
+        x: DVec3,
+        u: DVec3,
+        w: &Walk,
+        pixel: &Pixel,
+        rng: &mut Rng,
+        out: &mut [C64],
+    ) {
+        let volume = t.flyer.volume;
+        let Some(q) = self.light_point(rng) else {
+            return;
+        };
+        let first_only = self.scene.connections == super::Connections::First;
+        let n_out = volume.field.n_out;
+        let phase = |dir: DVec3| volume.scattering.eval(dir.dot(u));
+        if volume.field.bounds.contains(q) {
+            // a curved connection inside: dA_q/dω_x is its spread
+            let s: Sampled = match self.scene.connections {
+                super::Connections::Unbiased => t.connector.sample(x, q, rng),
+                super::Connections::First => t.connector.sample_first(x, q, rng),
+            };
+            let Some((c, inverse_p)) = self.tally(s, out) else {
+                return;
+            };
+            let leaving_q = -c.arrival.v.normalize();
+            let n_q = t.flyer.n(q);
+            let transmittance = self.transmittance(t, x, c.direction, c.length, rng);
+            let b =
+                w.beta * phase(c.direction) * self.scene.light.intensity(leaving_q) * transmittance
+                    / (n_q * n_q * c.spread)
+                    * inverse_p;
+            self.record_sample(t, pixel, n_out * n_out * b, w.opl + c.optical_path, out);
+        } else {
+            let s = t.connector.sample_through(x, q, first_only, rng);
+            let Some((e, inverse_p)) = self.tally(s, out) else {
+                return;
+            };
+            let to_q = (q - e.surface).dot(e.outgoing);
+            if self.scene.blocked(e.surface, e.outgoing, to_q) {
+                return;
+            }
+            let transmittance = self.transmittance(t, x, e.direction, e.length, rng);
+            // n_q = n_out: the camera's n_out² cancels it
+            let radiance = w.beta
+                * phase(e.direction)
+                * self.scene.light.intensity(-e.outgoing)
+                * transmittance
+                * e.transmission
+                / e.jacobian
+                * inverse_p;
+            self.record_sample(t, pixel, radiance, w.opl + e.optical_path, out);
+        }
+    }
+
+    /// Free flights and scattering of the camera path inside the volume.
+    #[allow(clippy::too_many_arguments)]
+    fn camera_inside(
+        &self,
+        t: &Tools,
+        mut ray: Ray,
+        w: &mut Walk,
+        pixel: &Pixel,
+        rng: &mut Rng,
+        out: &mut [C64],
+    ) -> Option<Leg> {
+        let volume = t.flyer.volume;
+        let bounds = &volume.field.bounds;
+        let n_out = volume.field.n_out;
+        let majorant = volume.majorant();
+        let albedo = volume.albedo();
+        loop {
+            let distance = if majorant > 0.0 {
+                -(1.0 - uniform(rng)).ln() / majorant
+            } else {
+                f64::INFINITY
+            };
+            let (flight, k) = t.flyer.fly(ray, distance);
+            w.steps += k;
+            match flight {
+                Flight::Collision {
+                    ray: hit,
+                    optical_path,
+                } => {
+                    w.opl += optical_path;
+                    if let Some(density) = &volume.density
+                        && uniform(rng) * density.max >= density.at(hit.x)
+                    {
+                        ray = hit;
+                        continue;
+                    }
+                    w.events += 1;
+                    w.beta *= albedo;
+                    let u = hit.v.normalize();
+                    self.light_to_event(t, hit.x, u, w, pixel, rng, out);
+                    if !w.roulette(rng) || w.events >= super::particle::MAX_EVENTS {
+                        return None;
+                    }
+                    let kind = volume.scattering.pick(|| uniform(rng));
+                    let dir = volume
+                        .scattering
+                        .phase(kind)
+                        .sample(u, uniform(rng), uniform(rng));
+                    ray = Ray {
+                        x: hit.x,
+                        v: dir * t.flyer.n(hit.x),
+                    };
+                }
+                Flight::Boundary {
+                    ray: end,
+                    optical_path,
+                } => {
+                    w.opl += optical_path;
+                    let n_in = t.flyer.n(end.x);
+                    let d = end.v.normalize();
+                    let normal = bounds.normal(end.x).unwrap_or(d);
+                    let r = fresnel(d.dot(normal), n_in / n_out);
+                    match refract(d, -normal, n_in / n_out) {
+                        Ok(leaving) if r == 0.0 || uniform(rng) >= r => {
+                            return Some(Leg::Outside {
+                                x: end.x,
+                                d: leaving,
+                                left_volume: true,
+                            });
+                        }
+                        _ => {
+                            ray = Ray {
+                                x: end.x,
+                                v: reflect(d, normal) * n_in,
+                            };
+                        }
+                    }
+                }
+                Flight::Stuck { .. } => return None,
+            }
+        }
+    }
+}

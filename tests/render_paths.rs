@@ -1,0 +1,180 @@
+//! Path tracing from the cameras against particle tracing from the light: two independent
+//! estimators of the same images (camera paths connected to the light, photons connected to the
+//! camera), on index-matched volumes where both estimate every path: a scattering sphere with
+//! straight rays and a point light outside, a scattering Luneburg lens with curved rays and a point
+//! light inside, and a white floor beside a scattering sphere.
+
+use glam::DVec3;
+use lightpath::eikonal::{BoundedField, Bounds, Profile};
+use lightpath::mc::{Estimate, Plan, estimate};
+use lightpath::medium::{PhaseFunction, Scattering};
+use lightpath::rrte::{Light, ParticleTracer, Pinhole, RenderScene, Surface, Tracing, Volume};
+
+fn scene(profile: Profile, light: Light, camera: Pinhole) -> RenderScene {
+    RenderScene {
+        volume: Volume {
+            field: BoundedField::single(profile, Bounds::Sphere { radius: 1.0 }, 1.0),
+            sigma_s: 1.5,
+            sigma_a: 0.1,
+            scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g: 0.5 }),
+            density: None,
+        },
+        light,
+        sensors: vec![],
+        probes: vec![],
+        cameras: vec![],
+        pinholes: vec![camera],
+        surfaces: vec![],
+        modulation: None,
+        connections: Default::default(),
+        tracing: Default::default(),
+        transient: None,
+        spectrum: None,
+        step: 0.004,
+        max_steps: 100_000,
+    }
+}
+
+fn camera(position: DVec3, target: DVec3, fov_deg: f64) -> Pinhole {
+    Pinhole::looking_at(
+        "cam".into(),
+        position,
+        target,
+        DVec3::Z,
+        fov_deg.to_radians(),
+        [10, 10],
+    )
+    .unwrap()
+}
+
+fn render(scene: &RenderScene, samples: u64, seed: u64) -> (Estimate, ParticleTracer<'_>) {
+    let est = ParticleTracer::new(scene);
+    let e = estimate(&est, &Plan::new(seed, samples, samples / 64));
+    (e, est)
+}
+
+/// Render `s` both ways and compare the pinhole's irradiance and every pixel (within 4 combined
+/// standard errors; one pixel in a hundred may stray as far by chance, none beyond 5), or with
+/// `blocks`, the image's four quadrants instead of its pixels.
+fn agree(mut s: RenderScene, photons: u64, paths: u64, blocks: bool) {
+    s.tracing = Tracing::FromLight;
+    let (a, est) = render(&s, photons, 1);
+    let mut p = s.clone();
+    p.tracing = Tracing::FromCameras;
+    let (b, _) = render(&p, paths, 2);
+    let image = est.pinhole_image(0);
+    let compare = |k: usize| {
+        let (x, sx, y, sy) = (a.mean[k].re, a.stderr[k], b.mean[k].re, b.stderr[k]);
+        (
+            (x - y).abs() / (sx * sx + sy * sy).sqrt().max(1e-300),
+            x,
+            sx,
+            y,
+            sy,
+        )
+    };
+    use lightpath::rrte::Total;
+    for t in [
+        Total::Connections,
+        Total::Connected,
+        Total::Solves,
+        Total::Events,
+    ] {
+        eprintln!(
+            "{t:?}: particles {} paths {}",
+            a.mean[est.total(t)].re,
+            b.mean[est.total(t)].re
+        );
+    }
+    let (z, x, sx, y, sy) = compare(image.total());
+    assert!(
+        z < 4.0 && y > 0.0,
+        "irradiance: particles {x} ± {sx}, paths {y} ± {sy}"
+    );
+    if blocks {
+        // sums over the quadrants of the 10 × 10 image, their pixels' errors added in quadrature
+        // (one path reaching several pixels correlates them; the 4σ allowance covers it)
+        for (qx, qy) in [(0, 0), (5, 0), (0, 5), (5, 5)] {
+            let (mut x, mut vx, mut y, mut vy) = (0.0, 0.0, 0.0, 0.0);
+            for j in qy..qy + 5 {
+                for i in qx..qx + 5 {
+                    let k = image.plane(None, 0) + j * 10 + i;
+                    x += a.mean[k].re;
+                    vx += a.stderr[k].powi(2);
+                    y += b.mean[k].re;
+                    vy += b.stderr[k].powi(2);
+                }
+            }
+            assert!(
+                (x - y).abs() < 4.0 * (vx + vy).sqrt(),
+                "quadrant ({qx}, {qy}): particles {x} ± {}, paths {y} ± {}",
+                vx.sqrt(),
+                vy.sqrt()
+            );
+        }
+        return;
+    }
+    let mut stray = 0;
+    let mut lit = 0;
+    for k in 0..image.pixels {
+        let (z, x, sx, y, sy) = compare(image.plane(None, 0) + k);
+        if y > 0.0 {
+            lit += 1;
+        }
+        assert!(z < 5.0, "pixel {k}: particles {x} ± {sx}, paths {y} ± {sy}");
+        if z > 4.0 {
+            stray += 1;
+        }
+    }
+    assert!(stray <= 1, "{stray} pixels beyond 4 standard errors");
+    assert!(lit > image.pixels / 4, "only {lit} pixels lit");
+}
+
+/// Straight rays: a point light outside a scattering sphere (index-matched), seen from the side.
+#[test]
+fn straight_rays_agree() {
+    let s = scene(
+        Profile::Constant { n: 1.0 },
+        Light::Point {
+            position: DVec3::new(0.0, 0.0, -2.5),
+        },
+        camera(DVec3::new(3.0, 1.0, 2.0), DVec3::ZERO, 45.0),
+    );
+    agree(s, 400_000, 40_000, false);
+}
+
+/// Curved rays: a point light inside a scattering Luneburg lens (n = 1 at its surface).
+#[test]
+fn curved_rays_agree() {
+    let s = scene(
+        Profile::Luneburg { radius: 1.0 },
+        Light::Point {
+            position: DVec3::new(0.2, -0.3, -0.5),
+        },
+        camera(DVec3::new(3.0, 1.0, 2.0), DVec3::ZERO, 45.0),
+    );
+    agree(s, 100_000, 20_000, true);
+}
+
+/// A white floor beside the sphere, lit by a spot light above: the camera sees the floor and
+/// the light it sends back into the sphere.
+#[test]
+fn a_floor_agrees() {
+    let mut s = scene(
+        Profile::Constant { n: 1.0 },
+        Light::Spot {
+            position: DVec3::new(0.0, 0.0, 2.5),
+            axis: -DVec3::Z,
+            half_angle: 50f64.to_radians(),
+        },
+        camera(DVec3::new(2.5, -2.0, 1.0), DVec3::new(1.5, 0.0, -1.3), 40.0),
+    );
+    s.surfaces.push(Surface::new(
+        "floor".into(),
+        DVec3::new(0.0, 0.0, -1.5),
+        DVec3::Z,
+        Some([8.0, 8.0]),
+        0.7,
+    ));
+    agree(s, 400_000, 40_000, false);
+}
