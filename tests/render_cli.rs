@@ -45,6 +45,18 @@ fn refused(path: &Path, text: &str, key: &str) {
     assert!(err.contains(key), "the error should name {key}: {err}");
 }
 
+/// [`refused`] for each `(from, to, key)`: `base` with `from` replaced by `to` names `key`.
+fn refused_all(dir: &Path, base: &str, cases: &[(&str, &str, &str)]) {
+    for (i, (from, to, key)) in cases.iter().enumerate() {
+        assert!(base.contains(from), "{from}");
+        refused(
+            &dir.join(format!("bad{i}.toml")),
+            &base.replacen(from, to, 1),
+            key,
+        );
+    }
+}
+
 fn config(name: &str) -> String {
     format!("{}/configs/{name}", env!("CARGO_MANIFEST_DIR"))
 }
@@ -234,14 +246,7 @@ fn spectra_are_checked_by_key() {
             "spectrum.material[0]",
         ),
     ];
-    for (i, (from, to, key)) in cases.iter().enumerate() {
-        assert!(base.contains(from), "{from}");
-        refused(
-            &dir.join(format!("bad{i}.toml")),
-            &base.replacen(from, to, 1),
-            key,
-        );
-    }
+    refused_all(&dir, &base, cases);
     let _ = std::fs::remove_dir_all(dir);
 }
 
@@ -309,14 +314,7 @@ fn densities_are_checked_by_key() {
             "density.values",
         ),
     ];
-    for (i, (from, to, key)) in cases.iter().enumerate() {
-        assert!(base.contains(from), "{from}");
-        refused(
-            &dir.join(format!("bad{i}.toml")),
-            &base.replacen(from, to, 1),
-            key,
-        );
-    }
+    refused_all(&dir, &base, cases);
     // a density needs a medium to scale
     let start = base.find("[medium]").unwrap();
     let end = base.find("[density]").unwrap();
@@ -357,14 +355,7 @@ fn surfaces_are_checked_by_key() {
             "surface[1].name",
         ),
     ];
-    for (i, (from, to, key)) in cases.iter().enumerate() {
-        assert!(base.contains(from), "{from}");
-        refused(
-            &dir.join(format!("bad{i}.toml")),
-            &base.replacen(from, to, 1),
-            key,
-        );
-    }
+    refused_all(&dir, &base, cases);
     let _ = std::fs::remove_dir_all(dir);
 }
 

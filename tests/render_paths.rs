@@ -8,7 +8,9 @@ use glam::DVec3;
 use lightpath::eikonal::{BoundedField, Bounds, Profile};
 use lightpath::mc::{Estimate, Plan, estimate};
 use lightpath::medium::{PhaseFunction, Scattering};
-use lightpath::rrte::{Light, ParticleTracer, Pinhole, RenderScene, Surface, Tracing, Volume};
+use lightpath::rrte::{
+    Camera, ImageLayout, Light, ParticleTracer, Pinhole, RenderScene, Surface, Tracing, Volume,
+};
 
 fn scene(profile: Profile, light: Light, camera: Pinhole) -> RenderScene {
     RenderScene {
@@ -55,14 +57,24 @@ fn render(scene: &RenderScene, samples: u64, seed: u64) -> (Estimate, ParticleTr
 
 /// Render `s` both ways and compare the pinhole's irradiance and every pixel (within 4 combined
 /// standard errors; one pixel in a hundred may stray as far by chance, none beyond 5), or with
-/// `blocks`, the image's four quadrants instead of its pixels.
+/// `blocks`, the image's four quadrants instead of its pixels; likewise an orthographic camera's
+/// when the scene has one.
 fn agree(mut s: RenderScene, photons: u64, paths: u64, blocks: bool) {
     s.tracing = Tracing::FromLight;
     let (a, est) = render(&s, photons, 1);
     let mut p = s.clone();
     p.tracing = Tracing::FromCameras;
     let (b, _) = render(&p, paths, 2);
-    let image = est.pinhole_image(0);
+    let mut images = vec![est.pinhole_image(0)];
+    if !s.cameras.is_empty() {
+        images.push(est.camera_image(0));
+    }
+    for image in images {
+        compare_images(&a, &b, image, blocks);
+    }
+}
+
+fn compare_images(a: &Estimate, b: &Estimate, image: ImageLayout, blocks: bool) {
     let compare = |k: usize| {
         let (x, sx, y, sy) = (a.mean[k].re, a.stderr[k], b.mean[k].re, b.stderr[k]);
         (
@@ -73,29 +85,16 @@ fn agree(mut s: RenderScene, photons: u64, paths: u64, blocks: bool) {
             sy,
         )
     };
-    use lightpath::rrte::Total;
-    for t in [
-        Total::Connections,
-        Total::Connected,
-        Total::Solves,
-        Total::Events,
-    ] {
-        eprintln!(
-            "{t:?}: particles {} paths {}",
-            a.mean[est.total(t)].re,
-            b.mean[est.total(t)].re
-        );
-    }
     let (z, x, sx, y, sy) = compare(image.total());
     assert!(
         z < 4.0 && y > 0.0,
-        "irradiance: particles {x} ± {sx}, paths {y} ± {sy}"
+        "total: particles {x} ± {sx}, paths {y} ± {sy}"
     );
     if blocks {
         // sums over the quadrants of the 10 × 10 image, their pixels' errors added in quadrature
         // (one path reaching several pixels correlates them; the 4σ allowance covers it)
         for (qx, qy) in [(0, 0), (5, 0), (0, 5), (5, 5)] {
-            let (mut x, mut vx, mut y, mut vy) = (0.0, 0.0, 0.0, 0.0);
+            let (mut x, mut vx, mut y, mut vy) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
             for j in qy..qy + 5 {
                 for i in qx..qx + 5 {
                     let k = image.plane(None, 0) + j * 10 + i;
@@ -130,16 +129,24 @@ fn agree(mut s: RenderScene, photons: u64, paths: u64, blocks: bool) {
     assert!(lit > image.pixels / 4, "only {lit} pixels lit");
 }
 
-/// Straight rays: a point light outside a scattering sphere (index-matched), seen from the side.
+/// Straight rays: a point light outside a scattering sphere (index-matched), seen from the side
+/// by a pinhole and from above by an orthographic camera.
 #[test]
 fn straight_rays_agree() {
-    let s = scene(
+    let mut s = scene(
         Profile::Constant { n: 1.0 },
         Light::Point {
             position: DVec3::new(0.0, 0.0, -2.5),
         },
         camera(DVec3::new(3.0, 1.0, 2.0), DVec3::ZERO, 45.0),
     );
+    s.cameras.push(Camera::new(
+        "top".into(),
+        DVec3::Z,
+        DVec3::new(0.0, 0.0, 2.0),
+        [2.4, 2.4],
+        [10, 10],
+    ));
     agree(s, 400_000, 40_000, false);
 }
 

@@ -416,7 +416,7 @@ pub struct RenderSettings {
     #[serde(default, skip_serializing_if = "ConnectionsConfig::is_default")]
     pub connections: ConnectionsConfig,
     /// `"particle"` (photons from the light; every sensor kind) or `"path"` (paths from the
-    /// pinhole cameras, connected to the light).
+    /// cameras, connected to the light).
     #[serde(default, skip_serializing_if = "EstimatorConfig::is_default")]
     pub estimator: EstimatorConfig,
 }
@@ -746,23 +746,22 @@ impl RenderConfig {
         Ok(scene)
     }
 
-    /// Path tracing renders pinhole cameras lit by a light it can connect to.
+    /// Path tracing renders cameras lit by a light it can connect to.
     fn check_path_tracing(&self, scene: &RenderScene) -> Result<(), ConfigError> {
         for (i, s) in self.sensor.iter().enumerate() {
             let kind = match s {
-                SensorConfig::Pinhole { .. } => continue,
+                SensorConfig::Pinhole { .. } | SensorConfig::Camera { .. } => continue,
                 SensorConfig::Flux { .. } => "flux",
                 SensorConfig::Screen { .. } => "screen",
                 SensorConfig::Fluence { .. } => "fluence",
-                SensorConfig::Camera { .. } => "camera",
             };
             return err(format!(
-                "sensor[{i}].kind = \"{kind}\": render.estimator = \"path\" renders pinhole cameras only; use the particle estimator for {kind} sensors"
+                "sensor[{i}].kind = \"{kind}\": render.estimator = \"path\" renders cameras only (kind = \"pinhole\" or \"camera\"); use the particle estimator for {kind} sensors"
             ));
         }
-        if scene.pinholes.is_empty() {
+        if scene.pinholes.is_empty() && scene.cameras.is_empty() {
             return err(
-                "render.estimator = \"path\": no pinhole camera to trace paths from ([[sensor]] kind = \"pinhole\")",
+                "render.estimator = \"path\": no camera to trace paths from ([[sensor]] kind = \"pinhole\" or \"camera\")",
             );
         }
         if matches!(scene.light, Light::Beam { .. }) {

@@ -543,30 +543,8 @@ impl<'s> ParticleTracer<'s> {
         self.cross_sensors(t, x, d, end, p.weight, p.opl, out);
         match (entry, surface) {
             (Some(t0), _) if t0 == end => {
-                let at = x + d * t0;
                 p.opl += n_out * t0;
-                let inside = x + d * crate::eikonal::trace::entry_parameter(t0);
-                let n_in = t.flyer.n(inside);
-                let normal = bounds.normal(at).unwrap_or(-d);
-                let r = fresnel(d.dot(normal), n_out / n_in);
-                if r > 0.0 && uniform(rng) < r {
-                    return Some(Leg::Outside {
-                        x: at,
-                        d: reflect(d, normal),
-                        left_volume: true,
-                    });
-                }
-                match refract(d, normal, n_out / n_in) {
-                    Ok(w) => Some(Leg::Inside(Ray {
-                        x: inside,
-                        v: w * n_in,
-                    })),
-                    Err(reflected) => Some(Leg::Outside {
-                        x: at,
-                        d: reflected,
-                        left_volume: true,
-                    }),
-                }
+                Some(Leg::enter(t, x, d, t0, rng))
             }
             (_, Some((i, distance))) => {
                 let s = &self.scene.surfaces[i];
@@ -678,8 +656,6 @@ impl<'s> ParticleTracer<'s> {
         out: &mut [C64],
     ) -> Option<Leg> {
         let volume = t.flyer.volume;
-        let bounds = &volume.field.bounds;
-        let n_out = volume.field.n_out;
         let majorant = volume.majorant();
         let albedo = volume.albedo();
         loop {
@@ -734,25 +710,9 @@ impl<'s> ParticleTracer<'s> {
                     optical_path,
                 } => {
                     p.opl += optical_path;
-                    let n_in = t.flyer.n(end.x);
-                    let d = end.v.normalize();
-                    let normal = bounds.normal(end.x).unwrap_or(d);
-                    let r = fresnel(d.dot(normal), n_in / n_out);
-                    match refract(d, -normal, n_in / n_out) {
-                        Ok(leaving) if r == 0.0 || uniform(rng) >= r => {
-                            return Some(Leg::Outside {
-                                x: end.x,
-                                d: leaving,
-                                left_volume: true,
-                            });
-                        }
-                        // Fresnel or total internal reflection: back inside
-                        _ => {
-                            ray = Ray {
-                                x: end.x,
-                                v: reflect(d, normal) * n_in,
-                            };
-                        }
+                    match Leg::leave(t, end, rng) {
+                        Leg::Inside(reflected) => ray = reflected,
+                        out => return Some(out),
                     }
                 }
                 Flight::Stuck { .. } => {
@@ -764,15 +724,67 @@ impl<'s> ParticleTracer<'s> {
     }
 }
 
-/// Where a photon is: inside the volume with its ray, or on a straight leg outside it.
+/// Where a photon or a camera path is: inside the volume with its ray, or on a straight leg
+/// outside it (`left_volume`: starting where it left the convex volume, so it cannot re-enter).
 #[derive(Clone, Copy)]
-enum Leg {
+pub(super) enum Leg {
     Inside(Ray),
     Outside {
         x: DVec3,
         d: DVec3,
         left_volume: bool,
     },
+}
+
+impl Leg {
+    /// The straight ray from `x` along unit `d` meets the volume's surface at distance `t0`:
+    /// refract in, or reflect (Fresnel, total internal reflection) and stay outside.
+    pub(super) fn enter(t: &Tools, x: DVec3, d: DVec3, t0: f64, rng: &mut Rng) -> Leg {
+        let field = &t.flyer.volume.field;
+        let n_out = field.n_out;
+        let at = x + d * t0;
+        let inside = x + d * crate::eikonal::trace::entry_parameter(t0);
+        let n_in = t.flyer.n(inside);
+        let normal = field.bounds.normal(at).unwrap_or(-d);
+        let r = fresnel(d.dot(normal), n_out / n_in);
+        let reflected = |d| Leg::Outside {
+            x: at,
+            d,
+            left_volume: true,
+        };
+        if r > 0.0 && uniform(rng) < r {
+            return reflected(reflect(d, normal));
+        }
+        match refract(d, normal, n_out / n_in) {
+            Ok(w) => Leg::Inside(Ray {
+                x: inside,
+                v: w * n_in,
+            }),
+            Err(mirrored) => reflected(mirrored),
+        }
+    }
+
+    /// The ray inside reaches the surface at `end`: leave refracted, or reflect back inside
+    /// (Fresnel, total internal reflection).
+    pub(super) fn leave(t: &Tools, end: Ray, rng: &mut Rng) -> Leg {
+        let field = &t.flyer.volume.field;
+        let n_out = field.n_out;
+        let n_in = t.flyer.n(end.x);
+        let d = end.v.normalize();
+        let normal = field.bounds.normal(end.x).unwrap_or(d);
+        let r = fresnel(d.dot(normal), n_in / n_out);
+        match refract(d, -normal, n_in / n_out) {
+            Ok(leaving) if r == 0.0 || uniform(rng) >= r => Leg::Outside {
+                x: end.x,
+                d: leaving,
+                left_volume: true,
+            },
+            _ => Leg::Inside(Ray {
+                x: end.x,
+                v: reflect(d, normal) * n_in,
+            }),
+        }
+    }
 }
 
 /// A photon's state across its legs.
@@ -786,14 +798,20 @@ struct Photon {
 impl Photon {
     /// Russian roulette once the weight is small: `false` if the photon dies.
     fn roulette(&mut self, rng: &mut Rng) -> bool {
-        if self.weight < ROULETTE_BELOW {
-            if uniform(rng) >= ROULETTE_SURVIVAL {
-                return false;
-            }
-            self.weight /= ROULETTE_SURVIVAL;
-        }
-        true
+        roulette(&mut self.weight, rng)
     }
+}
+
+/// Russian roulette on a photon's weight or a path's throughput once it is small: `false` if it
+/// ends, else the survivor's weight raised to keep the estimate unbiased.
+pub(super) fn roulette(weight: &mut f64, rng: &mut Rng) -> bool {
+    if *weight < ROULETTE_BELOW {
+        if uniform(rng) >= ROULETTE_SURVIVAL {
+            return false;
+        }
+        *weight /= ROULETTE_SURVIVAL;
+    }
+    true
 }
 
 impl Estimator for ParticleTracer<'_> {

@@ -1,6 +1,7 @@
 //! Path tracing from the cameras: the same images as particle tracing, estimated backwards.
 //!
-//! A path starts at a pinhole through a uniformly drawn point of a uniformly drawn pixel, runs
+//! A path starts at a pinhole through a uniformly drawn point of a uniformly drawn pixel (or at
+//! such a point of an orthographic camera's rectangle, looking back along its direction), runs
 //! straight to the volume or a surface, refracts or reflects at the volume's surface with the
 //! Fresnel probabilities, flies along curved rays over geometric length (delta tracking through a
 //! density), and scatters by the phase function (or diffusely off a surface) carrying the albedo.
@@ -23,13 +24,11 @@
 //! surfaces the two estimate the same images.
 
 use super::connect::Sampled;
-use super::flight::{Flight, fresnel, reflect};
-use super::particle::{ParticleTracer, Tools};
+use super::flight::Flight;
+use super::particle::{Leg, ParticleTracer, Tools};
 use super::scene::Light;
 use crate::eikonal::Ray;
-use crate::eikonal::trace::refract;
 use crate::math::{C64, Rng, uniform};
-use crate::speckle::paths::{ROULETTE_BELOW, ROULETTE_SURVIVAL};
 use glam::DVec3;
 use std::f64::consts::PI;
 
@@ -44,42 +43,26 @@ struct Walk {
 impl Walk {
     /// Russian roulette once the throughput is small: `false` if the path ends.
     fn roulette(&mut self, rng: &mut Rng) -> bool {
-        if self.beta < ROULETTE_BELOW {
-            if uniform(rng) >= ROULETTE_SURVIVAL {
-                return false;
-            }
-            self.beta /= ROULETTE_SURVIVAL;
-        }
-        true
+        super::particle::roulette(&mut self.beta, rng)
     }
-}
-
-/// Where the camera path is.
-#[derive(Clone, Copy)]
-enum Leg {
-    Inside(Ray),
-    Outside {
-        x: DVec3,
-        d: DVec3,
-        left_volume: bool,
-    },
 }
 
 /// What a camera path adds to its pixel: radiance samples in their time bins.
 struct Pixel {
-    image: usize,
+    image: super::ImageLayout,
     pixel: usize,
     /// Pixels of the camera: a uniformly drawn pixel's sample counts this many times.
     count: f64,
-    /// `cos³θ` times the image-plane area: turns a radiance sample into the irradiance at the
-    /// pinhole from its field of view.
-    to_irradiance: f64,
+    /// Turns a radiance sample into the camera's total: `cos³θ` times the image-plane area for a
+    /// pinhole (the irradiance from its field of view), the pixel count for an orthographic
+    /// camera (the sum of its pixels).
+    to_total: f64,
 }
 
 impl ParticleTracer<'_> {
-    /// One camera path per pinhole camera, adding its radiance samples to `out`; and, for a light
-    /// inside the volume, its direct light connected to the cameras as particle tracing does (a
-    /// point cannot be hit by a path).
+    /// One camera path per camera, adding its radiance samples to `out`; and, for a light inside
+    /// the volume, its direct light connected to the cameras as particle tracing does (a point
+    /// cannot be hit by a path).
     pub(super) fn camera_paths(&self, t: &Tools, rng: &mut Rng, out: &mut [C64]) {
         let scene = self.scene;
         if let Some(q) = self.light_point(rng)
@@ -103,12 +86,33 @@ impl ParticleTracer<'_> {
             let d = v.normalize();
             let cos = d.dot(cam.forward);
             let pixel = Pixel {
-                image: i,
+                image: self.pinhole_image(i),
                 pixel: py * nx + px,
                 count: cam.pixel_count() as f64,
-                to_irradiance: cos * cos * cos * 4.0 * cam.tan_half[0] * cam.tan_half[1],
+                to_total: cos * cos * cos * 4.0 * cam.tan_half[0] * cam.tan_half[1],
             };
             self.camera_path(t, cam.position, d, &pixel, rng, out);
+        }
+        for (i, cam) in scene.cameras.iter().enumerate() {
+            // a uniform point of a uniform pixel of the rectangle, looking back along the light
+            let [nx, ny] = cam.pixels;
+            let a = uniform(rng);
+            let b = uniform(rng);
+            let (px, py) = (
+                ((a * nx as f64) as usize).min(nx - 1),
+                ((b * ny as f64) as usize).min(ny - 1),
+            );
+            let y = cam.center
+                + cam.right * ((a - 0.5) * cam.size[0])
+                + cam.up * ((b - 0.5) * cam.size[1]);
+            let count = cam.pixel_count() as f64;
+            let pixel = Pixel {
+                image: self.camera_image(i),
+                pixel: py * nx + px,
+                count,
+                to_total: count,
+            };
+            self.camera_path(t, y, -cam.direction, &pixel, rng, out);
         }
     }
 
@@ -120,9 +124,9 @@ impl ParticleTracer<'_> {
         let Some(bin) = self.bin(opl) else {
             return;
         };
-        let image = self.pinhole_image(p.image);
-        image.add(out, bin, p.pixel, radiance * p.count, &t.colour);
-        out[image.total()].re += radiance * p.to_irradiance;
+        p.image
+            .add(out, bin, p.pixel, radiance * p.count, &t.colour);
+        out[p.image.total()].re += radiance * p.to_total;
     }
 
     /// Trace the camera path leaving `x` along unit `d` (outside the volume).
@@ -186,30 +190,8 @@ impl ParticleTracer<'_> {
         let surface = self.scene.surface_hit(x, d);
         match (entry, surface) {
             (Some(t0), s) if s.is_none_or(|(_, ts)| t0 <= ts) => {
-                let at = x + d * t0;
                 w.opl += n_out * t0;
-                let inside = x + d * crate::eikonal::trace::entry_parameter(t0);
-                let n_in = t.flyer.n(inside);
-                let normal = bounds.normal(at).unwrap_or(-d);
-                let r = fresnel(d.dot(normal), n_out / n_in);
-                if r > 0.0 && uniform(rng) < r {
-                    return Some(Leg::Outside {
-                        x: at,
-                        d: reflect(d, normal),
-                        left_volume: true,
-                    });
-                }
-                match refract(d, normal, n_out / n_in) {
-                    Ok(dir) => Some(Leg::Inside(Ray {
-                        x: inside,
-                        v: dir * n_in,
-                    })),
-                    Err(reflected) => Some(Leg::Outside {
-                        x: at,
-                        d: reflected,
-                        left_volume: true,
-                    }),
-                }
+                Some(Leg::enter(t, x, d, t0, rng))
             }
             (_, Some((i, distance))) => {
                 let s = &self.scene.surfaces[i];
@@ -371,8 +353,6 @@ impl ParticleTracer<'_> {
         out: &mut [C64],
     ) -> Option<Leg> {
         let volume = t.flyer.volume;
-        let bounds = &volume.field.bounds;
-        let n_out = volume.field.n_out;
         let majorant = volume.majorant();
         let albedo = volume.albedo();
         loop {
@@ -417,24 +397,9 @@ impl ParticleTracer<'_> {
                     optical_path,
                 } => {
                     w.opl += optical_path;
-                    let n_in = t.flyer.n(end.x);
-                    let d = end.v.normalize();
-                    let normal = bounds.normal(end.x).unwrap_or(d);
-                    let r = fresnel(d.dot(normal), n_in / n_out);
-                    match refract(d, -normal, n_in / n_out) {
-                        Ok(leaving) if r == 0.0 || uniform(rng) >= r => {
-                            return Some(Leg::Outside {
-                                x: end.x,
-                                d: leaving,
-                                left_volume: true,
-                            });
-                        }
-                        _ => {
-                            ray = Ray {
-                                x: end.x,
-                                v: reflect(d, normal) * n_in,
-                            };
-                        }
+                    match Leg::leave(t, end, rng) {
+                        Leg::Inside(reflected) => ray = reflected,
+                        out => return Some(out),
                     }
                 }
                 Flight::Stuck { .. } => return None,
