@@ -12,11 +12,20 @@ use glam::DVec3;
 /// How a free flight ended.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Flight {
-    /// The sampled distance ran out inside: a collision at `ray.x`.
-    Collision { ray: Ray, optical_path: f64 },
+    /// The sampled distance ran out inside: a collision at `ray.x`, after the optical path
+    /// `∫ n ds` and the geometric `length`.
+    Collision {
+        ray: Ray,
+        optical_path: f64,
+        length: f64,
+    },
     /// The ray reached the boundary first: `ray` is the last state inside (within round-off of
     /// the surface).
-    Boundary { ray: Ray, optical_path: f64 },
+    Boundary {
+        ray: Ray,
+        optical_path: f64,
+        length: f64,
+    },
     /// The step budget ran out before either (a ray trapped in the field).
     Stuck { ray: Ray, optical_path: f64 },
 }
@@ -75,11 +84,13 @@ impl<'v> Flyer<'v> {
                 };
                 let hit = t.leapfrog(r, tau * frac);
                 let n1 = self.n(hit.x);
-                let optical_path = opl + 0.5 * (n0 + n1) * (hit.x - r.x).length();
+                let last = (hit.x - r.x).length();
+                let optical_path = opl + 0.5 * (n0 + n1) * last;
                 return (
                     Flight::Collision {
                         ray: hit,
                         optical_path,
+                        length: s + last,
                     },
                     k + 1,
                 );
@@ -94,6 +105,7 @@ impl<'v> Flyer<'v> {
                     Flight::Boundary {
                         ray: r,
                         optical_path: opl,
+                        length: s,
                     },
                     k + 1,
                 );
@@ -125,6 +137,7 @@ impl<'v> Flyer<'v> {
                     v: r.v,
                 },
                 optical_path: n * distance,
+                length: distance,
             }
         } else {
             // the last point inside: step back from the surface by round-off
@@ -135,6 +148,7 @@ impl<'v> Flyer<'v> {
                     v: r.v,
                 },
                 optical_path: n * exit,
+                length: exit,
             }
         }
     }

@@ -18,6 +18,7 @@
 use super::connect::{Connector, Sampled};
 use super::flight::{Flight, Flyer, fresnel, reflect};
 use super::scene::{Connections, Modulation, RenderScene, SensorKind, Tracing, Volume};
+use super::spectrum::Delay;
 use crate::eikonal::Ray;
 use crate::eikonal::trace::refract;
 use crate::math::{C64, Rng, uniform};
@@ -61,14 +62,17 @@ pub(super) struct Tools<'v> {
     pub(super) flyer: Flyer<'v>,
     pub(super) connector: Connector<'v>,
     pub(super) colour: [f64; 3],
+    /// The photon's group delay per optical path (its wavelength's dispersion).
+    pub(super) delay: Delay,
 }
 
 impl<'v> Tools<'v> {
-    fn new(volume: &'v Volume, scene: &RenderScene, colour: [f64; 3]) -> Self {
+    fn new(volume: &'v Volume, scene: &RenderScene, colour: [f64; 3], delay: Delay) -> Self {
         Tools {
             flyer: Flyer::new(volume, scene.step, scene.max_steps),
             connector: Connector::new(volume, scene.step, scene.max_steps),
             colour,
+            delay,
         }
     }
 }
@@ -179,7 +183,7 @@ impl<'s> ParticleTracer<'s> {
         at += scene.surfaces.len();
         ParticleTracer {
             scene,
-            tools: Tools::new(&scene.volume, scene, [1.0; 3]),
+            tools: Tools::new(&scene.volume, scene, [1.0; 3], Delay::NONE),
             images,
             probes,
             surface_offset,
@@ -253,7 +257,7 @@ impl<'s> ParticleTracer<'s> {
             if !(value > 0.0 && value.is_finite()) {
                 continue;
             }
-            let Some(bin) = self.bin(opl + c.optical_path) else {
+            let Some(bin) = self.bin(opl + t.delay.inside(c.optical_path, c.length)) else {
                 continue;
             };
             let o = self.probe_offset(i);
@@ -282,7 +286,8 @@ impl<'s> ParticleTracer<'s> {
             if !(value > 0.0 && value.is_finite()) {
                 continue;
             }
-            let Some(bin) = self.bin(opl + e.optical_path + n_out * to_plane) else {
+            let inside = t.delay.inside(e.optical_path, e.length);
+            let Some(bin) = self.bin(opl + inside + t.delay.outside(n_out * to_plane)) else {
                 continue;
             };
             let image = self.camera_image(i);
@@ -310,7 +315,11 @@ impl<'s> ParticleTracer<'s> {
             if !(irradiance > 0.0 && irradiance.is_finite()) {
                 continue;
             }
-            let Some(bin) = self.bin(opl + e.optical_path) else {
+            // the path's optical length holds the straight stretch to the pinhole
+            let outside = n_out * to_pinhole;
+            let delay =
+                t.delay.inside(e.optical_path - outside, e.length) + t.delay.outside(outside);
+            let Some(bin) = self.bin(opl + delay) else {
                 continue;
             };
             let image = self.pinhole_image(i);
@@ -450,7 +459,7 @@ impl<'s> ParticleTracer<'s> {
             if distance >= length {
                 continue;
             }
-            let Some(bin) = self.bin(opl + n_out * distance) else {
+            let Some(bin) = self.bin(opl + t.delay.outside(n_out * distance)) else {
                 continue;
             };
             image.add(out, bin, pixel, weight, &t.colour);
@@ -543,13 +552,13 @@ impl<'s> ParticleTracer<'s> {
         self.cross_sensors(t, x, d, end, p.weight, p.opl, out);
         match (entry, surface) {
             (Some(t0), _) if t0 == end => {
-                p.opl += n_out * t0;
+                p.opl += t.delay.outside(n_out * t0);
                 Some(Leg::enter(t, x, d, t0, rng))
             }
             (_, Some((i, distance))) => {
                 let s = &self.scene.surfaces[i];
                 let y = x + d * distance;
-                p.opl += n_out * distance;
+                p.opl += t.delay.outside(n_out * distance);
                 out[self.surface_offset + i].re += p.weight;
                 out[self.total(Total::SurfaceAbsorbed)].re += p.weight * (1.0 - s.albedo);
                 p.weight *= s.albedo;
@@ -613,7 +622,7 @@ impl<'s> ParticleTracer<'s> {
             let Some(transmittance) = self.past_volume(t, y, w, f64::INFINITY, rng) else {
                 continue;
             };
-            let Some(bin) = self.bin(p.opl + n_out * to_plane) else {
+            let Some(bin) = self.bin(p.opl + t.delay.outside(n_out * to_plane)) else {
                 continue;
             };
             let image = self.camera_image(i);
@@ -634,7 +643,7 @@ impl<'s> ParticleTracer<'s> {
             let Some(transmittance) = self.past_volume(t, y, w, distance, rng) else {
                 continue;
             };
-            let Some(bin) = self.bin(p.opl + n_out * distance) else {
+            let Some(bin) = self.bin(p.opl + t.delay.outside(n_out * distance)) else {
                 continue;
             };
             let image = self.pinhole_image(i);
@@ -670,8 +679,9 @@ impl<'s> ParticleTracer<'s> {
                 Flight::Collision {
                     ray: hit,
                     optical_path,
+                    length,
                 } => {
-                    p.opl += optical_path;
+                    p.opl += t.delay.inside(optical_path, length);
                     if let Some(density) = &volume.density {
                         // delta tracking: a real collision with probability ρ(x)/max ρ, else
                         // the flight goes on unchanged
@@ -708,8 +718,9 @@ impl<'s> ParticleTracer<'s> {
                 Flight::Boundary {
                     ray: end,
                     optical_path,
+                    length,
                 } => {
-                    p.opl += optical_path;
+                    p.opl += t.delay.inside(optical_path, length);
                     match Leg::leave(t, end, rng) {
                         Leg::Inside(reflected) => ray = reflected,
                         out => return Some(out),
@@ -842,6 +853,7 @@ impl Estimator for ParticleTracer<'_> {
                 modulate(&mut volume.field, base, theta.sin());
             }
             let mut colour = [1.0; 3];
+            let mut delay = Delay::NONE;
             if let Some(spectrum) = &self.scene.spectrum {
                 // a single line draws nothing: its photons meet the random numbers of a render
                 // without a spectrum
@@ -852,8 +864,9 @@ impl Estimator for ParticleTracer<'_> {
                 };
                 spectrum.disperse(&mut volume.field, base, lambda);
                 colour = spectrum.colour(lambda);
+                delay = spectrum.delay(lambda);
             }
-            let tools = Tools::new(volume, self.scene, colour);
+            let tools = Tools::new(volume, self.scene, colour, delay);
             self.sample(&tools, rng, out);
         }
     }

@@ -190,13 +190,13 @@ impl ParticleTracer<'_> {
         let surface = self.scene.surface_hit(x, d);
         match (entry, surface) {
             (Some(t0), s) if s.is_none_or(|(_, ts)| t0 <= ts) => {
-                w.opl += n_out * t0;
+                w.opl += t.delay.outside(n_out * t0);
                 Some(Leg::enter(t, x, d, t0, rng))
             }
             (_, Some((i, distance))) => {
                 let s = &self.scene.surfaces[i];
                 let y = x + d * distance;
-                w.opl += n_out * distance;
+                w.opl += t.delay.outside(n_out * distance);
                 if s.albedo <= 0.0 {
                     return None;
                 }
@@ -262,7 +262,7 @@ impl ParticleTracer<'_> {
             t,
             pixel,
             w.beta * irradiance / PI,
-            w.opl + n_out * distance,
+            w.opl + t.delay.outside(n_out * distance),
             out,
         );
     }
@@ -318,7 +318,8 @@ impl ParticleTracer<'_> {
                 w.beta * phase(c.direction) * self.scene.light.intensity(leaving_q) * transmittance
                     / (n_q * n_q * c.spread)
                     * inverse_p;
-            self.record_sample(t, pixel, n_out * n_out * b, w.opl + c.optical_path, out);
+            let delay = t.delay.inside(c.optical_path, c.length);
+            self.record_sample(t, pixel, n_out * n_out * b, w.opl + delay, out);
         } else {
             let s = t.connector.sample_through(x, q, first_only, rng);
             let Some((e, inverse_p)) = self.tally(s, out) else {
@@ -337,7 +338,11 @@ impl ParticleTracer<'_> {
                 * e.transmission
                 / e.jacobian
                 * inverse_p;
-            self.record_sample(t, pixel, radiance, w.opl + e.optical_path, out);
+            // the path's optical length holds the straight stretch to the light
+            let outside = n_out * to_q;
+            let delay =
+                t.delay.inside(e.optical_path - outside, e.length) + t.delay.outside(outside);
+            self.record_sample(t, pixel, radiance, w.opl + delay, out);
         }
     }
 
@@ -367,8 +372,9 @@ impl ParticleTracer<'_> {
                 Flight::Collision {
                     ray: hit,
                     optical_path,
+                    length,
                 } => {
-                    w.opl += optical_path;
+                    w.opl += t.delay.inside(optical_path, length);
                     if let Some(density) = &volume.density
                         && uniform(rng) * density.max >= density.at(hit.x)
                     {
@@ -395,8 +401,9 @@ impl ParticleTracer<'_> {
                 Flight::Boundary {
                     ray: end,
                     optical_path,
+                    length,
                 } => {
-                    w.opl += optical_path;
+                    w.opl += t.delay.inside(optical_path, length);
                     match Leg::leave(t, end, rng) {
                         Leg::Inside(reflected) => ray = reflected,
                         out => return Some(out),

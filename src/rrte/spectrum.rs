@@ -89,6 +89,38 @@ impl Dispersion {
     }
 }
 
+/// How a photon's time of flight follows from its optical path: a pulse travels at the group
+/// velocity, so its delay (times `c`) is `∫ n_g ds` with `n_g = n − λ dn/dλ`. With the affine map
+/// `n = a + b n_ref`, `n_g = α n + β` inside (`α = 1 − λ b'/b`, `β = λ (a b'/b − a')`), and
+/// `n_g = γ n` outside; without dispersion `α = γ = 1`, `β = 0`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Delay {
+    pub alpha: f64,
+    pub beta: f64,
+    pub gamma: f64,
+}
+
+impl Delay {
+    /// No dispersion: the delay is the optical path.
+    pub const NONE: Delay = Delay {
+        alpha: 1.0,
+        beta: 0.0,
+        gamma: 1.0,
+    };
+
+    /// The group path of a stretch inside of optical path `optical_path` and geometric `length`.
+    #[inline]
+    pub fn inside(&self, optical_path: f64, length: f64) -> f64 {
+        self.alpha * optical_path + self.beta * length
+    }
+
+    /// The group path of a straight stretch outside of optical path `optical_path`.
+    #[inline]
+    pub fn outside(&self, optical_path: f64) -> f64 {
+        self.gamma * optical_path
+    }
+}
+
 /// The light's spectrum and the scene's dispersion.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Spectrum {
@@ -152,6 +184,28 @@ impl Spectrum {
         }
         let rgb = linear_srgb(lambda_nm);
         [0, 1, 2].map(|c| rgb[c] / self.white[c])
+    }
+
+    /// The group-delay factors at `lambda_nm` (derivatives by central differences over ±0.01 nm:
+    /// the formulas are smooth on that scale).
+    pub fn delay(&self, lambda_nm: f64) -> Delay {
+        let h = 0.01;
+        let l = lambda_nm;
+        let (alpha, beta) = match &self.inside {
+            None => (1.0, 0.0),
+            Some(d) => {
+                let (b, a) = d.affine(l, self.reference_nm);
+                let (bp, ap) = d.affine(l + h, self.reference_nm);
+                let (bm, am) = d.affine(l - h, self.reference_nm);
+                let (db, da) = ((bp - bm) / (2.0 * h), (ap - am) / (2.0 * h));
+                (1.0 - l * db / b, l * (a * db / b - da))
+            }
+        };
+        let gamma = match &self.outside {
+            None => 1.0,
+            Some(m) => 1.0 - l * (m.index(l + h) - m.index(l - h)) / (2.0 * h) / m.index(l),
+        };
+        Delay { alpha, beta, gamma }
     }
 
     /// Set `field` to `base` (given at the reference wavelength) at wavelength `lambda_nm`.
@@ -268,6 +322,38 @@ mod tests {
         assert!(b[2] > b[0] && b[2] > b[1] && r[0] > r[1] && r[0] > r[2]);
         let line = Spectrum::new([532.0, 532.0], 587.6, None, None);
         assert_eq!((line.channels(), line.colour(532.0)), (1, [1.0; 3]));
+    }
+
+    /// The group factors turn the affine map's index into `n − λ dn/dλ` of the materials, inside
+    /// (one glass, and a mixture at its mixing ratio) and outside.
+    #[test]
+    fn delays_are_group_indices() {
+        let (crown, flint) = (
+            Material::named("bk7").unwrap(),
+            Material::named("f2").unwrap(),
+        );
+        let group = |m: &Material, l: f64| {
+            let h = 1e-3;
+            m.index(l) - l * (m.index(l + h) - m.index(l - h)) / (2.0 * h)
+        };
+        let r = 587.56;
+        let l = 450.0;
+        let s = Spectrum::new(
+            [l, l],
+            r,
+            Some(Dispersion::Mixed(crown.clone(), flint.clone())),
+            Some(flint.clone()),
+        );
+        let d = s.delay(l);
+        for t in [0.0, 0.4, 1.0] {
+            let n = t * crown.index(l) + (1.0 - t) * flint.index(l);
+            let want = t * group(&crown, l) + (1.0 - t) * group(&flint, l);
+            // n_g = α n + β per unit length
+            assert!((d.inside(n, 1.0) - want).abs() < 1e-6, "t = {t}");
+        }
+        assert!((d.outside(flint.index(l)) - group(&flint, l)).abs() < 1e-6);
+        // normal dispersion: the group index exceeds the index
+        assert!(group(&crown, l) > crown.index(l) + 0.03);
     }
 
     /// The affine maps reproduce their materials: one material everywhere its own index; a
