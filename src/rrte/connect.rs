@@ -477,10 +477,17 @@ impl<'v> Connector<'v> {
         for iteration in 0..self.max_iterations {
             let (mut exit, dout, dsurf) = self.exit_map(x, w)?;
             let o = exit.outgoing;
-            let t = (p - exit.surface).dot(o);
-            if t <= 0.0 {
-                return None;
+            let to_p = p - exit.surface;
+            let distance = to_p.length();
+            let g = to_p / distance;
+            if o.dot(g) < STEER {
+                // leaving far from the pinhole's direction (even away from it): turn towards it
+                // by the angle between them; `dg` follows the exit point's move
+                let dg = dsurf.map(|ds| -(ds - g * g.dot(ds)) / distance);
+                w = steer(w, o, g, dout, dg)?;
+                continue;
             }
+            let t = to_p.dot(o);
             let (f1, f2) = orthonormal_basis(o);
             let miss = exit.surface + o * t - p;
             let r = [f1.dot(miss), f2.dot(miss)];
@@ -532,6 +539,11 @@ impl<'v> Connector<'v> {
         for iteration in 0..self.max_iterations {
             let (mut exit, [d1, d2], _) = self.exit_map(x, w)?;
             let out = exit.outgoing;
+            if out.dot(c) < STEER {
+                // leaving far from the camera's direction (even against it): turn towards it
+                w = steer(w, out, c, [d1, d2], [DVec3::ZERO; 2])?;
+                continue;
+            }
             let r = [f1.dot(out), f2.dot(out)];
             let m = [[f1.dot(d1), f1.dot(d2)], [f2.dot(d1), f2.dot(d2)]];
             let det = m[0][0] * m[1][1] - m[0][1] * m[1][0];
@@ -544,6 +556,34 @@ impl<'v> Connector<'v> {
         }
         None
     }
+}
+
+/// Below this cosine between the outgoing direction and the one wanted, exit and through
+/// connections steer by the angle instead of the miss (which is undefined or points the wrong way
+/// once the ray leaves away from its target).
+const STEER: f64 = 0.5;
+
+/// One Newton step on the direction `w` turning the outgoing direction `o` (derivatives `dout`
+/// along `w`'s two angles) towards the target direction `g` (derivatives `dg`): on the
+/// stereographic residual `P_g o / (1 + o·g)` in a frame fixed at `g`, which is zero at `o = g`
+/// and grows without bound towards `o = −g`, so the step never settles on the wrong side.
+fn steer(w: DVec3, o: DVec3, g: DVec3, dout: [DVec3; 2], dg: [DVec3; 2]) -> Option<DVec3> {
+    let (e1, e2) = orthonormal_basis(g);
+    let u = 1.0 + o.dot(g);
+    if u <= 1e-12 {
+        // exactly opposite: any turn helps; the frame's first axis will do
+        return Some((w + orthonormal_basis(w).0 * MAX_TURN).normalize());
+    }
+    let r = [e1.dot(o) / u, e2.dot(o) / u];
+    let mut m = [[0.0; 2]; 2];
+    for k in 0..2 {
+        let du = dout[k].dot(g) + o.dot(dg[k]);
+        for (i, e) in [e1, e2].into_iter().enumerate() {
+            m[i][k] = e.dot(dout[k]) / u - e.dot(o) * du / (u * u);
+        }
+    }
+    let det = m[0][0] * m[1][1] - m[0][1] * m[1][0];
+    newton_turn(w, m, det, r)
 }
 
 /// One Newton step on the direction `w` for the 2×2 system `m δ = −r` in the angles of `w`'s
@@ -772,5 +812,34 @@ mod tests {
             let (m, se) = mean_se(sum[k], sq[k]);
             assert!((m - 1.0).abs() < 4.0 * se, "path {k}: {m} ± {se}");
         }
+    }
+
+    /// Starts that leave the lens away from the pinhole (or the camera's direction) are steered
+    /// round to the path a start near the straight line finds.
+    #[test]
+    fn starts_leaving_the_wrong_way_are_steered_to_the_path() {
+        let v = volume(
+            Profile::Luneburg { radius: 1.0 },
+            Bounds::Sphere { radius: 1.0 },
+            1.0,
+        );
+        let c = Connector::new(&v, 1e-3, 100_000);
+        let x = DVec3::new(0.3, -0.2, 0.1);
+        let p = DVec3::new(2.0, 1.0, 1.5);
+        let near = c
+            .solve_through(x, p, p - x)
+            .expect("the near start converges");
+        let away = c
+            .solve_through(x, p, x - p)
+            .expect("the opposite start is steered round");
+        assert!((near.direction - away.direction).length() < 1e-6);
+        assert!((near.jacobian - away.jacobian).abs() < 1e-6 * near.jacobian);
+        let dir = DVec3::new(1.0, 0.0, 0.0);
+        let near = c.solve_exit(x, dir, dir).expect("the near start converges");
+        let away = c
+            .solve_exit(x, dir, -dir)
+            .expect("the opposite start is steered round");
+        assert!((near.direction - away.direction).length() < 1e-6);
+        assert!(near.outgoing.dot(dir) > 1.0 - 1e-9);
     }
 }
