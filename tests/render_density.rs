@@ -5,11 +5,14 @@
 //! reflectance, absorption and the fluence at a probe against a tracer written here that inverts
 //! the optical depth of the linear density in closed form (no null collisions).
 
+mod common;
+
+use common::bare_scene;
 use glam::DVec3;
 use lightpath::eikonal::grid::{GridField, Interp};
 use lightpath::eikonal::{BoundedField, Bounds, Profile};
 use lightpath::math::{Rng, stream_rng, uniform};
-use lightpath::mc::{Estimate, Plan, estimate};
+use lightpath::mc::Estimate;
 use lightpath::medium::{PhaseFunction, Scattering};
 use lightpath::rrte::{
     Density, Light, ParticleTracer, Probe, RenderScene, Sensor, SensorKind, Total, Volume,
@@ -74,24 +77,12 @@ fn slab(profile: Profile, sigma_s: f64, sigma_a: f64, g: f64) -> RenderScene {
             radius: 0.0,
         },
         sensors: vec![flux("T", 0.5), flux("R", -0.5)],
-        probes: vec![],
-        cameras: vec![],
-        pinholes: vec![],
-        surfaces: vec![],
-        modulation: None,
-        connections: Default::default(),
-        tracing: Default::default(),
-        transient: None,
-        spectrum: None,
-        step: 0.01,
-        max_steps: 100_000,
+        ..bare_scene(0.01)
     }
 }
 
 fn render(scene: &RenderScene, samples: u64) -> (Estimate, ParticleTracer<'_>) {
-    let est = ParticleTracer::new(scene);
-    let e = estimate(&est, &Plan::new(3, samples, samples / 64));
-    (e, est)
+    common::render(scene, samples, 3)
 }
 
 /// A pure absorber transmits `exp(−σ_a ∫ρ dz)` of a normal beam: e^{−1.2} here (e^{−2} without

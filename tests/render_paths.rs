@@ -4,13 +4,14 @@
 //! straight rays and a point light outside, a scattering Luneburg lens with curved rays and a point
 //! light inside, and a white floor beside a scattering sphere.
 
+mod common;
+
+use common::{bare_scene, render};
 use glam::DVec3;
 use lightpath::eikonal::{BoundedField, Bounds, Profile};
-use lightpath::mc::{Estimate, Plan, estimate};
+use lightpath::mc::Estimate;
 use lightpath::medium::{PhaseFunction, Scattering};
-use lightpath::rrte::{
-    Camera, ImageLayout, Light, ParticleTracer, Pinhole, RenderScene, Surface, Tracing, Volume,
-};
+use lightpath::rrte::{Camera, ImageLayout, Light, Pinhole, RenderScene, Surface, Tracing, Volume};
 
 fn scene(profile: Profile, light: Light, camera: Pinhole) -> RenderScene {
     RenderScene {
@@ -22,18 +23,8 @@ fn scene(profile: Profile, light: Light, camera: Pinhole) -> RenderScene {
             density: None,
         },
         light,
-        sensors: vec![],
-        probes: vec![],
-        cameras: vec![],
         pinholes: vec![camera],
-        surfaces: vec![],
-        modulation: None,
-        connections: Default::default(),
-        tracing: Default::default(),
-        transient: None,
-        spectrum: None,
-        step: 0.004,
-        max_steps: 100_000,
+        ..bare_scene(0.004)
     }
 }
 
@@ -47,12 +38,6 @@ fn camera(position: DVec3, target: DVec3, fov_deg: f64) -> Pinhole {
         [10, 10],
     )
     .unwrap()
-}
-
-fn render(scene: &RenderScene, samples: u64, seed: u64) -> (Estimate, ParticleTracer<'_>) {
-    let est = ParticleTracer::new(scene);
-    let e = estimate(&est, &Plan::new(seed, samples, samples / 64));
-    (e, est)
 }
 
 /// Render `s` both ways and compare the pinhole's irradiance and every pixel (within 4 combined

@@ -3,10 +3,13 @@
 //! with mismatched faces against a plain slab tracer written here, a Luneburg lens focusing a beam
 //! on its antipode, and a beam bending along the closed-form ray of a linear-gradient tank.
 
+mod common;
+
+use common::{bare_scene, render};
 use glam::DVec3;
 use lightpath::eikonal::{BoundedField, Bounds, Profile};
 use lightpath::math::{Rng, stream_rng, uniform};
-use lightpath::mc::{Estimate, Plan, estimate};
+use lightpath::mc::Estimate;
 use lightpath::medium::{PhaseFunction, Scattering};
 use lightpath::rrte::{
     Light, ParticleTracer, RenderScene, Sensor, SensorKind, Total, Transient, Volume,
@@ -54,45 +57,6 @@ fn beam(z: f64, radius: f64) -> Light {
     }
 }
 
-/// A scene with nothing but its step set: lights, sensors and the volume are given by each test
-/// (`RenderScene { volume, light, sensors, ..bare(step) }`).
-fn bare(step: f64) -> RenderScene {
-    RenderScene {
-        volume: Volume {
-            field: BoundedField::single(
-                Profile::Constant { n: 1.0 },
-                Bounds::Sphere { radius: 1.0 },
-                1.0,
-            ),
-            sigma_s: 0.0,
-            sigma_a: 0.0,
-            scattering: Scattering::single(PhaseFunction::Isotropic),
-            density: None,
-        },
-        light: Light::Point {
-            position: DVec3::ZERO,
-        },
-        sensors: vec![],
-        probes: vec![],
-        cameras: vec![],
-        pinholes: vec![],
-        surfaces: vec![],
-        modulation: None,
-        connections: Default::default(),
-        tracing: Default::default(),
-        transient: None,
-        spectrum: None,
-        step,
-        max_steps: 100_000,
-    }
-}
-
-fn render(scene: &RenderScene, samples: u64, seed: u64) -> (Estimate, ParticleTracer<'_>) {
-    let est = ParticleTracer::new(scene);
-    let e = estimate(&est, &Plan::new(seed, samples, samples / 64));
-    (e, est)
-}
-
 fn value(e: &Estimate, i: usize) -> (f64, f64) {
     (e.mean[i].re, e.stderr[i])
 }
@@ -111,7 +75,7 @@ fn fresnel_slab(profile: Profile, n: f64) {
             bins: 40,
             max_path: 20.0,
         }),
-        ..bare(0.01)
+        ..bare_scene(0.01)
     };
     let (e, est) = render(&scene, 200_000, 7);
     let r = ((n - 1.0) / (n + 1.0)).powi(2);
@@ -194,7 +158,7 @@ fn every_photon_is_absorbed_escapes_or_is_reported() {
         volume,
         light: beam(-2.0, 0.9),
         sensors: vec![],
-        ..bare(0.01)
+        ..bare_scene(0.01)
     };
     let (e, est) = render(&scene, 20_000, 3);
     assert_eq!(e.mean[est.total(Total::Escaped)].re, 1.0);
@@ -297,7 +261,7 @@ fn a_scattering_slab_with_fresnel_faces_matches_a_plain_slab_tracer() {
             volume: slab_volume(profile, 1.0, l, sigma_s, sigma_a, g),
             light: beam(-1.0, 0.0),
             sensors: vec![flux("T", 0.5), flux("R", -0.5)],
-            ..bare(0.01)
+            ..bare_scene(0.01)
         };
         let (e, est) = render(&scene, photons, 5);
         let (t, st) = value(&e, est.sensor_image(0).first);
@@ -366,7 +330,7 @@ fn a_scattering_luneburg_lens_focuses_a_beam_on_its_antipode() {
         volume,
         light: beam(-2.0, 0.4),
         sensors: vec![screen.clone()],
-        ..bare(0.002)
+        ..bare_scene(0.002)
     };
     let (e, est) = render(&scene, 40_000, 9);
     let (c, rms, total) = spot(&e, &est, &screen);
@@ -414,7 +378,7 @@ fn a_beam_in_a_linear_gradient_tank_follows_the_closed_form_ray() {
         volume,
         light: beam(-6.0, 0.02),
         sensors: vec![screen.clone()],
-        ..bare(0.01)
+        ..bare_scene(0.01)
     };
     let (e, est) = render(&scene, 40_000, 13);
     let (c, _, total) = spot(&e, &est, &screen);
@@ -641,7 +605,7 @@ fn orthographic_and_pinhole_cameras_see_the_intensity_a_collimated_detector_coun
         volume,
         light: beam(-2.0, 0.6),
         sensors: vec![detector],
-        ..bare(0.005)
+        ..bare_scene(0.005)
     };
     let (e, est) = render(&base, 400_000, 31);
     let (p, sp) = value(&e, est.power(0));
@@ -737,7 +701,7 @@ fn ultrasonic_lens(n_max: f64) -> RenderScene {
         },
         light: beam(-6.0, 0.4),
         sensors: vec![window],
-        ..bare(0.05)
+        ..bare_scene(0.05)
     }
 }
 

@@ -3,9 +3,12 @@
 //! weights integrated over the spectrum), and a render at one line of a dispersive crown/flint
 //! mixture equals the render of the field written out by hand at that wavelength.
 
+mod common;
+
+use common::bare_scene;
 use glam::DVec3;
 use lightpath::eikonal::{BoundedField, Bounds, Profile};
-use lightpath::mc::{Estimate, Plan, estimate};
+use lightpath::mc::Estimate;
 use lightpath::medium::{PhaseFunction, Scattering};
 use lightpath::rrte::{
     Dispersion, Light, Material, ParticleTracer, RenderScene, Sensor, SensorKind, Spectrum, Volume,
@@ -14,9 +17,7 @@ use lightpath::rrte::{
 const REFERENCE_NM: f64 = 587.56;
 
 fn render(scene: &RenderScene, samples: u64) -> (Estimate, ParticleTracer<'_>) {
-    let est = ParticleTracer::new(scene);
-    let e = estimate(&est, &Plan::new(7, samples, samples / 64));
-    (e, est)
+    common::render(scene, samples, 7)
 }
 
 fn bk7() -> Material {
@@ -66,17 +67,8 @@ fn plate(spectrum: Spectrum) -> RenderScene {
             pixels: [PIXELS, 1],
             acceptance: None,
         }],
-        probes: vec![],
-        cameras: vec![],
-        pinholes: vec![],
-        surfaces: vec![],
-        modulation: None,
-        connections: Default::default(),
-        tracing: Default::default(),
-        transient: None,
         spectrum: Some(spectrum),
-        step: 0.01,
-        max_steps: 100_000,
+        ..bare_scene(0.01)
     }
 }
 
@@ -237,17 +229,8 @@ fn a_mixture_at_one_line_is_the_field_at_that_line() {
             Some([2.0, 2.0]),
             [21, 21],
         )],
-        probes: vec![],
-        cameras: vec![],
-        pinholes: vec![],
-        surfaces: vec![],
-        modulation: None,
-        connections: Default::default(),
-        tracing: Default::default(),
-        transient: None,
         spectrum,
-        step: 0.005,
-        max_steps: 100_000,
+        ..bare_scene(0.005)
     };
     let r = REFERENCE_NM;
     let n_out = 1.333;

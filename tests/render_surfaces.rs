@@ -4,9 +4,12 @@
 //! it, predicts what the camera sees of the floor; a black floor stops light from reaching what
 //! lies behind it; and the power balance holds with light bouncing between floor and volume.
 
+mod common;
+
+use common::bare_scene;
 use glam::DVec3;
 use lightpath::eikonal::{BoundedField, Bounds, Profile};
-use lightpath::mc::{Estimate, Plan, estimate};
+use lightpath::mc::Estimate;
 use lightpath::medium::{PhaseFunction, Scattering};
 use lightpath::rrte::{
     Light, ParticleTracer, Pinhole, RenderScene, Sensor, SensorKind, Surface, Total, Volume,
@@ -35,10 +38,6 @@ fn scene(n: f64, sigma_s: f64, albedo: f64, x: f64) -> RenderScene {
             direction: -DVec3::Z,
             radius: 0.3,
         },
-        sensors: vec![],
-        probes: vec![],
-        cameras: vec![],
-        pinholes: vec![],
         surfaces: vec![Surface::new(
             "floor".into(),
             DVec3::new(0.0, 0.0, FLOOR),
@@ -46,20 +45,12 @@ fn scene(n: f64, sigma_s: f64, albedo: f64, x: f64) -> RenderScene {
             Some([10.0, 10.0]),
             albedo,
         )],
-        modulation: None,
-        connections: Default::default(),
-        tracing: Default::default(),
-        transient: None,
-        spectrum: None,
-        step: 0.005,
-        max_steps: 100_000,
+        ..bare_scene(0.005)
     }
 }
 
 fn render(scene: &RenderScene, samples: u64) -> (Estimate, ParticleTracer<'_>) {
-    let est = ParticleTracer::new(scene);
-    let e = estimate(&est, &Plan::new(5, samples, samples / 64));
-    (e, est)
+    common::render(scene, samples, 5)
 }
 
 /// A pinhole at `position` looking at the floor point `target`.

@@ -77,6 +77,40 @@ impl<'v> Tools<'v> {
     }
 }
 
+impl Tools<'_> {
+    /// A free-flight distance over geometric length, against the majorant (infinite in a clear
+    /// volume).
+    pub(super) fn free_path(&self, rng: &mut Rng) -> f64 {
+        let majorant = self.flyer.volume.majorant();
+        if majorant > 0.0 {
+            -(1.0 - uniform(rng)).ln() / majorant
+        } else {
+            f64::INFINITY
+        }
+    }
+
+    /// Delta tracking: whether the tentative collision at `x` is real (probability `ρ(x)/max ρ`;
+    /// always in a homogeneous medium). A null collision lets the flight go on unchanged.
+    pub(super) fn real_collision(&self, x: DVec3, rng: &mut Rng) -> bool {
+        match &self.flyer.volume.density {
+            Some(density) => uniform(rng) * density.max < density.at(x),
+            None => true,
+        }
+    }
+
+    /// The ray leaving a scattering event at `x` where the light arrived along unit `u`, its
+    /// direction drawn from the phase function.
+    pub(super) fn scatter(&self, x: DVec3, u: DVec3, rng: &mut Rng) -> Ray {
+        let scattering = &self.flyer.volume.scattering;
+        let kind = scattering.pick(|| uniform(rng));
+        let w = scattering.phase(kind).sample(u, uniform(rng), uniform(rng));
+        Ray {
+            x,
+            v: w * self.flyer.n(x),
+        }
+    }
+}
+
 /// Where an image lies among the outputs: after its total (`first − 1`), frame after frame (with
 /// time bins the time-integrated frame first, with its own errors: one photon can reach an image
 /// in several bins), each frame channel after channel, each channel a row-major image.
@@ -665,15 +699,9 @@ impl<'s> ParticleTracer<'s> {
         out: &mut [C64],
     ) -> Option<Leg> {
         let volume = t.flyer.volume;
-        let majorant = volume.majorant();
         let albedo = volume.albedo();
         loop {
-            let distance = if majorant > 0.0 {
-                -(1.0 - uniform(rng)).ln() / majorant
-            } else {
-                f64::INFINITY
-            };
-            let (flight, k) = t.flyer.fly(ray, distance);
+            let (flight, k) = t.flyer.fly(ray, t.free_path(rng));
             p.steps += k;
             match flight {
                 Flight::Collision {
@@ -682,13 +710,9 @@ impl<'s> ParticleTracer<'s> {
                     length,
                 } => {
                     p.opl += t.delay.inside(optical_path, length);
-                    if let Some(density) = &volume.density {
-                        // delta tracking: a real collision with probability ρ(x)/max ρ, else
-                        // the flight goes on unchanged
-                        if uniform(rng) * density.max >= density.at(hit.x) {
-                            ray = hit;
-                            continue;
-                        }
+                    if !t.real_collision(hit.x, rng) {
+                        ray = hit;
+                        continue;
                     }
                     p.events += 1;
                     out[self.total(Total::Absorbed)].re += p.weight * (1.0 - albedo);
@@ -705,15 +729,7 @@ impl<'s> ParticleTracer<'s> {
                         out[self.total(Total::Unfinished)].re += p.weight;
                         return None;
                     }
-                    let kind = volume.scattering.pick(|| uniform(rng));
-                    let w = volume
-                        .scattering
-                        .phase(kind)
-                        .sample(w_in, uniform(rng), uniform(rng));
-                    ray = Ray {
-                        x: hit.x,
-                        v: w * t.flyer.n(hit.x),
-                    };
+                    ray = t.scatter(hit.x, w_in, rng);
                 }
                 Flight::Boundary {
                     ray: end,

@@ -358,15 +358,9 @@ impl ParticleTracer<'_> {
         out: &mut [C64],
     ) -> Option<Leg> {
         let volume = t.flyer.volume;
-        let majorant = volume.majorant();
         let albedo = volume.albedo();
         loop {
-            let distance = if majorant > 0.0 {
-                -(1.0 - uniform(rng)).ln() / majorant
-            } else {
-                f64::INFINITY
-            };
-            let (flight, k) = t.flyer.fly(ray, distance);
+            let (flight, k) = t.flyer.fly(ray, t.free_path(rng));
             w.steps += k;
             match flight {
                 Flight::Collision {
@@ -375,9 +369,7 @@ impl ParticleTracer<'_> {
                     length,
                 } => {
                     w.opl += t.delay.inside(optical_path, length);
-                    if let Some(density) = &volume.density
-                        && uniform(rng) * density.max >= density.at(hit.x)
-                    {
+                    if !t.real_collision(hit.x, rng) {
                         ray = hit;
                         continue;
                     }
@@ -388,15 +380,7 @@ impl ParticleTracer<'_> {
                     if !w.roulette(rng) || w.events >= super::particle::MAX_EVENTS {
                         return None;
                     }
-                    let kind = volume.scattering.pick(|| uniform(rng));
-                    let dir = volume
-                        .scattering
-                        .phase(kind)
-                        .sample(u, uniform(rng), uniform(rng));
-                    ray = Ray {
-                        x: hit.x,
-                        v: dir * t.flyer.n(hit.x),
-                    };
+                    ray = t.scatter(hit.x, u, rng);
                 }
                 Flight::Boundary {
                     ray: end,

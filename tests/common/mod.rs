@@ -29,3 +29,52 @@ pub fn wave_statistics(scene: &Scene, reals: u64, seed: u64) -> wave::WaveStatis
     .unwrap();
     wave::WaveStatistics::from_fields(&root.kept, est.fields())
 }
+
+/// A render scene with nothing but its step set: a clear unit sphere of `n = 1`, a point light at
+/// its centre, no sensors; tests give what they need (`RenderScene { volume, light,
+/// ..bare_scene(step) }`).
+pub fn bare_scene(step: f64) -> lightpath::rrte::RenderScene {
+    use glam::DVec3;
+    use lightpath::eikonal::{BoundedField, Bounds, Profile};
+    use lightpath::medium::{PhaseFunction, Scattering};
+    use lightpath::rrte::{Light, RenderScene, Volume};
+    RenderScene {
+        volume: Volume {
+            field: BoundedField::single(
+                Profile::Constant { n: 1.0 },
+                Bounds::Sphere { radius: 1.0 },
+                1.0,
+            ),
+            sigma_s: 0.0,
+            sigma_a: 0.0,
+            scattering: Scattering::single(PhaseFunction::Isotropic),
+            density: None,
+        },
+        light: Light::Point {
+            position: DVec3::ZERO,
+        },
+        sensors: vec![],
+        probes: vec![],
+        cameras: vec![],
+        pinholes: vec![],
+        surfaces: vec![],
+        modulation: None,
+        connections: Default::default(),
+        tracing: Default::default(),
+        transient: None,
+        spectrum: None,
+        step,
+        max_steps: 100_000,
+    }
+}
+
+/// Render `scene` with `samples` photons (or camera paths) in 64 chunks from `seed`.
+pub fn render(
+    scene: &lightpath::rrte::RenderScene,
+    samples: u64,
+    seed: u64,
+) -> (Estimate, lightpath::rrte::ParticleTracer<'_>) {
+    let est = lightpath::rrte::ParticleTracer::new(scene);
+    let e = estimate(&est, &Plan::new(seed, samples, samples / 64));
+    (e, est)
+}
