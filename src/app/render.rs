@@ -48,7 +48,7 @@ pub fn describe(task: &RenderTask) -> String {
     let s = &task.scene;
     let v = &s.volume;
     format!(
-        "render config{}: {} index profile(s) ({}), σ_s = {}, σ_a = {}, {} sensor(s) with {} output(s){}{}; ~{:.3} scattering events per photon",
+        "render config{}: {} index profile(s) ({}), σ_s = {}, σ_a = {}, {} sensor plane(s), {} probe(s), {} camera(s), {} surface(s), {} output(s){}{}; ~{:.3} scattering events per photon",
         if s.tracing == crate::rrte::Tracing::FromCameras {
             " (path tracing from the cameras)"
         } else {
@@ -63,6 +63,9 @@ pub fn describe(task: &RenderTask) -> String {
         v.sigma_s,
         v.sigma_a,
         s.sensors.len(),
+        s.probes.len(),
+        s.cameras.len() + s.pinholes.len(),
+        s.surfaces.len(),
         crate::mc::Estimator::outputs(&ParticleTracer::new(s)),
         s.transient
             .map_or(String::new(), |t| format!(", {} time bins", t.bins)),
