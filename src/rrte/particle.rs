@@ -509,6 +509,23 @@ impl<'s> ParticleTracer<'s> {
         }
     }
 
+    /// What the straight ray from `x` along unit `d` outside the volume meets: the distance to the
+    /// volume's surface (none if it misses, or `left_volume`: it starts where it left the convex
+    /// volume), and the nearest surface with its distance.
+    pub(super) fn ahead(
+        &self,
+        t: &Tools,
+        x: DVec3,
+        d: DVec3,
+        left_volume: bool,
+    ) -> (Option<f64>, Option<(usize, f64)>) {
+        let entry = match t.flyer.volume.field.bounds.interval(x, d) {
+            Some((t0, t1)) if !left_volume && t1 > 0.0 && t0 >= 0.0 => Some(t0),
+            _ => None,
+        };
+        (entry, self.scene.surface_hit(x, d))
+    }
+
     /// Trace one photon, adding its contributions to `out`.
     fn photon(&self, t: &Tools, rng: &mut Rng, out: &mut [C64]) {
         let (x, d) =
@@ -569,14 +586,8 @@ impl<'s> ParticleTracer<'s> {
         rng: &mut Rng,
         out: &mut [C64],
     ) -> Option<Leg> {
-        let volume = t.flyer.volume;
-        let bounds = &volume.field.bounds;
-        let n_out = volume.field.n_out;
-        let entry = match bounds.interval(x, d) {
-            Some((t0, t1)) if !left_volume && t1 > 0.0 && t0 >= 0.0 => Some(t0),
-            _ => None,
-        };
-        let surface = self.scene.surface_hit(x, d);
+        let n_out = t.flyer.volume.field.n_out;
+        let (entry, surface) = self.ahead(t, x, d, left_volume);
         let end = match (entry, surface) {
             (Some(a), Some((_, b))) => a.min(b),
             (Some(a), None) => a,

@@ -26,7 +26,7 @@
 use super::connect::Sampled;
 use super::flight::Flight;
 use super::particle::{Leg, ParticleTracer, Tools};
-use super::scene::Light;
+use super::scene::{Light, grid_pixel};
 use crate::eikonal::Ray;
 use crate::math::{C64, Rng, uniform};
 use glam::DVec3;
@@ -73,13 +73,7 @@ impl ParticleTracer<'_> {
         }
         for (i, cam) in scene.pinholes.iter().enumerate() {
             // a uniform point of a uniform pixel on the image plane at unit distance
-            let [nx, ny] = cam.pixels;
-            let a = uniform(rng);
-            let b = uniform(rng);
-            let (px, py) = (
-                ((a * nx as f64) as usize).min(nx - 1),
-                ((b * ny as f64) as usize).min(ny - 1),
-            );
+            let (a, b) = (uniform(rng), uniform(rng));
             let v = cam.forward
                 + cam.right * ((2.0 * a - 1.0) * cam.tan_half[0])
                 + cam.up * ((2.0 * b - 1.0) * cam.tan_half[1]);
@@ -87,7 +81,7 @@ impl ParticleTracer<'_> {
             let cos = d.dot(cam.forward);
             let pixel = Pixel {
                 image: self.pinhole_image(i),
-                pixel: py * nx + px,
+                pixel: grid_pixel(a, b, cam.pixels),
                 count: cam.pixel_count() as f64,
                 to_total: cos * cos * cos * 4.0 * cam.tan_half[0] * cam.tan_half[1],
             };
@@ -95,20 +89,14 @@ impl ParticleTracer<'_> {
         }
         for (i, cam) in scene.cameras.iter().enumerate() {
             // a uniform point of a uniform pixel of the rectangle, looking back along the light
-            let [nx, ny] = cam.pixels;
-            let a = uniform(rng);
-            let b = uniform(rng);
-            let (px, py) = (
-                ((a * nx as f64) as usize).min(nx - 1),
-                ((b * ny as f64) as usize).min(ny - 1),
-            );
+            let (a, b) = (uniform(rng), uniform(rng));
             let y = cam.center
                 + cam.right * ((a - 0.5) * cam.size[0])
                 + cam.up * ((b - 0.5) * cam.size[1]);
             let count = cam.pixel_count() as f64;
             let pixel = Pixel {
                 image: self.camera_image(i),
-                pixel: py * nx + px,
+                pixel: grid_pixel(a, b, cam.pixels),
                 count,
                 to_total: count,
             };
@@ -180,15 +168,8 @@ impl ParticleTracer<'_> {
         rng: &mut Rng,
         out: &mut [C64],
     ) -> Option<Leg> {
-        let volume = t.flyer.volume;
-        let bounds = &volume.field.bounds;
-        let n_out = volume.field.n_out;
-        let entry = match bounds.interval(x, d) {
-            Some((t0, t1)) if !left_volume && t1 > 0.0 && t0 >= 0.0 => Some(t0),
-            _ => None,
-        };
-        let surface = self.scene.surface_hit(x, d);
-        match (entry, surface) {
+        let n_out = t.flyer.volume.field.n_out;
+        match self.ahead(t, x, d, left_volume) {
             (Some(t0), s) if s.is_none_or(|(_, ts)| t0 <= ts) => {
                 w.opl += t.delay.outside(n_out * t0);
                 Some(Leg::enter(t, x, d, t0, rng))

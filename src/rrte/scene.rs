@@ -104,6 +104,15 @@ impl Volume {
     }
 }
 
+/// The pixel (row-major from the lower left, the first axis fastest) at fractions `a`, `b` in
+/// `[0, 1)` across an image of `pixels`.
+#[inline]
+pub fn grid_pixel(a: f64, b: f64, pixels: [usize; 2]) -> usize {
+    let i = ((a * pixels[0] as f64) as usize).min(pixels[0] - 1);
+    let j = ((b * pixels[1] as f64) as usize).min(pixels[1] - 1);
+    j * pixels[0] + i
+}
+
 /// Where light comes from; power 1 in total (results are fractions of the emitted power).
 #[derive(Clone, Debug, PartialEq)]
 pub enum Light {
@@ -260,9 +269,7 @@ impl Camera {
         if !(0.0..1.0).contains(&a) || !(0.0..1.0).contains(&b) {
             return None;
         }
-        let i = ((a * self.pixels[0] as f64) as usize).min(self.pixels[0] - 1);
-        let j = ((b * self.pixels[1] as f64) as usize).min(self.pixels[1] - 1);
-        Some(j * self.pixels[0] + i)
+        Some(grid_pixel(a, b, self.pixels))
     }
 }
 
@@ -330,9 +337,7 @@ impl Pinhole {
         if !(0.0..1.0).contains(&a) || !(0.0..1.0).contains(&b) {
             return None;
         }
-        let i = ((a * self.pixels[0] as f64) as usize).min(self.pixels[0] - 1);
-        let j = ((b * self.pixels[1] as f64) as usize).min(self.pixels[1] - 1);
-        Some((j * self.pixels[0] + i, cos))
+        Some((grid_pixel(a, b, self.pixels), cos))
     }
 }
 
@@ -453,9 +458,7 @@ impl Sensor {
         if !(0.0..1.0).contains(&a) || !(0.0..1.0).contains(&b) {
             return None;
         }
-        let i = ((a * self.pixels[0] as f64) as usize).min(self.pixels[0] - 1);
-        let j = ((b * self.pixels[1] as f64) as usize).min(self.pixels[1] - 1);
-        Some((j * self.pixels[0] + i, t))
+        Some((grid_pixel(a, b, self.pixels), t))
     }
 
     /// The area of one pixel (`None` for an unbounded plane).
