@@ -673,7 +673,8 @@ fn forward_sensitivities() {
 /// ray's origin and direction, analytic parameters and grid coefficients. Cases: a Luneburg lens
 /// whose profile radius differs from the sphere (index jump → refraction on the curved surface); an
 /// ultrasonic Bessel field in a cylinder in air (flat caps); a glass rod guiding a tilted ray by
-/// several total internal reflections; a tricubic grid in a sphere. Loss:
+/// several total internal reflections; a tricubic grid in a sphere; the depth-graded profile in a
+/// rounded box given by its signed distance, entered and left through rounded edges. Loss:
 /// `L = |x_exit − p|² + a·d_exit`.
 #[test]
 fn exit_adjoint_matches_finite_differences() {
@@ -693,6 +694,19 @@ fn exit_adjoint_matches_finite_differences() {
         .collect();
     let grid = GridField::from_samples(origin, spacing, dims, samples, Interp::Tricubic).unwrap();
     let param = |profile, which| FieldParam { profile, which };
+    // a rounded box by its signed distance: the normal turns along the rounded edges
+    let rounded_box = {
+        use lightpath::eikonal::sdf::{SdfGrid, Shape, sample_shapes};
+        let shape = [Shape::Box {
+            center: DVec3::ZERO,
+            half: DVec3::new(0.8, 0.7, 0.9),
+            rounding: 0.4,
+        }];
+        let (origin, dims, samples) = sample_shapes(&shape, 0.0, 0.05);
+        std::sync::Arc::new(
+            SdfGrid::from_samples(origin, 0.05, dims, samples, Interp::Tricubic).unwrap(),
+        )
+    };
     /// name, field, ray origin and direction, parameters, grid coefficient count
     type Case = (
         &'static str,
@@ -768,6 +782,23 @@ fn exit_adjoint_matches_finite_differences() {
                 .map(|(i, j, k)| param(0, i + 6 * (j + 6 * k)))
                 .collect(),
             Some(216),
+        ),
+        (
+            "signed distance",
+            BoundedField::single(
+                Profile::SdfLuneburg {
+                    sdf: rounded_box.clone(),
+                    n_surface: 1.2,
+                    n_core: 1.4,
+                    depth: 0.3,
+                },
+                Bounds::Sdf(rounded_box),
+                1.0,
+            ),
+            DVec3::new(0.6, -0.15, -2.0),
+            DVec3::new(0.1, 0.04, 1.0).normalize(),
+            vec![param(0, 0), param(0, 1), param(0, 2)],
+            None,
         ),
     ];
     for (name, field, o, w, params, grid_len) in cases {

@@ -29,6 +29,7 @@ const CONFIGS: &[(&str, &str)] = &[
     ("configs/render_fluence.toml", "render"),
     ("configs/render_luneburg.toml", "render"),
     ("configs/render_path.toml", "render"),
+    ("configs/render_sdf.toml", "render"),
     ("configs/render_slab.toml", "render"),
     ("configs/render_spectral.toml", "render"),
     ("configs/render_tank.toml", "render"),

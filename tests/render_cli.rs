@@ -412,3 +412,147 @@ fn path_tracing_is_checked_and_runs() {
     assert!(r["cameras"][0]["irradiance"]["mean"].as_f64().unwrap() > 0.0);
     let _ = std::fs::remove_dir_all(dir);
 }
+
+/// Signed-distance bounds: each way of giving the shape is checked by key, the depth-graded
+/// profile needs them, and a shape read from a JSON file renders as the same shape sampled from
+/// its closed form.
+#[test]
+fn signed_distance_shapes_are_checked_and_read_from_files() {
+    let dir = tmp("sdf");
+    std::fs::create_dir_all(&dir).unwrap();
+    let base = std::fs::read_to_string(config("render_sdf.toml")).unwrap();
+    let cases: &[(&str, &str, &str)] = &[
+        ("spacing = 0.03", "spacing = 0.0", "field.bounds.spacing"),
+        (
+            "spacing = 0.03",
+            "spacing = 0.0005",
+            "field.bounds.spacing = 0.0005",
+        ),
+        ("spacing = 0.03", "", "field.bounds.spacing: missing"),
+        ("blend = 0.15", "blend = -0.1", "field.bounds.blend"),
+        (
+            "major = 0.7",
+            "major = -0.7",
+            "field.bounds.shapes[0].major",
+        ),
+        (
+            "axis = [0.0, 0.0, 1.0]",
+            "axis = [0.0, 0.0, 0.0]",
+            "field.bounds.shapes[0].axis",
+        ),
+        ("radius = 0.32", "radius = 1e400", "radius"),
+        (
+            "blend = 0.15",
+            "blend = 0.15\npath = \"x.json\"",
+            "give the shape once",
+        ),
+        (
+            "kind = \"sdf\"",
+            "kind = \"sdf\"\ninterp = \"cubic\"",
+            "field.bounds.interp",
+        ),
+        (
+            "bounds]\nkind = \"sdf\"",
+            "bounds]\nkind = \"sphere\"\nradius = 1.0\n[unused]\nkind = \"sdf\"",
+            "unused",
+        ),
+        (
+            "kind = \"torus\"",
+            "kind = \"cone\"",
+            "field.bounds.shapes[0]",
+        ),
+    ];
+    refused_all(&dir, &base, cases);
+    // the depth-graded profile grades by a signed distance
+    let sphere = base.replacen(
+        "[field.bounds]\nkind = \"sdf\"",
+        "[field.bounds]\nkind = \"sphere\"\nradius = 1.2\n[ignored]\nkind = \"sdf\"",
+        1,
+    );
+    assert_ne!(sphere, base);
+    let start = base.find("[field.bounds]").unwrap();
+    let end = base.find("[medium]").unwrap();
+    let ball = format!(
+        "{}[field.bounds]\nkind = \"sphere\"\nradius = 1.2\n\n{}",
+        &base[..start],
+        &base[end..]
+    );
+    refused(
+        &dir.join("graded_sphere.toml"),
+        &ball,
+        "field.profiles[0]: sdf_luneburg grades n by the depth below a signed-distance shape",
+    );
+    // a ball given as samples in a file (here the library's own sampling of the closed form, so
+    // that both grids are the same bits): faces must be positive, the file must exist and parse
+    let spacing = 0.1;
+    let ball = [lightpath::eikonal::sdf::Shape::Sphere {
+        center: glam::DVec3::ZERO,
+        radius: 1.0,
+    }];
+    let (origin, dims, values) = lightpath::eikonal::sdf::sample_shapes(&ball, 0.0, spacing);
+    let file = |values: &[f64]| {
+        serde_json::json!({
+            "dims": dims, "origin": origin.to_array(), "spacing": spacing, "values": values
+        })
+        .to_string()
+    };
+    std::fs::write(dir.join("ball.json"), file(&values)).unwrap();
+    let from_file = format!(
+        "{}[field.bounds]\nkind = \"sdf\"\npath = \"ball.json\"\n\n{}",
+        &base[..start],
+        &base[end..]
+    )
+    .replace("center = [0.0, -1.1, 0.0]", "center = [0.0, -1.3, 0.0]")
+    .replace(
+        "center = [-0.4, -1.08, -0.3]",
+        "center = [-0.4, -1.28, -0.3]",
+    );
+    let from_shape = from_file.replace(
+        "path = \"ball.json\"",
+        "spacing = 0.1\nshapes = [{ kind = \"sphere\", center = [0.0, 0.0, 0.0], radius = 1.0 }]",
+    );
+    let mut totals = Vec::new();
+    for (name, text) in [("file", &from_file), ("shape", &from_shape)] {
+        let path = dir.join(format!("{name}.toml"));
+        std::fs::write(&path, text).unwrap();
+        let out = dir.join(format!("{name}.out"));
+        let o = lightpath(&[
+            "render",
+            &path.display().to_string(),
+            "--out",
+            &out.display().to_string(),
+            "--samples",
+            "2000",
+            "--quiet",
+        ]);
+        assert!(
+            o.status.success(),
+            "{name}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        totals.push(results(&out)["sensors"].clone());
+    }
+    // the same grid (the file's samples are the sphere's distance at the same nodes), so the
+    // same photons
+    assert_eq!(totals[0], totals[1]);
+    let mut touching = values.clone();
+    touching[0] = -0.1;
+    std::fs::write(dir.join("ball.json"), file(&touching)).unwrap();
+    refused(
+        &dir.join("touching.toml"),
+        &from_file,
+        "on the grid's faces is not positive",
+    );
+    std::fs::write(dir.join("ball.json"), "{\"dims\": [2, 2]}").unwrap();
+    refused(
+        &dir.join("garbled.toml"),
+        &from_file,
+        "not a signed-distance grid",
+    );
+    refused(
+        &dir.join("missing.toml"),
+        &from_file.replace("ball.json", "nowhere.json"),
+        "field.bounds.path = ",
+    );
+    let _ = std::fs::remove_dir_all(dir);
+}

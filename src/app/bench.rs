@@ -312,7 +312,97 @@ fn eikonal_rates(quick: bool) -> String {
              (so 128² rays × 10 × 400 steps, forward + adjoint: ≈ {per_iteration:.0} s per design iteration)"
         );
     }
-    out + &ultrasonic_rates(quick)
+    out + &ultrasonic_rates(quick) + &flight_rates(quick)
+}
+
+/// Steps/s of the renderer's free flights along curved rays, from random points inside to the
+/// surface: the Luneburg lens bounded by its sphere, and the same lens as a sampled sphere (0.05
+/// grid) with the depth-graded profile, and a linear index in that sampled sphere; testing
+/// inside–outside after every step and skipping the test within the clearance (paper 002, Sec. 5).
+fn flight_rates(quick: bool) -> String {
+    use crate::eikonal::grid::Interp;
+    use crate::eikonal::sdf::{SdfGrid, Shape, sample_shapes};
+    use crate::eikonal::{BoundedField, Bounds, Profile, Ray};
+    use crate::math::uniform;
+    use crate::rrte::{Volume, flight::Flyer};
+    let flights = if quick { 1_000 } else { 20_000 };
+    let shape = [Shape::Sphere {
+        center: DVec3::ZERO,
+        radius: 1.0,
+    }];
+    let (origin, dims, samples) = sample_shapes(&shape, 0.0, 0.05);
+    let Ok(sdf) = SdfGrid::from_samples(origin, 0.05, dims, samples, Interp::Tricubic) else {
+        return String::new();
+    };
+    let sdf = std::sync::Arc::new(sdf);
+    let volume = |profile, bounds| Volume {
+        field: BoundedField::single(profile, bounds, 1.0),
+        sigma_s: 1.0,
+        sigma_a: 0.0,
+        scattering: Scattering::single(PhaseFunction::Isotropic),
+        density: None,
+    };
+    let volumes = [
+        (
+            "Luneburg sphere",
+            volume(
+                Profile::Luneburg { radius: 1.0 },
+                Bounds::Sphere { radius: 1.0 },
+            ),
+        ),
+        (
+            "sampled sphere, linear index",
+            volume(
+                Profile::Linear {
+                    n0: 1.3,
+                    gradient: DVec3::new(0.1, 0.05, 0.0),
+                },
+                Bounds::Sdf(sdf.clone()),
+            ),
+        ),
+        (
+            "sampled sphere, depth-graded index",
+            volume(
+                Profile::SdfLuneburg {
+                    sdf: sdf.clone(),
+                    n_surface: 1.0,
+                    n_core: 2f64.sqrt(),
+                    depth: 1.0,
+                },
+                Bounds::Sdf(sdf),
+            ),
+        ),
+    ];
+    let mut out = String::new();
+    for (name, v) in &volumes {
+        let rate = |skip: bool| {
+            let flyer = Flyer::new(v, 0.005, 1_000_000).skipping_tests(skip);
+            let t0 = Instant::now();
+            let steps: usize = (0..flights)
+                .into_par_iter()
+                .map(|i| {
+                    let mut rng = stream_rng(3, i as u64);
+                    let mut u = || 2.0 * uniform(&mut rng) - 1.0;
+                    let x = DVec3::new(u(), u(), u()) * 0.55;
+                    let d = DVec3::new(u(), u(), u()).normalize_or(DVec3::Z);
+                    let r = Ray {
+                        x,
+                        v: d * flyer.n(x),
+                    };
+                    flyer.fly(r, f64::INFINITY).1
+                })
+                .sum();
+            (steps as f64 / t0.elapsed().as_secs_f64(), steps / flights)
+        };
+        let (testing, steps) = rate(false);
+        let (skipping, _) = rate(true);
+        out += &format!(
+            "\nfree flights, {name} (step 0.005, ~{steps} steps each): {testing:.3e} steps/s testing inside–outside every step, \
+             {skipping:.3e} skipping the test within the clearance ({:.2}×)",
+            skipping / testing
+        );
+    }
+    out
 }
 
 /// Ray-steps/s through the ultrasonic Bessel field (m = 2, plane-wave quadrature per evaluation):

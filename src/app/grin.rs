@@ -40,6 +40,10 @@ pub fn design(task: &DesignTask, show: bool, out: &Path) -> Result<Outcome> {
         crate::eikonal::Bounds::Cylinder { radius, .. } => radius,
         crate::eikonal::Bounds::Box { half } => half.min_element(),
         crate::eikonal::Bounds::Everywhere => 1.0,
+        crate::eikonal::Bounds::Sdf(ref g) => {
+            let (lo, hi) = g.corners();
+            lo.abs().min(hi.abs()).min_element()
+        }
     };
     let profile = radial_profile(&res.field, r_max * 0.999, 41);
     let g = &res.grid;

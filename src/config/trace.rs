@@ -84,6 +84,13 @@ pub enum ProfileConfig {
     GridFile {
         path: String,
     },
+    /// Luneburg-like, graded by the depth below the surface of a signed-distance `field.bounds`:
+    /// `n_surface` on the surface to `n_core` at `depth` and beyond.
+    SdfLuneburg {
+        n_surface: f64,
+        n_core: f64,
+        depth: f64,
+    },
 }
 
 fn tricubic() -> String {
@@ -105,6 +112,247 @@ pub enum BoundsConfig {
     Box {
         size: [f64; 3],
     },
+    /// Any closed shape by its signed distance (negative inside) on a grid: sampled from `shapes`
+    /// (their smooth union over `blend`) every `spacing`, or given as `values` at `dims` nodes from
+    /// `origin` every `spacing` (x fastest), or read from `path` (a JSON file with those keys).
+    Sdf {
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        shapes: Vec<ShapeConfig>,
+        #[serde(default)]
+        blend: f64,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        spacing: Option<f64>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        dims: Option<[u64; 3]>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        origin: Option<[f64; 3]>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        values: Option<Vec<f64>>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        path: Option<String>,
+        #[serde(default = "tricubic")]
+        interp: String,
+    },
+}
+
+/// A shape in closed form for a signed-distance `field.bounds`.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum ShapeConfig {
+    Sphere {
+        center: [f64; 3],
+        radius: f64,
+    },
+    /// A ring: a tube of radius `minor` about the circle of radius `major` around `axis`.
+    Torus {
+        center: [f64; 3],
+        #[serde(default = "z_axis")]
+        axis: [f64; 3],
+        major: f64,
+        minor: f64,
+    },
+    /// A box of full `size`, its edges rounded by `rounding`.
+    Box {
+        center: [f64; 3],
+        size: [f64; 3],
+        #[serde(default)]
+        rounding: f64,
+    },
+    /// The points within `radius` of the segment `from`–`to`.
+    Capsule {
+        from: [f64; 3],
+        to: [f64; 3],
+        radius: f64,
+    },
+}
+
+fn z_axis() -> [f64; 3] {
+    [0.0, 0.0, 1.0]
+}
+
+/// The most nodes of a signed-distance grid (2²⁴, 256³: 128 MB of samples).
+const MAX_SDF_NODES: f64 = 16_777_216.0;
+
+/// A signed-distance grid in a JSON file: the keys of inline `values`.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SdfFile {
+    dims: [u64; 3],
+    origin: [f64; 3],
+    spacing: f64,
+    values: Vec<f64>,
+}
+
+/// The shape of `field.bounds.kind = "sdf"`, checked.
+#[allow(clippy::too_many_arguments)]
+fn sdf_bounds(
+    shapes: &[ShapeConfig],
+    blend: f64,
+    spacing: Option<f64>,
+    dims: Option<[u64; 3]>,
+    origin: Option<[f64; 3]>,
+    values: Option<&Vec<f64>>,
+    path: Option<&String>,
+    interp: &str,
+) -> Result<Bounds, ConfigError> {
+    use crate::eikonal::grid::Interp;
+    use crate::eikonal::sdf::{SdfGrid, Shape, sample_shapes};
+    const K: &str = "field.bounds";
+    let interp = match interp {
+        "tricubic" => Interp::Tricubic,
+        "trilinear" => Interp::Trilinear,
+        other => {
+            return err(format!(
+                "{K}.interp = \"{other}\": must be \"tricubic\" or \"trilinear\""
+            ));
+        }
+    };
+    let sources = [!shapes.is_empty(), values.is_some(), path.is_some()];
+    if sources.iter().filter(|s| **s).count() != 1 {
+        return err(format!(
+            "{K}: give the shape once: as shapes = [...] (with spacing), as values (with dims, origin and spacing), or as path = a JSON file of dims, origin, spacing and values"
+        ));
+    }
+    let vec3 = |key: String, v: [f64; 3]| {
+        if v.iter().all(|x| x.is_finite()) {
+            Ok(DVec3::from_array(v))
+        } else {
+            err(format!("{key} = {v:?}: must be finite"))
+        }
+    };
+    let (origin, spacing, dims, samples) = if !shapes.is_empty() {
+        let spacing = pos(
+            &format!("{K}.spacing"),
+            spacing.ok_or_else(|| {
+                ConfigError(format!(
+                    "{K}.spacing: missing (the grid step the shapes are sampled at)"
+                ))
+            })?,
+        )?;
+        if !(blend.is_finite() && blend >= 0.0) {
+            return err(format!("{K}.blend = {blend}: must be ≥ 0 and finite"));
+        }
+        if dims.is_some() || origin.is_some() {
+            return err(format!(
+                "{K}: dims and origin are set from the shapes' extent; give only spacing"
+            ));
+        }
+        let mut built = Vec::new();
+        for (i, s) in shapes.iter().enumerate() {
+            let k = format!("{K}.shapes[{i}]");
+            built.push(match *s {
+                ShapeConfig::Sphere { center, radius } => Shape::Sphere {
+                    center: vec3(format!("{k}.center"), center)?,
+                    radius: pos(&format!("{k}.radius"), radius)?,
+                },
+                ShapeConfig::Torus {
+                    center,
+                    axis,
+                    major,
+                    minor,
+                } => Shape::Torus {
+                    center: vec3(format!("{k}.center"), center)?,
+                    axis: unit(&format!("{k}.axis"), axis)?,
+                    major: pos(&format!("{k}.major"), major)?,
+                    minor: pos(&format!("{k}.minor"), minor)?,
+                },
+                ShapeConfig::Box {
+                    center,
+                    size,
+                    rounding,
+                } => {
+                    for (a, v) in size.iter().enumerate() {
+                        pos(&format!("{k}.size[{a}]"), *v)?;
+                    }
+                    let half = DVec3::from_array(size) * 0.5;
+                    if !(rounding.is_finite() && rounding >= 0.0 && rounding <= half.min_element())
+                    {
+                        return err(format!(
+                            "{k}.rounding = {rounding}: must be within [0, {}] (half the smallest size)",
+                            half.min_element()
+                        ));
+                    }
+                    Shape::Box {
+                        center: vec3(format!("{k}.center"), center)?,
+                        half,
+                        rounding,
+                    }
+                }
+                ShapeConfig::Capsule { from, to, radius } => Shape::Capsule {
+                    from: vec3(format!("{k}.from"), from)?,
+                    to: vec3(format!("{k}.to"), to)?,
+                    radius: pos(&format!("{k}.radius"), radius)?,
+                },
+            });
+        }
+        let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+        for s in &built {
+            let (a, b) = s.extent();
+            lo = lo.min(a);
+            hi = hi.max(b);
+        }
+        let nodes =
+            ((hi - lo + DVec3::splat(2.0 * blend)) / spacing + DVec3::splat(7.0)).element_product();
+        if nodes.is_nan() || nodes > MAX_SDF_NODES {
+            return err(format!(
+                "{K}.spacing = {spacing}: the shapes span {:?} to {:?}, about {nodes:.3e} grid nodes; at most {MAX_SDF_NODES:e} (256³): use a coarser spacing",
+                lo.to_array(),
+                hi.to_array()
+            ));
+        }
+        let (origin, dims, samples) = sample_shapes(&built, blend, spacing);
+        (origin, spacing, dims, samples)
+    } else {
+        if blend != 0.0 {
+            return err(format!("{K}.blend = {blend}: only for shapes"));
+        }
+        let (dims, origin, spacing, values, key) = match path {
+            Some(p) => {
+                let key = format!("{K}.path = \"{p}\"");
+                let text = std::fs::read_to_string(p)
+                    .map_err(|e| ConfigError(format!("{key}: cannot read: {e}")))?;
+                let f: SdfFile = serde_json::from_str(&text).map_err(|e| {
+                    ConfigError(format!(
+                        "{key}: not a signed-distance grid (a JSON object of dims, origin, spacing and values): {e}"
+                    ))
+                })?;
+                if spacing.is_some() || dims.is_some() || origin.is_some() {
+                    return err(format!(
+                        "{K}: the file gives dims, origin and spacing; do not give them here too"
+                    ));
+                }
+                (f.dims, f.origin, f.spacing, f.values, key)
+            }
+            None => {
+                let missing = |what: &str| {
+                    ConfigError(format!(
+                        "{K}.{what}: missing (values need dims, origin and spacing)"
+                    ))
+                };
+                (
+                    dims.ok_or_else(|| missing("dims"))?,
+                    origin.ok_or_else(|| missing("origin"))?,
+                    spacing.ok_or_else(|| missing("spacing"))?,
+                    values.cloned().unwrap_or_default(),
+                    format!("{K}.values"),
+                )
+            }
+        };
+        let spacing = pos(&format!("{K}.spacing"), spacing)?;
+        let origin = vec3(format!("{K}.origin"), origin)?;
+        if dims.iter().map(|&d| d as f64).product::<f64>() > MAX_SDF_NODES {
+            return err(format!(
+                "{K}.dims = {dims:?}: at most {MAX_SDF_NODES:e} nodes (256³)"
+            ));
+        }
+        if let Some(v) = values.iter().find(|v| !v.is_finite()) {
+            return err(format!("{key}: {v} is not a finite number"));
+        }
+        (origin, spacing, dims.map(|d| d as usize), values)
+    };
+    let grid = SdfGrid::from_samples(origin, spacing, dims, samples, interp)
+        .map_err(|e| ConfigError(format!("{K}: {e}")))?;
+    Ok(Bounds::Sdf(std::sync::Arc::new(grid)))
 }
 
 /// A bundle of rays: a collimated line of `count` rays across `width` through `center`, or a fan
@@ -207,6 +455,12 @@ impl FieldConfig {
                 *path = dir.join(&*path).to_string_lossy().into_owned();
             }
         }
+        if let BoundsConfig::Sdf {
+            path: Some(path), ..
+        } = &mut self.bounds
+        {
+            *path = dir.join(&*path).to_string_lossy().into_owned();
+        }
     }
 
     /// The field these keys describe (profiles may be empty: `n = 0 + …` inside, for a design's
@@ -219,6 +473,46 @@ impl FieldConfig {
                 f.profiles.len()
             ));
         }
+        let bounds = match f.bounds {
+            BoundsConfig::Everywhere => Bounds::Everywhere,
+            BoundsConfig::Sphere { radius } => Bounds::Sphere {
+                radius: pos("field.bounds.radius", radius)?,
+            },
+            BoundsConfig::Cylinder {
+                radius,
+                half_length,
+            } => Bounds::Cylinder {
+                radius: pos("field.bounds.radius", radius)?,
+                half_length: pos("field.bounds.half_length", half_length)?,
+            },
+            BoundsConfig::Box { size } => {
+                for (a, v) in size.iter().enumerate() {
+                    pos(&format!("field.bounds.size[{a}]"), *v)?;
+                }
+                Bounds::Box {
+                    half: DVec3::from_array(size) * 0.5,
+                }
+            }
+            BoundsConfig::Sdf {
+                ref shapes,
+                blend,
+                spacing,
+                dims,
+                origin,
+                ref values,
+                ref path,
+                ref interp,
+            } => sdf_bounds(
+                shapes,
+                blend,
+                spacing,
+                dims,
+                origin,
+                values.as_ref(),
+                path.as_ref(),
+                interp,
+            )?,
+        };
         let mut profiles = Vec::new();
         for (i, p) in f.profiles.iter().enumerate() {
             let k = format!("field.profiles[{i}]");
@@ -278,34 +572,31 @@ impl FieldConfig {
                     ref interp,
                 } => grid_profile(&k, dims, origin, spacing, values.clone(), interp)?,
                 ProfileConfig::GridFile { ref path } => grid_file(&k, path)?,
+                ProfileConfig::SdfLuneburg {
+                    n_surface,
+                    n_core,
+                    depth,
+                } => {
+                    let Bounds::Sdf(ref sdf) = bounds else {
+                        return err(format!(
+                            "{k}: sdf_luneburg grades n by the depth below a signed-distance shape's surface; give field.bounds.kind = \"sdf\""
+                        ));
+                    };
+                    Profile::SdfLuneburg {
+                        sdf: sdf.clone(),
+                        n_surface: pos(&format!("{k}.n_surface"), n_surface)?,
+                        n_core: pos(&format!("{k}.n_core"), n_core)?,
+                        depth: pos(&format!("{k}.depth"), depth)?,
+                    }
+                }
             });
         }
-        let bounds = match f.bounds {
-            BoundsConfig::Everywhere => Bounds::Everywhere,
-            BoundsConfig::Sphere { radius } => Bounds::Sphere {
-                radius: pos("field.bounds.radius", radius)?,
-            },
-            BoundsConfig::Cylinder {
-                radius,
-                half_length,
-            } => Bounds::Cylinder {
-                radius: pos("field.bounds.radius", radius)?,
-                half_length: pos("field.bounds.half_length", half_length)?,
-            },
-            BoundsConfig::Box { size } => {
-                for (a, v) in size.iter().enumerate() {
-                    pos(&format!("field.bounds.size[{a}]"), *v)?;
-                }
-                Bounds::Box {
-                    half: DVec3::from_array(size) * 0.5,
-                }
-            }
-        };
         // the ultrasonic harmonic is a sum of ~k_r·r plane waves (eikonal::bessel): bound its cost
         let r_max = match bounds {
             Bounds::Everywhere => None,
             Bounds::Sphere { radius } | Bounds::Cylinder { radius, .. } => Some(radius),
             Bounds::Box { half } => Some(half.x.hypot(half.y)),
+            Bounds::Sdf(_) => bounds.half_extent().map(|h| h.x.hypot(h.y)),
         };
         if let Some(r_max) = r_max {
             for (i, p) in profiles.iter().enumerate() {

@@ -259,6 +259,11 @@ fn normal_adjoint(bounds: &Bounds, x: DVec3, l_normal: DVec3) -> DVec3 {
             let l = DVec3::new(l_normal.x, l_normal.y, 0.0);
             project(nu, l, (x.x * x.x + x.y * x.y).sqrt())
         }
+        // ν = ∇d/|∇d|: ∂ν/∂x = (I − ννᵀ) ∇²d / |∇d|, and ∇²d is symmetric
+        (Bounds::Sdf(g), Some(nu)) => {
+            let (_, grad, hessian) = g.eval(x);
+            hessian * project(nu, l_normal, grad.length())
+        }
         _ => DVec3::ZERO,
     }
 }

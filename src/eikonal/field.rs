@@ -1,7 +1,9 @@
 //! Refractive-index fields `n(x)` with analytic gradients and Hessians, bounded by a
 //! geometry outside which `n` is the constant `n_out`.
 
+use super::sdf::SdfGrid;
 use glam::{DMat3, DVec3};
+use std::sync::Arc;
 
 /// An index field: value, gradient and Hessian of `n`.
 pub trait IndexField: Sync {
@@ -67,6 +69,28 @@ pub enum Profile {
     },
     /// Sampled field (trilinear or prefiltered tricubic B-spline); parameters are its coefficients.
     Grid(super::grid::GridField),
+    /// A Luneburg-like profile graded by the depth below a signed-distance shape's surface (paper
+    /// 002, Fig. 9: the distance as a proxy for the radius): `n² = n_s² + (n_c² − n_s²)(2u − u²)`
+    /// with `u = min(−d(x)/depth, 1)`, so `n = n_surface` on the surface rising smoothly to
+    /// `n_core` at `depth` and beyond. A sphere's distance with `depth = R`, `n_s = 1`,
+    /// `n_c = √2` gives the Luneburg lens.
+    SdfLuneburg {
+        sdf: Arc<SdfGrid>,
+        n_surface: f64,
+        n_core: f64,
+        depth: f64,
+    },
+}
+
+/// `(u, q(u) = 2u − u², q'(u), q''(u))` of [`Profile::SdfLuneburg`] at signed distance `d`.
+#[inline]
+fn depth_grading(d: f64, depth: f64) -> (f64, f64, f64, f64) {
+    let u = -d / depth;
+    if u >= 1.0 {
+        (u, 1.0, 0.0, 0.0)
+    } else {
+        (u, u * (2.0 - u), 2.0 - 2.0 * u, -2.0)
+    }
 }
 
 /// `n = f(q)` of a quadratic form `q = xᵀ D x` (D diagonal): value, `f'`, `f''` give all derivatives.
@@ -96,6 +120,7 @@ impl Profile {
             Profile::RadialPolynomial { .. } => "radial_polynomial",
             Profile::SphericalPolynomial { .. } => "spherical_polynomial",
             Profile::Grid(_) => "grid",
+            Profile::SdfLuneburg { .. } => "sdf_luneburg",
         }
     }
 
@@ -124,6 +149,23 @@ impl Profile {
                 quadratic((n0 * s, -0.5 * n0 / s, -0.25 * n0 / (s * s * s)), d, x)
             }
             Profile::Grid(ref g) => g.eval(x),
+            Profile::SdfLuneburg {
+                ref sdf,
+                n_surface,
+                n_core,
+                depth,
+            } => {
+                // N = n² = a + b q(u), u = −d/depth; n = √N
+                let (d, dd, hd) = sdf.eval(x);
+                let (_, q, q1, q2) = depth_grading(d, depth);
+                let b = n_core * n_core - n_surface * n_surface;
+                let n = (n_surface * n_surface + b * q).sqrt();
+                let gu = dd * (-1.0 / depth);
+                let g_big = gu * (b * q1);
+                let h_big = outer(gu, gu) * (b * q2) + hd * (-b * q1 / depth);
+                let grad = g_big / (2.0 * n);
+                (n, grad, h_big * (0.5 / n) - outer(grad, grad) * (1.0 / n))
+            }
             Profile::Ultrasonic { n0, n_max, k_r, m } => {
                 let h = super::bessel::harmonic(k_r, m, x);
                 (n0 + n_max * h.u, h.grad * n_max, h.hessian * n_max)
@@ -191,7 +233,7 @@ impl Profile {
     }
 }
 
-/// Where a profile applies; outside it `n = n_out`.
+/// Where a profile applies; outside it `n = n_out`. Analytic regions are centred at the origin.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Bounds {
     Everywhere,
@@ -206,6 +248,8 @@ pub enum Bounds {
     Box {
         half: DVec3,
     },
+    /// Any closed shape, by its signed distance on a grid (paper 002, Sec. 5).
+    Sdf(Arc<SdfGrid>),
 }
 
 impl Bounds {
@@ -218,6 +262,61 @@ impl Bounds {
                 half_length,
             } => x.x * x.x + x.y * x.y <= radius * radius && x.z.abs() <= half_length,
             Bounds::Box { half } => x.abs().cmple(half).all(),
+            Bounds::Sdf(ref g) => g.contains(x),
+        }
+    }
+
+    /// Whether `x` is inside, and then its [`Bounds::clearance`] (one evaluation of a grid's
+    /// distance for both).
+    #[inline]
+    pub fn inside_clearance(&self, x: DVec3) -> Option<f64> {
+        match *self {
+            Bounds::Sdf(ref g) => g.inside_clearance(x),
+            _ => self.contains(x).then(|| self.clearance(x)),
+        }
+    }
+
+    /// A lower bound on the distance from `x` (inside) to the surface: how far a ray from `x` may
+    /// run before it needs the inside–outside test again (infinite for `Everywhere`).
+    #[inline]
+    pub fn clearance(&self, x: DVec3) -> f64 {
+        match *self {
+            Bounds::Everywhere => f64::INFINITY,
+            Bounds::Sphere { radius } => radius - x.length(),
+            Bounds::Cylinder {
+                radius,
+                half_length,
+            } => (radius - x.x.hypot(x.y)).min(half_length - x.z.abs()),
+            Bounds::Box { half } => (half - x.abs()).min_element(),
+            Bounds::Sdf(ref g) => g.clearance(x),
+        }
+    }
+
+    /// Whether a straight line meets the region in one stretch at most (all but signed-distance
+    /// shapes): a ray that has left it cannot come back.
+    pub fn is_convex(&self) -> bool {
+        !matches!(self, Bounds::Sdf(_))
+    }
+
+    /// The parameter where `o + t w` (unit `w`, `o` inside) leaves the region.
+    pub fn exit(&self, o: DVec3, w: DVec3) -> Option<f64> {
+        match self {
+            Bounds::Sdf(g) => g.exit(o, w),
+            _ => self.interval(o, w).map(|(_, t1)| t1),
+        }
+    }
+
+    /// Where the straight ray from `x` along unit `d`, which has just left the region at `x`,
+    /// enters it again (never for convex regions).
+    pub fn reentry(&self, x: DVec3, d: DVec3) -> Option<f64> {
+        let Bounds::Sdf(g) = self else {
+            return None;
+        };
+        // start past the surface it left, by a small fraction of the grid spacing
+        let skip = 1e-6 * g.grid().spacing;
+        match g.interval(x + d * skip, d) {
+            Some((t0, _)) if t0 >= 0.0 => Some(t0 + skip),
+            _ => None,
         }
     }
 
@@ -231,6 +330,10 @@ impl Bounds {
                 half_length,
             } => Some(DVec3::new(radius, radius, half_length)),
             Bounds::Box { half } => Some(half),
+            Bounds::Sdf(ref g) => {
+                let (lo, hi) = g.corners();
+                Some(lo.abs().max(hi.abs()))
+            }
         }
     }
 
@@ -260,6 +363,7 @@ impl Bounds {
                 n[a] = r[a].signum();
                 Some(n)
             }
+            Bounds::Sdf(ref g) => Some(g.normal(x)),
         }
     }
 
@@ -304,6 +408,7 @@ impl Bounds {
                 }
                 (t0 < t1).then_some((t0, t1))
             }
+            Bounds::Sdf(ref g) => g.interval(o, w),
         }
     }
 }
@@ -388,6 +493,15 @@ impl IndexField for BoundedField {
         if !self.bounds.contains(x) {
             return (self.n_out, DVec3::ZERO, DMat3::ZERO);
         }
+        self.eval_inside(x)
+    }
+}
+
+impl BoundedField {
+    /// `(n, ∇n, ∇²n)` at `x` known to be inside the bounds (no inside–outside test: free flights
+    /// that have proved it by the bounds' clearance skip it).
+    #[inline]
+    pub fn eval_inside(&self, x: DVec3) -> (f64, DVec3, DMat3) {
         let (n, g, h) =
             self.profiles
                 .iter()
@@ -430,6 +544,9 @@ impl Profile {
             (Profile::Ultrasonic { n_max, .. }, 1) => Some(n_max),
             (Profile::Ultrasonic { k_r, .. }, 2) => Some(k_r),
             (Profile::Grid(g), k) => g.coef.get_mut(k),
+            (Profile::SdfLuneburg { n_surface, .. }, 0) => Some(n_surface),
+            (Profile::SdfLuneburg { n_core, .. }, 1) => Some(n_core),
+            (Profile::SdfLuneburg { depth, .. }, 2) => Some(depth),
             _ => None,
         }
     }
@@ -453,6 +570,7 @@ impl Profile {
                 };
             }
             Profile::Grid(_) => &[],
+            Profile::SdfLuneburg { .. } => &["n_surface", "n_core", "depth"],
         };
         names.iter().position(|n| *n == name)
     }
@@ -497,6 +615,32 @@ impl Profile {
                 Some((n / n0, grad / *n0))
             }
             (Profile::Grid(g), k) if k < g.coef.len() => Some(g.dcoef(x, k)),
+            (
+                Profile::SdfLuneburg {
+                    sdf,
+                    n_surface,
+                    n_core,
+                    depth,
+                },
+                k @ 0..=2,
+            ) => {
+                // ∂n/∂θ = (∂N/∂θ)/(2n); its gradient (∇∂N/∂θ)/(2n) − (∂N/∂θ) ∇n/(2n²)
+                let (n, grad, _) = eval();
+                let (d, dd, _) = sdf.eval(x);
+                let (u, q, q1, q2) = depth_grading(d, *depth);
+                let gu = dd * (-1.0 / depth);
+                let b = n_core * n_core - n_surface * n_surface;
+                let (dn2, grad_dn2) = match k {
+                    0 => (2.0 * n_surface * (1.0 - q), gu * (-2.0 * n_surface * q1)),
+                    1 => (2.0 * n_core * q, gu * (2.0 * n_core * q1)),
+                    // ∂u/∂depth = −u/depth, ∇(∂u/∂depth) = −∇u/depth
+                    _ => (-b * q1 * u / depth, gu * (-b * (q2 * u + q1) / depth)),
+                };
+                Some((
+                    dn2 / (2.0 * n),
+                    grad_dn2 / (2.0 * n) - grad * (dn2 / (2.0 * n * n)),
+                ))
+            }
             (Profile::Ultrasonic { .. }, 0)
             | (Profile::RadialPolynomial { .. }, 0)
             | (Profile::SphericalPolynomial { .. }, 0) => Some((1.0, DVec3::ZERO)),
@@ -590,7 +734,56 @@ mod tests {
                 n0: 1.62,
                 coefficients: vec![-0.1, 0.04, -0.02],
             },
+            Profile::SdfLuneburg {
+                // 0.085: the test point stays off the grid's cell faces, where the Hessian is
+                // only continuous (B-splines are C²) and differences of the gradient lose order
+                sdf: sampled_sphere(0.085),
+                n_surface: 1.1,
+                n_core: 1.5,
+                depth: 0.8,
+            },
         ]
+    }
+
+    /// A unit sphere's signed distance on a grid of `spacing`.
+    fn sampled_sphere(spacing: f64) -> Arc<SdfGrid> {
+        let shapes = [crate::eikonal::sdf::Shape::Sphere {
+            center: DVec3::ZERO,
+            radius: 1.0,
+        }];
+        let (origin, dims, samples) = crate::eikonal::sdf::sample_shapes(&shapes, 0.0, spacing);
+        Arc::new(
+            SdfGrid::from_samples(
+                origin,
+                spacing,
+                dims,
+                samples,
+                super::super::grid::Interp::Tricubic,
+            )
+            .unwrap(),
+        )
+    }
+
+    /// On a sphere's distance with `depth = R`, `n_s = 1` and `n_c = √2` the depth-graded profile
+    /// is the Luneburg lens (to the sampled distance's interpolation error).
+    #[test]
+    fn sdf_luneburg_on_a_sphere_is_the_luneburg_lens() {
+        let graded = Profile::SdfLuneburg {
+            sdf: sampled_sphere(0.05),
+            n_surface: 1.0,
+            n_core: 2f64.sqrt(),
+            depth: 1.0,
+        };
+        let lens = Profile::Luneburg { radius: 1.0 };
+        for x in [
+            DVec3::new(0.31, -0.22, 0.4),
+            DVec3::new(0.0, 0.9, 0.1),
+            DVec3::new(-0.5, -0.5, -0.5),
+        ] {
+            let (a, b) = (graded.eval(x), lens.eval(x));
+            assert!((a.0 - b.0).abs() < 1e-4, "n at {x}: {} vs {}", a.0, b.0);
+            assert!((a.1 - b.1).length() < 1e-3, "∇n at {x}: {} vs {}", a.1, b.1);
+        }
     }
 
     /// Analytic gradients and Hessians against central differences, for every profile.

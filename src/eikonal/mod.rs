@@ -6,6 +6,7 @@ pub mod adjoint;
 pub mod bessel;
 pub mod field;
 pub mod grid;
+pub mod sdf;
 pub mod trace;
 
 pub use adjoint::{ExitGradient, FieldParam, GridAdjoint, RayGradient};

@@ -87,7 +87,16 @@ pub struct Connector<'v> {
     /// Restarts at most, when estimating an inverse probability (beyond it the count so far is
     /// used: a bias only for paths drawn less often than once in this many tries).
     pub max_restarts: usize,
+    /// Geometric length after which a ray traced to its exit is taken as trapped (a graded index
+    /// can hold rays in orbits that never reach the surface): where it would be attenuated below
+    /// `e^−30`, and at most [`TRAPPED_CROSSINGS`] widths of the volume.
+    max_length: f64,
 }
+
+/// Optical depth beyond which a connection's transmittance (`< e^−30`) is dropped.
+const TRAPPED_DEPTH: f64 = 30.0;
+/// Widths of the volume a connection ray may run before it is taken as trapped.
+const TRAPPED_CROSSINGS: f64 = 100.0;
 
 /// A ray with its sensitivities to the initial velocity, `∂x/∂v0` and `∂v/∂v0`, and the field at
 /// its position (`n`, the force `n∇n` and its Jacobian), so that a step evaluates the field once.
@@ -154,6 +163,17 @@ impl<'v> Connector<'v> {
             .bounds
             .half_extent()
             .map_or(1.0, |h| h.max_element());
+        // with a density the attenuation along a ray is only bounded above: width alone
+        let sigma_t = if volume.density.is_none() {
+            volume.sigma_t()
+        } else {
+            0.0
+        };
+        let max_length = (TRAPPED_CROSSINGS * 2.0 * size).min(if sigma_t > 0.0 {
+            TRAPPED_DEPTH / sigma_t
+        } else {
+            f64::INFINITY
+        });
         Connector {
             volume,
             tracer: Tracer {
@@ -166,6 +186,7 @@ impl<'v> Connector<'v> {
             tolerance: 1e-9 * size,
             max_iterations: 40,
             max_restarts: 10_000,
+            max_length,
         }
     }
 
@@ -321,7 +342,7 @@ impl<'v> Connector<'v> {
     /// point (1 for a direction).
     fn straight_exit(&self, x: DVec3, w: DVec3, to_point: Option<f64>) -> Sampled<Exit> {
         let n = self.volume.field.n_out;
-        let path = self.volume.field.bounds.interval(x, w).and_then(|(_, t1)| {
+        let path = self.volume.field.bounds.exit(x, w).and_then(|t1| {
             let exit = t1.max(0.0);
             let (optical_path, jacobian) = match to_point {
                 Some(s) if s > exit => (n * s, s * s),
@@ -382,7 +403,7 @@ impl<'v> Connector<'v> {
     }
 
     /// Trace from `x` along unit `w` to where the ray leaves the volume, carrying `∂x/∂v0` and
-    /// `∂v/∂v0`; `None` if it runs out of steps.
+    /// `∂v/∂v0`; `None` if it runs out of steps or is trapped.
     fn shoot_out(&self, x: DVec3, w: DVec3) -> Option<(Ray, DMat3, DMat3, f64, f64)> {
         let field = &self.volume.field;
         let t = &self.tracer;
@@ -401,6 +422,9 @@ impl<'v> Connector<'v> {
             s = next;
             if leaves {
                 return Some((s.r, s.xv, s.vv, length, opl));
+            }
+            if length > self.max_length {
+                return None;
             }
         }
         None

@@ -1,7 +1,7 @@
 //! Refractive radiative transfer (paper 002): light that scatters *and* bends. A volume with an
 //! index field `n(x)` (any [`crate::eikonal`] profile or grid, dispersive if asked) and scattering
-//! (homogeneous or scaled by a density grid), bounded by a sphere, box or cylinder with a smooth
-//! dielectric surface (Fresnel reflection and refraction, total internal reflection); lights
+//! (homogeneous or scaled by a density grid), bounded by a sphere, box, cylinder or signed-distance
+//! shape (not necessarily convex) with a smooth dielectric surface (Fresnel reflection and refraction, total internal reflection); lights
 //! outside or inside it; sensors outside it and fluence probes inside it.
 //!
 //! - [`scene`]: the volume, lights, sensors and time-of-flight bins;

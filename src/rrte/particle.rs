@@ -309,7 +309,10 @@ impl<'s> ParticleTracer<'s> {
                 continue;
             };
             let to_plane = (cam.center - e.surface).dot(cam.direction).max(0.0);
-            if self.scene.blocked(e.surface, cam.direction, to_plane) {
+            if self
+                .scene
+                .blocked_after_exit(e.surface, cam.direction, to_plane)
+            {
                 continue;
             }
             let transmittance = self.transmittance(t, x, e.direction, e.length, rng);
@@ -337,7 +340,10 @@ impl<'s> ParticleTracer<'s> {
                 continue;
             };
             let to_pinhole = (cam.position - e.surface).dot(e.outgoing);
-            if self.scene.blocked(e.surface, e.outgoing, to_pinhole) {
+            if self
+                .scene
+                .blocked_after_exit(e.surface, e.outgoing, to_pinhole)
+            {
                 continue;
             }
             // irradiance at the pinhole, and radiance over the pixel's image-plane area
@@ -417,21 +423,28 @@ impl<'s> ParticleTracer<'s> {
         length: f64,
         rng: &mut Rng,
     ) -> Option<f64> {
-        match t.flyer.volume.field.bounds.interval(y, w) {
-            Some((t0, t1)) if t1 > 0.0 && t0 < length => {
-                if !t.connector.matched() {
-                    return None;
-                }
-                let a = crate::eikonal::trace::entry_parameter(t0.max(0.0));
-                let b = t1.min(length);
-                Some(if b > a {
-                    self.transmittance(t, y + w * a, w, b - a, rng)
-                } else {
-                    1.0
-                })
+        // every stretch of the line inside the volume (one if it is convex)
+        let bounds = &t.flyer.volume.field.bounds;
+        let (mut from, mut transmittance) = (0.0, 1.0);
+        while let Some((t0, t1)) = bounds.interval(y + w * from, w) {
+            let (t0, t1) = (from + t0, from + t1);
+            if t1 <= from || t0 >= length {
+                break;
             }
-            _ => Some(1.0),
+            if !t.connector.matched() {
+                return None;
+            }
+            let a = crate::eikonal::trace::entry_parameter(t0.max(from));
+            let b = t1.min(length);
+            if b > a {
+                transmittance *= self.transmittance(t, y + w * a, w, b - a, rng);
+            }
+            if bounds.is_convex() || b >= length {
+                break;
+            }
+            from = t1 + 1e-9 * (1.0 + t1.abs());
         }
+        Some(transmittance)
     }
 
     /// Count a connection's work in the statistics, and return its path and inverse probability.
@@ -510,8 +523,8 @@ impl<'s> ParticleTracer<'s> {
     }
 
     /// What the straight ray from `x` along unit `d` outside the volume meets: the distance to the
-    /// volume's surface (none if it misses, or `left_volume`: it starts where it left the convex
-    /// volume), and the nearest surface with its distance.
+    /// volume's surface (none if it misses; `left_volume`: it starts where it left the volume,
+    /// which only a non-convex shape can meet again), and the nearest surface with its distance.
     pub(super) fn ahead(
         &self,
         t: &Tools,
@@ -519,9 +532,14 @@ impl<'s> ParticleTracer<'s> {
         d: DVec3,
         left_volume: bool,
     ) -> (Option<f64>, Option<(usize, f64)>) {
-        let entry = match t.flyer.volume.field.bounds.interval(x, d) {
-            Some((t0, t1)) if !left_volume && t1 > 0.0 && t0 >= 0.0 => Some(t0),
-            _ => None,
+        let bounds = &t.flyer.volume.field.bounds;
+        let entry = if left_volume {
+            bounds.reentry(x, d)
+        } else {
+            match bounds.interval(x, d) {
+                Some((t0, t1)) if t1 > 0.0 && t0 >= 0.0 => Some(t0),
+                _ => None,
+            }
         };
         (entry, self.scene.surface_hit(x, d))
     }
@@ -573,8 +591,8 @@ impl<'s> ParticleTracer<'s> {
     /// A straight leg outside the volume from `x` along unit `d`: into the volume (with the Fresnel
     /// split at its surface), onto a surface (absorbed, or reflected diffusely after connecting
     /// the cameras to the lit point), or away for good, recording the sensors crossed on the way.
-    /// `left_volume`: the leg starts where the photon left the (convex) volume, so it cannot
-    /// re-enter it.
+    /// `left_volume`: the leg starts where the photon left the volume (which it meets again only
+    /// if the volume is not convex).
     #[allow(clippy::too_many_arguments)]
     fn outside(
         &self,
@@ -763,7 +781,8 @@ impl<'s> ParticleTracer<'s> {
 }
 
 /// Where a photon or a camera path is: inside the volume with its ray, or on a straight leg
-/// outside it (`left_volume`: starting where it left the convex volume, so it cannot re-enter).
+/// outside it (`left_volume`: starting where it left the volume, so only a non-convex one can be
+/// met again).
 #[derive(Clone, Copy)]
 pub(super) enum Leg {
     Inside(Ray),

@@ -307,7 +307,7 @@ impl ParticleTracer<'_> {
                 return;
             };
             let to_q = (q - e.surface).dot(e.outgoing);
-            if self.scene.blocked(e.surface, e.outgoing, to_q) {
+            if self.scene.blocked_after_exit(e.surface, e.outgoing, to_q) {
                 return;
             }
             let transmittance = self.transmittance(t, x, e.direction, e.length, rng);

@@ -100,6 +100,10 @@ impl Volume {
                 radius,
                 half_length,
             } => radius * (d.x * d.x + d.y * d.y).sqrt() + half_length * d.z.abs(),
+            Bounds::Sdf(ref g) => {
+                let (lo, hi) = g.corners();
+                (lo * d).max(hi * d).element_sum()
+            }
         }
     }
 }
@@ -580,6 +584,19 @@ impl RenderScene {
         self.surfaces
             .iter()
             .any(|s| s.hit(x, d).is_some_and(|t| t < length))
+    }
+
+    /// Whether the straight segment of `length` from `x`, where a path has just left the volume,
+    /// along unit `d` is blocked by a surface or (a non-convex volume) by the volume itself: a
+    /// view through the volume again would refract twice more, which connections do not follow.
+    pub fn blocked_after_exit(&self, x: DVec3, d: DVec3, length: f64) -> bool {
+        self.blocked(x, d, length)
+            || self
+                .volume
+                .field
+                .bounds
+                .reentry(x, d)
+                .is_some_and(|t| t < length)
     }
 
     /// Colour channels of screen and camera images (3 for a white spectrum, else 1).

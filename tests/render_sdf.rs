@@ -1,0 +1,213 @@
+//! Volumes bounded by signed-distance grids in the refractive renderer: a ring (not convex) that a
+//! beam crosses twice, against its closed-form attenuation; a sampled sphere with the depth-graded
+//! Luneburg profile against the analytic Luneburg sphere (flux and camera totals); and free flights
+//! with the inside–outside tests skipped by the clearance equal, bit for bit, to flights testing
+//! after every step.
+
+mod common;
+
+use common::bare_scene;
+use glam::DVec3;
+use lightpath::eikonal::grid::Interp;
+use lightpath::eikonal::sdf::{SdfGrid, Shape, sample_shapes};
+use lightpath::eikonal::{BoundedField, Bounds, Profile, Ray};
+use lightpath::math::{stream_rng, uniform};
+use lightpath::medium::{PhaseFunction, Scattering};
+use lightpath::rrte::flight::Flyer;
+use lightpath::rrte::{Camera, Light, RenderScene, Sensor, SensorKind, Volume};
+use std::sync::Arc;
+
+fn sdf(shapes: &[Shape], spacing: f64) -> Arc<SdfGrid> {
+    let (origin, dims, samples) = sample_shapes(shapes, 0.0, spacing);
+    Arc::new(SdfGrid::from_samples(origin, spacing, dims, samples, Interp::Tricubic).unwrap())
+}
+
+fn flux(name: &str, center: DVec3, normal: DVec3) -> Sensor {
+    Sensor::new(name.into(), SensorKind::Flux, center, normal, None, [1, 1])
+}
+
+/// A pencil beam along x through both arms of a clear absorbing ring (major radius 1, tube 0.3,
+/// index-matched): it leaves the first arm, crosses the hole and enters the second, so it
+/// transmits `exp(−σ_a · 4r)` = e^{−1.2}; a renderer that took the ring for convex (no
+/// re-entry) would report e^{−0.6}.
+#[test]
+fn a_beam_crosses_both_arms_of_a_ring() {
+    let ring = sdf(
+        &[Shape::Torus {
+            center: DVec3::ZERO,
+            axis: DVec3::Z,
+            major: 1.0,
+            minor: 0.3,
+        }],
+        0.03,
+    );
+    for n in [1.0, 1.33] {
+        let scene = RenderScene {
+            volume: Volume {
+                field: BoundedField::single(Profile::Constant { n }, Bounds::Sdf(ring.clone()), n),
+                sigma_s: 0.0,
+                sigma_a: 1.0,
+                scattering: Scattering::single(PhaseFunction::Isotropic),
+                density: None,
+            },
+            light: Light::Beam {
+                center: DVec3::new(-2.0, 0.0, 0.0),
+                direction: DVec3::X,
+                radius: 0.0,
+            },
+            sensors: vec![flux("T", DVec3::new(2.0, 0.0, 0.0), DVec3::X)],
+            ..bare_scene(0.01)
+        };
+        let photons = 20_000;
+        let (e, est) = common::render(&scene, photons, 5);
+        let t = e.mean[est.power(0)].re;
+        let want = (-1.2f64).exp();
+        // absorption is analog or weighted: allow 4 binomial standard errors, and the sampled
+        // ring's chord error (~1e-4 of a 0.03 grid)
+        let sigma = (want * (1.0 - want) / photons as f64).sqrt();
+        assert!(
+            (t - want).abs() < 4.0 * sigma + 1e-3,
+            "n = {n}: T = {t}, exp(−4 σ_a r) = {want} ± {sigma}"
+        );
+    }
+}
+
+/// The Luneburg sphere (`n = √(2 − r²)`, scattering and absorbing) bounded by a sphere and by a
+/// sampled sphere with the depth-graded profile (`n_s = 1`, `n_c = √2`, `depth = R`): the same
+/// medium up to the grid's interpolation error. Transmitted and reflected flux and an
+/// orthographic camera's total (connections through the sampled surface) agree within their
+/// standard errors plus 1 % for that error.
+#[test]
+fn a_sampled_luneburg_sphere_renders_as_the_analytic_one() {
+    let sphere = sdf(
+        &[Shape::Sphere {
+            center: DVec3::ZERO,
+            radius: 1.0,
+        }],
+        0.05,
+    );
+    let scene = |profile: Profile, bounds: Bounds| RenderScene {
+        volume: Volume {
+            field: BoundedField::single(profile, bounds, 1.0),
+            sigma_s: 0.8,
+            sigma_a: 0.2,
+            scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g: 0.5 }),
+            density: None,
+        },
+        light: Light::Beam {
+            center: DVec3::new(0.0, 0.0, -2.0),
+            direction: DVec3::Z,
+            radius: 0.7,
+        },
+        sensors: vec![
+            flux("T", DVec3::new(0.0, 0.0, 1.5), DVec3::Z),
+            flux("R", DVec3::new(0.0, 0.0, -1.5), -DVec3::Z),
+        ],
+        cameras: vec![Camera::new(
+            "side".into(),
+            DVec3::X,
+            DVec3::new(3.0, 0.0, 0.0),
+            [2.4, 2.4],
+            [4, 4],
+        )],
+        ..bare_scene(0.01)
+    };
+    let analytic = scene(
+        Profile::Luneburg { radius: 1.0 },
+        Bounds::Sphere { radius: 1.0 },
+    );
+    let sampled = scene(
+        Profile::SdfLuneburg {
+            sdf: sphere.clone(),
+            n_surface: 1.0,
+            n_core: 2f64.sqrt(),
+            depth: 1.0,
+        },
+        Bounds::Sdf(sphere),
+    );
+    let photons = 12_800;
+    let (a, est) = common::render(&analytic, photons, 11);
+    let (b, _) = common::render(&sampled, photons, 12);
+    let camera = est.camera_image(0).total();
+    for (what, i) in [
+        ("transmitted", est.power(0)),
+        ("reflected", est.power(1)),
+        ("camera total", camera),
+    ] {
+        let (x, y) = (a.mean[i].re, b.mean[i].re);
+        let se = a.stderr[i].hypot(b.stderr[i]);
+        assert!(x > 0.0 && y > 0.0, "{what}: {x} {y}");
+        assert!(
+            (x - y).abs() < 4.0 * se + 0.01 * x,
+            "{what}: analytic {x}, sampled {y} (± {se})"
+        );
+    }
+}
+
+/// Free flights that skip the inside–outside test while within the clearance end exactly where
+/// flights testing after every step do (collisions and boundary hits), in a sampled sphere with
+/// the depth-graded profile and in the analytic Luneburg sphere.
+#[test]
+fn skipped_tests_change_no_flight() {
+    let sphere = sdf(
+        &[Shape::Sphere {
+            center: DVec3::ZERO,
+            radius: 1.0,
+        }],
+        0.05,
+    );
+    let fields = [
+        BoundedField::single(
+            Profile::SdfLuneburg {
+                sdf: sphere.clone(),
+                n_surface: 1.1,
+                n_core: 1.5,
+                depth: 0.6,
+            },
+            Bounds::Sdf(sphere),
+            1.0,
+        ),
+        BoundedField::single(
+            Profile::Luneburg { radius: 1.0 },
+            Bounds::Sphere { radius: 1.0 },
+            1.0,
+        ),
+    ];
+    for field in fields {
+        let volume = Volume {
+            field,
+            sigma_s: 1.0,
+            sigma_a: 0.0,
+            scattering: Scattering::single(PhaseFunction::Isotropic),
+            density: None,
+        };
+        let skipping = Flyer::new(&volume, 0.01, 100_000);
+        let testing = Flyer::new(&volume, 0.01, 100_000).skipping_tests(false);
+        let mut rng = stream_rng(7, 0);
+        let mut boundaries = 0;
+        for _ in 0..400 {
+            let x = loop {
+                let x = DVec3::new(uniform(&mut rng), uniform(&mut rng), uniform(&mut rng)) * 2.0
+                    - DVec3::ONE;
+                if x.length() < 0.95 {
+                    break x;
+                }
+            };
+            let d = DVec3::new(uniform(&mut rng), uniform(&mut rng), uniform(&mut rng)) * 2.0
+                - DVec3::ONE;
+            let r = Ray {
+                x,
+                v: d.normalize() * skipping.n(x),
+            };
+            let distance = if uniform(&mut rng) < 0.5 {
+                f64::INFINITY
+            } else {
+                2.0 * uniform(&mut rng)
+            };
+            let (a, b) = (skipping.fly(r, distance), testing.fly(r, distance));
+            assert_eq!(a, b, "from {x} along {d} for {distance}");
+            boundaries += matches!(a.0, lightpath::rrte::flight::Flight::Boundary { .. }) as usize;
+        }
+        assert!(boundaries > 100, "{boundaries} flights reached the surface");
+    }
+}
