@@ -242,9 +242,6 @@ pub fn param_fit(task: &ParamFitTask, show: bool, out: &Path) -> Result<Outcome>
     })
 }
 
-/// The fewest leapfrog steps a ray may take across the field's largest extent.
-const MIN_STEPS_ACROSS: f64 = 20.0;
-
 /// `lightpath trace`: trace a bundle of rays through an index field → rays.json and rays.png.
 pub fn trace(task: &TraceTask, out: &Path) -> Result<Outcome> {
     use crate::eikonal::{IndexField, Tracer};
@@ -255,27 +252,8 @@ pub fn trace(task: &TraceTask, out: &Path) -> Result<Outcome> {
         step: task.step,
         max_steps: task.max_steps,
     };
-    // the field's largest extent: the scale the step is measured against
+    // the field's largest extent (the step was checked against it when the config was loaded)
     let size = field.bounds.half_extent().map(|h| 2.0 * h.max_element());
-    if let Some(size) = size
-        && task.step > size / MIN_STEPS_ACROSS
-    {
-        return Err(Error::input(format!(
-            "trace.step = {} is too coarse for a field {size:.3e} across: a ray would take fewer than {MIN_STEPS_ACROSS} steps through it and could not follow the index; use a step of at most {:.3e}",
-            task.step,
-            size / MIN_STEPS_ACROSS
-        )));
-    }
-    if let Some(size) = size
-        && task.step * (task.max_steps as f64) < size
-    {
-        return Err(Error::input(format!(
-            "trace.step = {} × max_steps = {} covers a path of {:.3e}, shorter than the field ({size:.3e} across): no ray could cross it; raise trace.max_steps or the step",
-            task.step,
-            task.max_steps,
-            task.step * task.max_steps as f64
-        )));
-    }
     create_out(out, &["rays.json", "rays.png"])?;
     let t0 = Instant::now();
     let trace_all = |tracer: &Tracer, rays: &[(DVec3, DVec3)]| {

@@ -996,8 +996,8 @@ fn check_step(scene: &RenderScene) -> Result<(), ConfigError> {
         return Ok(());
     };
     let size = 2.0 * half.min_element();
-    let n_max = v.field.n_out.max(1.0);
-    // geometric length per step is about n · step; n is of order n_out or the profile's values
+    // geometric length per step is n · step (σ-form), n up to the largest index in the volume
+    let n_max = check_positive(&v.field)?;
     let length = scene.step * n_max;
     let widest = 2.0 * half.max_element();
     if length * scene.max_steps as f64 <= widest {

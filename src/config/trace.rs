@@ -708,7 +708,10 @@ impl TraceConfig {
             return err("field.profiles = []: give at least one profile");
         }
         let field = self.field.build()?;
-        check_positive(&field)?;
+        let n_max = check_positive(&field)?;
+        if let Ok((step, max_steps)) = self.trace.to_exit("trace") {
+            check_stepping(&field, n_max, step, max_steps)?;
+        }
         Ok(field)
     }
 
@@ -794,10 +797,11 @@ impl TraceConfig {
 
 /// `n > 0` and finite at every node of a 17³ grid over the field's bounds (rays are checked again
 /// along their paths).
-pub(crate) fn check_positive(field: &BoundedField) -> Result<(), ConfigError> {
+pub(crate) fn check_positive(field: &BoundedField) -> Result<f64, ConfigError> {
     use crate::eikonal::IndexField;
+    let mut largest = field.n_out;
     let Some(half) = field.bounds.half_extent() else {
-        return Ok(());
+        return Ok(largest);
     };
     let m = 16;
     for i in 0..=m {
@@ -814,8 +818,41 @@ pub(crate) fn check_positive(field: &BoundedField) -> Result<(), ConfigError> {
                         "field: n = {n} at {x}: the refractive index must be positive and finite inside the bounds"
                     ));
                 }
+                largest = largest.max(n);
             }
         }
+    }
+    Ok(largest)
+}
+
+/// The fewest leapfrog steps a ray may take across the field's largest extent.
+pub(crate) const MIN_STEPS_ACROSS: f64 = 20.0;
+
+/// The step rule of the commands that trace rays to where they leave the field: in the σ-form a
+/// step runs `n · step` of geometric length, so with `n` up to `n_max` the step must resolve the
+/// field (at least [`MIN_STEPS_ACROSS`] steps across its largest extent) and `max_steps` steps
+/// must be able to cross it.
+pub(crate) fn check_stepping(
+    field: &BoundedField,
+    n_max: f64,
+    step: f64,
+    max_steps: usize,
+) -> Result<(), ConfigError> {
+    let Some(size) = field.bounds.half_extent().map(|h| 2.0 * h.max_element()) else {
+        return Ok(());
+    };
+    let length = step * n_max;
+    if length > size / MIN_STEPS_ACROSS {
+        return err(format!(
+            "trace.step = {step} is too coarse for a field {size:.3e} across with n up to {n_max:.4}: a step runs n · step ≈ {length:.3e}, so a ray would take fewer than {MIN_STEPS_ACROSS} steps through it and could not follow the index; use a step of at most {:.3e}",
+            size / MIN_STEPS_ACROSS / n_max
+        ));
+    }
+    if length * (max_steps as f64) < size {
+        return err(format!(
+            "trace.step = {step} × max_steps = {max_steps} covers a path of about {:.3e} (n up to {n_max:.4}), shorter than the field ({size:.3e} across): no ray could cross it; raise trace.max_steps or the step",
+            length * max_steps as f64
+        ));
     }
     Ok(())
 }
