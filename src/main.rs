@@ -134,6 +134,9 @@ enum Command {
         out: PathBuf,
         #[arg(long)]
         threads: Option<usize>,
+        /// Refuse runs whose estimated time (a timed pilot of a few rays) exceeds this many minutes
+        #[arg(long, default_value_t = 240.0)]
+        max_minutes: f64,
     },
     /// Design a graded-index field so beams pass through their foci: a grid (coarse to fine) by
     /// Adam through the adjoint → design.json + loss.png + profile.png + grid_slice_z.exr; or, with
@@ -146,6 +149,10 @@ enum Command {
         threads: Option<usize>,
         #[arg(long)]
         quiet: bool,
+        /// Refuse designs whose estimated time (every iteration at the timed pilot's cost) exceeds
+        /// this many minutes
+        #[arg(long, default_value_t = 240.0)]
+        max_minutes: f64,
     },
     /// Spheres by Lorenz–Mie theory: efficiencies, cross-sections, g, amplitudes S1/S2 and the
     /// phase function (one diameter, or a log-normal distribution) → mie.json + mie.png
@@ -264,6 +271,14 @@ impl BudgetArgs {
             max_minutes: self.max_minutes,
             max_memory_gb: self.max_memory_gb,
         }
+    }
+}
+
+/// The budget of the ray commands: time only (their memory is small and bounded by the config).
+fn minutes_only(max_minutes: f64) -> app::budget::Budget {
+    app::budget::Budget {
+        max_minutes,
+        ..Default::default()
     }
 }
 
@@ -410,8 +425,11 @@ fn dispatch(command: Option<Command>) -> Result<Outcome> {
             config,
             out,
             threads,
+            max_minutes,
         }) => match config::load(&config)? {
-            Task::Trace(t) => with_threads(threads, || app::grin::trace(&t, &out)),
+            Task::Trace(t) => with_threads(threads, || {
+                app::grin::trace(&t, &minutes_only(max_minutes), &out)
+            }),
             other => Err(wrong_task(
                 &config,
                 "trace",
@@ -424,9 +442,14 @@ fn dispatch(command: Option<Command>) -> Result<Outcome> {
             out,
             threads,
             quiet,
+            max_minutes,
         }) => match config::load(&config)? {
-            Task::Design(t) => with_threads(threads, || app::grin::design(&t, !quiet, &out)),
-            Task::ParamFit(t) => with_threads(threads, || app::grin::param_fit(&t, !quiet, &out)),
+            Task::Design(t) => with_threads(threads, || {
+                app::grin::design(&t, !quiet, &minutes_only(max_minutes), &out)
+            }),
+            Task::ParamFit(t) => with_threads(threads, || {
+                app::grin::param_fit(&t, !quiet, &minutes_only(max_minutes), &out)
+            }),
             other => Err(wrong_task(
                 &config,
                 "design",

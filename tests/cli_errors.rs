@@ -606,3 +606,42 @@ fn trace_steps_are_checked_against_the_field() {
         );
     }
 }
+
+/// `trace` and `design` (grid designs and parameter fits) refuse, before any work, runs whose time
+/// estimate from a timed pilot of a few rays exceeds `--max-minutes`, saying what it is made of.
+#[test]
+fn ray_commands_are_refused_beyond_their_time_budget() {
+    let root = env!("CARGO_MANIFEST_DIR");
+    for (command, config, files) in [
+        ("trace", "configs/luneburg.toml", "rays.json"),
+        ("design", "experiments/grin-fibre/fibre.toml", "fit.json"),
+        (
+            "design",
+            "experiments/luneburg-design/luneburg.toml",
+            "design.json",
+        ),
+    ] {
+        let d = tmpdir(&format!("budget-{command}-{files}"));
+        let out = d.join("o");
+        let o = Command::new(env!("CARGO_BIN_EXE_lightpath"))
+            .args([
+                command,
+                &format!("{root}/{config}"),
+                "--out",
+                out.to_str().unwrap(),
+                "--max-minutes",
+                "1e-7",
+            ])
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{config}: {err}");
+        assert!(
+            err.contains("beyond --max-minutes 0.0000001")
+                && err.contains("leapfrog steps each")
+                && err.contains("timed on"),
+            "{config}: {err}"
+        );
+        assert!(!out.join(files).exists(), "{config}");
+    }
+}

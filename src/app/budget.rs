@@ -126,6 +126,73 @@ pub fn check<E: Estimator>(
     Ok(())
 }
 
+/// Leapfrog steps a pilot ray of a ray command takes at most (a ray still inside then is counted
+/// at the run's `max_steps`: trapped rays run to it).
+const PILOT_STEPS: usize = 20_000;
+/// Pilot rays, spread over the bundle.
+const PILOT_RAYS: usize = 32;
+
+/// The time of a ray command, before it starts: `passes` traces of every ray in `rays` through
+/// `field` (at most `max_steps` steps each, or exactly that many with `fixed_steps`), timed on a
+/// pilot of a few rays spread over the bundle, each cut at [`PILOT_STEPS`] steps. An error naming
+/// `what` (and what a pass is, `pass`) when beyond `budget.max_minutes`.
+#[allow(clippy::too_many_arguments)]
+pub fn check_rays(
+    what: &str,
+    pass: &str,
+    field: &crate::eikonal::BoundedField,
+    rays: &[(glam::DVec3, glam::DVec3)],
+    step: f64,
+    max_steps: usize,
+    fixed_steps: bool,
+    passes: f64,
+    budget: &Budget,
+) -> Result<()> {
+    use crate::eikonal::Tracer;
+    if budget.max_minutes.is_nan() || budget.max_minutes <= 0.0 {
+        return Err(Error::input(format!(
+            "--max-minutes {}: must be > 0",
+            budget.max_minutes
+        )));
+    }
+    if rays.is_empty() {
+        return Ok(());
+    }
+    let pilot = Tracer {
+        field,
+        step,
+        max_steps: max_steps.min(PILOT_STEPS),
+    };
+    let every = rays.len().div_ceil(PILOT_RAYS);
+    let (mut traced, mut stepped, mut steps) = (0usize, 0usize, 0.0);
+    let t0 = Instant::now();
+    for &(o, d) in rays.iter().step_by(every) {
+        let end = pilot.trace(o, d);
+        traced += 1;
+        stepped += end.steps;
+        // a ray the pilot left inside runs on to max_steps; with fixed steps every ray runs them
+        steps += if fixed_steps || (end.entered && !end.exited) {
+            max_steps as f64
+        } else {
+            end.steps as f64
+        };
+    }
+    let per_step = t0.elapsed().as_secs_f64() / stepped.max(1) as f64;
+    let per_ray = steps / traced as f64;
+    let threads = rayon::current_num_threads();
+    let seconds = passes * rays.len() as f64 * per_ray * per_step / threads as f64;
+    if seconds > 60.0 * budget.max_minutes {
+        return Err(Error::input(format!(
+            "{what}: {} rays of ~{per_ray:.3e} leapfrog steps each at {:.3e} s per step (timed on {traced} rays), traced {passes:.0} times ({pass}), would take an estimated {} on {threads} threads, beyond --max-minutes {}. Use fewer rays, fewer iterations, a coarser trace.step, more --threads, or raise --max-minutes",
+            rays.len(),
+            per_step,
+            duration(seconds),
+            budget.max_minutes
+        )));
+    }
+    Ok(())
+}
+
 /// The memory, in GB, of running `chunks` chunks of `est` on the current threads, keeping `kept`
 /// outputs per chunk.
 pub fn memory_gb<E: Estimator>(est: &E, kept: usize, chunks: u64) -> f64 {

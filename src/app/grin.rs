@@ -16,9 +16,28 @@ use std::time::Instant;
 
 /// `lightpath design`: shape a grid index field so beams pass through their foci → design.json
 /// (loss history, final grid, radial profile), loss.png, profile.png and a central EXR slice.
-pub fn design(task: &DesignTask, show: bool, out: &Path) -> Result<Outcome> {
+pub fn design(
+    task: &DesignTask,
+    show: bool,
+    budget: &super::budget::Budget,
+    out: &Path,
+) -> Result<Outcome> {
     use crate::inverse::grin_design::radial_profile;
     let (cfg, problem) = (&task.config, &task.problem);
+    // each iteration traces every ray forward and runs the adjoint over every coefficient: about
+    // about one pilot pass on the Luneburg design experiment; three leave room for finer grids,
+    // whose adjoint scatters into more memory
+    super::budget::check_rays(
+        "design",
+        "each iteration a forward pass and the adjoint over every coefficient, ~3 passes",
+        &problem.initial_field()?,
+        &problem.all_rays(),
+        problem.step,
+        problem.steps,
+        !problem.to_exit,
+        3.0 * (problem.levels.len() * problem.iterations) as f64,
+        budget,
+    )?;
     create_out(
         out,
         &["design.json", "loss.png", "profile.png", "grid_slice_z.exr"],
@@ -149,9 +168,32 @@ pub fn design(task: &DesignTask, show: bool, out: &Path) -> Result<Outcome> {
 
 /// `lightpath design` with a `[parameters]` table: fit analytic field parameters by L-BFGS on
 /// exit-adjoint gradients → fit.json (values, log), loss.png and rays.png of the fitted field.
-pub fn param_fit(task: &ParamFitTask, show: bool, out: &Path) -> Result<Outcome> {
+pub fn param_fit(
+    task: &ParamFitTask,
+    show: bool,
+    budget: &super::budget::Budget,
+    out: &Path,
+) -> Result<Outcome> {
     use crate::eikonal::Tracer;
     let (cfg, problem) = (&task.config, &task.problem);
+    // an L-BFGS iteration evaluates the loss once or twice, each a trace and its exit adjoint
+    // (measured on the GRIN-fibre experiment: 5.5 of the pilot's passes per iteration)
+    let rays: Vec<_> = problem
+        .beams
+        .iter()
+        .flat_map(|b| b.rays.iter().copied())
+        .collect();
+    super::budget::check_rays(
+        "design (parameter fit)",
+        "each iteration one or two evaluations of a trace and its exit adjoint, ~6 passes",
+        &problem.field,
+        &rays,
+        problem.step,
+        problem.max_steps,
+        false,
+        6.0 * problem.iterations as f64,
+        budget,
+    )?;
     create_out(out, &["fit.json", "loss.png", "rays.png"])?;
     let t0 = Instant::now();
     let res = problem.run(&|s| {
@@ -243,10 +285,22 @@ pub fn param_fit(task: &ParamFitTask, show: bool, out: &Path) -> Result<Outcome>
 }
 
 /// `lightpath trace`: trace a bundle of rays through an index field → rays.json and rays.png.
-pub fn trace(task: &TraceTask, out: &Path) -> Result<Outcome> {
+pub fn trace(task: &TraceTask, budget: &super::budget::Budget, out: &Path) -> Result<Outcome> {
     use crate::eikonal::{IndexField, Tracer};
     use rayon::prelude::*;
     let (field, rays) = (&task.field, &task.rays);
+    // every ray, and a few again at half the step for the step error
+    super::budget::check_rays(
+        "trace",
+        "once",
+        field,
+        rays,
+        task.step,
+        task.max_steps,
+        false,
+        1.0,
+        budget,
+    )?;
     let tracer = Tracer {
         field,
         step: task.step,

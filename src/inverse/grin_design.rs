@@ -149,6 +149,21 @@ impl FocusDesign {
         (miss2.clone(), miss2 + rough * self.smooth)
     }
 
+    /// The field the design starts from (the grid at the first level, every sample `initial`):
+    /// what a time estimate traces.
+    pub fn initial_field(&self) -> crate::Result<BoundedField> {
+        let n = *self.levels.first().ok_or("design: no grid levels")?;
+        Ok(self.field_with(&self.grid_at(n, vec![self.initial; n * n * n])?))
+    }
+
+    /// Every ray of every beam, as `(origin, unit direction)`.
+    pub fn all_rays(&self) -> Vec<(DVec3, DVec3)> {
+        self.beams
+            .iter()
+            .flat_map(|b| b.rays.iter().copied())
+            .collect()
+    }
+
     /// Run every level; `progress` sees each iteration.
     pub fn run(&self, progress: &dyn Fn(&DesignStep)) -> crate::Result<DesignResult> {
         if self.levels.is_empty() || self.levels.iter().any(|&n| n < 4) {
