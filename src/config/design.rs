@@ -4,7 +4,6 @@
 use crate::config::ConfigError;
 use crate::config::trace::FieldConfig;
 use crate::config::{err, positive as pos, unit};
-use crate::eikonal::grid::Interp;
 use crate::inverse::grin_design::{Beam, FocusDesign};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -160,15 +159,7 @@ impl DesignConfig {
                 return err(format!("grid.levels[{i}] = {n}: must be within [4, 160]"));
             }
         }
-        let interp = match g.interp.as_str() {
-            "tricubic" => Interp::Tricubic,
-            "trilinear" => Interp::Trilinear,
-            other => {
-                return err(format!(
-                    "grid.interp = {other:?}: allowed: \"tricubic\", \"trilinear\""
-                ));
-            }
-        };
+        let interp = crate::config::trace::interpolation("grid", &g.interp)?;
         if !g.initial.is_finite() {
             return err(format!("grid.initial = {}: must be finite", g.initial));
         }

@@ -195,18 +195,9 @@ fn sdf_bounds(
     path: Option<&String>,
     interp: &str,
 ) -> Result<Bounds, ConfigError> {
-    use crate::eikonal::grid::Interp;
     use crate::eikonal::sdf::{SdfGrid, Shape, sample_shapes};
     const K: &str = "field.bounds";
-    let interp = match interp {
-        "tricubic" => Interp::Tricubic,
-        "trilinear" => Interp::Trilinear,
-        other => {
-            return err(format!(
-                "{K}.interp = \"{other}\": must be \"tricubic\" or \"trilinear\""
-            ));
-        }
-    };
+    let interp = interpolation(K, interp)?;
     let sources = [!shapes.is_empty(), values.is_some(), path.is_some()];
     if sources.iter().filter(|s| **s).count() != 1 {
         return err(format!(
@@ -635,6 +626,21 @@ fn polynomial(key: &str, coefficients: &[f64]) -> Result<Vec<f64>, ConfigError> 
     Ok(coefficients.to_vec())
 }
 
+/// A grid's interpolation from its name (`key.interp` in messages).
+pub(crate) fn interpolation(
+    key: &str,
+    name: &str,
+) -> Result<crate::eikonal::grid::Interp, ConfigError> {
+    use crate::eikonal::grid::Interp;
+    match name {
+        "tricubic" => Ok(Interp::Tricubic),
+        "trilinear" => Ok(Interp::Trilinear),
+        other => err(format!(
+            "{key}.interp = \"{other}\": must be \"tricubic\" or \"trilinear\""
+        )),
+    }
+}
+
 /// A grid profile from its keys (`key` names it in messages).
 pub(crate) fn grid_profile(
     key: &str,
@@ -644,16 +650,8 @@ pub(crate) fn grid_profile(
     values: Vec<f64>,
     interp: &str,
 ) -> Result<Profile, ConfigError> {
-    use crate::eikonal::grid::{GridField, Interp};
-    let interp = match interp {
-        "tricubic" => Interp::Tricubic,
-        "trilinear" => Interp::Trilinear,
-        other => {
-            return err(format!(
-                "{key}.interp = \"{other}\": must be \"tricubic\" or \"trilinear\""
-            ));
-        }
-    };
+    use crate::eikonal::grid::GridField;
+    let interp = interpolation(key, interp)?;
     if let Some(v) = values.iter().find(|v| !v.is_finite()) {
         return err(format!("{key}.values: {v} is not a finite number"));
     }

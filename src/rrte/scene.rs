@@ -53,10 +53,10 @@ impl Density {
         Ok(Density { grid, max })
     }
 
-    /// `ρ(x)`.
+    /// `ρ(x)` (the value alone: delta tracking asks at every tentative collision).
     #[inline]
     pub fn at(&self, x: DVec3) -> f64 {
-        self.grid.eval(x).0
+        self.grid.value(x)
     }
 }
 
