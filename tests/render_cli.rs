@@ -421,6 +421,15 @@ fn signed_distance_shapes_are_checked_and_read_from_files() {
     let dir = tmp("sdf");
     std::fs::create_dir_all(&dir).unwrap();
     let base = std::fs::read_to_string(config("render_sdf.toml")).unwrap();
+    // `check` says what bounds the volume: the shape's box and its grid
+    let o = lightpath(&["check", &config("render_sdf.toml")]);
+    let said = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success()
+            && said.contains("in a signed-distance shape within")
+            && said.contains("nodes every 0.03, tricubic"),
+        "{said}"
+    );
     let cases: &[(&str, &str, &str)] = &[
         ("spacing = 0.03", "spacing = 0.0", "field.bounds.spacing"),
         (

@@ -48,7 +48,7 @@ pub fn describe(task: &RenderTask) -> String {
     let s = &task.scene;
     let v = &s.volume;
     format!(
-        "render config{}: {} index profile(s) ({}), σ_s = {}, σ_a = {}, {} sensor plane(s), {} probe(s), {} camera(s), {} surface(s), {} output(s){}{}; ~{:.3} scattering events per photon",
+        "render config{}: {} index profile(s) ({}) in {}, σ_s = {}, σ_a = {}, {} sensor plane(s), {} probe(s), {} camera(s), {} surface(s), {} output(s){}{}; ~{:.3} scattering events per photon",
         if s.tracing == crate::rrte::Tracing::FromCameras {
             " (path tracing from the cameras)"
         } else {
@@ -60,6 +60,7 @@ pub fn describe(task: &RenderTask) -> String {
         } else {
             "curved rays"
         },
+        bounds_text(&v.field.bounds),
         v.sigma_s,
         v.sigma_a,
         s.sensors.len(),
@@ -80,6 +81,41 @@ pub fn describe(task: &RenderTask) -> String {
             }),
         crate::speckle::paths::expected_events(&proxy_medium(task)),
     )
+}
+
+/// The volume's bounds in words.
+fn bounds_text(bounds: &crate::eikonal::Bounds) -> String {
+    use crate::eikonal::Bounds;
+    match bounds {
+        Bounds::Everywhere => "all space".into(),
+        Bounds::Sphere { radius } => format!("a sphere of radius {radius}"),
+        Bounds::Cylinder {
+            radius,
+            half_length,
+        } => format!(
+            "a cylinder of radius {radius} and length {}",
+            2.0 * half_length
+        ),
+        Bounds::Box { half } => format!("a box of {:?}", (*half * 2.0).to_array()),
+        Bounds::Sdf(sdf) => {
+            let g = sdf.grid();
+            let (lo, hi) = sdf.corners();
+            let corner = |v: glam::DVec3| format!("[{:.3}, {:.3}, {:.3}]", v.x, v.y, v.z);
+            format!(
+                "a signed-distance shape within {} to {} ({}×{}×{} nodes every {}, {})",
+                corner(lo),
+                corner(hi),
+                g.dims[0],
+                g.dims[1],
+                g.dims[2],
+                g.spacing,
+                match g.interp {
+                    crate::eikonal::grid::Interp::Tricubic => "tricubic",
+                    crate::eikonal::grid::Interp::Trilinear => "trilinear",
+                }
+            )
+        }
+    }
 }
 
 /// The volume as a homogeneous medium in its bounding box (for the expected path length).
