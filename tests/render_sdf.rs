@@ -62,11 +62,11 @@ fn a_beam_crosses_both_arms_of_a_ring() {
         let (e, est) = common::render(&scene, photons, 5);
         let t = e.mean[est.power(0)].re;
         let want = (-1.2f64).exp();
-        // absorption is analog or weighted: allow 4 binomial standard errors, and the sampled
-        // ring's chord error (~1e-4 of a 0.03 grid)
-        let sigma = (want * (1.0 - want) / photons as f64).sqrt();
+        // 4 reported standard errors (absorption is analog), and the sampled ring's chord error
+        // (the four crossings each within 2e-4 on a 0.03 grid: 3e-5 of T at most)
+        let sigma = e.stderr[est.power(0)];
         assert!(
-            (t - want).abs() < 4.0 * sigma + 1e-3,
+            (t - want).abs() < 4.0 * sigma + 1e-4,
             "n = {n}: T = {t}, exp(−4 σ_a r) = {want} ± {sigma}"
         );
     }
@@ -75,8 +75,8 @@ fn a_beam_crosses_both_arms_of_a_ring() {
 /// The Luneburg sphere (`n = √(2 − r²)`, scattering and absorbing) bounded by a sphere and by a
 /// sampled sphere with the depth-graded profile (`n_s = 1`, `n_c = √2`, `depth = R`): the same
 /// medium up to the grid's interpolation error. Transmitted and reflected flux and an
-/// orthographic camera's total (connections through the sampled surface) agree within their
-/// standard errors plus 1 % for that error.
+/// orthographic camera's total (connections through the sampled surface) agree within 4 standard
+/// errors (the 0.05 grid's interpolation error stays below them).
 #[test]
 fn a_sampled_luneburg_sphere_renders_as_the_analytic_one() {
     let sphere = sdf(
@@ -138,7 +138,7 @@ fn a_sampled_luneburg_sphere_renders_as_the_analytic_one() {
         let se = a.stderr[i].hypot(b.stderr[i]);
         assert!(x > 0.0 && y > 0.0, "{what}: {x} {y}");
         assert!(
-            (x - y).abs() < 4.0 * se + 0.01 * x,
+            (x - y).abs() < 4.0 * se,
             "{what}: analytic {x}, sampled {y} (± {se})"
         );
     }

@@ -31,7 +31,7 @@ pub fn design(
         "design",
         "each iteration a forward pass and the adjoint over every coefficient, ~3 passes",
         &problem.initial_field()?,
-        &problem.all_rays(),
+        &crate::inverse::grin_design::all_rays(&problem.beams),
         problem.step,
         problem.steps,
         !problem.to_exit,
@@ -178,16 +178,11 @@ pub fn param_fit(
     let (cfg, problem) = (&task.config, &task.problem);
     // an L-BFGS iteration evaluates the loss once or twice, each a trace and its exit adjoint
     // (measured on the GRIN-fibre experiment: 5.5 of the pilot's passes per iteration)
-    let rays: Vec<_> = problem
-        .beams
-        .iter()
-        .flat_map(|b| b.rays.iter().copied())
-        .collect();
     super::budget::check_rays(
         "design (parameter fit)",
         "each iteration one or two evaluations of a trace and its exit adjoint, ~6 passes",
         &problem.field,
-        &rays,
+        &crate::inverse::grin_design::all_rays(&problem.beams),
         problem.step,
         problem.max_steps,
         false,

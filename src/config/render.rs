@@ -2,7 +2,7 @@
 //! `[light]`, `[[sensor]]` planes outside the volume, optional `[transient]` bins and `[render]`
 //! settings → [`RenderScene`].
 
-use super::scene::{MediumConfig, positive, unit};
+use super::scene::{MediumConfig, finite, positive, unit};
 use super::trace::{FieldConfig, check_positive};
 use super::{ConfigError, err};
 use crate::eikonal::Bounds;
@@ -470,14 +470,6 @@ impl Default for RenderSettings {
 const MAX_SENSORS: usize = 64;
 const MAX_PIXELS: u64 = 4096;
 const MAX_BINS: u64 = 10_000;
-
-fn finite(key: &str, v: [f64; 3]) -> Result<DVec3, ConfigError> {
-    if v.iter().all(|x| x.is_finite()) {
-        Ok(DVec3::from_array(v))
-    } else {
-        err(format!("{key} = {v:?}: must be finite"))
-    }
-}
 
 impl RenderConfig {
     /// The scene these keys describe, every value checked.

@@ -727,6 +727,15 @@ pub(crate) fn positive(key: &str, v: f64) -> Result<f64, ConfigError> {
 /// are far-field beams in all but name).
 const MIN_APERTURE_SIGMA: f64 = 1e-4;
 
+/// A point or vector whose components are all finite.
+pub(crate) fn finite(key: &str, v: [f64; 3]) -> Result<DVec3, ConfigError> {
+    if v.iter().all(|x| x.is_finite()) {
+        Ok(DVec3::from_array(v))
+    } else {
+        err(format!("{key} = {v:?}: must be finite"))
+    }
+}
+
 pub(crate) fn unit(key: &str, v: [f64; 3]) -> Result<DVec3, ConfigError> {
     let d = DVec3::from_array(v);
     // scaled first, so that huge components do not overflow the length

@@ -1,7 +1,7 @@
 //! Configs of `lightpath trace`: an index field and a bundle of rays.
 
 use crate::config::ConfigError;
-use crate::config::{err, positive as pos, unit};
+use crate::config::{err, finite, positive as pos, unit};
 use crate::eikonal::{BoundedField, Bounds, Profile};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -204,13 +204,6 @@ fn sdf_bounds(
             "{K}: give the shape once: as shapes = [...] (with spacing), as values (with dims, origin and spacing), or as path = a JSON file of dims, origin, spacing and values"
         ));
     }
-    let vec3 = |key: String, v: [f64; 3]| {
-        if v.iter().all(|x| x.is_finite()) {
-            Ok(DVec3::from_array(v))
-        } else {
-            err(format!("{key} = {v:?}: must be finite"))
-        }
-    };
     let (origin, spacing, dims, samples) = if !shapes.is_empty() {
         let spacing = pos(
             &format!("{K}.spacing"),
@@ -233,7 +226,7 @@ fn sdf_bounds(
             let k = format!("{K}.shapes[{i}]");
             built.push(match *s {
                 ShapeConfig::Sphere { center, radius } => Shape::Sphere {
-                    center: vec3(format!("{k}.center"), center)?,
+                    center: finite(&format!("{k}.center"), center)?,
                     radius: pos(&format!("{k}.radius"), radius)?,
                 },
                 ShapeConfig::Torus {
@@ -242,7 +235,7 @@ fn sdf_bounds(
                     major,
                     minor,
                 } => Shape::Torus {
-                    center: vec3(format!("{k}.center"), center)?,
+                    center: finite(&format!("{k}.center"), center)?,
                     axis: unit(&format!("{k}.axis"), axis)?,
                     major: pos(&format!("{k}.major"), major)?,
                     minor: pos(&format!("{k}.minor"), minor)?,
@@ -264,14 +257,14 @@ fn sdf_bounds(
                         ));
                     }
                     Shape::Box {
-                        center: vec3(format!("{k}.center"), center)?,
+                        center: finite(&format!("{k}.center"), center)?,
                         half,
                         rounding,
                     }
                 }
                 ShapeConfig::Capsule { from, to, radius } => Shape::Capsule {
-                    from: vec3(format!("{k}.from"), from)?,
-                    to: vec3(format!("{k}.to"), to)?,
+                    from: finite(&format!("{k}.from"), from)?,
+                    to: finite(&format!("{k}.to"), to)?,
                     radius: pos(&format!("{k}.radius"), radius)?,
                 },
             });
@@ -330,7 +323,7 @@ fn sdf_bounds(
             }
         };
         let spacing = pos(&format!("{K}.spacing"), spacing)?;
-        let origin = vec3(format!("{K}.origin"), origin)?;
+        let origin = finite(&format!("{K}.origin"), origin)?;
         if dims.iter().map(|&d| d as f64).product::<f64>() > MAX_SDF_NODES {
             return err(format!(
                 "{K}.dims = {dims:?}: at most {MAX_SDF_NODES:e} nodes (256³)"
@@ -715,13 +708,6 @@ impl TraceConfig {
 
     /// Ray origins and unit directions.
     pub fn rays(&self) -> Result<Vec<(DVec3, DVec3)>, ConfigError> {
-        let finite = |key: &str, v: [f64; 3]| {
-            if v.iter().all(|x| x.is_finite()) {
-                Ok(DVec3::from_array(v))
-            } else {
-                err(format!("{key} = {v:?}: must be finite"))
-            }
-        };
         let count = |c: u64| {
             if (1..=100_000).contains(&c) {
                 Ok(c as usize)

@@ -27,8 +27,6 @@ const BRICK: usize = 4;
 #[derive(Clone, PartialEq)]
 pub struct SdfGrid {
     grid: GridField,
-    /// `L ≥ |∇d|` everywhere (for the shape's tight box and messages).
-    lipschitz: f64,
     /// Bricks of [`BRICK`] cells per side: how many along each axis, and for each the bound on
     /// `|∇d|` over it and its 26 neighbours (x fastest).
     bricks: [usize; 3],
@@ -42,11 +40,11 @@ impl std::fmt::Debug for SdfGrid {
     /// The grid's layout, not its samples.
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("SdfGrid")
-            .field("origin", &self.lo)
+            .field("origin", &self.grid.origin)
             .field("spacing", &self.grid.spacing)
             .field("dims", &self.grid.dims)
             .field("interp", &self.grid.interp)
-            .field("lipschitz", &self.lipschitz)
+            .field("shape_within", &(self.lo, self.hi))
             .finish()
     }
 }
@@ -104,7 +102,6 @@ impl SdfGrid {
         let grid = GridField::from_samples(origin, spacing, dims, samples.clone(), interp)
             .map_err(|e| e.to_string())?;
         let (bricks, brick_slope) = brick_slopes(&grid);
-        let lipschitz = brick_slope.iter().fold(1e-300, |a: f64, &b| a.max(b));
         // the shape lies within a cell's half diagonal of nodes whose distance is at most the
         // local slope bound times it (the half diagonal stays within a node's brick neighbours)
         let half_diagonal = spacing * 0.5 * 3f64.sqrt();
@@ -131,7 +128,6 @@ impl SdfGrid {
         let pad = DVec3::splat(spacing);
         Ok(SdfGrid {
             grid,
-            lipschitz,
             bricks,
             brick_slope,
             lo: (lo - pad).max(origin),
@@ -152,12 +148,6 @@ impl SdfGrid {
     #[inline]
     fn in_grid(&self, x: DVec3) -> bool {
         x.cmpge(self.lo).all() && x.cmple(self.hi).all()
-    }
-
-    /// The interpolated signed distance at `x` (inside the grid; beyond it the clamped margin).
-    #[inline]
-    pub fn distance(&self, x: DVec3) -> f64 {
-        self.grid.value(x)
     }
 
     /// Whether `x` is inside the shape.
@@ -317,23 +307,27 @@ fn brick_slopes(grid: &GridField) -> ([usize; 3], Vec<f64>) {
     for bk in 0..bricks[2] {
         for bj in 0..bricks[1] {
             for bi in 0..bricks[0] {
-                let range = |b: usize, a: usize| {
-                    let lo = (b * BRICK).saturating_sub(before);
-                    let hi = ((b + 1) * BRICK + after).min(dims[a] - 1);
-                    lo..=hi
+                // the brick's coefficients: first and last index along each axis
+                let span = |b: usize, d: usize| {
+                    (
+                        (b * BRICK).saturating_sub(before),
+                        ((b + 1) * BRICK + after).min(d - 1),
+                    )
                 };
+                let ((i0, i1), (j0, j1), (k0, k1)) =
+                    (span(bi, dims[0]), span(bj, dims[1]), span(bk, dims[2]));
                 let mut steepest = DVec3::ZERO;
-                for k in range(bk, 2) {
-                    for j in range(bj, 1) {
-                        for i in range(bi, 0) {
+                for k in k0..=k1 {
+                    for j in j0..=j1 {
+                        for i in i0..=i1 {
                             let here = c[node(i, j, k)];
-                            if i + 1 < dims[0] && i < *range(bi, 0).end() {
+                            if i < i1 {
                                 steepest.x = steepest.x.max((c[node(i + 1, j, k)] - here).abs());
                             }
-                            if j + 1 < dims[1] && j < *range(bj, 1).end() {
+                            if j < j1 {
                                 steepest.y = steepest.y.max((c[node(i, j + 1, k)] - here).abs());
                             }
-                            if k + 1 < dims[2] && k < *range(bk, 2).end() {
+                            if k < k1 {
                                 steepest.z = steepest.z.max((c[node(i, j, k + 1)] - here).abs());
                             }
                         }

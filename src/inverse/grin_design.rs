@@ -22,6 +22,11 @@ pub struct Beam {
     pub focus: DVec3,
 }
 
+/// Every ray of every beam, as `(origin, unit direction)`.
+pub fn all_rays(beams: &[Beam]) -> Vec<(DVec3, DVec3)> {
+    beams.iter().flat_map(|b| b.rays.iter().copied()).collect()
+}
+
 /// The design problem.
 #[derive(Clone, Debug)]
 pub struct FocusDesign {
@@ -154,14 +159,6 @@ impl FocusDesign {
     pub fn initial_field(&self) -> crate::Result<BoundedField> {
         let n = *self.levels.first().ok_or("design: no grid levels")?;
         Ok(self.field_with(&self.grid_at(n, vec![self.initial; n * n * n])?))
-    }
-
-    /// Every ray of every beam, as `(origin, unit direction)`.
-    pub fn all_rays(&self) -> Vec<(DVec3, DVec3)> {
-        self.beams
-            .iter()
-            .flat_map(|b| b.rays.iter().copied())
-            .collect()
     }
 
     /// Run every level; `progress` sees each iteration.
