@@ -36,6 +36,10 @@ pub enum Error {
     /// nothing was written.
     #[error("{0}")]
     Numerical(String),
+    /// A run stopped on request (Ctrl-C in Python) before it finished; nothing was returned or
+    /// written.
+    #[error("interrupted before the run finished; nothing was written")]
+    Interrupted,
 }
 
 /// Errors of the lower layers are messages of the same quality (they name key, value and range).

@@ -7,10 +7,16 @@ use crate::error::Result;
 use std::path::Path;
 
 pub fn check(path: &Path) -> Result<Outcome> {
+    let what = describe(&config::load(path)?)?;
+    Ok(Outcome::text(format!("{}: ok — {what}", path.display())))
+}
+
+/// What a loaded task holds, in one line (what `check` prints after `ok —`).
+pub fn describe(task: &Task) -> Result<String> {
     let rays = |beams: &[crate::inverse::grin_design::Beam]| -> usize {
         beams.iter().map(|b| b.rays.len()).sum()
     };
-    let what = match config::load(path)? {
+    Ok(match task {
         Task::Scene(t) => {
             let s = &t.scene;
             let mut what = format!(
@@ -57,7 +63,7 @@ pub fn check(path: &Path) -> Result<Outcome> {
             what
         }
         Task::Trace(t) => format!("trace config, {} ray(s)", t.rays.len()),
-        Task::Render(t) => super::render::describe(&t),
+        Task::Render(t) => super::render::describe(t),
         Task::Design(t) => format!(
             "design config, {} beam(s), {} ray(s), levels {:?}",
             t.problem.beams.len(),
@@ -87,6 +93,5 @@ pub fn check(path: &Path) -> Result<Outcome> {
                 t.acquisition.window
             )
         }
-    };
-    Ok(Outcome::text(format!("{}: ok — {what}", path.display())))
+    })
 }

@@ -30,6 +30,7 @@ pub mod wave;
 
 use crate::error::{Error, Result};
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
 /// What a finished command reports to the user.
 #[derive(Clone, Debug)]
@@ -115,11 +116,12 @@ fn matches_pattern(name: &str, pattern: &str) -> bool {
 }
 
 /// A progress bar on a terminal; silent otherwise (the engine's progress observer).
-pub(crate) struct Progress {
+pub(crate) struct Progress<'a> {
     bar: Option<indicatif::ProgressBar>,
+    watch: Option<&'a Watch>,
 }
 
-impl Progress {
+impl<'a> Progress<'a> {
     pub(crate) fn new(enabled: bool, total: u64, what: &str, unit: &str) -> Self {
         use std::io::IsTerminal;
         let bar = (enabled && std::io::stderr().is_terminal()).then(|| {
@@ -134,12 +136,25 @@ impl Progress {
             b.set_message(what.to_string());
             b
         });
-        Progress { bar }
+        Progress { bar, watch: None }
+    }
+
+    /// Progress reported to `watch` (no bar): `total` units in all.
+    pub(crate) fn watched(watch: &'a Watch, total: u64) -> Self {
+        watch.total.store(total, Ordering::Relaxed);
+        watch.done.store(0, Ordering::Relaxed);
+        Progress {
+            bar: None,
+            watch: Some(watch),
+        }
     }
 
     pub(crate) fn set(&self, n: u64) {
         if let Some(b) = &self.bar {
             b.set_position(n);
+        }
+        if let Some(w) = self.watch {
+            w.done.store(n, Ordering::Relaxed);
         }
     }
 
@@ -147,5 +162,30 @@ impl Progress {
         if let Some(b) = &self.bar {
             b.finish_and_clear();
         }
+    }
+}
+
+/// A run observed and stopped from another thread (the Python binding polls it while the run
+/// works): units of work done and in all, and a flag that stops the run between two waves of
+/// chunks with [`Error::Interrupted`].
+#[derive(Debug, Default)]
+pub struct Watch {
+    pub done: AtomicU64,
+    pub total: AtomicU64,
+    pub stop: AtomicBool,
+}
+
+impl Watch {
+    /// Ask the run to stop at its next wave of chunks.
+    pub fn stop(&self) {
+        self.stop.store(true, Ordering::Relaxed);
+    }
+
+    /// `(done, total)` units of work so far.
+    pub fn progress(&self) -> (u64, u64) {
+        (
+            self.done.load(Ordering::Relaxed),
+            self.total.load(Ordering::Relaxed),
+        )
     }
 }

@@ -9,10 +9,10 @@ use crate::io::ResultFile;
 use crate::io::results::{CovarianceFile, MemoryEffectFile, RunEcho, SpeckleFile, nest2, nest4};
 use crate::io::state::{StateHeader, read_state, write_state};
 use crate::math::{C64, splitmix64};
-use crate::mc::{Block, Checkpoint, Estimate, Plan, merge, resume, run};
+use crate::mc::{Block, Checkpoint, Estimate, Plan, merge, resume};
 use crate::speckle::covariance::Order;
 use crate::speckle::mean::mean_field;
-use crate::speckle::memory::MemoryScan;
+use crate::speckle::memory::{MemoryCurve, MemoryScan};
 use crate::speckle::paths::SubpathSampler;
 use crate::speckle::{Covariance, FieldSampler, Scene};
 use glam::DVec3;
@@ -149,8 +149,33 @@ pub fn run_scene(
     opts: &RunOptions,
     out: &Path,
 ) -> Result<Outcome> {
+    match prepare(kind, &mut task, opts.samples, opts.seed)? {
+        Some(plan) => execute(kind, Job::Scene(&task), plan, opts, out),
+        None => {
+            if opts.shard.is_some() {
+                return Err(Error::input(
+                    "--shard: render.estimator = \"single_scattering\" is a closed form with nothing to split",
+                ));
+            }
+            let start = Instant::now();
+            let mut file = single_scattering_file(kind, &task, 0.0)?;
+            file.run.seconds = Some(start.elapsed().as_secs_f64());
+            create_out(out, &Kind::Covariance.owned())?;
+            write_covariance(&file, out)
+        }
+    }
+}
+
+/// Apply the command-line overrides to `task` and check it can run as `kind`: the engine's plan,
+/// or `None` for the closed-form single-scattering covariance.
+fn prepare(
+    kind: Kind,
+    task: &mut SceneTask,
+    samples: Option<u64>,
+    seed: Option<u64>,
+) -> Result<Option<Plan>> {
     let cfg = &mut task.config;
-    if let Some(s) = opts.samples {
+    if let Some(s) = samples {
         if s == 0 {
             return Err(Error::input("--samples 0: must be at least 1"));
         }
@@ -159,7 +184,7 @@ pub fn run_scene(
             _ => cfg.render.samples = s,
         }
     }
-    if let Some(s) = opts.seed {
+    if let Some(s) = seed {
         cfg.render.seed = s;
     }
     if kind == Kind::MemoryEffect && cfg.memory_effect.is_none() {
@@ -175,65 +200,38 @@ pub fn run_scene(
     }
     cfg.check_settings()?;
     if cfg.render.estimator == EstimatorConfig::SingleScattering {
-        return single_scattering(kind, &task, opts, out);
+        if kind != Kind::Covariance {
+            return Err(Error::input(format!(
+                "render.estimator = \"single_scattering\": only `lightpath covariance` has a closed form; {} needs \"monte_carlo\"",
+                kind.name()
+            )));
+        }
+        return Ok(None);
     }
-    let plan = plan_of(kind, cfg);
-    execute(kind, Job::Scene(&task), plan, opts, out)
+    Ok(Some(plan_of(kind, cfg)))
 }
 
 /// `[render] estimator = "single_scattering"`: the covariance of paths that scatter once, in closed
-/// form (no paths, no standard error; `solver` says so). Only `covariance`, whole.
-fn single_scattering(
-    kind: Kind,
-    task: &SceneTask,
-    opts: &RunOptions,
-    out: &Path,
-) -> Result<Outcome> {
-    if kind != Kind::Covariance {
-        return Err(Error::input(format!(
-            "render.estimator = \"single_scattering\": only `lightpath covariance` has a closed form; {} needs \"monte_carlo\"",
-            kind.name()
-        )));
-    }
-    if opts.shard.is_some() {
-        return Err(Error::input(
-            "--shard: render.estimator = \"single_scattering\" is a closed form with nothing to split",
-        ));
-    }
+/// form (no paths, no standard error; `solver` says so). Only `covariance`.
+fn single_scattering_file(kind: Kind, task: &SceneTask, seconds: f64) -> Result<CovarianceFile> {
+    debug_assert_eq!(kind, Kind::Covariance);
     let scene = &task.scene;
     if let Some(why) = crate::speckle::single::unsupported(scene) {
         return Err(Error::input(format!(
             "render.estimator = \"single_scattering\": {why}"
         )));
     }
-    create_out(out, &Kind::Covariance.owned())?;
-    let start = Instant::now();
     let cov = crate::speckle::single::covariance(scene)?;
     check_finite("covariance", &cov)?;
     let (nl, nv) = (scene.lights.len(), scene.views.len());
     let zeros = vec![0.0; cov.len()];
-    let echo = RunEcho::new(
-        &task.config,
-        scene,
-        0,
-        task.config.render.seed,
-        start.elapsed().as_secs_f64(),
-    );
+    let echo = RunEcho::new(&task.config, scene, 0, task.config.render.seed, seconds);
     let mut file = CovarianceFile::new(echo, nl, nv, &cov, &zeros, &mean_fields(scene));
     file.single_re = Some(nest4(nl, nv, |i| cov[i].re));
     file.single_im = Some(nest4(nl, nv, |i| cov[i].im));
     file.single_stderr = Some(nest4(nl, nv, |_| 0.0));
     file.solver = Some("single_scattering".into());
-    let path = out.join(CovarianceFile::NAME);
-    file.write(&path)?;
-    Ok(Outcome {
-        not_converged: None,
-        files: vec![path],
-        summary: format!(
-            "single-scattering covariance of {nl} light(s) × {nv} view(s) in closed form ({:.3} s)",
-            start.elapsed().as_secs_f64()
-        ),
-    })
+    Ok(file)
 }
 
 /// Run the units of work of `kind` in this shard (all of them without `--shard`); write the shard's
@@ -659,10 +657,21 @@ fn compute(
                     ..*plan
                 };
                 let before = (r - range.start) * plan.chunks;
-                let root = merge(
-                    run(&est, &p, 0..p.chunks, &[], &|c| bar.set(before + c)),
-                    p.chunks,
+                let mut no_save = |_: &[Block]| Ok(());
+                let mut within = Checkpoint::new(None, &mut no_save);
+                if let Some(stop) = checkpoint.stop_flag() {
+                    within = within.stopping_on(stop);
+                }
+                let blocks = resume(
+                    &est,
+                    &p,
+                    0..p.chunks,
+                    &[],
+                    &|c| bar.set(before + c),
+                    Vec::new(),
+                    Some(within),
                 )?;
+                let root = merge(blocks, p.chunks)?;
                 out.push(Block {
                     start: r,
                     len: 1,
@@ -692,14 +701,114 @@ fn finish(
     }
     let task = job.scene()?;
     match kind {
-        Kind::Covariance => finish_covariance(task, plan, blocks, seconds, out),
-        Kind::MemoryEffect => finish_memory(task, plan, blocks, seconds, out),
-        Kind::Speckle => finish_speckle(task, plan, blocks, seconds, out),
         Kind::CorrelationMap => super::correlation_map::finish(task, plan, blocks, seconds, out),
         Kind::TiltShift => super::tilt_shift::finish(task, plan, blocks, seconds, out),
-        Kind::Wave => super::wave::finish(task, plan, blocks, seconds, out),
         Kind::Render => Err(Error::input("a speckle config cannot run as a render")),
+        Kind::Covariance | Kind::MemoryEffect | Kind::Speckle | Kind::Wave => {
+            results(kind, task, plan, blocks, seconds)?.write(out)
+        }
     }
+}
+
+/// A finished speckle run's results, typed, before anything is written: what [`evaluate`]
+/// returns and what the commands write.
+#[derive(Clone, Debug)]
+pub enum Results {
+    /// `covariance.json`: Monte Carlo, closed form or wave solver.
+    Covariance(Box<CovarianceFile>),
+    /// `memory_effect.json` and its plot.
+    MemoryEffect(Box<MemoryEffectFile>, Box<MemoryCurve>),
+    /// `speckle.json` and one EXR image per realisation.
+    Speckle(Box<SpeckleFile>),
+}
+
+impl Results {
+    /// Write the result files into `out` (which exists) and say what they hold.
+    pub fn write(&self, out: &Path) -> Result<Outcome> {
+        match self {
+            Results::Covariance(file) => write_covariance(file, out),
+            Results::MemoryEffect(file, curve) => write_memory(file, curve, out),
+            Results::Speckle(file) => write_speckle(file, out),
+        }
+    }
+}
+
+/// The results of `kind` (covariance, memory effect, speckle or wave) from the run's blocks.
+fn results(
+    kind: Kind,
+    task: &SceneTask,
+    plan: &Plan,
+    blocks: Vec<Block>,
+    seconds: f64,
+) -> Result<Results> {
+    Ok(match kind {
+        Kind::Covariance => {
+            Results::Covariance(Box::new(covariance_file(task, plan, blocks, seconds)?))
+        }
+        Kind::MemoryEffect => {
+            let (file, curve) = memory_file(task, plan, blocks, seconds)?;
+            Results::MemoryEffect(Box::new(file), Box::new(curve))
+        }
+        Kind::Speckle => Results::Speckle(Box::new(speckle_file(task, plan, blocks, seconds)?)),
+        Kind::Wave => Results::Covariance(Box::new(super::wave::covariance_file(
+            task, plan, blocks, seconds,
+        )?)),
+        other => {
+            return Err(Error::input(format!(
+                "{} writes its own result files",
+                other.name()
+            )));
+        }
+    })
+}
+
+/// Run `kind` (covariance, memory effect, speckle; wave through [`super::wave::evaluate`]) on
+/// `task` whole and in memory: no shards, no checkpoint, nothing written. `watch` reports the
+/// progress and stops the run when asked. The library's entry (the Python binding's): the
+/// results are those the command writes, bit for bit, for the same config, samples and seed.
+pub fn evaluate(
+    kind: Kind,
+    mut task: SceneTask,
+    samples: Option<u64>,
+    seed: Option<u64>,
+    budget: &super::budget::Budget,
+    watch: &super::Watch,
+) -> Result<Results> {
+    let plan = prepare(kind, &mut task, samples, seed)?;
+    let Some(plan) = plan else {
+        return Ok(Results::Covariance(Box::new(single_scattering_file(
+            kind, &task, 0.0,
+        )?)));
+    };
+    evaluate_plan(kind, &task, plan, budget, watch)
+}
+
+/// [`evaluate`] once the plan is made (wave: one placement per chunk).
+pub(crate) fn evaluate_plan(
+    kind: Kind,
+    task: &SceneTask,
+    plan: Plan,
+    budget: &super::budget::Budget,
+    watch: &super::Watch,
+) -> Result<Results> {
+    let job = Job::Scene(task);
+    let whole = job.units(kind, &plan);
+    let units = match kind {
+        Kind::Speckle => whole * plan.chunks,
+        _ => whole,
+    };
+    let bar = Progress::watched(watch, units);
+    let mut save = |_: &[Block]| Ok(());
+    let checkpoint = Checkpoint::new(None, &mut save).stopping_on(&watch.stop);
+    let t0 = Instant::now();
+    let work = Work {
+        plan: &plan,
+        range: 0..whole,
+        done: Vec::new(),
+        checkpoint,
+    };
+    let blocks = compute(kind, job, work, budget, &bar)?;
+    results(kind, task, &plan, blocks, t0.elapsed().as_secs_f64())
 }
 
 /// The Monte Carlo run's echo (chunking and path reversal included).
@@ -735,13 +844,13 @@ pub(crate) fn check_finite<'a>(
     Ok(())
 }
 
-fn finish_covariance(
+/// `covariance.json` of a Monte Carlo run: total, single- and multiple-scattering parts.
+fn covariance_file(
     task: &SceneTask,
     plan: &Plan,
     blocks: Vec<Block>,
     seconds: f64,
-    out: &Path,
-) -> Result<Outcome> {
+) -> Result<CovarianceFile> {
     let scene = &task.scene;
     let root = merge(blocks, plan.chunks)?;
     let e = Estimate::from_block(&root, plan);
@@ -766,17 +875,35 @@ fn finish_covariance(
     );
     (file.single_re, file.single_im, file.single_stderr) = part(Order::Single);
     (file.multiple_re, file.multiple_im, file.multiple_stderr) = part(Order::Multiple);
+    Ok(file)
+}
+
+fn write_covariance(file: &CovarianceFile, out: &Path) -> Result<Outcome> {
     let path = out.join(CovarianceFile::NAME);
     file.write(&path)?;
-    let diag: Vec<f64> = (0..j)
-        .map(|a| e.mean[Order::Total.index(j, a, a)].re)
-        .collect();
-    let summary = format!(
-        "covariance of {nl} light(s) × {nv} view(s) from {} paths; intensity range {:.4e} … {:.4e}",
-        plan.samples(),
-        diag.iter().cloned().fold(f64::INFINITY, f64::min),
-        diag.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
-    );
+    let (nl, nv) = (file.re.len(), file.mean_re.first().map_or(0, |m| m.len()));
+    let diag = (0..nl).flat_map(|l| (0..nv).map(move |v| file.re[l][l][v][v]));
+    let (lo, hi) = diag.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| {
+        (lo.min(x), hi.max(x))
+    });
+    let run = &file.run;
+    let summary = match file.solver.as_deref() {
+        Some("foldy-lax") => format!(
+            "{} placements, ~{:.0} scatterers each; {}",
+            run.samples,
+            file.scatterers_mean.unwrap_or(0.0),
+            run.seconds
+                .map_or("merged from shards".into(), |s| format!("took {s:.1} s"))
+        ),
+        Some("single_scattering") => format!(
+            "single-scattering covariance of {nl} light(s) × {nv} view(s) in closed form ({:.3} s)",
+            run.seconds.unwrap_or(0.0)
+        ),
+        _ => format!(
+            "covariance of {nl} light(s) × {nv} view(s) from {} paths; intensity range {lo:.4e} … {hi:.4e}",
+            run.samples
+        ),
+    };
     Ok(Outcome {
         not_converged: None,
         files: vec![path],
@@ -784,13 +911,13 @@ fn finish_covariance(
     })
 }
 
-fn finish_memory(
+/// `memory_effect.json` and the curve it is plotted from.
+fn memory_file(
     task: &SceneTask,
     plan: &Plan,
     blocks: Vec<Block>,
     seconds: f64,
-    out: &Path,
-) -> Result<Outcome> {
+) -> Result<(MemoryEffectFile, MemoryCurve)> {
     let scan = memory_scan(task)?;
     let root = merge(blocks, plan.chunks)?;
     let curve = scan.curve(&root, plan);
@@ -813,10 +940,14 @@ fn finish_memory(
         diffusion_eq39: curve.diffusion.clone(),
         thickness: curve.thickness,
     };
+    Ok((file, curve))
+}
+
+fn write_memory(file: &MemoryEffectFile, curve: &MemoryCurve, out: &Path) -> Result<Outcome> {
     let path = out.join(MemoryEffectFile::NAME);
     file.write(&path)?;
     let png = out.join("memory_effect.png");
-    crate::io::plot::memory_effect(&png, &curve)
+    crate::io::plot::memory_effect(&png, curve)
         .map_err(|e| Error::input(format!("cannot write {}: {e}", png.display())))?;
     let mut summary = String::from("angle [deg]   correlation ± stderr   Eq. 39\n");
     for i in 0..curve.angles_deg.len() {
@@ -832,13 +963,13 @@ fn finish_memory(
     })
 }
 
-fn finish_speckle(
+/// `speckle.json`: one field per light and view for every realisation.
+fn speckle_file(
     task: &SceneTask,
     plan: &Plan,
     mut blocks: Vec<Block>,
     seconds: f64,
-    out: &Path,
-) -> Result<Outcome> {
+) -> Result<SpeckleFile> {
     let scene = &task.scene;
     let reals = realisations(&task.config);
     blocks.sort_by_key(|b| b.start);
@@ -862,29 +993,39 @@ fn finish_speckle(
         })
         .collect();
     check_finite("speckle", fields.iter().flatten())?;
-    let file = SpeckleFile {
+    Ok(SpeckleFile {
         run: mc_echo(task, scene, plan, seconds),
         re: fields.iter().map(|u| nest2(nl, nv, |a| u[a].re)).collect(),
         im: fields.iter().map(|u| nest2(nl, nv, |a| u[a].im)).collect(),
         realisations: reals,
         paths_per_image: plan.samples(),
-    };
+    })
+}
+
+fn write_speckle(file: &SpeckleFile, out: &Path) -> Result<Outcome> {
     let path = out.join(SpeckleFile::NAME);
     file.write(&path)?;
     let mut files = vec![path];
-    let (w, h) = crate::io::image_shape(&task.config, nv);
-    for (r, u) in fields.iter().enumerate() {
+    let nl = file.run.lights.len();
+    let nv = file.run.views.len();
+    let (w, h) = crate::io::image_shape(&file.run.config, nv);
+    for (r, (re, im)) in file.re.iter().zip(&file.im).enumerate() {
+        let u: Vec<C64> = re
+            .iter()
+            .zip(im)
+            .flat_map(|(a, b)| a.iter().zip(b).map(|(&x, &y)| C64::new(x, y)))
+            .collect();
         let p = out.join(format!("speckle_{r:04}.exr"));
         files.extend(
-            crate::io::exr::write_fields(&p, u, nl, w, h)
+            crate::io::exr::write_fields(&p, &u, nl, w, h)
                 .map_err(|e| Error::input(format!("cannot write {}: {e}", p.display())))?,
         );
     }
     Ok(Outcome {
         not_converged: None,
         summary: format!(
-            "{reals} speckle image(s) of {nl} light(s) × {nv} view(s), {} paths each",
-            plan.samples()
+            "{} speckle image(s) of {nl} light(s) × {nv} view(s), {} paths each",
+            file.realisations, file.paths_per_image
         ),
         files,
     })

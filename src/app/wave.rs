@@ -7,7 +7,6 @@ use super::Outcome;
 use super::run::{Kind, RunOptions, execute};
 use crate::config::SceneTask;
 use crate::error::{Error, Result};
-use crate::io::ResultFile;
 use crate::io::results::{CovarianceFile, RunEcho, nest2};
 use crate::mc::{Block, Plan, merge};
 use crate::speckle::wave::{self, WaveStatistics};
@@ -37,51 +36,11 @@ pub struct WaveOptions {
 
 /// Check the scene and the limits (size, memory, timed estimate), then run.
 pub fn run(mut task: SceneTask, opts: &WaveOptions, out: &Path) -> Result<Outcome> {
-    let realizations = opts.realizations;
-    if realizations < 2 {
-        return Err(Error::input(format!(
-            "--realizations {realizations}: need at least 2 for a covariance"
-        )));
-    }
-    if let Some(s) = opts.seed {
-        task.config.render.seed = s;
-    }
-    let scene = &task.scene;
-    wave::check_scene(scene)?;
-    let limits = opts.limits;
-    let n = wave::expected_scatterers(scene);
-    let n_hi = n + 6.0 * n.sqrt() + 10.0;
-    let threads = rayon::current_num_threads() as f64;
-    let gb = threads * (2.0 * 16.0 * n_hi * n_hi) / 1e9;
-    let size = format!(
-        "the scene has ~{n:.0} scatterers (σ_s·V/c_s with c_s = λ²/π = {:.4}): dense solves need ~{gb:.2} GB with {threads} threads",
-        wave::cross_section(scene.k)
-    );
-    if n > limits.max_scatterers || gb > limits.max_memory_gb {
-        return Err(Error::input(format!(
-            "wave: {size}, beyond the limits (--max-scatterers {}, --max-memory-gb {}). The count grows as σ_s·V/λ²: shrink the box, lower σ_s (raise mfp), or raise the limits",
-            limits.max_scatterers, limits.max_memory_gb
-        )));
-    }
     let share = opts.shard.map_or(1.0, |(_, n)| 1.0 / n as f64);
-    let mut rng = crate::math::stream_rng(task.config.render.seed ^ 0x7469_6d65, 0);
-    let secs = share * realizations as f64 * wave::seconds_per_solve(scene, n, &mut rng) / threads;
-    let size =
-        format!("{size}, and ~{secs:.0} s for {realizations} realizations (timed on this machine)");
-    if secs > 60.0 * limits.max_minutes {
-        return Err(Error::input(format!(
-            "wave: {size}, beyond --max-minutes {}. Use fewer --realizations, a smaller or sparser scene, more --threads, or raise --max-minutes",
-            limits.max_minutes
-        )));
-    }
+    let (plan, size) = prepare(&mut task, opts.realizations, opts.seed, &opts.limits, share)?;
     if opts.progress {
         eprintln!("wave: {size}");
     }
-    let plan = Plan {
-        seed: task.config.render.seed,
-        chunk_paths: 1,
-        chunks: realizations,
-    };
     let run_opts = RunOptions {
         samples: None,
         seed: None,
@@ -104,14 +63,84 @@ pub fn run(mut task: SceneTask, opts: &WaveOptions, out: &Path) -> Result<Outcom
     Ok(outcome)
 }
 
+/// The wave solver's `covariance.json` in memory (see [`super::run::evaluate`]): the same
+/// checks and limits as `lightpath wave`, nothing written, stopped through `watch`.
+pub fn evaluate(
+    mut task: SceneTask,
+    realizations: u64,
+    seed: Option<u64>,
+    limits: &WaveLimits,
+    watch: &super::Watch,
+) -> Result<CovarianceFile> {
+    let (plan, _) = prepare(&mut task, realizations, seed, limits, 1.0)?;
+    let budget = super::budget::Budget {
+        max_minutes: limits.max_minutes,
+        max_memory_gb: limits.max_memory_gb,
+    };
+    match super::run::evaluate_plan(Kind::Wave, &task, plan, &budget, watch)? {
+        super::run::Results::Covariance(file) => Ok(*file),
+        _ => Err(Error::input("wave: the run gave no covariance")),
+    }
+}
+
+/// Check the scene and the limits for `share` of `realizations` placements: the plan (one
+/// placement per chunk) and what the solves will take, in words.
+fn prepare(
+    task: &mut SceneTask,
+    realizations: u64,
+    seed: Option<u64>,
+    limits: &WaveLimits,
+    share: f64,
+) -> Result<(Plan, String)> {
+    if realizations < 2 {
+        return Err(Error::input(format!(
+            "--realizations {realizations}: need at least 2 for a covariance"
+        )));
+    }
+    if let Some(s) = seed {
+        task.config.render.seed = s;
+    }
+    let scene = &task.scene;
+    wave::check_scene(scene)?;
+    let n = wave::expected_scatterers(scene);
+    let n_hi = n + 6.0 * n.sqrt() + 10.0;
+    let threads = rayon::current_num_threads() as f64;
+    let gb = threads * (2.0 * 16.0 * n_hi * n_hi) / 1e9;
+    let size = format!(
+        "the scene has ~{n:.0} scatterers (σ_s·V/c_s with c_s = λ²/π = {:.4}): dense solves need ~{gb:.2} GB with {threads} threads",
+        wave::cross_section(scene.k)
+    );
+    if n > limits.max_scatterers || gb > limits.max_memory_gb {
+        return Err(Error::input(format!(
+            "wave: {size}, beyond the limits (--max-scatterers {}, --max-memory-gb {}). The count grows as σ_s·V/λ²: shrink the box, lower σ_s (raise mfp), or raise the limits",
+            limits.max_scatterers, limits.max_memory_gb
+        )));
+    }
+    let mut rng = crate::math::stream_rng(task.config.render.seed ^ 0x7469_6d65, 0);
+    let secs = share * realizations as f64 * wave::seconds_per_solve(scene, n, &mut rng) / threads;
+    let size =
+        format!("{size}, and ~{secs:.0} s for {realizations} realizations (timed on this machine)");
+    if secs > 60.0 * limits.max_minutes {
+        return Err(Error::input(format!(
+            "wave: {size}, beyond --max-minutes {}. Use fewer --realizations, a smaller or sparser scene, more --threads, or raise --max-minutes",
+            limits.max_minutes
+        )));
+    }
+    let plan = Plan {
+        seed: task.config.render.seed,
+        chunk_paths: 1,
+        chunks: realizations,
+    };
+    Ok((plan, size))
+}
+
 /// Reduce the placements' fields (kept one per chunk) to `covariance.json`.
-pub(crate) fn finish(
+pub(crate) fn covariance_file(
     task: &SceneTask,
     plan: &Plan,
     blocks: Vec<Block>,
     seconds: f64,
-    out: &Path,
-) -> Result<Outcome> {
+) -> Result<CovarianceFile> {
     let scene = &task.scene;
     let root = merge(blocks, plan.chunks)?;
     let (nl, nv) = (scene.lights.len(), scene.views.len());
@@ -138,19 +167,5 @@ pub(crate) fn finish(
     file.solver = Some("foldy-lax".into());
     file.scatterers_mean = Some(root.sum[j].re / r as f64);
     file.scatterers_expected = Some(wave::expected_scatterers(scene));
-    let path = out.join(CovarianceFile::NAME);
-    file.write(&path)?;
-    let took = if seconds.is_finite() {
-        format!("took {seconds:.1} s")
-    } else {
-        "merged from shards".into()
-    };
-    Ok(Outcome {
-        not_converged: None,
-        files: vec![path],
-        summary: format!(
-            "{r} placements, ~{:.0} scatterers each; {took}",
-            root.sum[j].re / r as f64
-        ),
-    })
+    Ok(file)
 }

@@ -179,6 +179,17 @@ pub fn load_text(text: &str) -> Result<Task, ConfigError> {
     build(parse(text)?, Path::new("config.toml"))
 }
 
+/// Validate a config given as a TOML value built elsewhere (the Python binding's dictionaries),
+/// with the same rules and messages as a file; relative paths resolve against the folder `base`.
+pub fn load_value(mut value: toml::Value, base: &Path) -> Result<Task, ConfigError> {
+    if !value.is_table() {
+        return err("a config is a table of tables (a dict), not a single value");
+    }
+    normalise_numbers(&mut value, "");
+    check_magnitudes(&value, &mut Vec::new())?;
+    build(value, &base.join("config.toml"))
+}
+
 /// A speckle scene from config text (the common case of [`load_text`]).
 pub fn scene_from_text(text: &str) -> Result<SceneTask, ConfigError> {
     load_text(text)?.into_scene("config")

@@ -189,6 +189,7 @@ pub struct Checkpoint<'a> {
     save: &'a mut dyn FnMut(&[Block]) -> crate::Result<()>,
     saved_at: u64,
     saved_when: std::time::Instant,
+    stop: Option<&'a std::sync::atomic::AtomicBool>,
 }
 
 impl<'a> Checkpoint<'a> {
@@ -203,7 +204,22 @@ impl<'a> Checkpoint<'a> {
             save,
             saved_at: 0,
             saved_when: std::time::Instant::now(),
+            stop: None,
         }
+    }
+
+    /// Also stop the run (with [`crate::Error::Interrupted`]) at the first offer after `stop` is
+    /// set: between two waves of chunks, whatever the saving interval.
+    pub fn stopping_on(self, stop: &'a std::sync::atomic::AtomicBool) -> Self {
+        Checkpoint {
+            stop: Some(stop),
+            ..self
+        }
+    }
+
+    /// The flag that stops the run, if any (for runs nested inside this one).
+    pub fn stop_flag(&self) -> Option<&'a std::sync::atomic::AtomicBool> {
+        self.stop
     }
 
     /// Count from `done` units of work (where the run starts or resumes).
@@ -213,6 +229,12 @@ impl<'a> Checkpoint<'a> {
 
     /// `done` units are finished and reduced into `blocks`: save them if a checkpoint is due.
     pub fn offer(&mut self, done: u64, blocks: &[Block]) -> crate::Result<()> {
+        if self
+            .stop
+            .is_some_and(|s| s.load(std::sync::atomic::Ordering::Relaxed))
+        {
+            return Err(crate::Error::Interrupted);
+        }
         if done - self.saved_at >= self.every || self.saved_when.elapsed() >= self.interval {
             (self.save)(blocks)?;
             self.start(done);

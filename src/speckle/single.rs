@@ -21,9 +21,15 @@ use crate::speckle::{Light, Scene, View};
 use glam::DVec3;
 
 /// The exit distance from `x` along `w` to each box face it can reach, as `α + β·x`.
+///
+/// A face nearly parallel to `w` is the exit only within a sliver of thickness at most
+/// `|w_a|·2|half|` beside it; where that is below 1e-12 of the box's side (`w` from `cos 90°`
+/// is `6e-17`, not 0) the face is left out: its sliver weighs less than round-off, while its
+/// planes, with coefficients `1/|w_a|`, would wreck the cells' integrals.
 pub(crate) fn face_distances(half: DVec3, w: DVec3) -> Vec<(f64, DVec3)> {
+    let reach = 2.0 * half.length();
     (0..3)
-        .filter(|&a| w[a] != 0.0)
+        .filter(|&a| w[a].abs() * reach > 1e-12 * half[a])
         .map(|a| {
             let mut beta = DVec3::ZERO;
             beta[a] = -1.0 / w[a];
@@ -236,6 +242,21 @@ mod tests {
             (exact - brute).norm() < 1e-5 * brute.norm(),
             "{exact} vs {brute}"
         );
+    }
+
+    #[test]
+    fn legs_parallel_to_a_face_up_to_round_off() {
+        // a view at 90° from the light has cos 90° = 6.1e-17 along z, not 0: the same integral
+        let half = DVec3::new(10.0, 10.0, 10.0);
+        let light = DVec3::new(0.0, 0.0, 1.0);
+        let exact = DVec3::new(1.0, 0.0, 0.0);
+        let rounded = DVec3::new(90f64.to_radians().sin(), 0.0, 90f64.to_radians().cos());
+        assert!(rounded.z != 0.0);
+        let sigma_t = C64::new(0.1, 0.0);
+        let q = DVec3::new(0.3, 0.0, -0.3);
+        let a = box_exit_integral(half, q, sigma_t, &[-light, exact, -light, exact]);
+        let b = box_exit_integral(half, q, sigma_t, &[-light, rounded, -light, rounded]);
+        assert!((a - b).norm() < 1e-10 * a.norm(), "{a} vs {b}");
     }
 
     #[test]

@@ -1,0 +1,175 @@
+"""lightpath from Python: speckle statistics of light in scattering media as numpy arrays.
+
+A config is a TOML file, TOML text, or a dict of the same shape (``{"medium": {...},
+"light": [...], "view": [...]}``); it is validated by the same loader as the command line, and a
+bad value raises ``ValueError`` naming the key, the value and what is allowed. Every function that
+takes a config accepts any of a path, a dict, or a :class:`Task` from :func:`load`.
+
+The computations are the command line's, run in memory: for the same config, samples and seed
+the arrays equal the numbers in the command's JSON bit for bit, whatever the thread count. Long
+runs release the GIL, stop on Ctrl-C (``KeyboardInterrupt``) and can report progress through a
+callback ``progress(done, total)``.
+
+Lengths are in the scene's unit (the unit of ``wavelength``); complex fields follow the project's
+normalisation (``docs/speckle.md`` in the repository).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any, Callable, Mapping, Optional, Union
+
+from . import _lightpath
+from ._lightpath import Covariance, MemoryEffect, Run, Speckle, Task, __version__
+
+__all__ = [
+    "Covariance",
+    "MemoryEffect",
+    "Run",
+    "Speckle",
+    "Task",
+    "__version__",
+    "covariance",
+    "load",
+    "loads",
+    "memory_effect",
+    "speckle",
+    "wave",
+]
+
+Config = Union[Task, Mapping[str, Any], str, "os.PathLike[str]"]
+Progress = Optional[Callable[[int, int], Any]]
+
+
+def load(config: Config, *, base: Union[str, "os.PathLike[str]", None] = None) -> Task:
+    """Validate a config and build what it describes.
+
+    ``config`` is a path to a TOML file (relative paths inside it resolve against its folder), a
+    dict of the TOML's shape (relative paths resolve against ``base``, default the current
+    folder), or a :class:`Task` (returned as is). Raises ``ValueError`` naming the key of the first
+    bad value, ``OSError`` if the file cannot be read.
+    """
+    if isinstance(config, Task):
+        return config
+    if isinstance(config, Mapping):
+        return _lightpath.load_dict(dict(config), Path(base) if base is not None else Path.cwd())
+    if isinstance(config, (str, os.PathLike)):
+        path = Path(config)
+        if not path.is_file():
+            raise OSError(f"{path}: no such config file (pass TOML text to lightpath.loads)")
+        return _lightpath.load_path(path)
+    raise TypeError(
+        f"a config is a path, a dict or a lightpath.Task, not {type(config).__name__}"
+    )
+
+
+def loads(text: str) -> Task:
+    """Validate TOML text (relative paths resolve against the current folder)."""
+    return _lightpath.load_toml(text)
+
+
+def covariance(
+    config: Config,
+    *,
+    samples: Optional[int] = None,
+    seed: Optional[int] = None,
+    threads: Optional[int] = None,
+    max_minutes: float = 240.0,
+    max_memory_gb: float = 8.0,
+    progress: Progress = None,
+) -> Covariance:
+    """The speckle covariance of every light × view field (``lightpath covariance``).
+
+    ``samples`` (paths) and ``seed`` override ``[render]``; ``threads`` defaults to all cores.
+    A run estimated beyond ``max_minutes`` or ``max_memory_gb`` is refused before any work
+    (``ValueError``). Returns a :class:`Covariance`: ``covariance`` complex128 ``[L, L, V, V]``,
+    ``stderr``, ``single``/``multiple`` parts, ``mean`` ``[L, V]``.
+    """
+    return _lightpath.covariance(
+        load(config),
+        samples=samples,
+        seed=seed,
+        threads=threads,
+        max_minutes=max_minutes,
+        max_memory_gb=max_memory_gb,
+        progress=progress,
+    )
+
+
+def memory_effect(
+    config: Config,
+    *,
+    samples: Optional[int] = None,
+    seed: Optional[int] = None,
+    threads: Optional[int] = None,
+    max_minutes: float = 240.0,
+    max_memory_gb: float = 8.0,
+    progress: Progress = None,
+) -> MemoryEffect:
+    """The memory-effect curve of a scene with a ``[memory_effect]`` table
+    (``lightpath memory-effect``): correlation against tilt angle, with the diffusion prediction
+    of Eq. 39. Arguments as :func:`covariance`.
+    """
+    return _lightpath.memory_effect(
+        load(config),
+        samples=samples,
+        seed=seed,
+        threads=threads,
+        max_minutes=max_minutes,
+        max_memory_gb=max_memory_gb,
+        progress=progress,
+    )
+
+
+def speckle(
+    config: Config,
+    *,
+    paths: Optional[int] = None,
+    seed: Optional[int] = None,
+    threads: Optional[int] = None,
+    max_minutes: float = 240.0,
+    max_memory_gb: float = 8.0,
+    progress: Progress = None,
+) -> Speckle:
+    """Speckle field realisations (``lightpath speckle``): ``paths`` per image overrides
+    ``[speckle] paths``. Returns a :class:`Speckle` with ``fields`` complex128 ``[R, L, V]`` and
+    ``images`` ``[R, L, H, W]``.
+    """
+    return _lightpath.speckle(
+        load(config),
+        paths=paths,
+        seed=seed,
+        threads=threads,
+        max_minutes=max_minutes,
+        max_memory_gb=max_memory_gb,
+        progress=progress,
+    )
+
+
+def wave(
+    config: Config,
+    *,
+    realizations: int = 200,
+    seed: Optional[int] = None,
+    threads: Optional[int] = None,
+    max_scatterers: float = 6000.0,
+    max_minutes: float = 240.0,
+    max_memory_gb: float = 8.0,
+    progress: Progress = None,
+) -> Covariance:
+    """The covariance by the Foldy–Lax wave solver over ``realizations`` scatterer placements
+    (``lightpath wave``), in the same normalisation as :func:`covariance`, with the mean field's
+    standard error in ``mean_stderr``. Scenes beyond ``max_scatterers``, ``max_memory_gb`` or
+    ``max_minutes`` are refused before any work (``ValueError``).
+    """
+    return _lightpath.wave(
+        load(config),
+        realizations=realizations,
+        seed=seed,
+        threads=threads,
+        max_scatterers=max_scatterers,
+        max_minutes=max_minutes,
+        max_memory_gb=max_memory_gb,
+        progress=progress,
+    )

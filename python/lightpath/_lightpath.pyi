@@ -1,0 +1,171 @@
+"""Type stubs of the compiled module `lightpath._lightpath` (use it through `lightpath`)."""
+
+from os import PathLike
+from pathlib import Path
+from typing import Any, Callable, Mapping, Optional, Union
+
+import numpy as np
+import numpy.typing as npt
+
+__version__: str
+
+Progress = Optional[Callable[[int, int], Any]]
+
+class Task:
+    """A validated config and what it describes (built once)."""
+
+    @property
+    def kind(self) -> str:
+        """"scene", "trace", "design", "param_fit", "acquire" or "render"."""
+    def describe(self) -> str:
+        """What the config describes, in one line (as `lightpath check` prints it)."""
+    def config_json(self) -> str:
+        """The validated config as JSON text, every default filled in."""
+
+class Run:
+    """How a result was computed."""
+
+    @property
+    def samples(self) -> int:
+        """Paths (Monte Carlo), realisations (wave solver) or 0 (closed form)."""
+    @property
+    def seed(self) -> int: ...
+    @property
+    def seconds(self) -> Optional[float]:
+        """Wall time, in seconds."""
+    @property
+    def wavelength(self) -> float:
+        """Vacuum wavelength, in the scene's length unit."""
+    @property
+    def version(self) -> str: ...
+    def config_json(self) -> str:
+        """The config the run used, as JSON text."""
+
+class Covariance:
+    """`C[l1, l2, v1, v2] = E[u ū'] − m m̄'` of every light × view field (`covariance.json`)."""
+
+    @property
+    def run(self) -> Run: ...
+    @property
+    def covariance(self) -> npt.NDArray[np.complex128]:
+        """complex128 [L, L, V, V]."""
+    @property
+    def stderr(self) -> npt.NDArray[np.float64]:
+        """float64 [L, L, V, V]: standard error of `covariance` (zeros for a closed form)."""
+    @property
+    def intensity(self) -> npt.NDArray[np.float64]:
+        """float64 [L, V]: the speckle intensity C[l, l, v, v]."""
+    @property
+    def mean(self) -> npt.NDArray[np.complex128]:
+        """complex128 [L, V]: the mean field."""
+    @property
+    def mean_stderr(self) -> Optional[npt.NDArray[np.float64]]:
+        """float64 [L, V] (wave solver), else None."""
+    @property
+    def single(self) -> Optional[npt.NDArray[np.complex128]]:
+        """complex128 [L, L, V, V]: paths that scatter once (Monte Carlo, closed form)."""
+    @property
+    def single_stderr(self) -> Optional[npt.NDArray[np.float64]]: ...
+    @property
+    def multiple(self) -> Optional[npt.NDArray[np.complex128]]:
+        """complex128 [L, L, V, V]: paths that scatter twice or more (Monte Carlo)."""
+    @property
+    def multiple_stderr(self) -> Optional[npt.NDArray[np.float64]]: ...
+    @property
+    def solver(self) -> Optional[str]:
+        """"foldy-lax", "single_scattering" or None (Monte Carlo)."""
+    @property
+    def realizations(self) -> Optional[int]:
+        """Scatterer placements (wave solver), else None."""
+    def to_json(self) -> str:
+        """`covariance.json` as text, exactly as the command writes it."""
+    def save(self, folder: Union[str, PathLike[str]]) -> list[Path]:
+        """Write `covariance.json` into `folder`; the paths written."""
+
+class MemoryEffect:
+    """The memory-effect curve against Eq. 39 (`memory_effect.json`)."""
+
+    @property
+    def run(self) -> Run: ...
+    @property
+    def angles_deg(self) -> npt.NDArray[np.float64]:
+        """float64 [A]: tilt angles, degrees."""
+    @property
+    def correlation(self) -> npt.NDArray[np.float64]:
+        """float64 [A]: normalised intensity correlation."""
+    @property
+    def correlation_stderr(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def field_correlation(self) -> npt.NDArray[np.float64]:
+        """float64 [A]: normalised field correlation."""
+    @property
+    def diffusion_eq39(self) -> npt.NDArray[np.float64]:
+        """float64 [A]: ((kθL)/sinh(kθL))²."""
+    @property
+    def thickness(self) -> float:
+        """L of Eq. 39, in the scene's length unit."""
+    def to_json(self) -> str: ...
+    def save(self, folder: Union[str, PathLike[str]]) -> list[Path]:
+        """Write `memory_effect.json` and `memory_effect.png`; the paths written."""
+
+class Speckle:
+    """Speckle field realisations (`speckle.json` and EXR images)."""
+
+    @property
+    def run(self) -> Run: ...
+    @property
+    def fields(self) -> npt.NDArray[np.complex128]:
+        """complex128 [R, L, V]."""
+    @property
+    def images(self) -> npt.NDArray[np.complex128]:
+        """complex128 [R, L, H, W] (H = 1, W = V for views given one by one)."""
+    @property
+    def paths_per_image(self) -> int: ...
+    def to_json(self) -> str: ...
+    def save(self, folder: Union[str, PathLike[str]]) -> list[Path]:
+        """Write `speckle.json` and `speckle_NNNN.exr`; the paths written."""
+
+def load_path(path: Union[str, PathLike[str]]) -> Task: ...
+def load_toml(text: str) -> Task: ...
+def load_dict(config: Mapping[str, Any], base: Union[str, PathLike[str]]) -> Task: ...
+def covariance(
+    task: Task,
+    *,
+    samples: Optional[int] = None,
+    seed: Optional[int] = None,
+    threads: Optional[int] = None,
+    max_minutes: float = 240.0,
+    max_memory_gb: float = 8.0,
+    progress: Progress = None,
+) -> Covariance: ...
+def memory_effect(
+    task: Task,
+    *,
+    samples: Optional[int] = None,
+    seed: Optional[int] = None,
+    threads: Optional[int] = None,
+    max_minutes: float = 240.0,
+    max_memory_gb: float = 8.0,
+    progress: Progress = None,
+) -> MemoryEffect: ...
+def speckle(
+    task: Task,
+    *,
+    paths: Optional[int] = None,
+    seed: Optional[int] = None,
+    threads: Optional[int] = None,
+    max_minutes: float = 240.0,
+    max_memory_gb: float = 8.0,
+    progress: Progress = None,
+) -> Speckle: ...
+def wave(
+    task: Task,
+    *,
+    realizations: int = 200,
+    seed: Optional[int] = None,
+    threads: Optional[int] = None,
+    max_scatterers: float = 6000.0,
+    max_minutes: float = 240.0,
+    max_memory_gb: float = 8.0,
+    progress: Progress = None,
+) -> Covariance: ...

@@ -1,0 +1,805 @@
+//! `lightpath._lightpath`: the Python face of the lightpath library. Configs come from TOML files,
+//! TOML text or dictionaries (validated by the one config loader, with its messages); the speckle
+//! commands run in memory ([`lightpath::app::run::evaluate`]) and return their typed results,
+//! whose arrays are numpy arrays. Runs release the GIL, stop on Ctrl-C between two waves of
+//! chunks, and report progress to an optional callback, always on the caller's thread.
+//!
+//! The pure-Python package `lightpath` (in `python/lightpath/`) wraps this module: it turns
+//! dictionaries into JSON and accepts a path, a dictionary or a loaded `Task` wherever a config
+//! is expected.
+
+use lightpath::Error;
+use lightpath::app::budget::Budget;
+use lightpath::app::run::{Kind, Results, evaluate};
+use lightpath::app::wave::WaveLimits;
+use lightpath::app::{Watch, create_out, with_threads};
+use lightpath::config::{self, SceneTask};
+use lightpath::io::results::{
+    CovarianceFile, MemoryEffectFile, Nested2, Nested4, RunEcho, SpeckleFile,
+};
+use lightpath::speckle::memory::MemoryCurve;
+use numpy::{Complex64, PyArray1, PyArrayDyn, PyArrayMethods};
+use pyo3::exceptions::{PyKeyboardInterrupt, PyOSError, PyRuntimeError, PyValueError};
+use pyo3::prelude::*;
+use std::path::{Path, PathBuf};
+use std::sync::mpsc::{Receiver, RecvTimeoutError, channel};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+/// How often a waiting call looks at Ctrl-C and the progress (well within a second).
+const POLL: Duration = Duration::from_millis(50);
+
+/// A lightpath error as the Python exception of its kind: config and input errors are
+/// `ValueError` (the message names the key, the value and what is allowed), files `OSError`,
+/// failed computations `RuntimeError`.
+fn py_err(e: Error) -> PyErr {
+    let message = e.to_string();
+    match e {
+        Error::Config(_) | Error::Input(_) => PyValueError::new_err(message),
+        Error::Io { .. } => PyOSError::new_err(message),
+        Error::Numerical(_) => PyRuntimeError::new_err(message),
+        Error::Interrupted => PyKeyboardInterrupt::new_err(message),
+    }
+}
+
+fn config_err(e: config::ConfigError) -> PyErr {
+    py_err(Error::Config(e))
+}
+
+/// A validated config and what it describes (built once). Load one with `lightpath.load`.
+#[pyclass(frozen, module = "lightpath")]
+struct Task {
+    task: config::Task,
+    /// Where it came from, for messages and `repr`.
+    origin: String,
+}
+
+#[pymethods]
+impl Task {
+    /// What the config holds: "scene", "trace", "design", "param_fit", "acquire" or "render".
+    #[getter]
+    fn kind(&self) -> &'static str {
+        match self.task.kind() {
+            config::TaskKind::Scene => "scene",
+            config::TaskKind::Trace => "trace",
+            config::TaskKind::Design => "design",
+            config::TaskKind::ParamFit => "param_fit",
+            config::TaskKind::Acquire => "acquire",
+            config::TaskKind::Render => "render",
+        }
+    }
+
+    /// What the config describes, in one line (as `lightpath check` prints it).
+    fn describe(&self) -> PyResult<String> {
+        lightpath::app::check::describe(&self.task).map_err(py_err)
+    }
+
+    /// The validated config as JSON text, every default filled in (what result files echo).
+    fn config_json(&self) -> PyResult<String> {
+        use config::Task as T;
+        match &self.task {
+            T::Scene(t) => serde_json::to_string(&t.config),
+            T::Trace(t) => serde_json::to_string(&t.config),
+            T::Design(t) => serde_json::to_string(&t.config),
+            T::ParamFit(t) => serde_json::to_string(&t.config),
+            T::Acquire(t) => serde_json::to_string(&**t),
+            T::Render(t) => serde_json::to_string(&t.config),
+        }
+        .map_err(|e| PyRuntimeError::new_err(format!("the config cannot be written: {e}")))
+    }
+
+    fn __repr__(&self) -> String {
+        format!("<lightpath.Task {} from {}>", self.kind(), self.origin)
+    }
+}
+
+impl Task {
+    /// The speckle scene, or a `ValueError` saying what the config holds instead.
+    fn scene(&self, command: &str) -> PyResult<SceneTask> {
+        self.task.clone().into_scene(command).map_err(config_err)
+    }
+}
+
+/// Load a TOML config file; relative paths in it resolve against its folder.
+#[pyfunction]
+fn load_path(path: PathBuf) -> PyResult<Task> {
+    let task = config::load(&path).map_err(config_err)?;
+    Ok(Task {
+        task,
+        origin: path.display().to_string(),
+    })
+}
+
+/// Load TOML text; relative paths in it resolve against the current folder.
+#[pyfunction]
+fn load_toml(text: &str) -> PyResult<Task> {
+    let task = config::load_text(text).map_err(config_err)?;
+    Ok(Task {
+        task,
+        origin: "TOML text".into(),
+    })
+}
+
+/// Load a config given as a dict of the TOML's shape (nested dicts, lists, numbers, strings,
+/// booleans; numpy arrays and scalars too); relative paths resolve against the folder `base`.
+#[pyfunction]
+fn load_dict(config: &Bound<'_, PyAny>, base: PathBuf) -> PyResult<Task> {
+    let value = toml_value(config, &mut String::new())?;
+    let task = config::load_value(value, &base).map_err(config_err)?;
+    Ok(Task {
+        task,
+        origin: "a dict".into(),
+    })
+}
+
+/// A Python value as TOML, or a `ValueError` naming its key (`at`, dotted as in messages).
+fn toml_value(x: &Bound<'_, PyAny>, at: &mut String) -> PyResult<toml::Value> {
+    use pyo3::types::{PyBool, PyDict, PyFloat, PyList, PyString, PyTuple};
+    let key = |at: &str| {
+        if at.is_empty() {
+            "the config".to_string()
+        } else {
+            at.to_string()
+        }
+    };
+    if x.is_none() {
+        return Err(PyValueError::new_err(format!(
+            "{} = None: give the key a value or leave it out",
+            key(at)
+        )));
+    }
+    if let Ok(b) = x.cast::<PyBool>() {
+        return Ok(toml::Value::Boolean(b.is_true()));
+    }
+    if x.is_instance_of::<PyFloat>() {
+        return Ok(toml::Value::Float(x.extract::<f64>()?));
+    }
+    if let Ok(i) = x.extract::<i64>() {
+        return Ok(toml::Value::Integer(i));
+    }
+    if let Ok(f) = x.extract::<f64>() {
+        return Ok(toml::Value::Float(f));
+    }
+    if let Ok(s) = x.cast::<PyString>() {
+        return Ok(toml::Value::String(s.to_cow()?.into_owned()));
+    }
+    if let Ok(d) = x.cast::<PyDict>() {
+        let mut table = toml::Table::new();
+        for (k, v) in d.iter() {
+            let Ok(k) = k.extract::<String>() else {
+                return Err(PyValueError::new_err(format!(
+                    "{}: keys are strings, not {}",
+                    key(at),
+                    k.get_type().name()?
+                )));
+            };
+            let len = at.len();
+            if !at.is_empty() {
+                at.push('.');
+            }
+            at.push_str(&k);
+            let value = toml_value(&v, at)?;
+            at.truncate(len);
+            table.insert(k, value);
+        }
+        return Ok(toml::Value::Table(table));
+    }
+    let items: Option<Vec<Bound<'_, PyAny>>> = if let Ok(l) = x.cast::<PyList>() {
+        Some(l.iter().collect())
+    } else if let Ok(t) = x.cast::<PyTuple>() {
+        Some(t.iter().collect())
+    } else {
+        None
+    };
+    if let Some(items) = items {
+        let mut out = Vec::with_capacity(items.len());
+        for (i, v) in items.iter().enumerate() {
+            let len = at.len();
+            at.push_str(&format!("[{i}]"));
+            out.push(toml_value(v, at)?);
+            at.truncate(len);
+        }
+        return Ok(toml::Value::Array(out));
+    }
+    // numpy arrays and anything else that lists itself
+    if x.hasattr("tolist")? {
+        return toml_value(&x.call_method0("tolist")?, at);
+    }
+    Err(PyValueError::new_err(format!(
+        "{}: a {} is not a config value (dicts, lists, numbers, strings and booleans are)",
+        key(at),
+        x.get_type().name()?
+    )))
+}
+
+/// Run `job` on a worker thread (on `threads` workers) while this thread, without the GIL, waits
+/// for it; every [`POLL`] it takes the GIL back to look at Ctrl-C and report progress to
+/// `progress(done, total)`. Ctrl-C (or an exception from the callback) stops the run at its next
+/// wave of chunks and is raised once the run has stopped, so nothing is left running.
+fn run_watched<T: Send + 'static>(
+    py: Python<'_>,
+    threads: Option<usize>,
+    progress: Option<Py<PyAny>>,
+    job: impl FnOnce(&Watch) -> lightpath::Result<T> + Send + 'static,
+) -> PyResult<T> {
+    let watch = Arc::new(Watch::default());
+    let (tx, rx) = channel();
+    let rx = Mutex::new(rx);
+    let worker = Arc::clone(&watch);
+    std::thread::Builder::new()
+        .name("lightpath".into())
+        .spawn(move || {
+            let _ = tx.send(with_threads(threads, || job(&worker)));
+        })
+        .map_err(|e| PyRuntimeError::new_err(format!("cannot start the run's thread: {e}")))?;
+    let mut reported = None;
+    let mut report = |py: Python<'_>| -> PyResult<()> {
+        if let Some(callback) = &progress {
+            let now = watch.progress();
+            if reported != Some(now) {
+                reported = Some(now);
+                callback.call1(py, now)?;
+            }
+        }
+        Ok(())
+    };
+    loop {
+        match py.detach(|| recv(&rx, Some(POLL))) {
+            Ok(result) => {
+                let value = result.map_err(py_err)?;
+                report(py)?;
+                return Ok(value);
+            }
+            Err(RecvTimeoutError::Disconnected) => {
+                return Err(PyRuntimeError::new_err(
+                    "the run stopped without a result (an internal error); please report it with its config",
+                ));
+            }
+            Err(RecvTimeoutError::Timeout) => {}
+        }
+        if let Err(e) = py.check_signals().and_then(|()| report(py)) {
+            watch.stop();
+            // wait until the run has stopped: nothing keeps computing after the exception
+            let _ = py.detach(|| recv(&rx, None));
+            return Err(e);
+        }
+    }
+}
+
+/// The worker's result, waiting at most `timeout` (forever without).
+fn recv<T>(rx: &Mutex<Receiver<T>>, timeout: Option<Duration>) -> Result<T, RecvTimeoutError> {
+    let rx = rx.lock().map_err(|_| RecvTimeoutError::Disconnected)?;
+    match timeout {
+        Some(t) => rx.recv_timeout(t),
+        None => rx.recv().map_err(|_| RecvTimeoutError::Disconnected),
+    }
+}
+
+/// Flatten `[a][b][c][d]` nested arrays into one row-major vector with their shape.
+fn flat4(x: &Nested4) -> (Vec<f64>, Vec<usize>) {
+    let shape = vec![
+        x.len(),
+        x.first().map_or(0, |a| a.len()),
+        x.first().and_then(|a| a.first()).map_or(0, |b| b.len()),
+        x.first()
+            .and_then(|a| a.first())
+            .and_then(|b| b.first())
+            .map_or(0, |c| c.len()),
+    ];
+    let v = x.iter().flatten().flatten().flatten().copied().collect();
+    (v, shape)
+}
+
+fn flat2(x: &Nested2) -> (Vec<f64>, Vec<usize>) {
+    let shape = vec![x.len(), x.first().map_or(0, |a| a.len())];
+    (x.iter().flatten().copied().collect(), shape)
+}
+
+fn real<'py>(
+    py: Python<'py>,
+    (v, shape): (Vec<f64>, Vec<usize>),
+) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+    PyArray1::from_vec(py, v).reshape(shape)
+}
+
+fn complex<'py>(
+    py: Python<'py>,
+    (re, shape): (Vec<f64>, Vec<usize>),
+    (im, _): (Vec<f64>, Vec<usize>),
+) -> PyResult<Bound<'py, PyArrayDyn<Complex64>>> {
+    let v: Vec<Complex64> = re
+        .iter()
+        .zip(&im)
+        .map(|(&a, &b)| Complex64::new(a, b))
+        .collect();
+    PyArray1::from_vec(py, v).reshape(shape)
+}
+
+/// Write `results` into `folder` as the command would (clearing that command's stale files);
+/// the paths written.
+fn save(results: &Results, kind: Kind, folder: &Path) -> PyResult<Vec<PathBuf>> {
+    create_out(folder, kind.files()).map_err(py_err)?;
+    Ok(results.write(folder).map_err(py_err)?.files)
+}
+
+/// How a result was computed: samples, seed, wall time, wavelength, the config (what every result
+/// file echoes). A result's `run`.
+#[pyclass(frozen, module = "lightpath")]
+struct Run {
+    run: RunEcho,
+}
+
+#[pymethods]
+impl Run {
+    /// Paths (Monte Carlo), realisations (wave solver) or 0 (closed form).
+    #[getter]
+    fn samples(&self) -> u64 {
+        self.run.samples
+    }
+
+    /// The seed of the run's random streams.
+    #[getter]
+    fn seed(&self) -> u64 {
+        self.run.seed
+    }
+
+    /// Wall time, in seconds.
+    #[getter]
+    fn seconds(&self) -> Option<f64> {
+        self.run.seconds
+    }
+
+    /// The vacuum wavelength, in the scene's length unit.
+    #[getter]
+    fn wavelength(&self) -> f64 {
+        self.run.wavelength
+    }
+
+    /// The lightpath version that computed it.
+    #[getter]
+    fn version(&self) -> String {
+        self.run.version.clone()
+    }
+
+    /// The config the run used, as JSON text (every default filled in).
+    fn config_json(&self) -> PyResult<String> {
+        serde_json::to_string(&self.run.config).map_err(|e| PyRuntimeError::new_err(e.to_string()))
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "<lightpath.Run {} samples, seed {}, {}>",
+            self.run.samples,
+            self.run.seed,
+            self.run
+                .seconds
+                .map_or("merged".into(), |s| format!("{s:.3} s"))
+        )
+    }
+}
+
+/// A covariance `C[l1, l2, v1, v2] = E[u ū'] − m m̄'` of the fields of every light × view
+/// (Monte Carlo, closed-form single scattering, or the wave solver), as `covariance.json` holds.
+#[pyclass(frozen, module = "lightpath")]
+struct Covariance {
+    file: CovarianceFile,
+}
+
+#[pymethods]
+impl Covariance {
+    /// How it was computed (samples, seed, seconds, wavelength, config).
+    #[getter]
+    fn run(&self) -> Run {
+        Run {
+            run: self.file.run.clone(),
+        }
+    }
+
+    /// complex128 `[L, L, V, V]`: the covariance of every pair of light × view fields.
+    #[getter]
+    fn covariance<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<Complex64>>> {
+        complex(py, flat4(&self.file.re), flat4(&self.file.im))
+    }
+
+    /// float64 `[L, L, V, V]`: the standard error of `covariance` (of its real and imaginary
+    /// parts alike; zeros for a closed form).
+    #[getter]
+    fn stderr<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        real(py, flat4(&self.file.stderr))
+    }
+
+    /// float64 `[L, V]`: the speckle intensity `C[l, l, v, v]` (the diagonal).
+    #[getter]
+    fn intensity<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        let re = &self.file.re;
+        let nested: Nested2 = (0..re.len())
+            .map(|l| (0..re[l][l].len()).map(|v| re[l][l][v][v]).collect())
+            .collect();
+        real(py, flat2(&nested))
+    }
+
+    /// complex128 `[L, V]`: the mean field `m[l, v]`.
+    #[getter]
+    fn mean<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<Complex64>>> {
+        complex(py, flat2(&self.file.mean_re), flat2(&self.file.mean_im))
+    }
+
+    /// float64 `[L, V]`: the mean field's standard error (wave solver), else None.
+    #[getter]
+    fn mean_stderr<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyArrayDyn<f64>>>> {
+        self.file
+            .mean_stderr
+            .as_ref()
+            .map(|m| real(py, flat2(m)))
+            .transpose()
+    }
+
+    /// complex128 `[L, L, V, V]`: the part of paths that scatter once (Monte Carlo, closed
+    /// form), else None.
+    #[getter]
+    fn single<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyArrayDyn<Complex64>>>> {
+        match (&self.file.single_re, &self.file.single_im) {
+            (Some(re), Some(im)) => complex(py, flat4(re), flat4(im)).map(Some),
+            _ => Ok(None),
+        }
+    }
+
+    /// float64 `[L, L, V, V]`: the standard error of `single`, else None.
+    #[getter]
+    fn single_stderr<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyArrayDyn<f64>>>> {
+        self.file
+            .single_stderr
+            .as_ref()
+            .map(|m| real(py, flat4(m)))
+            .transpose()
+    }
+
+    /// complex128 `[L, L, V, V]`: the part of paths that scatter twice or more (Monte Carlo),
+    /// else None.
+    #[getter]
+    fn multiple<'py>(
+        &self,
+        py: Python<'py>,
+    ) -> PyResult<Option<Bound<'py, PyArrayDyn<Complex64>>>> {
+        match (&self.file.multiple_re, &self.file.multiple_im) {
+            (Some(re), Some(im)) => complex(py, flat4(re), flat4(im)).map(Some),
+            _ => Ok(None),
+        }
+    }
+
+    /// float64 `[L, L, V, V]`: the standard error of `multiple`, else None.
+    #[getter]
+    fn multiple_stderr<'py>(
+        &self,
+        py: Python<'py>,
+    ) -> PyResult<Option<Bound<'py, PyArrayDyn<f64>>>> {
+        self.file
+            .multiple_stderr
+            .as_ref()
+            .map(|m| real(py, flat4(m)))
+            .transpose()
+    }
+
+    /// "foldy-lax" (wave solver), "single_scattering" (closed form) or None (Monte Carlo).
+    #[getter]
+    fn solver(&self) -> Option<String> {
+        self.file.solver.clone()
+    }
+
+    /// Scatterer placements (wave solver), else None.
+    #[getter]
+    fn realizations(&self) -> Option<u64> {
+        self.file.realizations
+    }
+
+    /// `covariance.json` as text, exactly as the command writes it.
+    fn to_json(&self) -> PyResult<String> {
+        serde_json::to_string(&self.file).map_err(|e| PyRuntimeError::new_err(e.to_string()))
+    }
+
+    /// Write `covariance.json` into `folder` (created if needed); the paths written.
+    fn save(&self, folder: PathBuf) -> PyResult<Vec<PathBuf>> {
+        let results = Results::Covariance(Box::new(self.file.clone()));
+        save(&results, Kind::Covariance, &folder)
+    }
+
+    fn __repr__(&self) -> String {
+        let nl = self.file.re.len();
+        let nv = self.file.mean_re.first().map_or(0, |m| m.len());
+        format!(
+            "<lightpath.Covariance {nl} light(s) × {nv} view(s), {} {}>",
+            self.file.run.samples,
+            if self.file.solver.as_deref() == Some("foldy-lax") {
+                "realisations"
+            } else {
+                "paths"
+            }
+        )
+    }
+}
+
+/// The memory-effect curve: the correlation of speckle intensities as the light and view tilt
+/// together, against the diffusion prediction of Eq. 39, as `memory_effect.json` holds.
+#[pyclass(frozen, module = "lightpath")]
+struct MemoryEffect {
+    file: MemoryEffectFile,
+    curve: MemoryCurve,
+}
+
+#[pymethods]
+impl MemoryEffect {
+    /// How it was computed (samples, seed, seconds, wavelength, config).
+    #[getter]
+    fn run(&self) -> Run {
+        Run {
+            run: self.file.run.clone(),
+        }
+    }
+
+    /// float64 `[A]`: the tilt angles, in degrees.
+    #[getter]
+    fn angles_deg<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_slice(py, &self.file.angles_deg)
+    }
+
+    /// float64 `[A]`: the normalised intensity correlation at each angle.
+    #[getter]
+    fn correlation<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_slice(py, &self.file.correlation)
+    }
+
+    /// float64 `[A]`: the standard error of `correlation`.
+    #[getter]
+    fn correlation_stderr<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_slice(py, &self.file.correlation_stderr)
+    }
+
+    /// float64 `[A]`: the normalised field correlation at each angle.
+    #[getter]
+    fn field_correlation<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_slice(py, &self.file.field_correlation)
+    }
+
+    /// float64 `[A]`: the diffusion prediction `((kθL)/sinh(kθL))²` (Eq. 39).
+    #[getter]
+    fn diffusion_eq39<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_slice(py, &self.file.diffusion_eq39)
+    }
+
+    /// `L` of Eq. 39: the slab thickness, or the box chord along the first light.
+    #[getter]
+    fn thickness(&self) -> f64 {
+        self.file.thickness
+    }
+
+    /// `memory_effect.json` as text, exactly as the command writes it.
+    fn to_json(&self) -> PyResult<String> {
+        serde_json::to_string(&self.file).map_err(|e| PyRuntimeError::new_err(e.to_string()))
+    }
+
+    /// Write `memory_effect.json` and `memory_effect.png` into `folder`; the paths written.
+    fn save(&self, folder: PathBuf) -> PyResult<Vec<PathBuf>> {
+        let results =
+            Results::MemoryEffect(Box::new(self.file.clone()), Box::new(self.curve.clone()));
+        save(&results, Kind::MemoryEffect, &folder)
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "<lightpath.MemoryEffect {} angle(s), {} paths>",
+            self.file.angles_deg.len(),
+            self.file.run.samples
+        )
+    }
+}
+
+/// Speckle fields: independent realisations of every light × view field, as `speckle.json`
+/// holds (images of a view grid in `images`).
+#[pyclass(frozen, module = "lightpath")]
+struct Speckle {
+    file: SpeckleFile,
+}
+
+impl Speckle {
+    fn shape(&self) -> [usize; 3] {
+        let f = &self.file;
+        [f.re.len(), f.run.lights.len(), f.run.views.len()]
+    }
+}
+
+#[pymethods]
+impl Speckle {
+    /// How it was computed (samples, seed, seconds, wavelength, config).
+    #[getter]
+    fn run(&self) -> Run {
+        Run {
+            run: self.file.run.clone(),
+        }
+    }
+
+    /// complex128 `[R, L, V]`: the field of realisation `r`, light `l`, view `v`.
+    #[getter]
+    fn fields<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<Complex64>>> {
+        let f = &self.file;
+        let flat = |x: &Vec<Nested2>| -> (Vec<f64>, Vec<usize>) {
+            (
+                x.iter().flatten().flatten().copied().collect(),
+                self.shape().to_vec(),
+            )
+        };
+        complex(py, flat(&f.re), flat(&f.im))
+    }
+
+    /// complex128 `[R, L, H, W]`: the fields as images of the view grid (`H = 1`, `W = V` for
+    /// views given one by one).
+    #[getter]
+    fn images<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<Complex64>>> {
+        let [r, l, v] = self.shape();
+        let (w, h) = lightpath::io::image_shape(&self.file.run.config, v);
+        self.fields(py)?.reshape(vec![r, l, h, w])
+    }
+
+    /// Paths per image.
+    #[getter]
+    fn paths_per_image(&self) -> u64 {
+        self.file.paths_per_image
+    }
+
+    /// `speckle.json` as text, exactly as the command writes it.
+    fn to_json(&self) -> PyResult<String> {
+        serde_json::to_string(&self.file).map_err(|e| PyRuntimeError::new_err(e.to_string()))
+    }
+
+    /// Write `speckle.json` and one `speckle_NNNN.exr` per realisation into `folder`; the paths
+    /// written.
+    fn save(&self, folder: PathBuf) -> PyResult<Vec<PathBuf>> {
+        save(
+            &Results::Speckle(Box::new(self.file.clone())),
+            Kind::Speckle,
+            &folder,
+        )
+    }
+
+    fn __repr__(&self) -> String {
+        let [r, l, v] = self.shape();
+        format!("<lightpath.Speckle {r} realisation(s) of {l} light(s) × {v} view(s)>")
+    }
+}
+
+fn budget(max_minutes: f64, max_memory_gb: f64) -> Budget {
+    Budget {
+        max_minutes,
+        max_memory_gb,
+    }
+}
+
+/// The covariance of every light × view field of a speckle scene (`lightpath covariance`).
+#[pyfunction]
+#[pyo3(signature = (task, *, samples=None, seed=None, threads=None, max_minutes=240.0, max_memory_gb=8.0, progress=None))]
+#[allow(clippy::too_many_arguments)]
+fn covariance(
+    py: Python<'_>,
+    task: &Task,
+    samples: Option<u64>,
+    seed: Option<u64>,
+    threads: Option<usize>,
+    max_minutes: f64,
+    max_memory_gb: f64,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<Covariance> {
+    let scene = task.scene("covariance")?;
+    let budget = budget(max_minutes, max_memory_gb);
+    let results = run_watched(py, threads, progress, move |w| {
+        evaluate(Kind::Covariance, scene, samples, seed, &budget, w)
+    })?;
+    match results {
+        Results::Covariance(file) => Ok(Covariance { file: *file }),
+        _ => Err(PyRuntimeError::new_err(
+            "covariance: the run gave another result",
+        )),
+    }
+}
+
+/// The memory-effect curve of a speckle scene with a `[memory_effect]` table
+/// (`lightpath memory-effect`).
+#[pyfunction]
+#[pyo3(signature = (task, *, samples=None, seed=None, threads=None, max_minutes=240.0, max_memory_gb=8.0, progress=None))]
+#[allow(clippy::too_many_arguments)]
+fn memory_effect(
+    py: Python<'_>,
+    task: &Task,
+    samples: Option<u64>,
+    seed: Option<u64>,
+    threads: Option<usize>,
+    max_minutes: f64,
+    max_memory_gb: f64,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<MemoryEffect> {
+    let scene = task.scene("memory_effect")?;
+    let budget = budget(max_minutes, max_memory_gb);
+    let results = run_watched(py, threads, progress, move |w| {
+        evaluate(Kind::MemoryEffect, scene, samples, seed, &budget, w)
+    })?;
+    match results {
+        Results::MemoryEffect(file, curve) => Ok(MemoryEffect {
+            file: *file,
+            curve: *curve,
+        }),
+        _ => Err(PyRuntimeError::new_err(
+            "memory_effect: the run gave another result",
+        )),
+    }
+}
+
+/// Speckle field realisations of a speckle scene (`lightpath speckle`).
+#[pyfunction]
+#[pyo3(signature = (task, *, paths=None, seed=None, threads=None, max_minutes=240.0, max_memory_gb=8.0, progress=None))]
+#[allow(clippy::too_many_arguments)]
+fn speckle(
+    py: Python<'_>,
+    task: &Task,
+    paths: Option<u64>,
+    seed: Option<u64>,
+    threads: Option<usize>,
+    max_minutes: f64,
+    max_memory_gb: f64,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<Speckle> {
+    let scene = task.scene("speckle")?;
+    let budget = budget(max_minutes, max_memory_gb);
+    let results = run_watched(py, threads, progress, move |w| {
+        evaluate(Kind::Speckle, scene, paths, seed, &budget, w)
+    })?;
+    match results {
+        Results::Speckle(file) => Ok(Speckle { file: *file }),
+        _ => Err(PyRuntimeError::new_err(
+            "speckle: the run gave another result",
+        )),
+    }
+}
+
+/// The covariance by the Foldy–Lax wave solver over scatterer placements (`lightpath wave`).
+#[pyfunction]
+#[pyo3(signature = (task, *, realizations=200, seed=None, threads=None, max_scatterers=6000.0, max_minutes=240.0, max_memory_gb=8.0, progress=None))]
+#[allow(clippy::too_many_arguments)]
+fn wave(
+    py: Python<'_>,
+    task: &Task,
+    realizations: u64,
+    seed: Option<u64>,
+    threads: Option<usize>,
+    max_scatterers: f64,
+    max_minutes: f64,
+    max_memory_gb: f64,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<Covariance> {
+    let scene = task.scene("wave")?;
+    let limits = WaveLimits {
+        max_scatterers,
+        max_memory_gb,
+        max_minutes,
+    };
+    let file = run_watched(py, threads, progress, move |w| {
+        lightpath::app::wave::evaluate(scene, realizations, seed, &limits, w)
+    })?;
+    Ok(Covariance { file })
+}
+
+/// The Python module `lightpath._lightpath`.
+#[pymodule]
+fn _lightpath(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add_class::<Task>()?;
+    m.add_class::<Run>()?;
+    m.add_class::<Covariance>()?;
+    m.add_class::<MemoryEffect>()?;
+    m.add_class::<Speckle>()?;
+    m.add_function(wrap_pyfunction!(load_path, m)?)?;
+    m.add_function(wrap_pyfunction!(load_toml, m)?)?;
+    m.add_function(wrap_pyfunction!(load_dict, m)?)?;
+    m.add_function(wrap_pyfunction!(covariance, m)?)?;
+    m.add_function(wrap_pyfunction!(memory_effect, m)?)?;
+    m.add_function(wrap_pyfunction!(speckle, m)?)?;
+    m.add_function(wrap_pyfunction!(wave, m)?)?;
+    Ok(())
+}

@@ -1,0 +1,61 @@
+"""Long runs release the GIL, report progress on the caller's thread, and stop on Ctrl-C."""
+
+from __future__ import annotations
+
+import signal
+import threading
+import time
+
+import pytest
+
+import lightpath as lp
+
+
+def test_progress_is_reported_up_to_the_total(repo):
+    seen = []
+    lp.covariance(repo / "configs" / "quickstart.toml", samples=40_000, progress=lambda d, n: seen.append((d, n)))
+    assert seen, "no progress reported"
+    assert seen[-1][0] == seen[-1][1] == 160  # 40 000 paths in chunks of 250
+    assert all(a[0] <= b[0] for a, b in zip(seen, seen[1:]))
+
+
+def test_an_exception_in_the_callback_stops_the_run(repo):
+    def fail(done, total):
+        raise RuntimeError("stop here")
+
+    with pytest.raises(RuntimeError, match="stop here"):
+        lp.covariance(repo / "configs" / "quickstart.toml", samples=10**7, progress=fail)
+
+
+def test_ctrl_c_raises_keyboard_interrupt_within_a_second(repo):
+    # a run of about a minute, interrupted after half a second
+    timer = threading.Timer(0.5, lambda: signal.raise_signal(signal.SIGINT))
+    start = time.monotonic()
+    timer.start()
+    with pytest.raises(KeyboardInterrupt):
+        lp.covariance(repo / "configs" / "quickstart.toml", samples=3 * 10**7)
+    stopped = time.monotonic() - start
+    assert stopped < 1.5, f"the run stopped {stopped:.2f} s after it started"
+    # the library is usable again at once
+    again = lp.covariance(repo / "configs" / "quickstart.toml", samples=2000)
+    assert again.run.samples == 2000
+
+
+def test_other_python_threads_run_while_lightpath_computes(repo):
+    ticks = []
+    stop = threading.Event()
+
+    def tick():
+        while not stop.is_set():
+            ticks.append(time.monotonic())
+            time.sleep(0.01)
+
+    t = threading.Thread(target=tick)
+    t.start()
+    try:
+        lp.covariance(repo / "configs" / "quickstart.toml", samples=400_000, threads=1)
+    finally:
+        stop.set()
+        t.join()
+    gaps = [b - a for a, b in zip(ticks, ticks[1:])]
+    assert len(ticks) > 20 and max(gaps) < 0.5, (len(ticks), max(gaps))

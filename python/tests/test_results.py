@@ -1,0 +1,106 @@
+"""The Python results are the command line's: same numbers bit for bit for the same config, samples
+and seed (whatever the thread count), same JSON, same files."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import lightpath as lp
+from conftest import read_json, read_toml
+
+
+def nested_complex(d: dict, re: str, im: str) -> np.ndarray:
+    return np.array(d[re]) + 1j * np.array(d[im])
+
+
+def test_covariance_equals_the_command_line_bit_for_bit(repo, run_cli):
+    config = repo / "configs" / "covariance_box.toml"
+    out = run_cli("covariance", str(config), "--samples", "20000", "--seed", "7", "--threads", "1")
+    cli = read_json(out / "covariance.json")
+    py = lp.covariance(config, samples=20000, seed=7, threads=2)
+
+    assert py.covariance.shape == (2, 2, 72, 72)
+    assert py.covariance.dtype == np.complex128
+    assert np.array_equal(py.covariance, nested_complex(cli, "re", "im"))
+    assert np.array_equal(py.stderr, np.array(cli["stderr"]))
+    assert np.array_equal(py.single, nested_complex(cli, "single_re", "single_im"))
+    assert np.array_equal(py.multiple, nested_complex(cli, "multiple_re", "multiple_im"))
+    assert np.array_equal(py.single_stderr, np.array(cli["single_stderr"]))
+    assert np.array_equal(py.multiple_stderr, np.array(cli["multiple_stderr"]))
+    assert np.array_equal(py.mean, nested_complex(cli, "mean_re", "mean_im"))
+    assert py.mean_stderr is None and py.solver is None
+    assert np.array_equal(py.intensity, np.einsum("llvv->lv", py.covariance).real)
+    assert py.run.samples == cli["samples"] == 20000
+    assert py.run.seed == cli["seed"] == 7
+
+    # the JSON text is the command's, up to the wall time
+    mine = __import__("json").loads(py.to_json())
+    assert mine.pop("seconds") > 0 and cli.pop("seconds") > 0
+    assert mine == cli
+
+
+def test_memory_effect_and_speckle_equal_the_command_line(repo, run_cli, tmp_path):
+    config = repo / "configs" / "quickstart.toml"
+    out = run_cli("memory-effect", str(config), "--samples", "20000", "--seed", "3")
+    cli = read_json(out / "memory_effect.json")
+    py = lp.memory_effect(config, samples=20000, seed=3, threads=1)
+    for key in ["angles_deg", "correlation", "correlation_stderr", "field_correlation", "diffusion_eq39"]:
+        assert np.array_equal(getattr(py, key), np.array(cli[key])), key
+    assert py.thickness == cli["thickness"]
+    files = py.save(tmp_path / "saved")
+    assert sorted(f.name for f in files) == ["memory_effect.json", "memory_effect.png"]
+
+    grid = repo / "configs" / "speckle_grid.toml"
+    out = run_cli("speckle", str(grid), "--samples", "500", "--seed", "5")
+    cli = read_json(out / "speckle.json")
+    py = lp.speckle(grid, paths=500, seed=5)
+    assert py.fields.shape == (2, 3, 64 * 64)
+    assert py.images.shape == (2, 3, 64, 64)
+    assert np.array_equal(py.fields, nested_complex(cli, "re", "im").reshape(2, 3, -1))
+    assert np.array_equal(py.images[1, 2].ravel(), py.fields[1, 2])
+    saved = py.save(tmp_path / "speckle")
+    assert (tmp_path / "speckle" / "speckle.json").is_file()
+    assert len([f for f in saved if f.suffix == ".exr"]) >= 2
+
+
+WAVE_SCENE = {
+    "wavelength": 1.0,
+    "medium": {"box": [3.0, 3.0, 3.0], "mfp": 3.0},
+    "light": [{"kind": "plane_wave", "direction": [0.0, 0.0, 1.0]}],
+    "view": [
+        {"kind": "far_field_ring", "start": [0.0, 0.0, 1.0], "axis": [0.0, 1.0, 0.0], "count": 5}
+    ],
+}
+
+
+def test_wave_solver_equals_the_command_line(run_cli, tmp_path):
+    config = tmp_path / "wave.toml"
+    config.write_text(
+        'wavelength = 1.0\n[medium]\nbox = [3.0, 3.0, 3.0]\nmfp = 3.0\n'
+        '[[light]]\nkind = "plane_wave"\ndirection = [0.0, 0.0, 1.0]\n'
+        '[[view]]\nkind = "far_field_ring"\nstart = [0.0, 0.0, 1.0]\naxis = [0.0, 1.0, 0.0]\ncount = 5\n'
+    )
+    out = run_cli("wave", str(config), "--realizations", "8", "--seed", "2")
+    cli = read_json(out / "covariance.json")
+    py = lp.wave(WAVE_SCENE, realizations=8, seed=2)
+    assert py.solver == "foldy-lax" and py.realizations == 8
+    assert np.array_equal(py.covariance, nested_complex(cli, "re", "im"))
+    assert np.array_equal(py.mean_stderr, np.array(cli["mean_stderr"]))
+    with pytest.raises(ValueError, match="--realizations 1"):
+        lp.wave(WAVE_SCENE, realizations=1)
+
+
+def test_single_scattering_closed_form(repo):
+    config = read_toml(repo / "configs" / "covariance_box.toml")
+    config["render"]["estimator"] = "single_scattering"
+    closed = lp.covariance(config)
+    assert closed.solver == "single_scattering"
+    assert np.all(closed.stderr == 0.0)
+    assert closed.multiple is None
+    # the Monte Carlo's single-scattering part agrees with it within its standard errors
+    config["render"]["estimator"] = "monte_carlo"
+    mc = lp.covariance(config, samples=100_000, seed=11)
+    diff = np.einsum("llvv->lv", np.abs(mc.single - closed.covariance))
+    allowed = np.einsum("llvv->lv", 5.0 * mc.single_stderr + 1e-9 * np.abs(closed.covariance))
+    assert np.all(diff <= allowed), diff / allowed
