@@ -18,19 +18,21 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any, Callable, Mapping, Optional, Union
+from typing import Any, Callable, Mapping, Optional, Sequence, Union
 
 from . import _lightpath
-from ._lightpath import Covariance, MemoryEffect, Run, Speckle, Task, __version__
+from ._lightpath import Covariance, CovarianceVjp, MemoryEffect, Run, Speckle, Task, __version__
 
 __all__ = [
     "Covariance",
+    "CovarianceVjp",
     "MemoryEffect",
     "Run",
     "Speckle",
     "Task",
     "__version__",
     "covariance",
+    "covariance_vjp",
     "load",
     "loads",
     "memory_effect",
@@ -172,4 +174,44 @@ def wave(
         max_minutes=max_minutes,
         max_memory_gb=max_memory_gb,
         progress=progress,
+    )
+
+
+def covariance_vjp(
+    config: Config,
+    params: Sequence[str],
+    *,
+    theta: Optional[Sequence[float]] = None,
+    proposal: Optional[Sequence[float]] = None,
+    samples: Optional[int] = None,
+    seed: Optional[int] = None,
+    threads: Optional[int] = None,
+) -> CovarianceVjp:
+    """The covariance at ``theta`` and its vector–Jacobian product.
+
+    ``params`` names medium parameters: ``sigma_s``, ``sigma_a`` (per length unit), ``g`` (or
+    ``g[c]`` for particle type ``c``), ``bin[c][k]`` (node ``k`` of a tabulated phase function, an
+    unnormalised value), ``weight[c]`` (a particle type's unnormalised share),
+    ``vmf_weight[c][m]``, ``vmf_kappa[c][m]`` (lobes of a vMF-mixture amplitude). ``theta``
+    defaults to the config's values.
+
+    Paths are drawn from the medium at ``proposal`` (default: the config's values) with a fixed
+    ``seed`` and re-weighted to ``theta`` (common random numbers): the value is a smooth function
+    of ``theta`` and the VJP is its exact gradient, which is what deterministic optimisers (L-BFGS)
+    need; keep ``theta`` near ``proposal`` (re-centre it between optimiser stages) for low
+    variance. ``proposal=theta`` with a new ``seed`` per call gives unbiased stochastic gradients
+    (Adam).
+
+    Returns a :class:`CovarianceVjp`: ``value`` (complex128 ``[L, L, V, V]``), ``stderr``,
+    ``params``, ``theta``, and calling it with the loss adjoint ``∂L/∂Re C + i ∂L/∂Im C`` (the
+    shape of ``value``) returns ``∂L/∂θ`` (float64 ``[P]``).
+    """
+    return _lightpath.covariance_vjp(
+        load(config),
+        list(params),
+        theta=None if theta is None else [float(x) for x in theta],
+        proposal=None if proposal is None else [float(x) for x in proposal],
+        samples=samples,
+        seed=seed,
+        threads=threads,
     )

@@ -125,6 +125,23 @@ class Speckle:
     def save(self, folder: Union[str, PathLike[str]]) -> list[Path]:
         """Write `speckle.json` and `speckle_NNNN.exr`; the paths written."""
 
+class CovarianceVjp:
+    """A covariance at `theta` with its vector–Jacobian product (`covariance_vjp`)."""
+
+    @property
+    def value(self) -> npt.NDArray[np.complex128]:
+        """complex128 [L, L, V, V]: the covariance at `theta`."""
+    @property
+    def stderr(self) -> npt.NDArray[np.float64]:
+        """float64 [L, L, V, V]."""
+    @property
+    def params(self) -> list[str]: ...
+    @property
+    def theta(self) -> npt.NDArray[np.float64]:
+        """float64 [P]."""
+    def __call__(self, adjoint: npt.ArrayLike) -> npt.NDArray[np.float64]:
+        """∂L/∂θ (float64 [P]) for the adjoint ∂L/∂Re C + i ∂L/∂Im C ([L, L, V, V])."""
+
 def load_path(path: Union[str, PathLike[str]]) -> Task: ...
 def load_toml(text: str) -> Task: ...
 def load_dict(config: Mapping[str, Any], base: Union[str, PathLike[str]]) -> Task: ...
@@ -169,3 +186,13 @@ def wave(
     max_memory_gb: float = 8.0,
     progress: Progress = None,
 ) -> Covariance: ...
+def covariance_vjp(
+    task: Task,
+    params: list[str],
+    *,
+    theta: Optional[list[float]] = None,
+    proposal: Optional[list[float]] = None,
+    samples: Optional[int] = None,
+    seed: Optional[int] = None,
+    threads: Optional[int] = None,
+) -> CovarianceVjp: ...

@@ -13,12 +13,14 @@ use lightpath::app::budget::Budget;
 use lightpath::app::run::{Kind, Results, evaluate};
 use lightpath::app::wave::WaveLimits;
 use lightpath::app::{Watch, create_out, with_threads};
-use lightpath::config::{self, SceneTask};
+use lightpath::config::{self, EstimatorConfig, SceneTask};
+use lightpath::diff::bridge::Pullback;
+use lightpath::diff::{CovarianceOp, Param, Proposal, medium_at};
 use lightpath::io::results::{
     CovarianceFile, MemoryEffectFile, Nested2, Nested4, RunEcho, SpeckleFile,
 };
 use lightpath::speckle::memory::MemoryCurve;
-use numpy::{Complex64, PyArray1, PyArrayDyn, PyArrayMethods};
+use numpy::{Complex64, PyArray1, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyKeyboardInterrupt, PyOSError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use std::path::{Path, PathBuf};
@@ -666,6 +668,208 @@ impl Speckle {
     }
 }
 
+/// A covariance at `theta` with its vector–Jacobian product (`covariance_vjp`). Calling it with
+/// a loss adjoint `∂L/∂Re C + i ∂L/∂Im C` (complex [L, L, V, V]) gives `∂L/∂θ`, from the same
+/// paths as the value (paper 001's path-space gradient, contracted per event).
+#[pyclass(frozen, module = "lightpath")]
+struct CovarianceVjp {
+    params: Vec<String>,
+    theta: Vec<f64>,
+    shape: [usize; 4],
+    value: Vec<Complex64>,
+    stderr: Vec<f64>,
+    pullback: Arc<dyn Pullback>,
+    threads: Option<usize>,
+}
+
+#[pymethods]
+impl CovarianceVjp {
+    /// complex128 `[L, L, V, V]`: the covariance at `theta`.
+    #[getter]
+    fn value<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<Complex64>>> {
+        PyArray1::from_slice(py, &self.value).reshape(self.shape.to_vec())
+    }
+
+    /// float64 `[L, L, V, V]`: the standard error of `value`.
+    #[getter]
+    fn stderr<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        PyArray1::from_slice(py, &self.stderr).reshape(self.shape.to_vec())
+    }
+
+    /// The parameters' names, in the order of `theta` and of the gradient.
+    #[getter]
+    fn params(&self) -> Vec<String> {
+        self.params.clone()
+    }
+
+    /// float64 `[P]`: the parameter values the covariance was evaluated at.
+    #[getter]
+    fn theta<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_slice(py, &self.theta)
+    }
+
+    /// `∂L/∂θ` (float64 `[P]`) for the adjoint `∂L/∂Re C + i ∂L/∂Im C` (complex or real
+    /// `[L, L, V, V]`).
+    fn __call__<'py>(
+        &self,
+        py: Python<'py>,
+        adjoint: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyArray1<f64>>> {
+        // any array-like of real or complex numbers, as complex128
+        let kwargs = pyo3::types::PyDict::new(py);
+        kwargs.set_item("dtype", "complex128")?;
+        let array = py
+            .import("numpy")?
+            .call_method("asarray", (adjoint,), Some(&kwargs))?;
+        let adjoint = array
+            .cast::<PyArrayDyn<Complex64>>()
+            .map_err(|_| PyValueError::new_err("adjoint: not an array of numbers"))?
+            .readonly();
+        if adjoint.shape() != self.shape {
+            return Err(PyValueError::new_err(format!(
+                "adjoint: shape {:?}, but the covariance is [L, L, V, V] = {:?}",
+                adjoint.shape(),
+                self.shape
+            )));
+        }
+        let dy: Vec<f64> = adjoint
+            .as_array()
+            .iter()
+            .flat_map(|z| [z.re, z.im])
+            .collect();
+        if dy.iter().any(|x| !x.is_finite()) {
+            return Err(PyValueError::new_err(
+                "adjoint: holds non-finite values (NaN or infinity)",
+            ));
+        }
+        let pullback = Arc::clone(&self.pullback);
+        let gradient = run_watched(py, self.threads, None, move |_| Ok(pullback.pullback(&dy)))?;
+        if gradient.iter().any(|g| !g.is_finite()) {
+            return Err(PyRuntimeError::new_err(
+                "the gradient is not finite (no path reached a view with non-zero weight)",
+            ));
+        }
+        Ok(PyArray1::from_vec(py, gradient))
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "<lightpath.CovarianceVjp {:?} at {:?}, covariance {:?}>",
+            self.params, self.theta, self.shape
+        )
+    }
+}
+
+/// The covariance at `theta` (values of `params`, default: the config's) and its VJP. Paths are
+/// drawn from the medium at `proposal` (default: the config's values) with a fixed seed and
+/// re-weighted to `theta`: common random numbers, so the value is smooth in `theta` and the VJP is
+/// its exact gradient. `proposal = theta` gives unbiased gradients of the expectation instead.
+#[pyfunction]
+#[pyo3(signature = (task, params, *, theta=None, proposal=None, samples=None, seed=None, threads=None))]
+#[allow(clippy::too_many_arguments)]
+fn covariance_vjp(
+    py: Python<'_>,
+    task: &Task,
+    params: Vec<String>,
+    theta: Option<Vec<f64>>,
+    proposal: Option<Vec<f64>>,
+    samples: Option<u64>,
+    seed: Option<u64>,
+    threads: Option<usize>,
+) -> PyResult<CovarianceVjp> {
+    let scene_task = task.scene("covariance_vjp")?;
+    let render = &scene_task.config.render;
+    if render.estimator != EstimatorConfig::MonteCarlo {
+        return Err(PyValueError::new_err(
+            "render.estimator: covariance_vjp differentiates the Monte Carlo estimator; use \"monte_carlo\"",
+        ));
+    }
+    let mut parsed: Vec<Param> = Vec::with_capacity(params.len());
+    for name in &params {
+        let p = Param::parse(name).map_err(|e| PyValueError::new_err(format!("params: {e}")))?;
+        if parsed.contains(&p) {
+            return Err(PyValueError::new_err(format!(
+                "params: {name} is given twice"
+            )));
+        }
+        parsed.push(p);
+    }
+    if parsed.is_empty() {
+        return Err(PyValueError::new_err("params: give at least one parameter"));
+    }
+    let scene = scene_task.scene;
+    let medium = &scene.medium;
+    let start = parsed
+        .iter()
+        .map(|p| {
+            p.get(medium).ok_or_else(|| {
+                PyValueError::new_err(format!(
+                    "params: {} does not exist in this medium (its phase function or particle types have no such parameter)",
+                    p.name()
+                ))
+            })
+        })
+        .collect::<PyResult<Vec<f64>>>()?;
+    let values = |key: &str, given: Option<Vec<f64>>| -> PyResult<Vec<f64>> {
+        let v = given.unwrap_or_else(|| start.clone());
+        if v.len() != parsed.len() {
+            return Err(PyValueError::new_err(format!(
+                "{key}: {} values for {} parameter(s) {params:?}",
+                v.len(),
+                parsed.len()
+            )));
+        }
+        Ok(v)
+    };
+    let theta = values("theta", theta)?;
+    let proposal = values("proposal", proposal)?;
+    fn name(key: &'static str) -> impl Fn(Error) -> PyErr {
+        move |e| PyValueError::new_err(format!("{key}: {e}"))
+    }
+    let (proposal_medium, _) = medium_at(medium, &parsed, &proposal).map_err(name("proposal"))?;
+    medium_at(medium, &parsed, &theta).map_err(name("theta"))?;
+    let samples = samples.unwrap_or(render.samples);
+    if samples == 0 {
+        return Err(PyValueError::new_err("samples = 0: must be at least 1"));
+    }
+    let (nl, nv) = (scene.lights.len(), scene.views.len());
+    let pairs: Vec<(usize, usize)> = (0..nl).flat_map(|l| (0..nv).map(move |v| (l, v))).collect();
+    // entries in the order of `covariance.json`: [l1][l2][v1][v2]
+    let mut entries = Vec::with_capacity(pairs.len() * pairs.len());
+    for l1 in 0..nl {
+        for l2 in 0..nl {
+            for v1 in 0..nv {
+                for v2 in 0..nv {
+                    entries.push((l1 * nv + v1, l2 * nv + v2));
+                }
+            }
+        }
+    }
+    let plan = (samples, render.chunk, seed.unwrap_or(render.seed));
+    let reversed = render.reversed;
+    let op = CovarianceOp::new(
+        scene,
+        parsed,
+        pairs,
+        entries,
+        reversed,
+        plan,
+        Proposal::Fixed(proposal_medium),
+    )
+    .map_err(py_err)?;
+    let at = theta.clone();
+    let (entries, pullback) = run_watched(py, threads, None, move |_| op.forward_with_stderr(&at))?;
+    Ok(CovarianceVjp {
+        params,
+        theta,
+        shape: [nl, nl, nv, nv],
+        value: entries.value,
+        stderr: entries.stderr,
+        pullback,
+        threads,
+    })
+}
+
 fn budget(max_minutes: f64, max_memory_gb: f64) -> Budget {
     Budget {
         max_minutes,
@@ -794,6 +998,7 @@ fn _lightpath(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Covariance>()?;
     m.add_class::<MemoryEffect>()?;
     m.add_class::<Speckle>()?;
+    m.add_class::<CovarianceVjp>()?;
     m.add_function(wrap_pyfunction!(load_path, m)?)?;
     m.add_function(wrap_pyfunction!(load_toml, m)?)?;
     m.add_function(wrap_pyfunction!(load_dict, m)?)?;
@@ -801,5 +1006,6 @@ fn _lightpath(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(memory_effect, m)?)?;
     m.add_function(wrap_pyfunction!(speckle, m)?)?;
     m.add_function(wrap_pyfunction!(wave, m)?)?;
+    m.add_function(wrap_pyfunction!(covariance_vjp, m)?)?;
     Ok(())
 }

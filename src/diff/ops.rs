@@ -222,6 +222,17 @@ impl CovarianceOp {
         Ok(e)
     }
 
+    /// The entries at `θ` with their standard errors and the pullback of this evaluation (one
+    /// forward pass for both).
+    pub fn forward_with_stderr(
+        &self,
+        theta: &[f64],
+    ) -> crate::Result<(Entries, Arc<dyn Pullback>)> {
+        let e = self.prepare(theta)?;
+        let entries = e.entries()?;
+        Ok((entries, Arc::new(e)))
+    }
+
     /// The entries at `θ` with their standard errors (one evaluation, no pullback).
     pub fn evaluate(&self, theta: &[f64]) -> crate::Result<Entries> {
         self.prepare(theta).and_then(|e| e.entries())
@@ -291,14 +302,9 @@ impl Pullback for Evaluation {
 
 impl Differentiable for CovarianceOp {
     fn forward(&self, theta: &[f64]) -> crate::Result<(Vec<f64>, Arc<dyn Pullback>)> {
-        let e = self.prepare(theta)?;
-        let y = e
-            .entries()?
-            .value
-            .iter()
-            .flat_map(|z| [z.re, z.im])
-            .collect();
-        Ok((y, Arc::new(e)))
+        let (entries, pullback) = self.forward_with_stderr(theta)?;
+        let y = entries.value.iter().flat_map(|z| [z.re, z.im]).collect();
+        Ok((y, pullback))
     }
 }
 

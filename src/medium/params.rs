@@ -56,6 +56,50 @@ impl Param {
         }
     }
 
+    /// The parameter a name from [`Param::name`] gives (`sigma_s`, `sigma_a`, `g`, `g[c]`,
+    /// `bin[c][k]` or `bin[k]`, `weight[c]`, `vmf_weight[c][m]` or `vmf_weight[m]`, `vmf_kappa[…]`;
+    /// a missing type index means type 0).
+    pub fn parse(s: &str) -> crate::Result<Param> {
+        let s = s.trim();
+        let (head, rest) = s.split_at(s.find('[').unwrap_or(s.len()));
+        let mut index = Vec::new();
+        let mut tail = rest;
+        while let Some(open) = tail.strip_prefix('[') {
+            let close = open.find(']');
+            let parsed = close.and_then(|c| open[..c].trim().parse::<usize>().ok());
+            match (close, parsed) {
+                (Some(c), Some(i)) => {
+                    index.push(i);
+                    tail = &open[c + 1..];
+                }
+                _ => {
+                    tail = "?";
+                    break;
+                }
+            }
+        }
+        let p = match (head, index.as_slice(), tail.is_empty()) {
+            ("sigma_s", [], true) => Some(Param::SigmaS),
+            ("sigma_a", [], true) => Some(Param::SigmaA),
+            ("g", [], true) => Some(Param::G(0)),
+            ("g", &[c], true) => Some(Param::G(c)),
+            ("bin", &[k], true) => Some(Param::Bin(0, k)),
+            ("bin", &[c, k], true) => Some(Param::Bin(c, k)),
+            ("weight", &[c], true) => Some(Param::Weight(c)),
+            ("vmf_weight", &[m], true) => Some(Param::VmfWeight(0, m)),
+            ("vmf_weight", &[c, m], true) => Some(Param::VmfWeight(c, m)),
+            ("vmf_kappa", &[m], true) => Some(Param::VmfKappa(0, m)),
+            ("vmf_kappa", &[c, m], true) => Some(Param::VmfKappa(c, m)),
+            _ => None,
+        };
+        p.ok_or_else(|| {
+            format!(
+                "{s:?} is not a parameter; allowed: sigma_s, sigma_a, g, g[c], bin[c][k], weight[c], vmf_weight[c][m], vmf_kappa[c][m] (c: particle type, k: table node, m: lobe)"
+            )
+            .into()
+        })
+    }
+
     /// The parameter's value in `m` (`None` if `m` has no such parameter).
     pub fn get(&self, m: &Medium) -> Option<f64> {
         match self {
@@ -322,6 +366,39 @@ pub fn medium_with(base: &Medium, params: &[FitParam], v: &[f64]) -> Medium {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn parameter_names_parse_back() {
+        for p in [
+            Param::SigmaS,
+            Param::SigmaA,
+            Param::G(0),
+            Param::G(2),
+            Param::Bin(0, 7),
+            Param::Bin(1, 3),
+            Param::Weight(1),
+            Param::VmfWeight(0, 2),
+            Param::VmfWeight(1, 0),
+            Param::VmfKappa(0, 1),
+            Param::VmfKappa(2, 4),
+        ] {
+            assert_eq!(Param::parse(&p.name()).unwrap(), p, "{}", p.name());
+        }
+        assert_eq!(Param::parse(" bin[4] ").unwrap(), Param::Bin(0, 4));
+        for bad in [
+            "mfp",
+            "g[",
+            "g[x]",
+            "g[1]x",
+            "bin",
+            "sigma_s[0]",
+            "weight",
+            "",
+        ] {
+            let e = Param::parse(bad).unwrap_err().to_string();
+            assert!(e.contains("is not a parameter; allowed"), "{bad}: {e}");
+        }
+    }
 
     /// The Jacobian of the (mfp, albedo) → (σ_s, σ_a) map against central differences; would catch
     /// a sign or a swapped column in the fit's chain rule.
