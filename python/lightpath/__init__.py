@@ -21,12 +21,24 @@ from pathlib import Path
 from typing import Any, Callable, Mapping, Optional, Sequence, Union
 
 from . import _lightpath
-from ._lightpath import Covariance, CovarianceVjp, MemoryEffect, Run, Speckle, Task, __version__
+from ._lightpath import (
+    Covariance,
+    CovarianceVjp,
+    MemoryEffect,
+    Mie,
+    Rays,
+    Run,
+    Speckle,
+    Task,
+    __version__,
+)
 
 __all__ = [
     "Covariance",
     "CovarianceVjp",
     "MemoryEffect",
+    "Mie",
+    "Rays",
     "Run",
     "Speckle",
     "Task",
@@ -36,7 +48,9 @@ __all__ = [
     "load",
     "loads",
     "memory_effect",
+    "mie",
     "speckle",
+    "trace",
     "wave",
 ]
 
@@ -215,3 +229,44 @@ def covariance_vjp(
         seed=seed,
         threads=threads,
     )
+
+
+def mie(
+    diameter: float,
+    n_particle: float,
+    wavelength: float,
+    *,
+    n_medium: float = 1.0,
+    k_particle: float = 0.0,
+    diameter_spread: float = 0.0,
+    angles: int = 361,
+    volume_fraction: Optional[float] = None,
+) -> Mie:
+    """Spheres by Lorenz–Mie theory (``lightpath mie``).
+
+    ``diameter`` and ``wavelength`` (in vacuum) in one length unit; ``n_particle + i k_particle``
+    the particles' complex index, ``n_medium`` the host's; ``diameter_spread`` the relative spread
+    (σ/mean) of a log-normal size distribution (0: one size); ``angles`` scattering angles from 0°
+    to 180°; ``volume_fraction`` adds the bulk medium (``bulk``: σ_s, σ_a, mfp, albedo). Returns a
+    :class:`Mie`: efficiencies ``q_*``, cross-sections ``c_*`` (length unit squared), ``g``,
+    ``theta_deg``, ``phase`` (∫ρ dω = 1), ``s1``/``s2``.
+    """
+    return _lightpath.mie(
+        diameter,
+        n_particle,
+        wavelength,
+        n_medium=n_medium,
+        k_particle=k_particle,
+        diameter_spread=diameter_spread,
+        angles=angles,
+        volume_fraction=volume_fraction,
+    )
+
+
+def trace(config: Config, *, threads: Optional[int] = None, max_minutes: float = 240.0) -> Rays:
+    """Rays through an index field (``lightpath trace``), from a trace config (``[field]`` +
+    ``[rays]``). A bundle estimated beyond ``max_minutes`` is refused (``ValueError``), as is a
+    step too coarse for the field. Returns :class:`Rays`: ``exit_position``, ``exit_direction``
+    (float64 ``[N, 3]``), ``optical_path`` ``[N]``, ``entered``/``exited``, ``paths``.
+    """
+    return _lightpath.trace(load(config), threads=threads, max_minutes=max_minutes)

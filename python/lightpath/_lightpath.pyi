@@ -142,6 +142,81 @@ class CovarianceVjp:
     def __call__(self, adjoint: npt.ArrayLike) -> npt.NDArray[np.float64]:
         """∂L/∂θ (float64 [P]) for the adjoint ∂L/∂Re C + i ∂L/∂Im C ([L, L, V, V])."""
 
+class Mie:
+    """Spheres by Lorenz–Mie theory (`mie.json`)."""
+
+    size_parameter: float
+    terms: int
+    q_ext: float
+    q_sca: float
+    q_abs: float
+    q_back: float
+    g: float
+    c_ext: float
+    c_sca: float
+    c_abs: float
+    c_back: float
+    mean_volume: float
+    @property
+    def theta_deg(self) -> npt.NDArray[np.float64]:
+        """float64 [N]: 0° … 180°."""
+    @property
+    def phase(self) -> npt.NDArray[np.float64]:
+        """float64 [N]: unpolarised, ∫ρ dω = 1."""
+    @property
+    def phase_perpendicular(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def phase_parallel(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def s1(self) -> npt.NDArray[np.complex128]:
+        """complex128 [N]."""
+    @property
+    def s2(self) -> npt.NDArray[np.complex128]:
+        """complex128 [N]."""
+    @property
+    def bulk(self) -> Optional[dict[str, float]]:
+        """volume_fraction, number_density, sigma_s, sigma_a, mfp, albedo (with a volume fraction)."""
+    def to_json(self) -> str: ...
+    def save(self, folder: Union[str, PathLike[str]]) -> list[Path]:
+        """Write `mie.json` and `mie.png`; the paths written."""
+
+class Rays:
+    """Rays traced through an index field (`rays.json`)."""
+
+    @property
+    def origin(self) -> npt.NDArray[np.float64]:
+        """float64 [N, 3]."""
+    @property
+    def direction(self) -> npt.NDArray[np.float64]:
+        """float64 [N, 3]."""
+    @property
+    def exit_position(self) -> npt.NDArray[np.float64]:
+        """float64 [N, 3]."""
+    @property
+    def exit_direction(self) -> npt.NDArray[np.float64]:
+        """float64 [N, 3]."""
+    @property
+    def optical_path(self) -> npt.NDArray[np.float64]:
+        """float64 [N]: ∫ n ds."""
+    @property
+    def steps(self) -> npt.NDArray[np.uint64]: ...
+    @property
+    def entered(self) -> npt.NDArray[np.bool_]: ...
+    @property
+    def exited(self) -> npt.NDArray[np.bool_]: ...
+    @property
+    def paths(self) -> list[npt.NDArray[np.float64]]:
+        """Each ray's path, float64 [K, 3]."""
+    @property
+    def step_error(self) -> Optional[float]: ...
+    @property
+    def seconds(self) -> float: ...
+    @property
+    def warning(self) -> Optional[str]: ...
+    def to_json(self) -> str: ...
+    def save(self, folder: Union[str, PathLike[str]]) -> list[Path]:
+        """Write `rays.json` and `rays.png`; the paths written."""
+
 def load_path(path: Union[str, PathLike[str]]) -> Task: ...
 def load_toml(text: str) -> Task: ...
 def load_dict(config: Mapping[str, Any], base: Union[str, PathLike[str]]) -> Task: ...
@@ -196,3 +271,15 @@ def covariance_vjp(
     seed: Optional[int] = None,
     threads: Optional[int] = None,
 ) -> CovarianceVjp: ...
+def mie(
+    diameter: float,
+    n_particle: float,
+    wavelength: float,
+    *,
+    n_medium: float = 1.0,
+    k_particle: float = 0.0,
+    diameter_spread: float = 0.0,
+    angles: int = 361,
+    volume_fraction: Optional[float] = None,
+) -> Mie: ...
+def trace(task: Task, *, threads: Optional[int] = None, max_minutes: float = 240.0) -> Rays: ...

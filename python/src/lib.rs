@@ -17,7 +17,7 @@ use lightpath::config::{self, EstimatorConfig, SceneTask};
 use lightpath::diff::bridge::Pullback;
 use lightpath::diff::{CovarianceOp, Param, Proposal, medium_at};
 use lightpath::io::results::{
-    CovarianceFile, MemoryEffectFile, Nested2, Nested4, RunEcho, SpeckleFile,
+    CovarianceFile, MemoryEffectFile, MieFile, Nested2, Nested4, RunEcho, SpeckleFile,
 };
 use lightpath::speckle::memory::MemoryCurve;
 use numpy::{Complex64, PyArray1, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
@@ -989,6 +989,323 @@ fn wave(
     Ok(Covariance { file })
 }
 
+/// Spheres by Lorenz–Mie theory (`lightpath mie`): efficiencies, cross-sections (in the squared
+/// length unit of the diameter), `g`, the phase function and the amplitudes, as `mie.json` holds.
+#[pyclass(frozen, module = "lightpath")]
+struct Mie {
+    #[pyo3(get)]
+    size_parameter: f64,
+    #[pyo3(get)]
+    terms: usize,
+    #[pyo3(get)]
+    q_ext: f64,
+    #[pyo3(get)]
+    q_sca: f64,
+    #[pyo3(get)]
+    q_abs: f64,
+    #[pyo3(get)]
+    q_back: f64,
+    #[pyo3(get)]
+    g: f64,
+    #[pyo3(get)]
+    c_ext: f64,
+    #[pyo3(get)]
+    c_sca: f64,
+    #[pyo3(get)]
+    c_abs: f64,
+    #[pyo3(get)]
+    c_back: f64,
+    #[pyo3(get)]
+    mean_volume: f64,
+    file: MieFile,
+}
+
+#[pymethods]
+impl Mie {
+    /// float64 `[N]`: scattering angles from 0° to 180°.
+    #[getter]
+    fn theta_deg<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_slice(py, &self.file.theta_deg)
+    }
+
+    /// float64 `[N]`: the unpolarised phase function, `∫ρ dω = 1` (per steradian).
+    #[getter]
+    fn phase<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_slice(py, &self.file.phase)
+    }
+
+    /// float64 `[N]`: each polarisation's share, `|S1|²` (perpendicular) over the unpolarised
+    /// `C_sca`.
+    #[getter]
+    fn phase_perpendicular<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_slice(py, &self.file.phase_perpendicular)
+    }
+
+    /// float64 `[N]`: `|S2|²` (parallel) over the unpolarised `C_sca`.
+    #[getter]
+    fn phase_parallel<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_slice(py, &self.file.phase_parallel)
+    }
+
+    /// complex128 `[N]`: the amplitude `S1` (Bohren & Huffman), dimensionless.
+    #[getter]
+    fn s1<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<Complex64>>> {
+        let n = self.file.s1_re.len();
+        complex(
+            py,
+            (self.file.s1_re.clone(), vec![n]),
+            (self.file.s1_im.clone(), vec![n]),
+        )
+    }
+
+    /// complex128 `[N]`: the amplitude `S2`.
+    #[getter]
+    fn s2<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<Complex64>>> {
+        let n = self.file.s2_re.len();
+        complex(
+            py,
+            (self.file.s2_re.clone(), vec![n]),
+            (self.file.s2_im.clone(), vec![n]),
+        )
+    }
+
+    /// With a `volume_fraction`: the bulk medium as a dict (`number_density`, `sigma_s`,
+    /// `sigma_a`, `mfp`, `albedo`, in the diameter's length unit), else None.
+    #[getter]
+    fn bulk(&self) -> Option<std::collections::BTreeMap<&'static str, f64>> {
+        self.file.bulk.as_ref().map(|b| {
+            [
+                ("volume_fraction", b.volume_fraction),
+                ("number_density", b.number_density),
+                ("sigma_s", b.sigma_s),
+                ("sigma_a", b.sigma_a),
+                ("mfp", b.mfp),
+                ("albedo", b.albedo),
+            ]
+            .into_iter()
+            .collect()
+        })
+    }
+
+    /// `mie.json` as text, exactly as the command writes it.
+    fn to_json(&self) -> PyResult<String> {
+        serde_json::to_string(&self.file).map_err(|e| PyRuntimeError::new_err(e.to_string()))
+    }
+
+    /// Write `mie.json` and the polar plot `mie.png` into `folder`; the paths written.
+    fn save(&self, folder: PathBuf) -> PyResult<Vec<PathBuf>> {
+        create_out(&folder, &["mie.json", "mie.png"]).map_err(py_err)?;
+        Ok(lightpath::app::mie::write(&self.file, &folder)
+            .map_err(py_err)?
+            .files)
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "<lightpath.Mie x = {:.4}, Q_sca = {:.6}, g = {:.6}>",
+            self.size_parameter, self.q_sca, self.g
+        )
+    }
+}
+
+/// Spheres by Lorenz–Mie theory (`lightpath mie`).
+#[pyfunction]
+#[pyo3(signature = (diameter, n_particle, wavelength, *, n_medium=1.0, k_particle=0.0, diameter_spread=0.0, angles=361, volume_fraction=None))]
+#[allow(clippy::too_many_arguments)]
+fn mie(
+    diameter: f64,
+    n_particle: f64,
+    wavelength: f64,
+    n_medium: f64,
+    k_particle: f64,
+    diameter_spread: f64,
+    angles: usize,
+    volume_fraction: Option<f64>,
+) -> PyResult<Mie> {
+    let request = lightpath::app::mie::MieRequest {
+        diameter,
+        diameter_spread,
+        n_particle,
+        k_particle,
+        n_medium,
+        vacuum_wavelength: wavelength,
+        angles,
+        volume_fraction,
+    };
+    let f = lightpath::app::mie::compute(&request).map_err(py_err)?;
+    Ok(Mie {
+        size_parameter: f.size_parameter,
+        terms: f.terms,
+        q_ext: f.q_ext,
+        q_sca: f.q_sca,
+        q_abs: f.q_abs,
+        q_back: f.q_back,
+        g: f.g,
+        c_ext: f.c_ext,
+        c_sca: f.c_sca,
+        c_abs: f.c_abs,
+        c_back: f.c_back,
+        mean_volume: f.mean_volume,
+        file: f,
+    })
+}
+
+/// Rays traced through an index field (`lightpath trace`), as `rays.json` holds.
+#[pyclass(frozen, module = "lightpath")]
+struct Rays {
+    traced: lightpath::app::grin::Traced,
+}
+
+impl Rays {
+    fn column(
+        &self,
+        f: impl Fn(&lightpath::io::results::RayRecord) -> [f64; 3],
+    ) -> (Vec<f64>, Vec<usize>) {
+        let rays = &self.traced.file.rays;
+        (rays.iter().flat_map(&f).collect(), vec![rays.len(), 3])
+    }
+}
+
+#[pymethods]
+impl Rays {
+    /// float64 `[N, 3]`: where each ray starts.
+    #[getter]
+    fn origin<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        real(py, self.column(|r| r.origin))
+    }
+
+    /// float64 `[N, 3]`: each ray's initial unit direction.
+    #[getter]
+    fn direction<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        real(py, self.column(|r| r.direction))
+    }
+
+    /// float64 `[N, 3]`: where each ray left the field (or stopped).
+    #[getter]
+    fn exit_position<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        real(py, self.column(|r| r.exit_position))
+    }
+
+    /// float64 `[N, 3]`: each ray's unit direction there.
+    #[getter]
+    fn exit_direction<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        real(py, self.column(|r| r.exit_direction))
+    }
+
+    /// float64 `[N]`: the optical path `∫ n ds` of each ray, in the length unit.
+    #[getter]
+    fn optical_path<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        let v: Vec<f64> = self
+            .traced
+            .file
+            .rays
+            .iter()
+            .map(|r| r.optical_path)
+            .collect();
+        PyArray1::from_vec(py, v)
+    }
+
+    /// uint64 `[N]`: integrator steps per ray.
+    #[getter]
+    fn steps<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<u64>> {
+        let v: Vec<u64> = self
+            .traced
+            .file
+            .rays
+            .iter()
+            .map(|r| r.steps as u64)
+            .collect();
+        PyArray1::from_vec(py, v)
+    }
+
+    /// bool `[N]`: whether each ray entered the field's bounds.
+    #[getter]
+    fn entered<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<bool>> {
+        let v: Vec<bool> = self.traced.file.rays.iter().map(|r| r.entered).collect();
+        PyArray1::from_vec(py, v)
+    }
+
+    /// bool `[N]`: whether each ray left them again.
+    #[getter]
+    fn exited<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<bool>> {
+        let v: Vec<bool> = self.traced.file.rays.iter().map(|r| r.exited).collect();
+        PyArray1::from_vec(py, v)
+    }
+
+    /// A list of float64 `[K, 3]` arrays: each ray's path (every 16th step, its exit point, then a
+    /// stretch along its exit direction), as `rays.png` draws it.
+    #[getter]
+    fn paths<'py>(&self, py: Python<'py>) -> PyResult<Vec<Bound<'py, PyArrayDyn<f64>>>> {
+        self.traced
+            .paths
+            .iter()
+            .map(|p| {
+                let v: Vec<f64> = p.iter().flat_map(|x| x.to_array()).collect();
+                real(py, (v, vec![p.len(), 3]))
+            })
+            .collect()
+    }
+
+    /// How far the exit points would move at half the step (4/3 of the difference for a few
+    /// rays), in the length unit.
+    #[getter]
+    fn step_error(&self) -> Option<f64> {
+        self.traced.file.step_error
+    }
+
+    /// Wall time, in seconds.
+    #[getter]
+    fn seconds(&self) -> f64 {
+        self.traced.file.seconds
+    }
+
+    /// A warning when the step's error exceeds 0.1 % of the field's size, else None.
+    #[getter]
+    fn warning(&self) -> Option<String> {
+        self.traced.warning.as_ref().map(|w| w.trim().to_string())
+    }
+
+    /// `rays.json` as text, exactly as the command writes it.
+    fn to_json(&self) -> PyResult<String> {
+        serde_json::to_string(&self.traced.file).map_err(|e| PyRuntimeError::new_err(e.to_string()))
+    }
+
+    /// Write `rays.json` and `rays.png` into `folder`; the paths written.
+    fn save(&self, folder: PathBuf) -> PyResult<Vec<PathBuf>> {
+        create_out(&folder, &["rays.json", "rays.png"]).map_err(py_err)?;
+        Ok(lightpath::app::grin::write_trace(&self.traced, &folder)
+            .map_err(py_err)?
+            .files)
+    }
+
+    fn __repr__(&self) -> String {
+        let f = &self.traced.file;
+        let through = f.rays.iter().filter(|r| r.entered && r.exited).count();
+        format!(
+            "<lightpath.Rays {} ray(s), {through} through the field>",
+            f.rays.len()
+        )
+    }
+}
+
+/// Rays through an index field (`lightpath trace`), from a trace config (`[field]` + `[rays]`).
+#[pyfunction]
+#[pyo3(signature = (task, *, threads=None, max_minutes=240.0))]
+fn trace(py: Python<'_>, task: &Task, threads: Option<usize>, max_minutes: f64) -> PyResult<Rays> {
+    let config::Task::Trace(t) = &task.task else {
+        return Err(PyValueError::new_err(format!(
+            "trace: needs a trace config ([field] + [rays]), but the config holds {}",
+            task.task.kind().describe()
+        )));
+    };
+    let t = (**t).clone();
+    let budget = budget(max_minutes, Budget::default().max_memory_gb);
+    let traced = run_watched(py, threads, None, move |_| {
+        lightpath::app::grin::trace_rays(&t, &budget)
+    })?;
+    Ok(Rays { traced })
+}
+
 /// The Python module `lightpath._lightpath`.
 #[pymodule]
 fn _lightpath(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -999,6 +1316,8 @@ fn _lightpath(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<MemoryEffect>()?;
     m.add_class::<Speckle>()?;
     m.add_class::<CovarianceVjp>()?;
+    m.add_class::<Mie>()?;
+    m.add_class::<Rays>()?;
     m.add_function(wrap_pyfunction!(load_path, m)?)?;
     m.add_function(wrap_pyfunction!(load_toml, m)?)?;
     m.add_function(wrap_pyfunction!(load_dict, m)?)?;
@@ -1007,5 +1326,7 @@ fn _lightpath(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(speckle, m)?)?;
     m.add_function(wrap_pyfunction!(wave, m)?)?;
     m.add_function(wrap_pyfunction!(covariance_vjp, m)?)?;
+    m.add_function(wrap_pyfunction!(mie, m)?)?;
+    m.add_function(wrap_pyfunction!(trace, m)?)?;
     Ok(())
 }

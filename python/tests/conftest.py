@@ -31,9 +31,10 @@ def cli() -> Path:
 def run_cli(cli, tmp_path):
     """Run a command of the binary into a fresh folder and return that folder."""
 
-    def run(*args: str) -> Path:
+    def run(*args: str, quiet: bool = True) -> Path:
         out = tmp_path / "cli"
-        subprocess.run([str(cli), *args, "--out", str(out), "--quiet"], check=True)
+        extra = ["--quiet"] if quiet else []
+        subprocess.run([str(cli), *args, "--out", str(out), *extra], check=True)
         return out
 
     return run

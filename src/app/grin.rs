@@ -281,6 +281,23 @@ pub fn param_fit(
 
 /// `lightpath trace`: trace a bundle of rays through an index field → rays.json and rays.png.
 pub fn trace(task: &TraceTask, budget: &super::budget::Budget, out: &Path) -> Result<Outcome> {
+    let traced = trace_rays(task, budget)?;
+    create_out(out, &["rays.json", "rays.png"])?;
+    write_trace(&traced, out)
+}
+
+/// A traced bundle before it is written: `rays.json`, each ray's path (every 16th step, then its
+/// exit point and a stretch along its exit direction), and a warning when the step is coarse.
+#[derive(Clone, Debug)]
+pub struct Traced {
+    pub file: RaysFile,
+    pub paths: Vec<Vec<DVec3>>,
+    pub warning: Option<String>,
+}
+
+/// Trace the bundle in memory (the library's and Python's entry), with the checks of `trace`:
+/// the time budget, rays that meet the field, a positive index, and the step's error.
+pub fn trace_rays(task: &TraceTask, budget: &super::budget::Budget) -> Result<Traced> {
     use crate::eikonal::{IndexField, Tracer};
     use rayon::prelude::*;
     let (field, rays) = (&task.field, &task.rays);
@@ -303,7 +320,6 @@ pub fn trace(task: &TraceTask, budget: &super::budget::Budget, out: &Path) -> Re
     };
     // the field's largest extent (the step was checked against it when the config was loaded)
     let size = field.bounds.half_extent().map(|h| 2.0 * h.max_element());
-    create_out(out, &["rays.json", "rays.png"])?;
     let t0 = Instant::now();
     let trace_all = |tracer: &Tracer, rays: &[(DVec3, DVec3)]| {
         rays.par_iter()
@@ -423,9 +439,6 @@ pub fn trace(task: &TraceTask, budget: &super::budget::Budget, out: &Path) -> Re
         version: env!("CARGO_PKG_VERSION").into(),
         config: task.config.clone(),
     };
-    let path = out.join(RaysFile::NAME);
-    file.write(&path)?;
-    let png = out.join("rays.png");
     let paths: Vec<Vec<DVec3>> = traced
         .iter()
         .map(|(e, p, _)| {
@@ -434,15 +447,30 @@ pub fn trace(task: &TraceTask, budget: &super::budget::Budget, out: &Path) -> Re
             p
         })
         .collect();
-    crate::io::plot::ray_paths(&png, &paths)?;
-    let exited = traced.iter().filter(|t| t.0.exited && t.0.entered).count();
+    Ok(Traced {
+        file,
+        paths,
+        warning,
+    })
+}
+
+/// Write `rays.json` and `rays.png` into `out` (which exists).
+pub fn write_trace(traced: &Traced, out: &Path) -> Result<Outcome> {
+    let file = &traced.file;
+    let path = out.join(RaysFile::NAME);
+    file.write(&path)?;
+    let png = out.join("rays.png");
+    crate::io::plot::ray_paths(&png, &traced.paths)?;
+    let exited = file.rays.iter().filter(|r| r.exited && r.entered).count();
     Ok(Outcome {
         not_converged: None,
         files: vec![path, png],
         summary: format!(
-            "traced {} rays ({exited} through the field) in {seconds:.2} s; exit points uncertain by ~{step_error:.2e} from the step{}",
-            rays.len(),
-            warning.unwrap_or_default()
+            "traced {} rays ({exited} through the field) in {:.2} s; exit points uncertain by ~{:.2e} from the step{}",
+            file.rays.len(),
+            file.seconds,
+            file.step_error.unwrap_or(0.0),
+            traced.warning.clone().unwrap_or_default()
         ),
     })
 }

@@ -34,6 +34,13 @@ fn positive(key: &str, v: f64) -> Result<()> {
 
 /// Check the request, compute, write `mie.json` and `mie.png` into `out`.
 pub fn run(r: &MieRequest, out: &std::path::Path) -> Result<Outcome> {
+    let file = compute(r)?;
+    create_out(out, &["mie.json", "mie.png"])?;
+    write(&file, out)
+}
+
+/// Check the request and compute `mie.json` in memory (the library's and Python's entry).
+pub fn compute(r: &MieRequest) -> Result<MieFile> {
     positive("diameter", r.diameter)?;
     positive("n-particle", r.n_particle)?;
     positive("n-medium", r.n_medium)?;
@@ -67,7 +74,6 @@ pub fn run(r: &MieRequest, out: &std::path::Path) -> Result<Outcome> {
     particles
         .validate()
         .map_err(|e| Error::input(format!("--diameter-spread / --diameter: {e}")))?;
-    create_out(out, &["mie.json", "mie.png"])?;
     let start = std::time::Instant::now();
     // θ from 0° to 180°: the optics want increasing cosines, so compute reversed
     let theta: Vec<f64> = (0..r.angles)
@@ -128,18 +134,24 @@ pub fn run(r: &MieRequest, out: &std::path::Path) -> Result<Outcome> {
         seconds: start.elapsed().as_secs_f64(),
         version: env!("CARGO_PKG_VERSION").to_string(),
     };
+    Ok(file)
+}
+
+/// Write `mie.json` and its polar plot `mie.png` into `out` (which exists).
+pub fn write(file: &MieFile, out: &std::path::Path) -> Result<Outcome> {
     let json = out.join(MieFile::NAME);
     let png = out.join("mie.png");
     file.write(&json)?;
+    let [m_re, m_im] = file.relative_index;
     crate::io::plot::polar_phase(
         &png,
         &format!(
             "Mie phase function: d = {}, m = {:.4}{:+.4}i, x = {:.2}, g = {:.4}",
-            r.diameter, m.re, m.im, o.size_parameter, o.g
+            file.diameter, m_re, m_im, file.size_parameter, file.g
         ),
-        &theta,
+        &file.theta_deg,
         &[
-            ("unpolarised".to_string(), unpolarised),
+            ("unpolarised".to_string(), file.phase.clone()),
             (
                 "perpendicular (|S1|²)".to_string(),
                 file.phase_perpendicular.clone(),
@@ -150,15 +162,15 @@ pub fn run(r: &MieRequest, out: &std::path::Path) -> Result<Outcome> {
     let mut summary = format!(
         "size parameter {:.4}, {} terms: Q_ext {:.6}, Q_sca {:.6}, Q_abs {:.6}, Q_back {:.6}, g {:.6}\n\
          C_sca {:.6e}, C_abs {:.6e} (per particle)",
-        o.size_parameter,
-        o.terms,
-        o.efficiencies.ext,
-        o.efficiencies.sca,
-        o.efficiencies.abs,
-        o.efficiencies.back,
-        o.g,
-        o.c_sca,
-        o.c_abs
+        file.size_parameter,
+        file.terms,
+        file.q_ext,
+        file.q_sca,
+        file.q_abs,
+        file.q_back,
+        file.g,
+        file.c_sca,
+        file.c_abs
     );
     if let Some(b) = &file.bulk {
         summary += &format!(
