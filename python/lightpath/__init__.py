@@ -30,6 +30,7 @@ from ._lightpath import (
     Run,
     Speckle,
     Task,
+    TraceVjp,
     __version__,
 )
 
@@ -42,6 +43,7 @@ __all__ = [
     "Run",
     "Speckle",
     "Task",
+    "TraceVjp",
     "__version__",
     "covariance",
     "covariance_vjp",
@@ -51,6 +53,7 @@ __all__ = [
     "mie",
     "speckle",
     "trace",
+    "trace_vjp",
     "wave",
 ]
 
@@ -270,3 +273,39 @@ def trace(config: Config, *, threads: Optional[int] = None, max_minutes: float =
     (float64 ``[N, 3]``), ``optical_path`` ``[N]``, ``entered``/``exited``, ``paths``.
     """
     return _lightpath.trace(load(config), threads=threads, max_minutes=max_minutes)
+
+
+def trace_vjp(
+    config: Config,
+    params: Sequence[str] = (),
+    *,
+    theta: Optional[Sequence[float]] = None,
+    grid: bool = False,
+    coefficients: Any = None,
+    threads: Optional[int] = None,
+    max_minutes: float = 240.0,
+) -> TraceVjp:
+    """A trace config's rays traced to where they leave the field, with the vector–Jacobian
+    product of their exits.
+
+    ``params`` names analytic field parameters as ``"profiles[i].name"`` (``n_max``, ``k_r``,
+    ``radius``, ``n0``, ``alpha``, ``gx``, ``c2``, … by profile kind), evaluated at ``theta``
+    (default: the config's values). ``grid=True`` adds the gradient with respect to every
+    coefficient of the field's grid profile, evaluated at ``coefficients`` (float ``[dz, dy, dx]``,
+    default: the config's). Returns a :class:`TraceVjp`: ``exit_position``, ``exit_direction``
+    (float64 ``[N, 3]``), ``optical_path``; calling it with ``∂L/∂(exit position)`` and
+    ``∂L/∂(exit direction)`` (``[N, 3]`` each) returns a dict of gradients: ``params`` ``[P]``,
+    ``grid`` ``[dz, dy, dx]`` or None, ``origin`` and ``direction`` ``[N, 3]``. Deterministic, and
+    the same for any thread count.
+    """
+    import numpy as np
+
+    return _lightpath.trace_vjp(
+        load(config),
+        list(params),
+        theta=None if theta is None else [float(x) for x in theta],
+        grid=grid,
+        coefficients=None if coefficients is None else np.asarray(coefficients, dtype=np.float64).ravel().tolist(),
+        threads=threads,
+        max_minutes=max_minutes,
+    )

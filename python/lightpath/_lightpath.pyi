@@ -217,6 +217,28 @@ class Rays:
     def save(self, folder: Union[str, PathLike[str]]) -> list[Path]:
         """Write `rays.json` and `rays.png`; the paths written."""
 
+class TraceVjp:
+    """Ray exits with their vector–Jacobian product (`trace_vjp`)."""
+
+    @property
+    def exit_position(self) -> npt.NDArray[np.float64]:
+        """float64 [N, 3]."""
+    @property
+    def exit_direction(self) -> npt.NDArray[np.float64]:
+        """float64 [N, 3]."""
+    @property
+    def optical_path(self) -> npt.NDArray[np.float64]:
+        """float64 [N]."""
+    @property
+    def params(self) -> list[str]: ...
+    @property
+    def coefficients(self) -> Optional[npt.NDArray[np.float64]]:
+        """float64 [dz, dy, dx]: the grid profile's coefficients, or None."""
+    @property
+    def theta(self) -> npt.NDArray[np.float64]: ...
+    def __call__(self, d_position: npt.ArrayLike, d_direction: npt.ArrayLike) -> dict[str, Any]:
+        """{"params": [P], "grid": [dz, dy, dx] or None, "origin": [N, 3], "direction": [N, 3]}."""
+
 def load_path(path: Union[str, PathLike[str]]) -> Task: ...
 def load_toml(text: str) -> Task: ...
 def load_dict(config: Mapping[str, Any], base: Union[str, PathLike[str]]) -> Task: ...
@@ -283,3 +305,13 @@ def mie(
     volume_fraction: Optional[float] = None,
 ) -> Mie: ...
 def trace(task: Task, *, threads: Optional[int] = None, max_minutes: float = 240.0) -> Rays: ...
+def trace_vjp(
+    task: Task,
+    params: list[str] = ...,
+    *,
+    theta: Optional[list[float]] = None,
+    grid: bool = False,
+    coefficients: Optional[list[float]] = None,
+    threads: Optional[int] = None,
+    max_minutes: float = 240.0,
+) -> TraceVjp: ...

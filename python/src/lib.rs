@@ -8,6 +8,7 @@
 //! dictionaries into JSON and accepts a path, a dictionary or a loaded `Task` wherever a config
 //! is expected.
 
+use glam::DVec3;
 use lightpath::Error;
 use lightpath::app::budget::Budget;
 use lightpath::app::run::{Kind, Results, evaluate};
@@ -15,7 +16,8 @@ use lightpath::app::wave::WaveLimits;
 use lightpath::app::{Watch, create_out, with_threads};
 use lightpath::config::{self, EstimatorConfig, SceneTask};
 use lightpath::diff::bridge::Pullback;
-use lightpath::diff::{CovarianceOp, Param, Proposal, medium_at};
+use lightpath::diff::{CovarianceOp, ExitVjp, Param, Proposal, medium_at};
+use lightpath::eikonal::FieldParam;
 use lightpath::io::results::{
     CovarianceFile, MemoryEffectFile, MieFile, Nested2, Nested4, RunEcho, SpeckleFile,
 };
@@ -1306,6 +1308,302 @@ fn trace(py: Python<'_>, task: &Task, threads: Option<usize>, max_minutes: f64) 
     Ok(Rays { traced })
 }
 
+/// Ray exits with their vector–Jacobian product (`trace_vjp`). Calling it with `∂L/∂(exit
+/// position)` and `∂L/∂(exit direction)` (float64 [N, 3] each) gives a dict of `∂L/∂·`: `params`
+/// [P], `grid` (the grid profile's coefficients, [dz, dy, dx]) or None, `origin` and `direction`
+/// [N, 3].
+#[pyclass(frozen, module = "lightpath")]
+struct TraceVjp {
+    vjp: Arc<ExitVjp>,
+    params: Vec<String>,
+    theta: Vec<f64>,
+    /// The grid's `[dz, dy, dx]` (numpy order: x fastest), when its gradient is asked for.
+    grid_shape: Option<Vec<usize>>,
+    threads: Option<usize>,
+}
+
+/// `[N, 3]` vectors from an array-like, or a `ValueError` naming `key`.
+fn vectors(py: Python<'_>, x: &Bound<'_, PyAny>, n: usize, key: &str) -> PyResult<Vec<DVec3>> {
+    let kwargs = pyo3::types::PyDict::new(py);
+    kwargs.set_item("dtype", "float64")?;
+    let array = py
+        .import("numpy")?
+        .call_method("asarray", (x,), Some(&kwargs))?;
+    let array = array
+        .cast::<PyArrayDyn<f64>>()
+        .map_err(|_| PyValueError::new_err(format!("{key}: not an array of numbers")))?
+        .readonly();
+    if array.shape() != [n, 3] {
+        return Err(PyValueError::new_err(format!(
+            "{key}: shape {:?}, but there are [N, 3] = [{n}, 3] rays",
+            array.shape()
+        )));
+    }
+    let v: Vec<f64> = array.as_array().iter().copied().collect();
+    if v.iter().any(|x| !x.is_finite()) {
+        return Err(PyValueError::new_err(format!(
+            "{key}: holds non-finite values (NaN or infinity)"
+        )));
+    }
+    Ok(v.chunks(3).map(|c| DVec3::new(c[0], c[1], c[2])).collect())
+}
+
+#[pymethods]
+impl TraceVjp {
+    /// float64 `[N, 3]`: where each ray left the field.
+    #[getter]
+    fn exit_position<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        let v = self.vjp.ends.iter().flat_map(|e| e.x.to_array()).collect();
+        real(py, (v, vec![self.vjp.ends.len(), 3]))
+    }
+
+    /// float64 `[N, 3]`: each ray's unit direction there.
+    #[getter]
+    fn exit_direction<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        let v = self
+            .vjp
+            .ends
+            .iter()
+            .flat_map(|e| e.direction.to_array())
+            .collect();
+        real(py, (v, vec![self.vjp.ends.len(), 3]))
+    }
+
+    /// float64 `[N]`: each ray's optical path `∫ n ds`.
+    #[getter]
+    fn optical_path<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        let v: Vec<f64> = self.vjp.ends.iter().map(|e| e.optical_path).collect();
+        PyArray1::from_vec(py, v)
+    }
+
+    /// The analytic parameters' names, in the order of `theta` and of the gradient.
+    #[getter]
+    fn params(&self) -> Vec<String> {
+        self.params.clone()
+    }
+
+    /// float64 `[dz, dy, dx]`: the coefficients of the field's grid profile the rays were traced
+    /// through (B-spline coefficients for tricubic grids, the samples for trilinear ones), or
+    /// None without a grid.
+    #[getter]
+    fn coefficients<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyArrayDyn<f64>>>> {
+        let grid = self.vjp.field().profiles.iter().find_map(|p| match p {
+            lightpath::eikonal::Profile::Grid(g) => Some(g),
+            _ => None,
+        });
+        grid.map(|g| real(py, (g.coef.clone(), vec![g.dims[2], g.dims[1], g.dims[0]])))
+            .transpose()
+    }
+
+    /// float64 `[P]`: the values the rays were traced at.
+    #[getter]
+    fn theta<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_slice(py, &self.theta)
+    }
+
+    /// `∂L/∂·` for `∂L/∂(exit position)` and `∂L/∂(exit direction)`, float64 `[N, 3]` each.
+    fn __call__<'py>(
+        &self,
+        py: Python<'py>,
+        d_position: &Bound<'py, PyAny>,
+        d_direction: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
+        let n = self.vjp.ends.len();
+        let dx = vectors(py, d_position, n, "d_position")?;
+        let dd = vectors(py, d_direction, n, "d_direction")?;
+        let vjp = Arc::clone(&self.vjp);
+        let g = run_watched(py, self.threads, None, move |_| vjp.pullback(&dx, &dd))?;
+        let all_finite = g
+            .params
+            .iter()
+            .chain(g.grid.iter().flatten())
+            .all(|x| x.is_finite());
+        if !all_finite {
+            return Err(PyRuntimeError::new_err(
+                "the gradient is not finite (a ray grazes a surface or the field diverges on its path)",
+            ));
+        }
+        let out = pyo3::types::PyDict::new(py);
+        out.set_item("params", PyArray1::from_vec(py, g.params))?;
+        match (g.grid, &self.grid_shape) {
+            (Some(grid), Some(shape)) => {
+                out.set_item("grid", PyArray1::from_vec(py, grid).reshape(shape.clone())?)?
+            }
+            _ => out.set_item("grid", py.None())?,
+        }
+        let rows = |v: Vec<DVec3>| -> (Vec<f64>, Vec<usize>) {
+            let len = v.len();
+            (v.iter().flat_map(|x| x.to_array()).collect(), vec![len, 3])
+        };
+        out.set_item("origin", real(py, rows(g.origin))?)?;
+        out.set_item("direction", real(py, rows(g.direction))?)?;
+        Ok(out)
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "<lightpath.TraceVjp {} ray(s), params {:?}{}>",
+            self.vjp.ends.len(),
+            self.params,
+            if self.grid_shape.is_some() {
+                " and the grid"
+            } else {
+                ""
+            }
+        )
+    }
+}
+
+/// Trace a trace config's rays to their exits, with the VJP of the exits with respect to
+/// analytic field parameters (`profiles[i].name`), the coefficients of the field's grid profile
+/// (`grid=True`), and the rays' origins and directions.
+#[pyfunction]
+#[pyo3(signature = (task, params=Vec::new(), *, theta=None, grid=false, coefficients=None, threads=None, max_minutes=240.0))]
+#[allow(clippy::too_many_arguments)]
+fn trace_vjp(
+    py: Python<'_>,
+    task: &Task,
+    params: Vec<String>,
+    theta: Option<Vec<f64>>,
+    grid: bool,
+    coefficients: Option<Vec<f64>>,
+    threads: Option<usize>,
+    max_minutes: f64,
+) -> PyResult<TraceVjp> {
+    let config::Task::Trace(t) = &task.task else {
+        return Err(PyValueError::new_err(format!(
+            "trace_vjp: needs a trace config ([field] + [rays]), but the config holds {}",
+            task.task.kind().describe()
+        )));
+    };
+    let mut field = t.field.clone();
+    if matches!(field.bounds, lightpath::eikonal::Bounds::Everywhere) {
+        return Err(PyValueError::new_err(
+            "field.bounds: trace_vjp differentiates where rays leave the field; give bounds (sphere, cylinder, box or sdf)",
+        ));
+    }
+    let mut parsed: Vec<FieldParam> = Vec::new();
+    for name in &params {
+        let found = name
+            .strip_prefix("profiles[")
+            .and_then(|r| r.split_once("]."))
+            .and_then(|(i, p)| Some((i.parse::<usize>().ok()?, p)))
+            .and_then(|(i, p)| {
+                let which = field.profiles.get(i)?.param_index(p)?;
+                Some(FieldParam { profile: i, which })
+            });
+        let Some(p) = found else {
+            let kinds: Vec<String> = field
+                .profiles
+                .iter()
+                .enumerate()
+                .map(|(i, p)| format!("profiles[{i}] is {}", p.kind()))
+                .collect();
+            return Err(PyValueError::new_err(format!(
+                "params: {name:?} is not a parameter of this field; name them \"profiles[i].name\" ({}; e.g. n_max, k_r, radius, n0, alpha)",
+                kinds.join(", ")
+            )));
+        };
+        if parsed.contains(&p) {
+            return Err(PyValueError::new_err(format!(
+                "params: {name} is given twice"
+            )));
+        }
+        parsed.push(p);
+    }
+    let mut values = Vec::with_capacity(parsed.len());
+    for (p, name) in parsed.iter().zip(&params) {
+        let slot = field.profiles[p.profile].param_mut(p.which);
+        let Some(slot) = slot else {
+            return Err(PyValueError::new_err(format!(
+                "params: no parameter {name}"
+            )));
+        };
+        values.push(*slot);
+    }
+    let theta = match theta {
+        None => values,
+        Some(v) if v.len() != parsed.len() => {
+            return Err(PyValueError::new_err(format!(
+                "theta: {} values for {} parameter(s) {params:?}",
+                v.len(),
+                parsed.len()
+            )));
+        }
+        Some(v) => {
+            for ((p, x), name) in parsed.iter().zip(&v).zip(&params) {
+                if !x.is_finite() {
+                    return Err(PyValueError::new_err(format!("theta: {name} = {x}")));
+                }
+                if let Some(slot) = field.profiles[p.profile].param_mut(p.which) {
+                    *slot = *x;
+                }
+            }
+            v
+        }
+    };
+    let grid_profile = field
+        .profiles
+        .iter()
+        .position(|p| matches!(p, lightpath::eikonal::Profile::Grid(_)));
+    if (grid || coefficients.is_some()) && grid_profile.is_none() {
+        return Err(PyValueError::new_err(
+            "grid: the field has no grid profile ({ kind = \"grid\", ... } in field.profiles)",
+        ));
+    }
+    let mut grid_shape = None;
+    if let Some(i) = grid_profile
+        && let lightpath::eikonal::Profile::Grid(g) = &mut field.profiles[i]
+    {
+        if let Some(c) = coefficients {
+            if c.len() != g.coef.len() {
+                return Err(PyValueError::new_err(format!(
+                    "coefficients: {} values, but the grid has {} = {}×{}×{}",
+                    c.len(),
+                    g.coef.len(),
+                    g.dims[2],
+                    g.dims[1],
+                    g.dims[0]
+                )));
+            }
+            if c.iter().any(|x| !x.is_finite()) {
+                return Err(PyValueError::new_err(
+                    "coefficients: hold non-finite values",
+                ));
+            }
+            g.coef.copy_from_slice(&c);
+        }
+        if grid {
+            grid_shape = Some(vec![g.dims[2], g.dims[1], g.dims[0]]);
+        }
+    }
+    let budget = budget(max_minutes, Budget::default().max_memory_gb);
+    let (rays, step, max_steps) = (t.rays.clone(), t.step, t.max_steps);
+    let grid_profile = grid_profile.filter(|_| grid);
+    let vjp = run_watched(py, threads, None, move |_| {
+        // forward and backward: about three traces' work per ray
+        lightpath::app::budget::check_rays(
+            "trace_vjp",
+            "once",
+            &field,
+            &rays,
+            step,
+            max_steps,
+            false,
+            3.0,
+            &budget,
+        )?;
+        ExitVjp::new(field, parsed, grid_profile, rays, step, max_steps)
+    })?;
+    Ok(TraceVjp {
+        vjp: Arc::new(vjp),
+        params,
+        theta,
+        grid_shape,
+        threads,
+    })
+}
+
 /// The Python module `lightpath._lightpath`.
 #[pymodule]
 fn _lightpath(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -1318,6 +1616,7 @@ fn _lightpath(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<CovarianceVjp>()?;
     m.add_class::<Mie>()?;
     m.add_class::<Rays>()?;
+    m.add_class::<TraceVjp>()?;
     m.add_function(wrap_pyfunction!(load_path, m)?)?;
     m.add_function(wrap_pyfunction!(load_toml, m)?)?;
     m.add_function(wrap_pyfunction!(load_dict, m)?)?;
@@ -1328,5 +1627,6 @@ fn _lightpath(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(covariance_vjp, m)?)?;
     m.add_function(wrap_pyfunction!(mie, m)?)?;
     m.add_function(wrap_pyfunction!(trace, m)?)?;
+    m.add_function(wrap_pyfunction!(trace_vjp, m)?)?;
     Ok(())
 }

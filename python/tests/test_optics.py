@@ -50,3 +50,67 @@ def test_trace_equals_the_command_line(repo, run_cli, tmp_path):
     assert mine == cli
     with pytest.raises(ValueError, match="needs a trace config"):
         lp.trace(repo / "configs" / "quickstart.toml")
+
+
+def exit_loss(at, a, b) -> float:
+    return float(np.sum(a * at.exit_position) + np.sum(b * at.exit_direction))
+
+
+def test_trace_vjp_matches_central_differences_for_a_parameter(repo):
+    config = repo / "configs" / "luneburg.toml"
+    rng = np.random.default_rng(1)
+    at = lp.trace_vjp(config, ["profiles[0].radius"], theta=[1.05])
+    assert at.theta.tolist() == [1.05] and at.exit_position.shape == (15, 3)
+    a, b = rng.normal(size=(15, 3)), rng.normal(size=(15, 3))
+    g = at(a, b)
+    assert g["grid"] is None and g["origin"].shape == (15, 3)
+    h = 1e-6
+    fd = (exit_loss(lp.trace_vjp(config, ["profiles[0].radius"], theta=[1.05 + h]), a, b)
+          - exit_loss(lp.trace_vjp(config, ["profiles[0].radius"], theta=[1.05 - h]), a, b)) / (2 * h)
+    assert g["params"][0] == pytest.approx(fd, rel=1e-4)
+    # the same for any thread count, bit for bit
+    assert np.array_equal(lp.trace_vjp(config, ["profiles[0].radius"], theta=[1.05], threads=1)(a, b)["params"],
+                          g["params"])
+    with pytest.raises(ValueError, match="profiles\\[i\\].name"):
+        lp.trace_vjp(config, ["radius"])
+    with pytest.raises(ValueError, match="no grid profile"):
+        lp.trace_vjp(config, grid=True)
+    with pytest.raises(ValueError, match="d_position: shape"):
+        at(a[:3], b)
+
+
+GRID_TRACE = {
+    "field": {
+        "profiles": [{
+            "kind": "grid", "dims": [8, 8, 8], "origin": [-1.05, -1.05, -1.05], "spacing": 0.3,
+            "values": [1.3 + 0.01 * x - 0.004 * y * y for z in range(8) for y in range(8) for x in range(8)],
+        }],
+        "bounds": {"kind": "box", "size": [1.8, 1.8, 1.8]},
+        "n_out": 1.0,
+    },
+    "rays": {"kind": "collimated", "center": [0.0, 0.0, -2.0], "direction": [0.0, 0.0, 1.0], "width": 1.2, "count": 5},
+    "trace": {"step": 0.01},
+}
+
+
+def test_trace_vjp_matches_central_differences_for_grid_coefficients():
+    rng = np.random.default_rng(2)
+    at = lp.trace_vjp(GRID_TRACE, grid=True)
+    n = at.exit_position.shape[0]
+    a, b = rng.normal(size=(n, 3)), rng.normal(size=(n, 3))
+    g = at(a, b)["grid"]
+    assert g.shape == (8, 8, 8)
+    c = at.coefficients  # B-spline coefficients (prefiltered samples), [dz, dy, dx]
+    assert c.shape == (8, 8, 8)
+    same = lp.trace_vjp(GRID_TRACE, coefficients=c)
+    assert np.array_equal(same.exit_position, at.exit_position)
+    # the two coefficients with the largest gradients, by central differences
+    for k in np.argsort(-np.abs(g).ravel())[:2]:
+        idx = np.unravel_index(k, g.shape)
+        h = 1e-6
+        up, down = c.copy(), c.copy()
+        up[idx] += h
+        down[idx] -= h
+        fd = (exit_loss(lp.trace_vjp(GRID_TRACE, coefficients=up), a, b)
+              - exit_loss(lp.trace_vjp(GRID_TRACE, coefficients=down), a, b)) / (2 * h)
+        assert g[idx] == pytest.approx(fd, rel=1e-4), idx

@@ -14,6 +14,6 @@ pub mod trace_op;
 
 pub use covariance::{CovarianceGradient, Reweighted, ReweightedCovariance};
 pub use ops::{CovarianceOp, MeanOp, Proposal, medium_at};
-pub use trace_op::TraceOp;
+pub use trace_op::{ExitGradients, ExitVjp, TraceOp};
 
 pub use crate::medium::params::Param;

@@ -4,7 +4,7 @@
 //! regularisers in burn and optimises the field with burn's Adam.
 
 use crate::diff::bridge::{Differentiable, Pullback};
-use crate::eikonal::{BoundedField, GridAdjoint, Profile, Ray, Tracer};
+use crate::eikonal::{BoundedField, FieldParam, GridAdjoint, Profile, Ray, RayEnd, Tracer};
 use glam::DVec3;
 use rayon::prelude::*;
 use std::sync::Arc;
@@ -169,5 +169,161 @@ impl Pullback for TracePullback {
             total.iter_mut().zip(p).for_each(|(t, x)| *t += x);
         }
         total
+    }
+}
+
+/// The exits of a bundle of rays traced through a field (each from its origin along its unit
+/// direction until it leaves the bounds), with the vector–Jacobian product of those exits with
+/// respect to analytic field parameters, every coefficient of one grid profile, and each ray's
+/// origin and direction ([`Tracer::exit_adjoint`]: refraction, reflections and boundary crossings
+/// included). The library's and Python's `trace_vjp`.
+pub struct ExitVjp {
+    field: BoundedField,
+    params: Vec<FieldParam>,
+    grid: Option<usize>,
+    rays: Vec<(DVec3, DVec3)>,
+    step: f64,
+    max_steps: usize,
+    /// Where and along which unit direction each ray left the field.
+    pub ends: Vec<RayEnd>,
+}
+
+/// `∂L/∂·` of [`ExitVjp::pullback`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct ExitGradients {
+    /// One per analytic parameter.
+    pub params: Vec<f64>,
+    /// One per coefficient of the grid profile (when asked for).
+    pub grid: Option<Vec<f64>>,
+    /// Per ray; the direction gradient is tangential (directions are unit vectors).
+    pub origin: Vec<DVec3>,
+    pub direction: Vec<DVec3>,
+}
+
+impl ExitVjp {
+    /// Trace `rays` through `field` (step `step`, at most `max_steps` steps a ray); every ray must
+    /// enter and leave the field. `grid` names the grid profile whose coefficients get gradients.
+    pub fn new(
+        field: BoundedField,
+        params: Vec<FieldParam>,
+        grid: Option<usize>,
+        rays: Vec<(DVec3, DVec3)>,
+        step: f64,
+        max_steps: usize,
+    ) -> crate::Result<Self> {
+        if let Some(p) = grid
+            && !matches!(field.profiles.get(p), Some(Profile::Grid(_)))
+        {
+            return Err(format!("profile {p} is not a grid").into());
+        }
+        let tracer = Tracer {
+            field: &field,
+            step,
+            max_steps,
+        };
+        let ends: Vec<RayEnd> = rays.par_iter().map(|&(o, d)| tracer.trace(o, d)).collect();
+        for (i, (e, (o, d))) in ends.iter().zip(&rays).enumerate() {
+            if !e.entered {
+                return Err(format!("ray {i} from {o} along {d} never enters the field").into());
+            }
+            if !e.exited {
+                return Err(format!(
+                    "ray {i} from {o} did not leave the field within {max_steps} steps of {step}"
+                )
+                .into());
+            }
+            if !(e.x.is_finite() && e.direction.is_finite()) {
+                return Err(format!(
+                    "ray {i} left the finite numbers (n ≤ 0 or a diverging field on its path)"
+                )
+                .into());
+            }
+        }
+        Ok(ExitVjp {
+            field,
+            params,
+            grid,
+            rays,
+            step,
+            max_steps,
+            ends,
+        })
+    }
+
+    /// The field the rays were traced through.
+    pub fn field(&self) -> &BoundedField {
+        &self.field
+    }
+
+    /// `∂L/∂·` from `∂L/∂(exit position)` and `∂L/∂(exit direction)` per ray. Rays run in a fixed
+    /// number of groups, each summed in ray order and the groups in group order: bitwise the same
+    /// for any thread count.
+    pub fn pullback(
+        &self,
+        d_position: &[DVec3],
+        d_direction: &[DVec3],
+    ) -> crate::Result<ExitGradients> {
+        let n = self.rays.len();
+        if d_position.len() != n || d_direction.len() != n {
+            return Err(format!(
+                "adjoints for {} and {} rays, but {n} rays were traced",
+                d_position.len(),
+                d_direction.len()
+            )
+            .into());
+        }
+        let tracer = Tracer {
+            field: &self.field,
+            step: self.step,
+            max_steps: self.max_steps,
+        };
+        let coefficients = match self.grid.and_then(|p| self.field.profiles.get(p)) {
+            Some(Profile::Grid(g)) => g.coef.len(),
+            _ => 0,
+        };
+        let groups = n.clamp(1, GROUPS);
+        let per = n.div_ceil(groups);
+        type Part = (Vec<f64>, Vec<f64>, Vec<(DVec3, DVec3)>);
+        let parts: Vec<crate::Result<Part>> = (0..groups)
+            .into_par_iter()
+            .map(|g| {
+                let mut dp = vec![0.0; self.params.len()];
+                let mut grid = vec![0.0; coefficients];
+                let mut rays = Vec::with_capacity(per);
+                for i in g * per..((g + 1) * per).min(n) {
+                    let (o, d) = self.rays[i];
+                    let adjoint = self.grid.map(|profile| GridAdjoint {
+                        profile,
+                        grad: &mut grid,
+                    });
+                    let r = tracer
+                        .exit_adjoint(o, d, &self.params, adjoint, |_| {
+                            (d_position[i], d_direction[i])
+                        })
+                        .map_err(|e| crate::Error::input(format!("ray {i} from {o}: {e}")))?;
+                    dp.iter_mut().zip(&r.dparams).for_each(|(a, b)| *a += b);
+                    rays.push((r.d_origin, r.d_direction));
+                }
+                Ok((dp, grid, rays))
+            })
+            .collect();
+        let mut out = ExitGradients {
+            params: vec![0.0; self.params.len()],
+            grid: self.grid.map(|_| vec![0.0; coefficients]),
+            origin: Vec::with_capacity(n),
+            direction: Vec::with_capacity(n),
+        };
+        for part in parts {
+            let (dp, grid, rays) = part?;
+            out.params.iter_mut().zip(&dp).for_each(|(a, b)| *a += b);
+            if let Some(total) = out.grid.as_mut() {
+                total.iter_mut().zip(&grid).for_each(|(a, b)| *a += b);
+            }
+            for (o, d) in rays {
+                out.origin.push(o);
+                out.direction.push(d);
+            }
+        }
+        Ok(out)
     }
 }
