@@ -22,6 +22,7 @@ from typing import Any, Callable, Mapping, Optional, Sequence, Union
 
 from . import _lightpath
 from ._lightpath import (
+    CorrelationMap,
     Covariance,
     CovarianceVjp,
     MemoryEffect,
@@ -35,6 +36,7 @@ from ._lightpath import (
 )
 
 __all__ = [
+    "CorrelationMap",
     "Covariance",
     "CovarianceVjp",
     "MemoryEffect",
@@ -45,6 +47,7 @@ __all__ = [
     "Task",
     "TraceVjp",
     "__version__",
+    "correlation_map",
     "covariance",
     "covariance_vjp",
     "load",
@@ -158,6 +161,32 @@ def speckle(
     return _lightpath.speckle(
         load(config),
         paths=paths,
+        seed=seed,
+        threads=threads,
+        max_minutes=max_minutes,
+        max_memory_gb=max_memory_gb,
+        progress=progress,
+    )
+
+
+def correlation_map(
+    config: Config,
+    *,
+    samples: Optional[int] = None,
+    seed: Optional[int] = None,
+    threads: Optional[int] = None,
+    max_minutes: float = 240.0,
+    max_memory_gb: float = 8.0,
+    progress: Progress = None,
+) -> CorrelationMap:
+    """Near-field correlation maps ``C(Δ, τ)`` (Eq. 48 of the near-field paper) of a scene with
+    focused light and view and a ``[correlation_map]`` table (``lightpath correlation-map``).
+    Arguments as :func:`covariance`. Returns a :class:`CorrelationMap`: ``deltas`` ``[K, 3]``,
+    ``taus`` ``[H, W, 3]``, ``correlation`` complex128 ``[K, H, W]``, ``stderr``, ``normalised``.
+    """
+    return _lightpath.correlation_map(
+        load(config),
+        samples=samples,
         seed=seed,
         threads=threads,
         max_minutes=max_minutes,

@@ -239,6 +239,28 @@ class TraceVjp:
     def __call__(self, d_position: npt.ArrayLike, d_direction: npt.ArrayLike) -> dict[str, Any]:
         """{"params": [P], "grid": [dz, dy, dx] or None, "origin": [N, 3], "direction": [N, 3]}."""
 
+class CorrelationMap:
+    """Near-field C(Δ, τ) maps (`correlation_map.json`)."""
+
+    @property
+    def run(self) -> Run: ...
+    @property
+    def deltas(self) -> npt.NDArray[np.float64]:
+        """float64 [K, 3]: shifts, the first 0."""
+    @property
+    def taus(self) -> npt.NDArray[np.float64]:
+        """float64 [H, W, 3]."""
+    @property
+    def correlation(self) -> npt.NDArray[np.complex128]:
+        """complex128 [K, H, W]."""
+    @property
+    def stderr(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def normalised(self) -> npt.NDArray[np.float64]:
+        """float64 [K, H, W]: |C| / sqrt(I(0) I(Δ))."""
+    def to_json(self) -> str: ...
+    def save(self, folder: Union[str, PathLike[str]]) -> list[Path]: ...
+
 def load_path(path: Union[str, PathLike[str]]) -> Task: ...
 def load_toml(text: str) -> Task: ...
 def load_dict(config: Mapping[str, Any], base: Union[str, PathLike[str]]) -> Task: ...
@@ -315,3 +337,13 @@ def trace_vjp(
     threads: Optional[int] = None,
     max_minutes: float = 240.0,
 ) -> TraceVjp: ...
+def correlation_map(
+    task: Task,
+    *,
+    samples: Optional[int] = None,
+    seed: Optional[int] = None,
+    threads: Optional[int] = None,
+    max_minutes: float = 240.0,
+    max_memory_gb: float = 8.0,
+    progress: Progress = None,
+) -> CorrelationMap: ...

@@ -872,6 +872,126 @@ fn covariance_vjp(
     })
 }
 
+/// A near-field correlation map `C(Δ, τ)` (paper 000, Eq. 48) of focused light and camera, as
+/// `correlation_map.json` holds.
+#[pyclass(frozen, module = "lightpath")]
+struct CorrelationMap {
+    file: lightpath::io::results::CorrelationMapFile,
+    peak: f64,
+}
+
+impl CorrelationMap {
+    fn flat3(x: &[Vec<Vec<f64>>]) -> (Vec<f64>, Vec<usize>) {
+        let shape = vec![
+            x.len(),
+            x.first().map_or(0, |a| a.len()),
+            x.first().and_then(|a| a.first()).map_or(0, |b| b.len()),
+        ];
+        (x.iter().flatten().flatten().copied().collect(), shape)
+    }
+}
+
+#[pymethods]
+impl CorrelationMap {
+    /// How it was computed (samples, seed, seconds, wavelength, config).
+    #[getter]
+    fn run(&self) -> Run {
+        Run {
+            run: self.file.run.clone(),
+        }
+    }
+
+    /// float64 `[K, 3]`: the shifts `Δ` (the first is 0).
+    #[getter]
+    fn deltas<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        let v = self.file.deltas.iter().flatten().copied().collect();
+        real(py, (v, vec![self.file.deltas.len(), 3]))
+    }
+
+    /// float64 `[H, W, 3]`: `τ` of each pixel.
+    #[getter]
+    fn taus<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        let t = &self.file.taus;
+        let (h, w) = (t.len(), t.first().map_or(0, |r| r.len()));
+        real(
+            py,
+            (
+                t.iter().flatten().flatten().copied().collect(),
+                vec![h, w, 3],
+            ),
+        )
+    }
+
+    /// complex128 `[K, H, W]`: `C(Δ, τ)`.
+    #[getter]
+    fn correlation<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<Complex64>>> {
+        complex(py, Self::flat3(&self.file.re), Self::flat3(&self.file.im))
+    }
+
+    /// float64 `[K, H, W]`: the standard error of `correlation`.
+    #[getter]
+    fn stderr<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        real(py, Self::flat3(&self.file.stderr))
+    }
+
+    /// float64 `[K, H, W]`: `|C(Δ, τ)| / √(I(0, τ) I(Δ, τ))`.
+    #[getter]
+    fn normalised<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        real(py, Self::flat3(&self.file.normalised))
+    }
+
+    /// `correlation_map.json` as text, exactly as the command writes it.
+    fn to_json(&self) -> PyResult<String> {
+        serde_json::to_string(&self.file).map_err(|e| PyRuntimeError::new_err(e.to_string()))
+    }
+
+    /// Write `correlation_map.json` and `correlation_map.png` into `folder`; the paths written.
+    fn save(&self, folder: PathBuf) -> PyResult<Vec<PathBuf>> {
+        let results = Results::CorrelationMap(Box::new(self.file.clone()), self.peak);
+        save(&results, Kind::CorrelationMap, &folder)
+    }
+
+    fn __repr__(&self) -> String {
+        let (h, w) = (
+            self.file.taus.len(),
+            self.file.taus.first().map_or(0, |r| r.len()),
+        );
+        format!(
+            "<lightpath.CorrelationMap {} shift(s) over {w} × {h} τ, {} paths>",
+            self.file.deltas.len(),
+            self.file.run.samples
+        )
+    }
+}
+
+/// The near-field `C(Δ, τ)` maps of a scene with a `[correlation_map]` table
+/// (`lightpath correlation-map`).
+#[pyfunction]
+#[pyo3(signature = (task, *, samples=None, seed=None, threads=None, max_minutes=240.0, max_memory_gb=8.0, progress=None))]
+#[allow(clippy::too_many_arguments)]
+fn correlation_map(
+    py: Python<'_>,
+    task: &Task,
+    samples: Option<u64>,
+    seed: Option<u64>,
+    threads: Option<usize>,
+    max_minutes: f64,
+    max_memory_gb: f64,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<CorrelationMap> {
+    let scene = task.scene("correlation_map")?;
+    let budget = budget(max_minutes, max_memory_gb);
+    let results = run_watched(py, threads, progress, move |w| {
+        evaluate(Kind::CorrelationMap, scene, samples, seed, &budget, w)
+    })?;
+    match results {
+        Results::CorrelationMap(file, peak) => Ok(CorrelationMap { file: *file, peak }),
+        _ => Err(PyRuntimeError::new_err(
+            "correlation_map: the run gave another result",
+        )),
+    }
+}
+
 fn budget(max_minutes: f64, max_memory_gb: f64) -> Budget {
     Budget {
         max_minutes,
@@ -1617,6 +1737,7 @@ fn _lightpath(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Mie>()?;
     m.add_class::<Rays>()?;
     m.add_class::<TraceVjp>()?;
+    m.add_class::<CorrelationMap>()?;
     m.add_function(wrap_pyfunction!(load_path, m)?)?;
     m.add_function(wrap_pyfunction!(load_toml, m)?)?;
     m.add_function(wrap_pyfunction!(load_dict, m)?)?;
@@ -1628,5 +1749,6 @@ fn _lightpath(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(mie, m)?)?;
     m.add_function(wrap_pyfunction!(trace, m)?)?;
     m.add_function(wrap_pyfunction!(trace_vjp, m)?)?;
+    m.add_function(wrap_pyfunction!(correlation_map, m)?)?;
     Ok(())
 }

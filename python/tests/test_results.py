@@ -104,3 +104,17 @@ def test_single_scattering_closed_form(repo):
     diff = np.einsum("llvv->lv", np.abs(mc.single - closed.covariance))
     allowed = np.einsum("llvv->lv", 5.0 * mc.single_stderr + 1e-9 * np.abs(closed.covariance))
     assert np.all(diff <= allowed), diff / allowed
+
+
+def test_correlation_map_equals_the_command_line(repo, run_cli, tmp_path):
+    config = repo / "configs" / "correlation_map.toml"
+    out = run_cli("correlation-map", str(config), "--samples", "4000", "--seed", "2")
+    cli = read_json(out / "correlation_map.json")
+    py = lp.correlation_map(config, samples=4000, seed=2)
+    assert py.correlation.shape == (4, 17, 17) and py.taus.shape == (17, 17, 3)
+    assert np.array_equal(py.correlation, nested_complex(cli, "re", "im"))
+    assert np.array_equal(py.normalised, np.array(cli["normalised"]))
+    assert np.array_equal(py.deltas, np.array(cli["deltas"]))
+    saved = py.save(tmp_path / "map")
+    assert sorted(f.name for f in saved) == ["correlation_map.json", "correlation_map.png"]
+    assert (tmp_path / "map" / "correlation_map.png").read_bytes() == (out / "correlation_map.png").read_bytes()

@@ -26,13 +26,14 @@ pub(crate) fn map_of(task: &SceneTask) -> Result<CorrelationMap> {
     )
 }
 
-pub(crate) fn finish(
+/// `correlation_map.json` from the run's blocks, and the peak intensity of the unshifted map (the
+/// plot's scale).
+pub(crate) fn map_file(
     task: &SceneTask,
     plan: &Plan,
     blocks: Vec<Block>,
     seconds: f64,
-    out: &Path,
-) -> Result<Outcome> {
+) -> Result<(CorrelationMapFile, f64)> {
     let map = map_of(task)?;
     let root = merge(blocks, plan.chunks)?;
     let e = Estimate::from_block(&root, plan);
@@ -65,24 +66,30 @@ pub(crate) fn finish(
         stderr: grid(&|d, p| e.stderr[d * t + p]),
         normalised: grid(&normalised),
     };
+    // one scale for all panels: the peak intensity of the unshifted map
+    let peak = (0..t).map(|p| intensity(0, p)).fold(0.0, f64::max);
+    Ok((file, peak))
+}
+
+/// Write `correlation_map.json` and `correlation_map.png` (every `|C(Δ, τ)|` over `peak`) into
+/// `out`.
+pub(crate) fn write_map(file: &CorrelationMapFile, peak: f64, out: &Path) -> Result<Outcome> {
     let path = out.join(CorrelationMapFile::NAME);
     file.write(&path)?;
     let png = out.join("correlation_map.png");
-    // one scale for all panels: the peak intensity of the unshifted map
-    let peak = (0..t).map(|p| intensity(0, p)).fold(0.0, f64::max);
-    let panels: Vec<(String, Vec<f64>)> = (0..k)
-        .map(|d| {
-            let m = map.deltas[d];
+    let ny = file.taus.len();
+    let nx = file.taus.first().map_or(0, |r| r.len());
+    let panels: Vec<(String, Vec<f64>)> = file
+        .deltas
+        .iter()
+        .zip(file.re.iter().zip(&file.im))
+        .map(|(m, (re, im))| {
             (
-                format!("Δ = ({:.2}, {:.2}, {:.2})", m.x, m.y, m.z),
-                (0..t)
-                    .map(|p| {
-                        if peak > 0.0 {
-                            c(d, p).norm() / peak
-                        } else {
-                            0.0
-                        }
-                    })
+                format!("Δ = ({:.2}, {:.2}, {:.2})", m[0], m[1], m[2]),
+                re.iter()
+                    .flatten()
+                    .zip(im.iter().flatten())
+                    .map(|(a, b)| if peak > 0.0 { a.hypot(*b) / peak } else { 0.0 })
                     .collect(),
             )
         })
@@ -93,8 +100,8 @@ pub(crate) fn finish(
         not_converged: None,
         summary: format!(
             "C(Δ, τ) for {} shift(s) over {nx} × {ny} τ from {} paths",
-            k - 1,
-            plan.samples()
+            file.deltas.len().saturating_sub(1),
+            file.run.samples
         ),
         files: vec![path, png],
     })

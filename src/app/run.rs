@@ -6,7 +6,9 @@ use super::{Outcome, Progress, create_out};
 use crate::config::{Config, EstimatorConfig, SceneTask, SpeckleConfig};
 use crate::error::{Error, Result};
 use crate::io::ResultFile;
-use crate::io::results::{CovarianceFile, MemoryEffectFile, RunEcho, SpeckleFile, nest2, nest4};
+use crate::io::results::{
+    CorrelationMapFile, CovarianceFile, MemoryEffectFile, RunEcho, SpeckleFile, nest2, nest4,
+};
 use crate::io::state::{StateHeader, read_state, write_state};
 use crate::math::{C64, splitmix64};
 use crate::mc::{Block, Checkpoint, Estimate, Plan, merge, resume};
@@ -701,12 +703,13 @@ fn finish(
     }
     let task = job.scene()?;
     match kind {
-        Kind::CorrelationMap => super::correlation_map::finish(task, plan, blocks, seconds, out),
         Kind::TiltShift => super::tilt_shift::finish(task, plan, blocks, seconds, out),
         Kind::Render => Err(Error::input("a speckle config cannot run as a render")),
-        Kind::Covariance | Kind::MemoryEffect | Kind::Speckle | Kind::Wave => {
-            results(kind, task, plan, blocks, seconds)?.write(out)
-        }
+        Kind::Covariance
+        | Kind::MemoryEffect
+        | Kind::Speckle
+        | Kind::Wave
+        | Kind::CorrelationMap => results(kind, task, plan, blocks, seconds)?.write(out),
     }
 }
 
@@ -720,6 +723,8 @@ pub enum Results {
     MemoryEffect(Box<MemoryEffectFile>, Box<MemoryCurve>),
     /// `speckle.json` and one EXR image per realisation.
     Speckle(Box<SpeckleFile>),
+    /// `correlation_map.json` and its plot, scaled by the unshifted map's peak intensity.
+    CorrelationMap(Box<CorrelationMapFile>, f64),
 }
 
 impl Results {
@@ -729,11 +734,15 @@ impl Results {
             Results::Covariance(file) => write_covariance(file, out),
             Results::MemoryEffect(file, curve) => write_memory(file, curve, out),
             Results::Speckle(file) => write_speckle(file, out),
+            Results::CorrelationMap(file, peak) => {
+                super::correlation_map::write_map(file, *peak, out)
+            }
         }
     }
 }
 
-/// The results of `kind` (covariance, memory effect, speckle or wave) from the run's blocks.
+/// The results of `kind` (covariance, memory effect, speckle, wave or correlation map) from the
+/// run's blocks.
 fn results(
     kind: Kind,
     task: &SceneTask,
@@ -750,6 +759,10 @@ fn results(
             Results::MemoryEffect(Box::new(file), Box::new(curve))
         }
         Kind::Speckle => Results::Speckle(Box::new(speckle_file(task, plan, blocks, seconds)?)),
+        Kind::CorrelationMap => {
+            let (file, peak) = super::correlation_map::map_file(task, plan, blocks, seconds)?;
+            Results::CorrelationMap(Box::new(file), peak)
+        }
         Kind::Wave => Results::Covariance(Box::new(super::wave::covariance_file(
             task, plan, blocks, seconds,
         )?)),
@@ -762,7 +775,8 @@ fn results(
     })
 }
 
-/// Run `kind` (covariance, memory effect, speckle; wave through [`super::wave::evaluate`]) on
+/// Run `kind` (covariance, memory effect, speckle, correlation map; wave through
+/// [`super::wave::evaluate`]) on
 /// `task` whole and in memory: no shards, no checkpoint, nothing written. `watch` reports the
 /// progress and stops the run when asked. The library's entry (the Python binding's): the
 /// results are those the command writes, bit for bit, for the same config, samples and seed.
