@@ -47,6 +47,7 @@ __all__ = [
     "Task",
     "TraceVjp",
     "__version__",
+    "compare",
     "correlation_map",
     "covariance",
     "covariance_vjp",
@@ -167,6 +168,21 @@ def speckle(
         max_memory_gb=max_memory_gb,
         progress=progress,
     )
+
+
+def compare(
+    a: Union[Covariance, str, "os.PathLike[str]"],
+    b: Union[Covariance, str, "os.PathLike[str]"],
+    *,
+    tolerance: float = 0.1,
+) -> dict:
+    """The agreement of two covariances (``lightpath compare``), each a :class:`Covariance` or the
+    path of a ``covariance.json``: a dict with ``agree`` (every light pair's ``‖A − B‖/‖B‖`` within
+    ``tolerance``), ``report`` (the command's text) and ``pairs``, one dict per light pair with
+    ``lights`` ``(l1, l2)``, ``error`` ``‖A − B‖/‖B‖``, ``within_3se`` (the share of entries within
+    3 combined standard errors) and ``worst`` (the three worst entries as ``(z, v1, v2)``).
+    """
+    return _lightpath.compare(a, b, tolerance=tolerance)
 
 
 def correlation_map(

@@ -347,3 +347,9 @@ def correlation_map(
     max_memory_gb: float = 8.0,
     progress: Progress = None,
 ) -> CorrelationMap: ...
+def compare(
+    a: Union[Covariance, str, PathLike[str]],
+    b: Union[Covariance, str, PathLike[str]],
+    *,
+    tolerance: float = 0.1,
+) -> dict[str, Any]: ...

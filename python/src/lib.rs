@@ -15,8 +15,7 @@ use lightpath::app::run::{Kind, Results, evaluate};
 use lightpath::app::wave::WaveLimits;
 use lightpath::app::{Watch, create_out, with_threads};
 use lightpath::config::{self, EstimatorConfig, SceneTask};
-use lightpath::diff::bridge::Pullback;
-use lightpath::diff::{CovarianceOp, ExitVjp, Param, Proposal, medium_at};
+use lightpath::diff::{CovarianceEvaluation, CovarianceOp, ExitVjp, Param, Proposal, medium_at};
 use lightpath::eikonal::FieldParam;
 use lightpath::io::results::{
     CovarianceFile, MemoryEffectFile, MieFile, Nested2, Nested4, RunEcho, SpeckleFile,
@@ -680,7 +679,7 @@ struct CovarianceVjp {
     shape: [usize; 4],
     value: Vec<Complex64>,
     stderr: Vec<f64>,
-    pullback: Arc<dyn Pullback>,
+    evaluation: Arc<CovarianceEvaluation>,
     threads: Option<usize>,
 }
 
@@ -744,8 +743,10 @@ impl CovarianceVjp {
                 "adjoint: holds non-finite values (NaN or infinity)",
             ));
         }
-        let pullback = Arc::clone(&self.pullback);
-        let gradient = run_watched(py, self.threads, None, move |_| Ok(pullback.pullback(&dy)))?;
+        let evaluation = Arc::clone(&self.evaluation);
+        let gradient = run_watched(py, self.threads, None, move |w| {
+            evaluation.pullback_until(&dy, Some(&w.stop))
+        })?;
         if gradient.iter().any(|g| !g.is_finite()) {
             return Err(PyRuntimeError::new_err(
                 "the gradient is not finite (no path reached a view with non-zero weight)",
@@ -860,14 +861,15 @@ fn covariance_vjp(
     )
     .map_err(py_err)?;
     let at = theta.clone();
-    let (entries, pullback) = run_watched(py, threads, None, move |_| op.forward_with_stderr(&at))?;
+    let (entries, evaluation) =
+        run_watched(py, threads, None, move |w| op.forward_until(&at, &w.stop))?;
     Ok(CovarianceVjp {
         params,
         theta,
         shape: [nl, nl, nv, nv],
         value: entries.value,
         stderr: entries.stderr,
-        pullback,
+        evaluation: Arc::new(evaluation),
         threads,
     })
 }
@@ -990,6 +992,60 @@ fn correlation_map(
             "correlation_map: the run gave another result",
         )),
     }
+}
+
+/// A covariance as a flat matrix, from a `Covariance` or the path of a `covariance.json`.
+fn covariance_matrix(
+    x: &Bound<'_, PyAny>,
+    key: &str,
+) -> PyResult<lightpath::io::results::CovarianceMatrix> {
+    use lightpath::io::ResultFile;
+    if let Ok(c) = x.cast::<Covariance>() {
+        return c.get().file.matrix(Path::new(key)).map_err(py_err);
+    }
+    let Ok(path) = x.extract::<PathBuf>() else {
+        return Err(pyo3::exceptions::PyTypeError::new_err(format!(
+            "{key}: a lightpath.Covariance or the path of a covariance.json, not {}",
+            x.get_type().name()?
+        )));
+    };
+    CovarianceFile::read(&path)
+        .and_then(|f| f.matrix(&path))
+        .map_err(py_err)
+}
+
+/// The agreement of two covariances (`lightpath compare`): per light pair `‖A − B‖/‖B‖`, the share
+/// of entries within 3 combined standard errors and the worst entries.
+#[pyfunction]
+#[pyo3(signature = (a, b, *, tolerance=0.1))]
+fn compare<'py>(
+    py: Python<'py>,
+    a: &Bound<'py, PyAny>,
+    b: &Bound<'py, PyAny>,
+    tolerance: f64,
+) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
+    if !(tolerance.is_finite() && tolerance > 0.0) {
+        return Err(PyValueError::new_err(format!(
+            "tolerance = {tolerance}: must be a positive number"
+        )));
+    }
+    let (ma, mb) = (covariance_matrix(a, "a")?, covariance_matrix(b, "b")?);
+    let pairs = lightpath::app::compare::agreement(&ma, &mb).map_err(py_err)?;
+    let (report, agree) = lightpath::app::compare::report(&pairs, tolerance);
+    let out = pyo3::types::PyDict::new(py);
+    out.set_item("agree", agree)?;
+    out.set_item("report", report)?;
+    let list = pyo3::types::PyList::empty(py);
+    for p in &pairs {
+        let d = pyo3::types::PyDict::new(py);
+        d.set_item("lights", p.lights)?;
+        d.set_item("error", p.error)?;
+        d.set_item("within_3se", p.within_3se)?;
+        d.set_item("worst", p.worst.clone())?;
+        list.append(d)?;
+    }
+    out.set_item("pairs", list)?;
+    Ok(out)
 }
 
 fn budget(max_minutes: f64, max_memory_gb: f64) -> Budget {
@@ -1750,5 +1806,6 @@ fn _lightpath(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(trace, m)?)?;
     m.add_function(wrap_pyfunction!(trace_vjp, m)?)?;
     m.add_function(wrap_pyfunction!(correlation_map, m)?)?;
+    m.add_function(wrap_pyfunction!(compare, m)?)?;
     Ok(())
 }

@@ -59,3 +59,21 @@ def test_other_python_threads_run_while_lightpath_computes(repo):
         t.join()
     gaps = [b - a for a, b in zip(ticks, ticks[1:])]
     assert len(ticks) > 20 and max(gaps) < 0.5, (len(ticks), max(gaps))
+
+
+def test_ctrl_c_stops_gradient_evaluations_too():
+    from test_gradients import SCENE
+
+    def interrupted(call):
+        timer = threading.Timer(0.5, lambda: signal.raise_signal(signal.SIGINT))
+        start = time.monotonic()
+        timer.start()
+        with pytest.raises(KeyboardInterrupt):
+            call()
+        return time.monotonic() - start
+
+    # the forward pass (about half a minute uninterrupted)
+    assert interrupted(lambda: lp.covariance_vjp(SCENE, ["sigma_s"], samples=5_000_000)) < 1.5
+    # the backward pass of a short forward
+    at = lp.covariance_vjp(SCENE, ["sigma_s"], samples=2_000_000)
+    assert interrupted(lambda: at(at.value)) < 1.5

@@ -118,3 +118,28 @@ def test_correlation_map_equals_the_command_line(repo, run_cli, tmp_path):
     saved = py.save(tmp_path / "map")
     assert sorted(f.name for f in saved) == ["correlation_map.json", "correlation_map.png"]
     assert (tmp_path / "map" / "correlation_map.png").read_bytes() == (out / "correlation_map.png").read_bytes()
+
+
+def test_compare_reports_as_the_command_line(repo, cli, tmp_path):
+    config = repo / "configs" / "covariance_box.toml"
+    a = lp.covariance(config, samples=20_000, seed=1)
+    b = lp.covariance(config, samples=20_000, seed=2)
+    a.save(tmp_path / "a")
+    b.save(tmp_path / "b")
+    import subprocess
+
+    run = subprocess.run(
+        [str(cli), "compare", str(tmp_path / "a" / "covariance.json"), str(tmp_path / "b" / "covariance.json")],
+        capture_output=True, text=True,
+    )
+    got = lp.compare(a, tmp_path / "b" / "covariance.json")
+    assert got["report"] in run.stdout
+    assert got["agree"] == (run.returncode == 0)
+    assert len(got["pairs"]) == 4 and got["pairs"][1]["lights"] == (0, 1)
+    # two independent runs of the same scene: most entries within 3 standard errors
+    assert all(p["within_3se"] > 0.9 for p in got["pairs"])
+    assert lp.compare(a, a)["pairs"][0]["error"] == 0.0
+    with pytest.raises(TypeError, match="a lightpath.Covariance or the path"):
+        lp.compare(a, 3)
+    with pytest.raises(ValueError, match="shapes differ"):
+        lp.compare(a, lp.covariance(repo / "configs" / "quickstart.toml", samples=1000))

@@ -7,36 +7,40 @@ use crate::io::ResultFile;
 use crate::io::results::{CovarianceFile, CovarianceMatrix};
 use std::path::Path;
 
-/// The report, and whether every light pair is within `tolerance`.
-pub fn compare(a: &Path, b: &Path, tolerance: f64, plot: Option<&Path>) -> Result<(String, bool)> {
-    let ma = CovarianceFile::read(a)?.matrix(a)?;
-    let mb = CovarianceFile::read(b)?.matrix(b)?;
-    if (ma.lights, ma.views) != (mb.lights, mb.views) {
+/// How well one light pair `(l1, l2)` of two covariances agrees.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PairAgreement {
+    pub lights: (usize, usize),
+    /// `‖A − B‖ / ‖B‖` over the pair's `V × V` entries.
+    pub error: f64,
+    /// The share of entries within 3 combined standard errors.
+    pub within_3se: f64,
+    /// The three worst entries: `(z, v1, v2)`, `z = |A − B| / √(s_A² + s_B²)`.
+    pub worst: Vec<(f64, usize, usize)>,
+}
+
+/// The agreement of every light pair of `a` with `b` (same lights and views).
+pub fn agreement(a: &CovarianceMatrix, b: &CovarianceMatrix) -> Result<Vec<PairAgreement>> {
+    if (a.lights, a.views) != (b.lights, b.views) {
         return Err(Error::input(format!(
-            "shapes differ: {} has {} lights × {} views, {} has {} × {}",
-            a.display(),
-            ma.lights,
-            ma.views,
-            b.display(),
-            mb.lights,
-            mb.views
+            "shapes differ: A has {} lights × {} views, B has {} × {}",
+            a.lights, a.views, b.lights, b.views
         )));
     }
-    let (nl, nv) = (ma.lights, ma.views);
+    let (nl, nv) = (a.lights, a.views);
     let j = nl * nv;
     let at = |l1: usize, l2: usize, v1: usize, v2: usize| (l1 * nv + v1) * j + l2 * nv + v2;
-    let mut report = String::from("lights   ‖A−B‖/‖B‖   within 3σ   worst entries [v1, v2] (z)\n");
-    let mut ok = true;
+    let mut pairs = Vec::with_capacity(nl * nl);
     for l1 in 0..nl {
         for l2 in 0..nl {
             let (mut num, mut den, mut inside, mut worst) = (0.0, 0.0, 0usize, Vec::new());
             for v1 in 0..nv {
                 for v2 in 0..nv {
                     let i = at(l1, l2, v1, v2);
-                    let s = ma.stderr[i].hypot(mb.stderr[i]);
-                    let d = (ma.value[i] - mb.value[i]).norm();
+                    let s = a.stderr[i].hypot(b.stderr[i]);
+                    let d = (a.value[i] - b.value[i]).norm();
                     num += d * d;
-                    den += mb.value[i].norm_sqr();
+                    den += b.value[i].norm_sqr();
                     let z = if s > 0.0 {
                         d / s
                     } else if d == 0.0 {
@@ -51,24 +55,61 @@ pub fn compare(a: &Path, b: &Path, tolerance: f64, plot: Option<&Path>) -> Resul
                 }
             }
             worst.sort_by(|x, y| y.0.total_cmp(&x.0));
-            let err = (num / den).sqrt();
-            ok &= err <= tolerance;
-            let w: Vec<String> = worst
-                .iter()
-                .take(3)
-                .map(|(z, v1, v2)| format!("[{v1}, {v2}] ({z:.1})"))
-                .collect();
-            report += &format!(
-                "{l1},{l2}      {err:>9.4}   {:>8.1} %   {}\n",
-                100.0 * inside as f64 / (nv * nv) as f64,
-                w.join(" ")
-            );
+            worst.truncate(3);
+            pairs.push(PairAgreement {
+                lights: (l1, l2),
+                error: (num / den).sqrt(),
+                within_3se: inside as f64 / (nv * nv) as f64,
+                worst,
+            });
         }
+    }
+    Ok(pairs)
+}
+
+/// The report of [`agreement`], and whether every light pair is within `tolerance`.
+pub fn report(pairs: &[PairAgreement], tolerance: f64) -> (String, bool) {
+    let mut report = String::from("lights   ‖A−B‖/‖B‖   within 3σ   worst entries [v1, v2] (z)\n");
+    let mut ok = true;
+    for p in pairs {
+        ok &= p.error <= tolerance;
+        let w: Vec<String> = p
+            .worst
+            .iter()
+            .map(|(z, v1, v2)| format!("[{v1}, {v2}] ({z:.1})"))
+            .collect();
+        report += &format!(
+            "{},{}      {:>9.4}   {:>8.1} %   {}\n",
+            p.lights.0,
+            p.lights.1,
+            p.error,
+            100.0 * p.within_3se,
+            w.join(" ")
+        );
     }
     report += &format!(
         "{} (tolerance on ‖A−B‖/‖B‖: {tolerance})",
         if ok { "agree" } else { "DISAGREE" }
     );
+    (report, ok)
+}
+
+/// The report, and whether every light pair is within `tolerance`.
+pub fn compare(a: &Path, b: &Path, tolerance: f64, plot: Option<&Path>) -> Result<(String, bool)> {
+    let ma = CovarianceFile::read(a)?.matrix(a)?;
+    let mb = CovarianceFile::read(b)?.matrix(b)?;
+    let pairs = agreement(&ma, &mb).map_err(|_| {
+        Error::input(format!(
+            "shapes differ: {} has {} lights × {} views, {} has {} × {}",
+            a.display(),
+            ma.lights,
+            ma.views,
+            b.display(),
+            mb.lights,
+            mb.views
+        ))
+    })?;
+    let (mut report, ok) = report(&pairs, tolerance);
     if let Some(dir) = plot {
         super::create_out(dir, &["compare_diagonals.png", "compare_matrices.png"])?;
         for f in plots(dir, (a, &ma), (b, &mb))? {

@@ -13,7 +13,7 @@ pub mod ops;
 pub mod trace_op;
 
 pub use covariance::{CovarianceGradient, Reweighted, ReweightedCovariance};
-pub use ops::{CovarianceOp, MeanOp, Proposal, medium_at};
+pub use ops::{CovarianceEvaluation, CovarianceOp, MeanOp, Proposal, medium_at};
 pub use trace_op::{ExitGradients, ExitVjp, TraceOp};
 
 pub use crate::medium::params::Param;

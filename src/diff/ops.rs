@@ -8,11 +8,11 @@
 use super::bridge::{Differentiable, Pullback};
 use super::{CovarianceGradient, Param, Reweighted, ReweightedCovariance};
 use crate::math::C64;
-use crate::mc::{Estimate, Plan, estimate};
+use crate::mc::{Estimate, Plan, estimate, estimate_until};
 use crate::medium::{Medium, PhaseFunction, Scattering};
 use crate::speckle::Scene;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
 /// The medium `base` with `params` set to `theta`, and per parameter the factor that turns the
 /// gradient the estimators compute into `∂/∂θ`.
@@ -197,14 +197,14 @@ impl CovarianceOp {
         self.evaluations.load(Ordering::Relaxed)
     }
 
-    fn prepare(&self, theta: &[f64]) -> crate::Result<Evaluation> {
+    fn prepare(&self, theta: &[f64]) -> crate::Result<CovarianceEvaluation> {
         let (target, factor) = medium_at(&self.scene.medium, &self.params, theta)?;
         let n = self.evaluations.fetch_add(1, Ordering::Relaxed);
         let (proposal, seed) = match &self.proposal {
             Proposal::AtTheta => (target.clone(), self.seed.wrapping_add(n)),
             Proposal::Fixed(m) => (m.clone(), self.seed),
         };
-        let e = Evaluation {
+        let e = CovarianceEvaluation {
             proposal: Scene {
                 medium: proposal,
                 ..self.scene.clone()
@@ -222,25 +222,27 @@ impl CovarianceOp {
         Ok(e)
     }
 
-    /// The entries at `θ` with their standard errors and the pullback of this evaluation (one
-    /// forward pass for both).
-    pub fn forward_with_stderr(
+    /// The entries at `θ` with their standard errors and the evaluation, whose
+    /// [`CovarianceEvaluation::pullback_until`] gives the VJP (one forward pass for both). Stops
+    /// with [`crate::Error::Interrupted`] once `stop` is set.
+    pub fn forward_until(
         &self,
         theta: &[f64],
-    ) -> crate::Result<(Entries, Arc<dyn Pullback>)> {
+        stop: &AtomicBool,
+    ) -> crate::Result<(Entries, CovarianceEvaluation)> {
         let e = self.prepare(theta)?;
-        let entries = e.entries()?;
-        Ok((entries, Arc::new(e)))
+        let entries = e.entries(Some(stop))?;
+        Ok((entries, e))
     }
 
     /// The entries at `θ` with their standard errors (one evaluation, no pullback).
     pub fn evaluate(&self, theta: &[f64]) -> crate::Result<Entries> {
-        self.prepare(theta).and_then(|e| e.entries())
+        self.prepare(theta).and_then(|e| e.entries(None))
     }
 }
 
-/// One evaluation: everything its pullback needs, owned.
-struct Evaluation {
+/// One evaluation of a [`CovarianceOp`]: everything its pullback needs, owned.
+pub struct CovarianceEvaluation {
     proposal: Scene,
     target: Medium,
     factor: Vec<f64>,
@@ -251,7 +253,7 @@ struct Evaluation {
     plan: Plan,
 }
 
-impl Evaluation {
+impl CovarianceEvaluation {
     fn reweighted(&self, params: Vec<Param>) -> crate::Result<Reweighted<'_>> {
         Reweighted::new(
             &self.proposal,
@@ -262,8 +264,12 @@ impl Evaluation {
         )
     }
 
-    fn entries(&self) -> crate::Result<Entries> {
-        let est: Estimate = estimate(&ReweightedCovariance(self.reweighted(vec![])?), &self.plan);
+    fn entries(&self, stop: Option<&AtomicBool>) -> crate::Result<Entries> {
+        let est = ReweightedCovariance(self.reweighted(vec![])?);
+        let est: Estimate = match stop {
+            Some(stop) => estimate_until(&est, &self.plan, stop)?,
+            None => estimate(&est, &self.plan),
+        };
         let j = self.pairs.len();
         Ok(Entries {
             value: self
@@ -280,31 +286,54 @@ impl Evaluation {
     }
 }
 
-impl Pullback for Evaluation {
-    fn pullback(&self, dy: &[f64]) -> Vec<f64> {
+impl CovarianceEvaluation {
+    /// `∂L/∂θ` from `dy` (`∂L/∂Re C_e`, `∂L/∂Im C_e` interleaved per entry), stopping with
+    /// [`crate::Error::Interrupted`] once `stop` is set.
+    pub fn pullback_until(&self, dy: &[f64], stop: Option<&AtomicBool>) -> crate::Result<Vec<f64>> {
+        if dy.len() != 2 * self.entries.len() {
+            return Err(format!(
+                "{} adjoint values for {} complex entries",
+                dy.len(),
+                self.entries.len()
+            )
+            .into());
+        }
         let j = self.pairs.len();
         let mut adjoint = vec![C64::default(); j * j];
         for (e, (a, b)) in self.entries.iter().enumerate() {
             adjoint[a * j + b] += C64::new(dy[2 * e], dy[2 * e + 1]);
         }
-        match self.reweighted(self.params.clone()) {
-            Ok(r) => estimate(&CovarianceGradient::new(r, &adjoint), &self.plan)
-                .mean
-                .iter()
-                .zip(&self.factor)
-                .map(|(g, f)| g.re * f)
-                .collect(),
-            // unreachable: `prepare` built the same estimator successfully
-            Err(_) => vec![f64::NAN; self.params.len()],
-        }
+        let est = CovarianceGradient::new(self.reweighted(self.params.clone())?, &adjoint);
+        let g = match stop {
+            Some(stop) => estimate_until(&est, &self.plan, stop)?,
+            None => estimate(&est, &self.plan),
+        };
+        Ok(g.mean
+            .iter()
+            .zip(&self.factor)
+            .map(|(g, f)| g.re * f)
+            .collect())
+    }
+}
+
+impl Pullback for CovarianceEvaluation {
+    fn pullback(&self, dy: &[f64]) -> Vec<f64> {
+        // `prepare` built the same estimator successfully, so only a wrong `dy` length fails
+        self.pullback_until(dy, None)
+            .unwrap_or_else(|_| vec![f64::NAN; self.params.len()])
     }
 }
 
 impl Differentiable for CovarianceOp {
     fn forward(&self, theta: &[f64]) -> crate::Result<(Vec<f64>, Arc<dyn Pullback>)> {
-        let (entries, pullback) = self.forward_with_stderr(theta)?;
-        let y = entries.value.iter().flat_map(|z| [z.re, z.im]).collect();
-        Ok((y, pullback))
+        let e = self.prepare(theta)?;
+        let y = e
+            .entries(None)?
+            .value
+            .iter()
+            .flat_map(|z| [z.re, z.im])
+            .collect();
+        Ok((y, Arc::new(e)))
     }
 }
 

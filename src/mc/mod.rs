@@ -350,6 +350,28 @@ pub fn estimate<E: Estimator>(est: &E, plan: &Plan) -> Estimate {
     Estimate::from_block(&root, plan)
 }
 
+/// [`estimate`] that stops with [`crate::Error::Interrupted`] at its next wave of chunks once
+/// `stop` is set (the same bits when it is not).
+pub fn estimate_until<E: Estimator>(
+    est: &E,
+    plan: &Plan,
+    stop: &std::sync::atomic::AtomicBool,
+) -> crate::Result<Estimate> {
+    let mut no_save = |_: &[Block]| Ok(());
+    let checkpoint = Checkpoint::new(None, &mut no_save).stopping_on(stop);
+    let blocks = resume(
+        est,
+        plan,
+        0..plan.chunks,
+        &[],
+        &|_| {},
+        Vec::new(),
+        Some(checkpoint),
+    )?;
+    let root = merge(blocks, plan.chunks)?;
+    Ok(Estimate::from_block(&root, plan))
+}
+
 /// Real linear functionals `x_k = Re Σ_e conj(w_ke) out_e` of another estimator's outputs, so that
 /// the chunk-to-chunk covariance of a few projections (e.g. how a fit's parameters respond to the
 /// model's Monte Carlo noise) is estimated without keeping every output of every chunk.
