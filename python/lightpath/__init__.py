@@ -31,6 +31,7 @@ from ._lightpath import (
     Run,
     Speckle,
     Task,
+    TiltShift,
     TraceVjp,
     __version__,
 )
@@ -45,6 +46,7 @@ __all__ = [
     "Run",
     "Speckle",
     "Task",
+    "TiltShift",
     "TraceVjp",
     "__version__",
     "compare",
@@ -56,6 +58,7 @@ __all__ = [
     "memory_effect",
     "mie",
     "speckle",
+    "tilt_shift",
     "trace",
     "trace_vjp",
     "wave",
@@ -201,6 +204,33 @@ def correlation_map(
     ``taus`` ``[H, W, 3]``, ``correlation`` complex128 ``[K, H, W]``, ``stderr``, ``normalised``.
     """
     return _lightpath.correlation_map(
+        load(config),
+        samples=samples,
+        seed=seed,
+        threads=threads,
+        max_minutes=max_minutes,
+        max_memory_gb=max_memory_gb,
+        progress=progress,
+    )
+
+
+def tilt_shift(
+    config: Config,
+    *,
+    samples: Optional[int] = None,
+    seed: Optional[int] = None,
+    threads: Optional[int] = None,
+    max_minutes: float = 240.0,
+    max_memory_gb: float = 8.0,
+    progress: Progress = None,
+) -> TiltShift:
+    """The tilt-shift memory effect of a scene with a ``[tilt_shift]`` table
+    (``lightpath tilt-shift``): the correlation of every scanned (shift, tilt) cell against the
+    model of Eq. 50, as refocusing curves or a ``(Δb, θ)`` grid. Arguments as :func:`covariance`.
+    Returns a :class:`TiltShift`: ``cells`` (a dict of ``[C]`` arrays), ``grid`` or ``refocus``
+    (dicts of arrays), ``depth``, ``transport_mfp``.
+    """
+    return _lightpath.tilt_shift(
         load(config),
         samples=samples,
         seed=seed,

@@ -261,6 +261,27 @@ class CorrelationMap:
     def to_json(self) -> str: ...
     def save(self, folder: Union[str, PathLike[str]]) -> list[Path]: ...
 
+class TiltShift:
+    """The tilt-shift memory effect (`tilt_shift.json`)."""
+
+    @property
+    def run(self) -> Run: ...
+    @property
+    def depth(self) -> float: ...
+    @property
+    def transport_mfp(self) -> float: ...
+    @property
+    def cells(self) -> dict[str, npt.NDArray[Any]]:
+        """shift, angle_deg, input_shift, stderr, normalised, normalised_stderr, model [C]; correlation complex [C]."""
+    @property
+    def grid(self) -> Optional[dict[str, npt.NDArray[np.float64]]]:
+        """shifts [S], angles_deg [A], normalised and model [S, A]."""
+    @property
+    def refocus(self) -> Optional[dict[str, npt.NDArray[np.float64]]]:
+        """displacements, power_shift(_stderr), power_tilt(_stderr), tilts_deg, model_shift, model_tilt [D]."""
+    def to_json(self) -> str: ...
+    def save(self, folder: Union[str, PathLike[str]]) -> list[Path]: ...
+
 def load_path(path: Union[str, PathLike[str]]) -> Task: ...
 def load_toml(text: str) -> Task: ...
 def load_dict(config: Mapping[str, Any], base: Union[str, PathLike[str]]) -> Task: ...
@@ -353,3 +374,13 @@ def compare(
     *,
     tolerance: float = 0.1,
 ) -> dict[str, Any]: ...
+def tilt_shift(
+    task: Task,
+    *,
+    samples: Optional[int] = None,
+    seed: Optional[int] = None,
+    threads: Optional[int] = None,
+    max_minutes: float = 240.0,
+    max_memory_gb: float = 8.0,
+    progress: Progress = None,
+) -> TiltShift: ...

@@ -981,16 +981,20 @@ fn correlation_map(
     max_memory_gb: f64,
     progress: Option<Py<PyAny>>,
 ) -> PyResult<CorrelationMap> {
-    let scene = task.scene("correlation_map")?;
     let budget = budget(max_minutes, max_memory_gb);
-    let results = run_watched(py, threads, progress, move |w| {
-        evaluate(Kind::CorrelationMap, scene, samples, seed, &budget, w)
-    })?;
-    match results {
+    let overrides = (samples, seed);
+    match run_scene(
+        py,
+        task,
+        "correlation_map",
+        Kind::CorrelationMap,
+        overrides,
+        threads,
+        budget,
+        progress,
+    )? {
         Results::CorrelationMap(file, peak) => Ok(CorrelationMap { file: *file, peak }),
-        _ => Err(PyRuntimeError::new_err(
-            "correlation_map: the run gave another result",
-        )),
+        _ => Err(other_result("correlation_map")),
     }
 }
 
@@ -1048,6 +1052,176 @@ fn compare<'py>(
     Ok(out)
 }
 
+/// The tilt-shift memory effect (paper 000, Eq. 49, against the model of Eq. 50): the
+/// correlation of every scanned cell, and the refocusing curves or the `(Δb, θ)` grid, as
+/// `tilt_shift.json` holds.
+#[pyclass(frozen, module = "lightpath")]
+struct TiltShift {
+    file: lightpath::io::results::TiltShiftFile,
+}
+
+#[pymethods]
+impl TiltShift {
+    /// How it was computed (samples, seed, seconds, wavelength, config).
+    #[getter]
+    fn run(&self) -> Run {
+        Run {
+            run: self.file.run.clone(),
+        }
+    }
+
+    /// Depth `L` between the input and output planes, in the length unit.
+    #[getter]
+    fn depth(&self) -> f64 {
+        self.file.depth
+    }
+
+    /// The transport mean free path `ℓ_tr = 1/(σ_s(1 − g) + σ_a)`.
+    #[getter]
+    fn transport_mfp(&self) -> f64 {
+        self.file.transport_mfp
+    }
+
+    /// The scanned cells as a dict of float64 `[C]` arrays: `shift` (output shift `Δb`),
+    /// `angle_deg` (relative tilt `θ`), `input_shift` (`Δa = Δb − Lθ`), `stderr`, `normalised`
+    /// (`|C| / √(I₁ I₂)`), `normalised_stderr`, `model` (Eq. 50), and `correlation` (complex128).
+    #[getter]
+    fn cells<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
+        use lightpath::io::results::TiltShiftCell as Cell;
+        let c = &self.file.cells;
+        let out = pyo3::types::PyDict::new(py);
+        let column = |f: fn(&Cell) -> f64| PyArray1::from_vec(py, c.iter().map(f).collect());
+        out.set_item("shift", column(|x| x.shift))?;
+        out.set_item("angle_deg", column(|x| x.angle_deg))?;
+        out.set_item("input_shift", column(|x| x.input_shift))?;
+        out.set_item("stderr", column(|x| x.stderr))?;
+        out.set_item("normalised", column(|x| x.normalised))?;
+        out.set_item("normalised_stderr", column(|x| x.normalised_stderr))?;
+        out.set_item("model", column(|x| x.model))?;
+        let z: Vec<Complex64> = c.iter().map(|x| Complex64::new(x.re, x.im)).collect();
+        out.set_item("correlation", PyArray1::from_vec(py, z))?;
+        Ok(out)
+    }
+
+    /// A `(Δb, θ)` scan as a dict: `shifts` `[S]`, `angles_deg` `[A]`, `normalised` and `model`
+    /// `[S, A]`; else None.
+    #[getter]
+    fn grid<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, pyo3::types::PyDict>>> {
+        let Some(g) = &self.file.grid else {
+            return Ok(None);
+        };
+        let out = pyo3::types::PyDict::new(py);
+        out.set_item("shifts", PyArray1::from_slice(py, &g.shifts))?;
+        out.set_item("angles_deg", PyArray1::from_slice(py, &g.angles_deg))?;
+        out.set_item("normalised", real(py, flat2(&g.normalised))?)?;
+        out.set_item("model", real(py, flat2(&g.model))?)?;
+        Ok(Some(out))
+    }
+
+    /// Refocusing curves as a dict of float64 `[D]` arrays: `displacements`, `power_shift`,
+    /// `power_shift_stderr`, `power_tilt`, `power_tilt_stderr`, `tilts_deg`, `model_shift`,
+    /// `model_tilt`; else None.
+    #[getter]
+    fn refocus<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, pyo3::types::PyDict>>> {
+        let Some(r) = &self.file.refocus else {
+            return Ok(None);
+        };
+        let out = pyo3::types::PyDict::new(py);
+        for (key, v) in [
+            ("displacements", &r.displacements),
+            ("power_shift", &r.power_shift),
+            ("power_shift_stderr", &r.power_shift_stderr),
+            ("power_tilt", &r.power_tilt),
+            ("power_tilt_stderr", &r.power_tilt_stderr),
+            ("tilts_deg", &r.tilts_deg),
+            ("model_shift", &r.model_shift),
+            ("model_tilt", &r.model_tilt),
+        ] {
+            out.set_item(key, PyArray1::from_slice(py, v))?;
+        }
+        Ok(Some(out))
+    }
+
+    /// `tilt_shift.json` as text, exactly as the command writes it.
+    fn to_json(&self) -> PyResult<String> {
+        serde_json::to_string(&self.file).map_err(|e| PyRuntimeError::new_err(e.to_string()))
+    }
+
+    /// Write `tilt_shift.json` and `tilt_shift.png` into `folder`; the paths written.
+    fn save(&self, folder: PathBuf) -> PyResult<Vec<PathBuf>> {
+        save(
+            &Results::TiltShift(Box::new(self.file.clone())),
+            Kind::TiltShift,
+            &folder,
+        )
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "<lightpath.TiltShift {} cell(s), L = {}, {} paths>",
+            self.file.cells.len(),
+            self.file.depth,
+            self.file.run.samples
+        )
+    }
+}
+
+/// The tilt-shift memory effect of a scene with a `[tilt_shift]` table (`lightpath tilt-shift`).
+#[pyfunction]
+#[pyo3(signature = (task, *, samples=None, seed=None, threads=None, max_minutes=240.0, max_memory_gb=8.0, progress=None))]
+#[allow(clippy::too_many_arguments)]
+fn tilt_shift(
+    py: Python<'_>,
+    task: &Task,
+    samples: Option<u64>,
+    seed: Option<u64>,
+    threads: Option<usize>,
+    max_minutes: f64,
+    max_memory_gb: f64,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<TiltShift> {
+    let budget = budget(max_minutes, max_memory_gb);
+    let overrides = (samples, seed);
+    let kind = Kind::TiltShift;
+    match run_scene(
+        py,
+        task,
+        "tilt_shift",
+        kind,
+        overrides,
+        threads,
+        budget,
+        progress,
+    )? {
+        Results::TiltShift(file) => Ok(TiltShift { file: *file }),
+        _ => Err(other_result("tilt_shift")),
+    }
+}
+
+/// Run `kind` on the speckle scene of `task` in memory ([`evaluate`] under [`run_watched`]);
+/// `command` names the Python function in messages.
+#[allow(clippy::too_many_arguments)]
+fn run_scene(
+    py: Python<'_>,
+    task: &Task,
+    command: &'static str,
+    kind: Kind,
+    (samples, seed): (Option<u64>, Option<u64>),
+    threads: Option<usize>,
+    budget: Budget,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<Results> {
+    let scene = task.scene(command)?;
+    run_watched(py, threads, progress, move |w| {
+        evaluate(kind, scene, samples, seed, &budget, w)
+    })
+}
+
+/// The error for a run that returned another kind of result (not expected to happen).
+fn other_result(command: &str) -> PyErr {
+    PyRuntimeError::new_err(format!("{command}: the run gave another kind of result"))
+}
+
 fn budget(max_minutes: f64, max_memory_gb: f64) -> Budget {
     Budget {
         max_minutes,
@@ -1069,16 +1243,20 @@ fn covariance(
     max_memory_gb: f64,
     progress: Option<Py<PyAny>>,
 ) -> PyResult<Covariance> {
-    let scene = task.scene("covariance")?;
     let budget = budget(max_minutes, max_memory_gb);
-    let results = run_watched(py, threads, progress, move |w| {
-        evaluate(Kind::Covariance, scene, samples, seed, &budget, w)
-    })?;
-    match results {
+    let overrides = (samples, seed);
+    match run_scene(
+        py,
+        task,
+        "covariance",
+        Kind::Covariance,
+        overrides,
+        threads,
+        budget,
+        progress,
+    )? {
         Results::Covariance(file) => Ok(Covariance { file: *file }),
-        _ => Err(PyRuntimeError::new_err(
-            "covariance: the run gave another result",
-        )),
+        _ => Err(other_result("covariance")),
     }
 }
 
@@ -1097,19 +1275,23 @@ fn memory_effect(
     max_memory_gb: f64,
     progress: Option<Py<PyAny>>,
 ) -> PyResult<MemoryEffect> {
-    let scene = task.scene("memory_effect")?;
     let budget = budget(max_minutes, max_memory_gb);
-    let results = run_watched(py, threads, progress, move |w| {
-        evaluate(Kind::MemoryEffect, scene, samples, seed, &budget, w)
-    })?;
-    match results {
+    let overrides = (samples, seed);
+    match run_scene(
+        py,
+        task,
+        "memory_effect",
+        Kind::MemoryEffect,
+        overrides,
+        threads,
+        budget,
+        progress,
+    )? {
         Results::MemoryEffect(file, curve) => Ok(MemoryEffect {
             file: *file,
             curve: *curve,
         }),
-        _ => Err(PyRuntimeError::new_err(
-            "memory_effect: the run gave another result",
-        )),
+        _ => Err(other_result("memory_effect")),
     }
 }
 
@@ -1127,16 +1309,20 @@ fn speckle(
     max_memory_gb: f64,
     progress: Option<Py<PyAny>>,
 ) -> PyResult<Speckle> {
-    let scene = task.scene("speckle")?;
     let budget = budget(max_minutes, max_memory_gb);
-    let results = run_watched(py, threads, progress, move |w| {
-        evaluate(Kind::Speckle, scene, paths, seed, &budget, w)
-    })?;
-    match results {
+    let overrides = (paths, seed);
+    match run_scene(
+        py,
+        task,
+        "speckle",
+        Kind::Speckle,
+        overrides,
+        threads,
+        budget,
+        progress,
+    )? {
         Results::Speckle(file) => Ok(Speckle { file: *file }),
-        _ => Err(PyRuntimeError::new_err(
-            "speckle: the run gave another result",
-        )),
+        _ => Err(other_result("speckle")),
     }
 }
 
@@ -1794,6 +1980,7 @@ fn _lightpath(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Rays>()?;
     m.add_class::<TraceVjp>()?;
     m.add_class::<CorrelationMap>()?;
+    m.add_class::<TiltShift>()?;
     m.add_function(wrap_pyfunction!(load_path, m)?)?;
     m.add_function(wrap_pyfunction!(load_toml, m)?)?;
     m.add_function(wrap_pyfunction!(load_dict, m)?)?;
@@ -1807,5 +1994,6 @@ fn _lightpath(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(trace_vjp, m)?)?;
     m.add_function(wrap_pyfunction!(correlation_map, m)?)?;
     m.add_function(wrap_pyfunction!(compare, m)?)?;
+    m.add_function(wrap_pyfunction!(tilt_shift, m)?)?;
     Ok(())
 }

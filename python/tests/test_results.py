@@ -143,3 +143,19 @@ def test_compare_reports_as_the_command_line(repo, cli, tmp_path):
         lp.compare(a, 3)
     with pytest.raises(ValueError, match="shapes differ"):
         lp.compare(a, lp.covariance(repo / "configs" / "quickstart.toml", samples=1000))
+
+
+def test_tilt_shift_equals_the_command_line(repo, run_cli, tmp_path):
+    config = repo / "configs" / "tilt_shift.toml"
+    out = run_cli("tilt-shift", str(config), "--samples", "4000", "--seed", "6")
+    cli = read_json(out / "tilt_shift.json")
+    py = lp.tilt_shift(config, samples=4000, seed=6)
+    cells = py.cells
+    assert cells["correlation"].shape == (81,)
+    assert np.array_equal(cells["correlation"], [c["re"] + 1j * c["im"] for c in cli["cells"]])
+    assert np.array_equal(cells["normalised_stderr"], [c["normalised_stderr"] for c in cli["cells"]])
+    assert py.grid["normalised"].shape == (9, 9) and py.refocus is None
+    assert np.array_equal(py.grid["model"], cli["grid"]["model"])
+    assert py.depth == cli["depth"] and py.transport_mfp == cli["transport_mfp"]
+    py.save(tmp_path / "ts")
+    assert (tmp_path / "ts" / "tilt_shift.png").read_bytes() == (out / "tilt_shift.png").read_bytes()

@@ -7,7 +7,8 @@ use crate::config::{Config, EstimatorConfig, SceneTask, SpeckleConfig};
 use crate::error::{Error, Result};
 use crate::io::ResultFile;
 use crate::io::results::{
-    CorrelationMapFile, CovarianceFile, MemoryEffectFile, RunEcho, SpeckleFile, nest2, nest4,
+    CorrelationMapFile, CovarianceFile, MemoryEffectFile, RunEcho, SpeckleFile, TiltShiftFile,
+    nest2, nest4,
 };
 use crate::io::state::{StateHeader, read_state, write_state};
 use crate::math::{C64, splitmix64};
@@ -703,13 +704,13 @@ fn finish(
     }
     let task = job.scene()?;
     match kind {
-        Kind::TiltShift => super::tilt_shift::finish(task, plan, blocks, seconds, out),
         Kind::Render => Err(Error::input("a speckle config cannot run as a render")),
         Kind::Covariance
         | Kind::MemoryEffect
         | Kind::Speckle
         | Kind::Wave
-        | Kind::CorrelationMap => results(kind, task, plan, blocks, seconds)?.write(out),
+        | Kind::CorrelationMap
+        | Kind::TiltShift => results(kind, task, plan, blocks, seconds)?.write(out),
     }
 }
 
@@ -725,6 +726,8 @@ pub enum Results {
     Speckle(Box<SpeckleFile>),
     /// `correlation_map.json` and its plot, scaled by the unshifted map's peak intensity.
     CorrelationMap(Box<CorrelationMapFile>, f64),
+    /// `tilt_shift.json` and its plot.
+    TiltShift(Box<TiltShiftFile>),
 }
 
 impl Results {
@@ -737,12 +740,13 @@ impl Results {
             Results::CorrelationMap(file, peak) => {
                 super::correlation_map::write_map(file, *peak, out)
             }
+            Results::TiltShift(file) => super::tilt_shift::write_tilt(file, out),
         }
     }
 }
 
-/// The results of `kind` (covariance, memory effect, speckle, wave or correlation map) from the
-/// run's blocks.
+/// The results of `kind` (covariance, memory effect, speckle, wave, correlation map or
+/// tilt-shift) from the run's blocks.
 fn results(
     kind: Kind,
     task: &SceneTask,
@@ -763,6 +767,9 @@ fn results(
             let (file, peak) = super::correlation_map::map_file(task, plan, blocks, seconds)?;
             Results::CorrelationMap(Box::new(file), peak)
         }
+        Kind::TiltShift => Results::TiltShift(Box::new(super::tilt_shift::tilt_file(
+            task, plan, blocks, seconds,
+        )?)),
         Kind::Wave => Results::Covariance(Box::new(super::wave::covariance_file(
             task, plan, blocks, seconds,
         )?)),
@@ -775,7 +782,7 @@ fn results(
     })
 }
 
-/// Run `kind` (covariance, memory effect, speckle, correlation map; wave through
+/// Run `kind` (covariance, memory effect, speckle, correlation map, tilt-shift; wave through
 /// [`super::wave::evaluate`]) on
 /// `task` whole and in memory: no shards, no checkpoint, nothing written. `watch` reports the
 /// progress and stops the run when asked. The library's entry (the Python binding's): the

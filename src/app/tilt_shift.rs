@@ -86,13 +86,14 @@ fn transport_mfp(task: &SceneTask) -> f64 {
     1.0 / (m.sigma_s * (1.0 - g) + m.sigma_a)
 }
 
-pub(crate) fn finish(
+/// `tilt_shift.json` from the run's blocks: every cell, and the refocusing curves or the
+/// `(Δb, θ)` grid the config asks for.
+pub(crate) fn tilt_file(
     task: &SceneTask,
     plan: &Plan,
     blocks: Vec<Block>,
     seconds: f64,
-    out: &Path,
-) -> Result<Outcome> {
+) -> Result<TiltShiftFile> {
     let cfg = task
         .config
         .tilt_shift
@@ -126,9 +127,6 @@ pub(crate) fn finish(
             }
         })
         .collect();
-    let png = out.join("tilt_shift.png");
-    let plot_err =
-        |err: crate::Error| Error::input(format!("cannot write {}: {err}", png.display()));
     let (mut grid, mut refocus) = (None, None);
     if !cfg.refocus.is_empty() {
         let pick = |i: usize, f: &dyn Fn(&TiltShiftCell) -> f64| -> Vec<f64> {
@@ -146,6 +144,41 @@ pub(crate) fn finish(
             model_shift: pick(0, &|c| c.model * c.model),
             model_tilt: pick(1, &|c| c.model * c.model),
         };
+        refocus = Some(r);
+    } else if !cfg.shifts.is_empty() {
+        let na = cfg.angles_deg.len();
+        let rows = |f: &dyn Fn(&TiltShiftCell) -> f64| -> Vec<Vec<f64>> {
+            cells
+                .chunks(na)
+                .map(|r| r.iter().map(f).collect())
+                .collect()
+        };
+        let g = TiltShiftGrid {
+            shifts: cfg.shifts.clone(),
+            angles_deg: cfg.angles_deg.clone(),
+            normalised: rows(&|c| c.normalised),
+            model: rows(&|c| c.model),
+        };
+        grid = Some(g);
+    }
+    let file = TiltShiftFile {
+        run: super::run::mc_echo(task, &scan.scene, plan, seconds),
+        depth: scan.depth,
+        transport_mfp: ltr,
+        cells,
+        grid,
+        refocus,
+    };
+    Ok(file)
+}
+
+/// Write `tilt_shift.json` and its plot (the refocusing curves against Eq. 50, or the scanned
+/// `|C(Δb, θ)|` beside the model) into `out`.
+pub(crate) fn write_tilt(file: &TiltShiftFile, out: &Path) -> Result<Outcome> {
+    let png = out.join("tilt_shift.png");
+    let plot_err =
+        |err: crate::Error| Error::input(format!("cannot write {}: {err}", png.display()));
+    if let Some(r) = &file.refocus {
         let curve = |ys: &[f64]| -> Vec<(f64, f64)> {
             r.displacements
                 .iter()
@@ -171,21 +204,7 @@ pub(crate) fn finish(
             false,
         )
         .map_err(plot_err)?;
-        refocus = Some(r);
-    } else if !cfg.shifts.is_empty() {
-        let na = cfg.angles_deg.len();
-        let rows = |f: &dyn Fn(&TiltShiftCell) -> f64| -> Vec<Vec<f64>> {
-            cells
-                .chunks(na)
-                .map(|r| r.iter().map(f).collect())
-                .collect()
-        };
-        let g = TiltShiftGrid {
-            shifts: cfg.shifts.clone(),
-            angles_deg: cfg.angles_deg.clone(),
-            normalised: rows(&|c| c.normalised),
-            model: rows(&|c| c.model),
-        };
+    } else if let Some(g) = &file.grid {
         let flat = |m: &Vec<Vec<f64>>| m.iter().flatten().copied().collect::<Vec<f64>>();
         let panels = vec![
             ("Monte Carlo (Eq. 49)".to_string(), flat(&g.normalised)),
@@ -195,20 +214,11 @@ pub(crate) fn finish(
             &png,
             "|C(Δb, θ)|: θ across, Δb up",
             &panels,
-            na,
+            g.angles_deg.len(),
             g.shifts.len(),
         )
         .map_err(plot_err)?;
-        grid = Some(g);
     }
-    let file = TiltShiftFile {
-        run: super::run::mc_echo(task, &scan.scene, plan, seconds),
-        depth: scan.depth,
-        transport_mfp: ltr,
-        cells,
-        grid,
-        refocus,
-    };
     let path = out.join(TiltShiftFile::NAME);
     file.write(&path)?;
     let mut files = vec![path];
@@ -218,11 +228,11 @@ pub(crate) fn finish(
     Ok(Outcome {
         not_converged: None,
         summary: format!(
-            "tilt-shift correlation of {n} cell(s) over {} τ, L = {:.4}, ℓ_tr = {:.4}, from {} paths",
-            scan.taus.len(),
-            scan.depth,
-            ltr,
-            plan.samples()
+            "tilt-shift correlation of {} cell(s), L = {:.4}, ℓ_tr = {:.4}, from {} paths",
+            file.cells.len(),
+            file.depth,
+            file.transport_mfp,
+            file.run.samples
         ),
         files,
     })
