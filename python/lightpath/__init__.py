@@ -278,6 +278,8 @@ def covariance_vjp(
     samples: Optional[int] = None,
     seed: Optional[int] = None,
     threads: Optional[int] = None,
+    max_minutes: float = 240.0,
+    max_memory_gb: float = 8.0,
 ) -> CovarianceVjp:
     """The covariance at ``theta`` and its vector–Jacobian product.
 
@@ -292,7 +294,8 @@ def covariance_vjp(
     of ``theta`` and the VJP is its exact gradient, which is what deterministic optimisers (L-BFGS)
     need; keep ``theta`` near ``proposal`` (re-centre it between optimiser stages) for low
     variance. ``proposal=theta`` with a new ``seed`` per call gives unbiased stochastic gradients
-    (Adam).
+    (Adam). A forward pass estimated beyond ``max_minutes`` or ``max_memory_gb`` is refused
+    before any path is traced (``ValueError``), as for :func:`covariance`.
 
     Returns a :class:`CovarianceVjp`: ``value`` (complex128 ``[L, L, V, V]``), ``stderr``,
     ``params``, ``theta``, and calling it with the loss adjoint ``∂L/∂Re C + i ∂L/∂Im C`` (the
@@ -306,6 +309,8 @@ def covariance_vjp(
         samples=samples,
         seed=seed,
         threads=threads,
+        max_minutes=max_minutes,
+        max_memory_gb=max_memory_gb,
     )
 
 

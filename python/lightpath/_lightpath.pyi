@@ -335,6 +335,8 @@ def covariance_vjp(
     samples: Optional[int] = None,
     seed: Optional[int] = None,
     threads: Optional[int] = None,
+    max_minutes: float = 240.0,
+    max_memory_gb: float = 8.0,
 ) -> CovarianceVjp: ...
 def mie(
     diameter: float,

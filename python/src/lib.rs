@@ -10,7 +10,7 @@
 
 use glam::DVec3;
 use lightpath::Error;
-use lightpath::app::budget::Budget;
+use lightpath::app::budget::{Budget, check as check_budget};
 use lightpath::app::run::{Kind, Results, evaluate};
 use lightpath::app::wave::WaveLimits;
 use lightpath::app::{Watch, create_out, with_threads};
@@ -20,6 +20,7 @@ use lightpath::eikonal::FieldParam;
 use lightpath::io::results::{
     CovarianceFile, MemoryEffectFile, MieFile, Nested2, Nested4, RunEcho, SpeckleFile,
 };
+use lightpath::mc::Plan;
 use lightpath::speckle::memory::MemoryCurve;
 use numpy::{Complex64, PyArray1, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyKeyboardInterrupt, PyOSError, PyRuntimeError, PyValueError};
@@ -768,7 +769,7 @@ impl CovarianceVjp {
 /// re-weighted to `theta`: common random numbers, so the value is smooth in `theta` and the VJP is
 /// its exact gradient. `proposal = theta` gives unbiased gradients of the expectation instead.
 #[pyfunction]
-#[pyo3(signature = (task, params, *, theta=None, proposal=None, samples=None, seed=None, threads=None))]
+#[pyo3(signature = (task, params, *, theta=None, proposal=None, samples=None, seed=None, threads=None, max_minutes=240.0, max_memory_gb=8.0))]
 #[allow(clippy::too_many_arguments)]
 fn covariance_vjp(
     py: Python<'_>,
@@ -779,6 +780,8 @@ fn covariance_vjp(
     samples: Option<u64>,
     seed: Option<u64>,
     threads: Option<usize>,
+    max_minutes: f64,
+    max_memory_gb: f64,
 ) -> PyResult<CovarianceVjp> {
     let scene_task = task.scene("covariance_vjp")?;
     let render = &scene_task.config.render;
@@ -830,6 +833,8 @@ fn covariance_vjp(
         move |e| PyValueError::new_err(format!("{key}: {e}"))
     }
     let (proposal_medium, _) = medium_at(medium, &parsed, &proposal).map_err(name("proposal"))?;
+    let budget = budget(max_minutes, max_memory_gb);
+    let paths_from = proposal_medium.clone();
     medium_at(medium, &parsed, &theta).map_err(name("theta"))?;
     let samples = samples.unwrap_or(render.samples);
     if samples == 0 {
@@ -861,8 +866,22 @@ fn covariance_vjp(
     )
     .map_err(py_err)?;
     let at = theta.clone();
-    let (entries, evaluation) =
-        run_watched(py, threads, None, move |w| op.forward_until(&at, &w.stop))?;
+    let (entries, evaluation) = run_watched(py, threads, None, move |w| {
+        // the covariance's own time and memory estimate, before any path
+        let afford = |est: &lightpath::diff::ReweightedCovariance<'_>, plan: &Plan| {
+            let paths = plan.samples() as f64;
+            check_budget(
+                "covariance_vjp",
+                est,
+                &paths_from,
+                paths,
+                plan.chunks,
+                0,
+                &budget,
+            )
+        };
+        op.forward_until(&at, &w.stop, &afford)
+    })?;
     Ok(CovarianceVjp {
         params,
         theta,

@@ -62,6 +62,10 @@ def test_value_is_the_covariance_and_bad_arguments_are_named():
         lp.covariance_vjp(SCENE, ["g"], theta=[1.5])
     with pytest.raises(ValueError, match="adjoint"):
         at(np.zeros((2, 2, 12)))
+    with pytest.raises(ValueError, match="--max-minutes"):
+        lp.covariance_vjp(SCENE, ["g"], samples=10**12, max_minutes=0.01)
+    with pytest.raises(ValueError, match="--max-memory-gb"):
+        lp.covariance_vjp(SCENE, ["g"], max_memory_gb=1e-9)
     isotropic = {**SCENE, "medium": {**SCENE["medium"], "phase": {"kind": "isotropic"}}}
     with pytest.raises(ValueError, match="g does not exist"):
         lp.covariance_vjp(isotropic, ["g"])

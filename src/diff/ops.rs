@@ -224,13 +224,16 @@ impl CovarianceOp {
 
     /// The entries at `θ` with their standard errors and the evaluation, whose
     /// [`CovarianceEvaluation::pullback_until`] gives the VJP (one forward pass for both). Stops
-    /// with [`crate::Error::Interrupted`] once `stop` is set.
+    /// with [`crate::Error::Interrupted`] once `stop` is set. `afford` sees the estimator and its
+    /// plan before any path is traced and may refuse the run (a time or memory budget).
     pub fn forward_until(
         &self,
         theta: &[f64],
         stop: &AtomicBool,
+        afford: &dyn Fn(&ReweightedCovariance<'_>, &Plan) -> crate::Result<()>,
     ) -> crate::Result<(Entries, CovarianceEvaluation)> {
         let e = self.prepare(theta)?;
+        afford(&ReweightedCovariance(e.reweighted(vec![])?), &e.plan)?;
         let entries = e.entries(Some(stop))?;
         Ok((entries, e))
     }
