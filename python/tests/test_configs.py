@@ -75,3 +75,14 @@ def test_the_wrong_kind_of_config_or_file(repo, tmp_path):
         lp.covariance(repo / "configs" / "quickstart.toml", samples=100, threads=0)
     with pytest.raises(ValueError, match="--max-minutes"):
         lp.covariance(repo / "configs" / "quickstart.toml", samples=10**12, max_minutes=0.01)
+
+
+def test_relative_paths_in_a_dict_resolve_against_base(repo, tmp_path, monkeypatch):
+    config = read_toml(repo / "configs" / "tabulated.toml")
+    from_file = lp.load(repo / "configs" / "tabulated.toml")
+    from_dict = lp.load(config, base=repo / "configs")
+    assert json.loads(from_dict.config_json()) == json.loads(from_file.config_json())
+    # without base, the current folder: here the table is not there
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(ValueError, match="phase_table.csv"):
+        lp.load(config)
