@@ -1376,35 +1376,83 @@ fn wave(
 /// length unit of the diameter), `g`, the phase function and the amplitudes, as `mie.json` holds.
 #[pyclass(frozen, module = "lightpath")]
 struct Mie {
-    #[pyo3(get)]
-    size_parameter: f64,
-    #[pyo3(get)]
-    terms: usize,
-    #[pyo3(get)]
-    q_ext: f64,
-    #[pyo3(get)]
-    q_sca: f64,
-    #[pyo3(get)]
-    q_abs: f64,
-    #[pyo3(get)]
-    q_back: f64,
-    #[pyo3(get)]
-    g: f64,
-    #[pyo3(get)]
-    c_ext: f64,
-    #[pyo3(get)]
-    c_sca: f64,
-    #[pyo3(get)]
-    c_abs: f64,
-    #[pyo3(get)]
-    c_back: f64,
-    #[pyo3(get)]
-    mean_volume: f64,
     file: MieFile,
 }
 
 #[pymethods]
 impl Mie {
+    /// The size parameter `x = π d n_medium / λ`.
+    #[getter]
+    fn size_parameter(&self) -> f64 {
+        self.file.size_parameter
+    }
+
+    /// Series terms summed (Wiscombe's length).
+    #[getter]
+    fn terms(&self) -> usize {
+        self.file.terms
+    }
+
+    /// Extinction efficiency.
+    #[getter]
+    fn q_ext(&self) -> f64 {
+        self.file.q_ext
+    }
+
+    /// Scattering efficiency.
+    #[getter]
+    fn q_sca(&self) -> f64 {
+        self.file.q_sca
+    }
+
+    /// Absorption efficiency.
+    #[getter]
+    fn q_abs(&self) -> f64 {
+        self.file.q_abs
+    }
+
+    /// Backscattering efficiency.
+    #[getter]
+    fn q_back(&self) -> f64 {
+        self.file.q_back
+    }
+
+    /// Asymmetry parameter (mean cosine).
+    #[getter]
+    fn g(&self) -> f64 {
+        self.file.g
+    }
+
+    /// Extinction cross-section, in the diameter's length unit squared.
+    #[getter]
+    fn c_ext(&self) -> f64 {
+        self.file.c_ext
+    }
+
+    /// Scattering cross-section.
+    #[getter]
+    fn c_sca(&self) -> f64 {
+        self.file.c_sca
+    }
+
+    /// Absorption cross-section.
+    #[getter]
+    fn c_abs(&self) -> f64 {
+        self.file.c_abs
+    }
+
+    /// Backscattering cross-section.
+    #[getter]
+    fn c_back(&self) -> f64 {
+        self.file.c_back
+    }
+
+    /// Mean particle volume (over the size distribution).
+    #[getter]
+    fn mean_volume(&self) -> f64 {
+        self.file.mean_volume
+    }
+
     /// float64 `[N]`: scattering angles from 0° to 180°.
     #[getter]
     fn theta_deg<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
@@ -1486,7 +1534,7 @@ impl Mie {
     fn __repr__(&self) -> String {
         format!(
             "<lightpath.Mie x = {:.4}, Q_sca = {:.6}, g = {:.6}>",
-            self.size_parameter, self.q_sca, self.g
+            self.file.size_parameter, self.file.q_sca, self.file.g
         )
     }
 }
@@ -1515,22 +1563,8 @@ fn mie(
         angles,
         volume_fraction,
     };
-    let f = lightpath::app::mie::compute(&request).map_err(py_err)?;
-    Ok(Mie {
-        size_parameter: f.size_parameter,
-        terms: f.terms,
-        q_ext: f.q_ext,
-        q_sca: f.q_sca,
-        q_abs: f.q_abs,
-        q_back: f.q_back,
-        g: f.g,
-        c_ext: f.c_ext,
-        c_sca: f.c_sca,
-        c_abs: f.c_abs,
-        c_back: f.c_back,
-        mean_volume: f.mean_volume,
-        file: f,
-    })
+    let file = lightpath::app::mie::compute(&request).map_err(py_err)?;
+    Ok(Mie { file })
 }
 
 /// Rays traced through an index field (`lightpath trace`), as `rays.json` holds.
@@ -1857,7 +1891,7 @@ fn trace_vjp(
             task.task.kind().describe()
         )));
     };
-    let mut field = t.field.clone();
+    let field = t.field.clone();
     if matches!(field.bounds, lightpath::eikonal::Bounds::Everywhere) {
         return Err(PyValueError::new_err(
             "field.bounds: trace_vjp differentiates where rays leave the field; give bounds (sphere, cylinder, box or sdf)",
@@ -1892,37 +1926,33 @@ fn trace_vjp(
         }
         parsed.push(p);
     }
-    let mut values = Vec::with_capacity(parsed.len());
-    for (p, name) in parsed.iter().zip(&params) {
-        let slot = field.profiles[p.profile].param_mut(p.which);
-        let Some(slot) = slot else {
-            return Err(PyValueError::new_err(format!(
-                "params: no parameter {name}"
-            )));
-        };
-        values.push(*slot);
-    }
+    // the parameter fit's own reading and setting of analytic parameters
+    let fit = lightpath::inverse::grin_fit::ParamFit {
+        field,
+        params: parsed,
+        names: params.clone(),
+        beams: Vec::new(),
+        step: t.step,
+        max_steps: t.max_steps,
+        iterations: 1,
+    };
     let theta = match theta {
-        None => values,
-        Some(v) if v.len() != parsed.len() => {
+        None => fit
+            .initial()
+            .map_err(|e| PyValueError::new_err(format!("params: {e}")))?,
+        Some(v) if v.len() != fit.params.len() => {
             return Err(PyValueError::new_err(format!(
                 "theta: {} values for {} parameter(s) {params:?}",
                 v.len(),
-                parsed.len()
+                fit.params.len()
             )));
         }
-        Some(v) => {
-            for ((p, x), name) in parsed.iter().zip(&v).zip(&params) {
-                if !x.is_finite() {
-                    return Err(PyValueError::new_err(format!("theta: {name} = {x}")));
-                }
-                if let Some(slot) = field.profiles[p.profile].param_mut(p.which) {
-                    *slot = *x;
-                }
-            }
-            v
-        }
+        Some(v) => v,
     };
+    let mut field = fit
+        .field_with(&theta)
+        .map_err(|e| PyValueError::new_err(format!("theta: {e}")))?;
+    let parsed = fit.params;
     let grid_profile = field
         .profiles
         .iter()

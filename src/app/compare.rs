@@ -98,17 +98,8 @@ pub fn report(pairs: &[PairAgreement], tolerance: f64) -> (String, bool) {
 pub fn compare(a: &Path, b: &Path, tolerance: f64, plot: Option<&Path>) -> Result<(String, bool)> {
     let ma = CovarianceFile::read(a)?.matrix(a)?;
     let mb = CovarianceFile::read(b)?.matrix(b)?;
-    let pairs = agreement(&ma, &mb).map_err(|_| {
-        Error::input(format!(
-            "shapes differ: {} has {} lights × {} views, {} has {} × {}",
-            a.display(),
-            ma.lights,
-            ma.views,
-            b.display(),
-            mb.lights,
-            mb.views
-        ))
-    })?;
+    let pairs = agreement(&ma, &mb)
+        .map_err(|e| Error::input(format!("A = {}, B = {}: {e}", a.display(), b.display())))?;
     let (mut report, ok) = report(&pairs, tolerance);
     if let Some(dir) = plot {
         super::create_out(dir, &["compare_diagonals.png", "compare_matrices.png"])?;

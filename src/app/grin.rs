@@ -24,7 +24,7 @@ pub fn design(
 ) -> Result<Outcome> {
     use crate::inverse::grin_design::radial_profile;
     let (cfg, problem) = (&task.config, &task.problem);
-    // each iteration traces every ray forward and runs the adjoint over every coefficient: about
+    // each iteration traces every ray forward and runs the adjoint over every coefficient:
     // about one pilot pass on the Luneburg design experiment; three leave room for finer grids,
     // whose adjoint scatters into more memory
     super::budget::check_rays(

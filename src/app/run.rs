@@ -160,9 +160,7 @@ pub fn run_scene(
                     "--shard: render.estimator = \"single_scattering\" is a closed form with nothing to split",
                 ));
             }
-            let start = Instant::now();
-            let mut file = single_scattering_file(kind, &task, 0.0)?;
-            file.run.seconds = Some(start.elapsed().as_secs_f64());
+            let file = single_scattering_file(&task)?;
             create_out(out, &Kind::Covariance.owned())?;
             write_covariance(&file, out)
         }
@@ -215,9 +213,9 @@ fn prepare(
 }
 
 /// `[render] estimator = "single_scattering"`: the covariance of paths that scatter once, in closed
-/// form (no paths, no standard error; `solver` says so). Only `covariance`.
-fn single_scattering_file(kind: Kind, task: &SceneTask, seconds: f64) -> Result<CovarianceFile> {
-    debug_assert_eq!(kind, Kind::Covariance);
+/// form (no paths, no standard error; `solver` says so). Only `covariance` (see [`prepare`]).
+fn single_scattering_file(task: &SceneTask) -> Result<CovarianceFile> {
+    let start = Instant::now();
     let scene = &task.scene;
     if let Some(why) = crate::speckle::single::unsupported(scene) {
         return Err(Error::input(format!(
@@ -228,6 +226,7 @@ fn single_scattering_file(kind: Kind, task: &SceneTask, seconds: f64) -> Result<
     check_finite("covariance", &cov)?;
     let (nl, nv) = (scene.lights.len(), scene.views.len());
     let zeros = vec![0.0; cov.len()];
+    let seconds = start.elapsed().as_secs_f64();
     let echo = RunEcho::new(&task.config, scene, 0, task.config.render.seed, seconds);
     let mut file = CovarianceFile::new(echo, nl, nv, &cov, &zeros, &mean_fields(scene));
     file.single_re = Some(nest4(nl, nv, |i| cov[i].re));
@@ -281,10 +280,7 @@ pub(crate) fn execute(
         owned.push(CHECKPOINT_FILE);
     }
     create_out(out, &owned)?;
-    let units = match kind {
-        Kind::Speckle => range.end.saturating_sub(range.start) * plan.chunks,
-        _ => range.end - range.start,
-    };
+    let units = progress_units(kind, range.end.saturating_sub(range.start), &plan);
     let unit = if kind == Kind::Wave {
         "placements"
     } else {
@@ -338,6 +334,15 @@ pub(crate) fn execute(
             source: e,
         }),
         _ => Ok(outcome),
+    }
+}
+
+/// What a progress bar counts for `units` units of work of `kind`: chunks (speckle: chunks of
+/// every realisation).
+fn progress_units(kind: Kind, units: u64, plan: &Plan) -> u64 {
+    match kind {
+        Kind::Speckle => units * plan.chunks,
+        _ => units,
     }
 }
 
@@ -660,11 +665,7 @@ fn compute(
                     ..*plan
                 };
                 let before = (r - range.start) * plan.chunks;
-                let mut no_save = |_: &[Block]| Ok(());
-                let mut within = Checkpoint::new(None, &mut no_save);
-                if let Some(stop) = checkpoint.stop_flag() {
-                    within = within.stopping_on(stop);
-                }
+                let within = Checkpoint::stop_only(checkpoint.stop_flag());
                 let blocks = resume(
                     &est,
                     &p,
@@ -798,7 +799,7 @@ pub fn evaluate(
     let plan = prepare(kind, &mut task, samples, seed)?;
     let Some(plan) = plan else {
         return Ok(Results::Covariance(Box::new(single_scattering_file(
-            kind, &task, 0.0,
+            &task,
         )?)));
     };
     evaluate_plan(kind, &task, plan, budget, watch)
@@ -814,13 +815,8 @@ pub(crate) fn evaluate_plan(
 ) -> Result<Results> {
     let job = Job::Scene(task);
     let whole = job.units(kind, &plan);
-    let units = match kind {
-        Kind::Speckle => whole * plan.chunks,
-        _ => whole,
-    };
-    let bar = Progress::watched(watch, units);
-    let mut save = |_: &[Block]| Ok(());
-    let checkpoint = Checkpoint::new(None, &mut save).stopping_on(&watch.stop);
+    let bar = Progress::watched(watch, progress_units(kind, whole, &plan));
+    let checkpoint = Checkpoint::stop_only(Some(&watch.stop));
     let t0 = Instant::now();
     let work = Work {
         plan: &plan,

@@ -181,19 +181,23 @@ pub fn run<E: Estimator>(
         .expect("a run without checkpoints cannot fail")
 }
 
+/// What saves a checkpoint's blocks.
+pub type Save<'a> = &'a mut dyn FnMut(&[Block]) -> crate::Result<()>;
+
 /// Saving a run's blocks so far (see [`resume`]) through `save`: after every `every` units of work
 /// when given, else every two minutes.
 pub struct Checkpoint<'a> {
     every: u64,
     interval: std::time::Duration,
-    save: &'a mut dyn FnMut(&[Block]) -> crate::Result<()>,
+    /// `None`: never saves (a run that can only be stopped).
+    save: Option<Save<'a>>,
     saved_at: u64,
     saved_when: std::time::Instant,
     stop: Option<&'a std::sync::atomic::AtomicBool>,
 }
 
 impl<'a> Checkpoint<'a> {
-    pub fn new(every: Option<u64>, save: &'a mut dyn FnMut(&[Block]) -> crate::Result<()>) -> Self {
+    pub fn new(every: Option<u64>, save: Save<'a>) -> Self {
         let (every, interval) = match every {
             Some(n) => (n.max(1), std::time::Duration::MAX),
             None => (u64::MAX, std::time::Duration::from_secs(120)),
@@ -201,19 +205,23 @@ impl<'a> Checkpoint<'a> {
         Checkpoint {
             every,
             interval,
-            save,
+            save: Some(save),
             saved_at: 0,
             saved_when: std::time::Instant::now(),
             stop: None,
         }
     }
 
-    /// Also stop the run (with [`crate::Error::Interrupted`]) at the first offer after `stop` is
-    /// set: between two waves of chunks, whatever the saving interval.
-    pub fn stopping_on(self, stop: &'a std::sync::atomic::AtomicBool) -> Self {
+    /// A checkpoint that never saves and stops the run once `stop` (if any) is set: a run in
+    /// memory that can be interrupted.
+    pub fn stop_only(stop: Option<&'a std::sync::atomic::AtomicBool>) -> Self {
         Checkpoint {
-            stop: Some(stop),
-            ..self
+            every: u64::MAX,
+            interval: std::time::Duration::MAX,
+            save: None,
+            saved_at: 0,
+            saved_when: std::time::Instant::now(),
+            stop,
         }
     }
 
@@ -235,8 +243,10 @@ impl<'a> Checkpoint<'a> {
         {
             return Err(crate::Error::Interrupted);
         }
-        if done - self.saved_at >= self.every || self.saved_when.elapsed() >= self.interval {
-            (self.save)(blocks)?;
+        if let Some(save) = self.save.as_mut()
+            && (done - self.saved_at >= self.every || self.saved_when.elapsed() >= self.interval)
+        {
+            save(blocks)?;
             self.start(done);
         }
         Ok(())
@@ -357,8 +367,7 @@ pub fn estimate_until<E: Estimator>(
     plan: &Plan,
     stop: &std::sync::atomic::AtomicBool,
 ) -> crate::Result<Estimate> {
-    let mut no_save = |_: &[Block]| Ok(());
-    let checkpoint = Checkpoint::new(None, &mut no_save).stopping_on(stop);
+    let checkpoint = Checkpoint::stop_only(Some(stop));
     let blocks = resume(
         est,
         plan,
