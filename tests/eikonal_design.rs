@@ -49,6 +49,7 @@ fn op(g: GridField, steps: usize) -> TraceOp {
         steps,
         step: 0.01,
         to_exit: false,
+        stop: Default::default(),
     }
 }
 
@@ -142,6 +143,7 @@ fn trace_op_to_exit_matches_finite_differences() {
         steps: 100_000,
         step: 0.01,
         to_exit: true,
+        stop: Default::default(),
     };
     let largest = check_against_finite_differences(&op, &g.coef, 2e-6, "exit mode");
     assert!(largest > 1e-3, "the rays must depend on the grid");
@@ -230,7 +232,7 @@ fn luneburg_problem(
 #[test]
 fn coarse_to_fine_design_focuses_three_beams() {
     let problem = luneburg_problem(vec![6, 9], 40);
-    let res = problem.run(&|_| {}).unwrap();
+    let res = problem.run(&|_| {}, &Default::default()).unwrap();
     eprintln!(
         "RMS miss {:.4} → {:.4}; final loss {:.4e}",
         res.rms_miss_initial,

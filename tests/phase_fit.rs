@@ -154,6 +154,7 @@ fn adam_recovers_a_tabulated_phase_function() {
             learning_rate: 0.15,
             smooth: 0.0,
         },
+        stop: Default::default(),
     };
     let res = fit.run(&|_| {}).unwrap();
     let want = Table::from_rho(Some(COS.to_vec()), TRUTH.to_vec()).unwrap();

@@ -25,9 +25,14 @@ from ._lightpath import (
     CorrelationMap,
     Covariance,
     CovarianceVjp,
+    Design,
+    Fit,
+    GrinFit,
     MemoryEffect,
     Mie,
+    PhaseAcquisition,
     Rays,
+    Render,
     Run,
     Speckle,
     Task,
@@ -40,23 +45,32 @@ __all__ = [
     "CorrelationMap",
     "Covariance",
     "CovarianceVjp",
+    "Design",
+    "Fit",
+    "GrinFit",
     "MemoryEffect",
     "Mie",
+    "PhaseAcquisition",
     "Rays",
+    "Render",
     "Run",
     "Speckle",
     "Task",
     "TiltShift",
     "TraceVjp",
     "__version__",
+    "acquire_phase",
     "compare",
     "correlation_map",
     "covariance",
     "covariance_vjp",
+    "design",
+    "fit",
     "load",
     "loads",
     "memory_effect",
     "mie",
+    "render",
     "speckle",
     "tilt_shift",
     "trace",
@@ -389,3 +403,134 @@ def trace_vjp(
         threads=threads,
         max_minutes=max_minutes,
     )
+
+
+def fit(
+    config: Config,
+    target: Any,
+    fit: Union[str, Sequence[str]],
+    *,
+    samples: Optional[int] = None,
+    seed: Optional[int] = None,
+    stages: int = 30,
+    iterations: Optional[int] = None,
+    optimizer: Optional[str] = None,
+    learning_rate: float = 0.05,
+    smooth: float = 0.0,
+    threads: Optional[int] = None,
+    max_minutes: float = 240.0,
+    max_memory_gb: float = 8.0,
+    progress: Progress = None,
+) -> Fit:
+    """Fit medium parameters (and a tabulated phase function) so the scene's statistics match a
+    target (``lightpath fit``).
+
+    ``target`` is a file (``memory_effect.json`` or ``covariance.json`` of a run, a measured
+    memory curve as CSV ``angle_deg,correlation[,stderr]`` or JSON, measured entries
+    ``{"entries": [...]}``, or a C(Δ, τ) map's ``correlation_map.json``) or a result object of
+    this package (a :class:`MemoryEffect`, :class:`Covariance` or :class:`CorrelationMap`, saved
+    to a temporary folder and read from there). ``fit`` names the parameters (``"mfp,g"`` or
+    ``["mfp", "g"]``; ``mfp``, ``albedo``, ``g``, ``sigma_s``, ``sigma_a``, ``weight[c]``,
+    ``phase`` for every node of a tabulated phase function). L-BFGS in re-centred stages for
+    scalars (``stages``, ``iterations`` per stage, default 15); Adam for ``phase``
+    (``iterations``, default 150; ``learning_rate``, ``smooth``). ``samples``/``seed`` set the
+    paths of one objective evaluation. ``progress(done, total)`` counts logged evaluations
+    (``total`` 0 for L-BFGS, whose count is not known in advance). Returns a :class:`Fit`.
+    """
+    import tempfile
+
+    names = fit if isinstance(fit, str) else ",".join(fit)
+    task = load(config)
+    if hasattr(target, "save") and not isinstance(target, (str, os.PathLike)):
+        with tempfile.TemporaryDirectory(prefix="lightpath-target-") as folder:
+            written = [Path(p) for p in target.save(folder)]
+            json_files = [p for p in written if p.suffix == ".json"]
+            if not json_files:
+                raise ValueError(f"target: a {type(target).__name__} writes no JSON result to fit")
+            return _fit(task, json_files[0], names, samples, seed, stages, iterations, optimizer,
+                        learning_rate, smooth, threads, max_minutes, max_memory_gb, progress)
+    return _fit(task, Path(target), names, samples, seed, stages, iterations, optimizer,
+                learning_rate, smooth, threads, max_minutes, max_memory_gb, progress)
+
+
+def _fit(task, target, names, samples, seed, stages, iterations, optimizer, learning_rate, smooth,
+         threads, max_minutes, max_memory_gb, progress):
+    return _lightpath.fit(
+        task,
+        target,
+        names,
+        samples=samples,
+        seed=seed,
+        stages=stages,
+        iterations=iterations,
+        optimizer=optimizer,
+        learning_rate=learning_rate,
+        smooth=smooth,
+        threads=threads,
+        max_minutes=max_minutes,
+        max_memory_gb=max_memory_gb,
+        progress=progress,
+    )
+
+
+def design(
+    config: Config,
+    *,
+    threads: Optional[int] = None,
+    max_minutes: float = 240.0,
+    max_memory_gb: float = 8.0,
+    progress: Progress = None,
+) -> Union[Design, GrinFit]:
+    """Run a design config (``lightpath design``): a grid index field shaped by Adam so the beams
+    pass through their foci (returns a :class:`Design`), or, with a ``[parameters]`` table, the
+    analytic field parameters fitted by L-BFGS (returns a :class:`GrinFit`). A design estimated
+    beyond ``max_minutes`` or ``max_memory_gb`` is refused before any work (``ValueError``).
+    ``progress(done, total)`` counts Adam iterations over every level, or L-BFGS evaluations
+    (``total`` 0: not known in advance). Ctrl-C stops it within one ray's trace.
+    """
+    return _lightpath.design(
+        load(config),
+        threads=threads,
+        max_minutes=max_minutes,
+        max_memory_gb=max_memory_gb,
+        progress=progress,
+    )
+
+
+def render(
+    config: Config,
+    *,
+    samples: Optional[int] = None,
+    seed: Optional[int] = None,
+    threads: Optional[int] = None,
+    max_minutes: float = 240.0,
+    max_memory_gb: float = 8.0,
+    progress: Progress = None,
+) -> Render:
+    """Render a refractive, scattering volume (``lightpath render``): particle tracing from the
+    lights, or path tracing from the cameras, through curved rays. ``samples`` (photons or camera
+    paths) and ``seed`` override ``[render]``. ``progress(done, total)`` counts chunks. Returns a
+    :class:`Render`: ``result`` (``render.json`` as a dict: sensors' power and flux per time bin,
+    probes, cameras, surfaces, totals, statistics) and ``images`` (name → ``value``/``stderr``
+    float64 ``[C, H, W]``, top row first, and ``bins``/``bins_stderr`` ``[B, C, H, W]`` with time
+    bins).
+    """
+    return _lightpath.render(
+        load(config),
+        samples=samples,
+        seed=seed,
+        threads=threads,
+        max_minutes=max_minutes,
+        max_memory_gb=max_memory_gb,
+        progress=progress,
+    )
+
+
+def acquire_phase(config: Config) -> PhaseAcquisition:
+    """Read the phase function from speckle images of a slab under tilted illuminations
+    (``lightpath acquire-phase``), from an acquisition config (``[acquisition]`` relay geometry +
+    ``[[pair]]`` image files; relative paths resolve against the config's folder, or ``base`` of
+    :func:`load` for a dict). Returns a :class:`PhaseAcquisition`: ``curves`` (one dict per
+    displacement with the readings as arrays and the HG / vMF fits) and ``consistency``.
+    """
+    return _lightpath.acquire_phase(load(config))

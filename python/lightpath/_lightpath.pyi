@@ -386,3 +386,188 @@ def tilt_shift(
     max_memory_gb: float = 8.0,
     progress: Progress = None,
 ) -> TiltShift: ...
+
+class Fit:
+    """A fit of medium parameters (and a phase function) to a target, as `fit.json` holds it."""
+
+    @property
+    def params(self) -> list[str]:
+        """Names: `mfp`, `g`, …, then `rho(θ°)` per phase node."""
+    @property
+    def initial(self) -> npt.NDArray[np.float64]:
+        """[P] starting values (natural units)."""
+    @property
+    def fitted(self) -> npt.NDArray[np.float64]:
+        """[P] fitted values."""
+    @property
+    def stddev(self) -> npt.NDArray[np.float64]:
+        """[P] one standard deviation each (Gauss–Newton)."""
+    @property
+    def correlation(self) -> Optional[npt.NDArray[np.float64]]:
+        """[P, P] correlation matrix (L-BFGS fits), else None."""
+    @property
+    def loss(self) -> float: ...
+    @property
+    def converged(self) -> bool: ...
+    @property
+    def convergence(self) -> dict[str, Any]:
+        """`converged`, `stop`, `grad_norm`, `evaluations`, `iterations`."""
+    @property
+    def model_initial(self) -> npt.NDArray[np.float64]:
+        """[K] the target's statistics modelled at the start."""
+    @property
+    def model_fitted(self) -> npt.NDArray[np.float64]:
+        """[K] the same at the fitted values."""
+    @property
+    def phase_angle_deg(self) -> Optional[npt.NDArray[np.float64]]:
+        """[N] phase-node angles in degrees (phase fits), else None."""
+    @property
+    def log_loss(self) -> npt.NDArray[np.float64]:
+        """[E] loss of every logged evaluation."""
+    @property
+    def log_params(self) -> npt.NDArray[np.float64]:
+        """[E, P] values of every logged evaluation."""
+    @property
+    def seconds(self) -> float: ...
+    @property
+    def summary(self) -> str: ...
+    def to_json(self) -> str: ...
+    def save(self, folder: Union[str, PathLike[str]]) -> list[Path]: ...
+
+class Design:
+    """A grid index field designed by Adam, as `design.json` holds it."""
+
+    @property
+    def rms_miss_initial(self) -> float: ...
+    @property
+    def rms_miss_final(self) -> float: ...
+    @property
+    def grid(self) -> npt.NDArray[np.float64]:
+        """[nz, ny, nx] the designed grid's contribution to n at its nodes."""
+    @property
+    def coefficients(self) -> npt.NDArray[np.float64]:
+        """[nz, ny, nx] its interpolation coefficients."""
+    @property
+    def origin(self) -> npt.NDArray[np.float64]:
+        """[3] first node (x, y, z)."""
+    @property
+    def spacing(self) -> float: ...
+    @property
+    def radial_profile(self) -> dict[str, npt.NDArray[np.float64]]:
+        """`r`, `mean`, `min`, `max` [R]."""
+    @property
+    def log_level(self) -> npt.NDArray[np.uint64]: ...
+    @property
+    def log_mean_miss2(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def log_loss(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def converged(self) -> bool: ...
+    @property
+    def convergence(self) -> dict[str, Any]: ...
+    @property
+    def seconds(self) -> float: ...
+    @property
+    def summary(self) -> str: ...
+    def to_json(self) -> str: ...
+    def save(self, folder: Union[str, PathLike[str]]) -> list[Path]: ...
+
+class GrinFit:
+    """Analytic index-field parameters fitted by L-BFGS, as the design's `fit.json` holds them."""
+
+    @property
+    def params(self) -> list[str]: ...
+    @property
+    def initial(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def fitted(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def rms_miss_initial(self) -> float: ...
+    @property
+    def rms_miss_final(self) -> float: ...
+    @property
+    def log_mean_miss2(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def log_params(self) -> npt.NDArray[np.float64]:
+        """[E, P] parameter values of every evaluation."""
+    @property
+    def converged(self) -> bool: ...
+    @property
+    def convergence(self) -> dict[str, Any]: ...
+    @property
+    def seconds(self) -> float: ...
+    @property
+    def summary(self) -> str: ...
+    def to_json(self) -> str: ...
+    def save(self, folder: Union[str, PathLike[str]]) -> list[Path]: ...
+
+class Render:
+    """A render of a refractive, scattering volume, as `render.json` and its images hold it."""
+
+    @property
+    def result(self) -> dict[str, Any]:
+        """`render.json` as Python values."""
+    @property
+    def images(self) -> dict[str, dict[str, npt.NDArray[np.float64]]]:
+        """Image name → `value`, `stderr` [C, H, W] (top row first) and, with time bins, `bins`,
+        `bins_stderr` [B, C, H, W]."""
+    @property
+    def samples(self) -> int: ...
+    @property
+    def seconds(self) -> Optional[float]: ...
+    @property
+    def summary(self) -> str: ...
+    @property
+    def warning(self) -> Optional[str]: ...
+    def to_json(self) -> str: ...
+    def save(self, folder: Union[str, PathLike[str]]) -> list[Path]: ...
+
+class PhaseAcquisition:
+    """The phase function read from speckle images, as `phase_acquisition.json` holds it."""
+
+    @property
+    def curves(self) -> list[dict[str, Any]]:
+        """One dict per displacement; the readings as float64 [R] arrays."""
+    @property
+    def consistency(self) -> Optional[dict[str, Any]]: ...
+    @property
+    def seconds(self) -> float: ...
+    def to_json(self) -> str: ...
+    def save(self, folder: Union[str, PathLike[str]]) -> list[Path]: ...
+
+def fit(
+    task: Task,
+    target: Union[str, PathLike[str]],
+    fit: str,
+    *,
+    samples: Optional[int] = None,
+    seed: Optional[int] = None,
+    stages: int = 30,
+    iterations: Optional[int] = None,
+    optimizer: Optional[str] = None,
+    learning_rate: float = 0.05,
+    smooth: float = 0.0,
+    threads: Optional[int] = None,
+    max_minutes: float = 240.0,
+    max_memory_gb: float = 8.0,
+    progress: Progress = None,
+) -> Fit: ...
+def design(
+    task: Task,
+    *,
+    threads: Optional[int] = None,
+    max_minutes: float = 240.0,
+    max_memory_gb: float = 8.0,
+    progress: Progress = None,
+) -> Union[Design, GrinFit]: ...
+def render(
+    task: Task,
+    *,
+    samples: Optional[int] = None,
+    seed: Optional[int] = None,
+    threads: Optional[int] = None,
+    max_minutes: float = 240.0,
+    max_memory_gb: float = 8.0,
+    progress: Progress = None,
+) -> Render: ...
+def acquire_phase(task: Task) -> PhaseAcquisition: ...

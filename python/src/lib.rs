@@ -30,6 +30,9 @@ use std::sync::mpsc::{Receiver, RecvTimeoutError, channel};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
+mod inverse;
+mod render;
+
 /// How often a waiting call looks at Ctrl-C and the progress (well within a second).
 const POLL: Duration = Duration::from_millis(50);
 
@@ -292,6 +295,12 @@ fn flat4(x: &Nested4) -> (Vec<f64>, Vec<usize>) {
     ];
     let v = x.iter().flatten().flatten().flatten().copied().collect();
     (v, shape)
+}
+
+/// A serialisable value as the Python value `json.loads` makes of it (dicts, lists, floats).
+fn json_value<'py>(py: Python<'py>, x: &impl serde::Serialize) -> PyResult<Bound<'py, PyAny>> {
+    let text = serde_json::to_string(x).map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+    py.import("json")?.call_method1("loads", (text,))
 }
 
 fn flat2(x: &Nested2) -> (Vec<f64>, Vec<usize>) {
@@ -746,7 +755,7 @@ impl CovarianceVjp {
         }
         let evaluation = Arc::clone(&self.evaluation);
         let gradient = run_watched(py, self.threads, None, move |w| {
-            evaluation.pullback_until(&dy, Some(&w.stop))
+            evaluation.pullback_until(&dy, Some(&*w.stop))
         })?;
         if gradient.iter().any(|g| !g.is_finite()) {
             return Err(PyRuntimeError::new_err(
@@ -2044,5 +2053,14 @@ fn _lightpath(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(correlation_map, m)?)?;
     m.add_function(wrap_pyfunction!(compare, m)?)?;
     m.add_function(wrap_pyfunction!(tilt_shift, m)?)?;
+    m.add_class::<inverse::Fit>()?;
+    m.add_class::<inverse::Design>()?;
+    m.add_class::<inverse::GrinFit>()?;
+    m.add_function(wrap_pyfunction!(inverse::fit, m)?)?;
+    m.add_function(wrap_pyfunction!(inverse::design, m)?)?;
+    m.add_class::<render::Render>()?;
+    m.add_class::<render::PhaseAcquisition>()?;
+    m.add_function(wrap_pyfunction!(render::render, m)?)?;
+    m.add_function(wrap_pyfunction!(render::acquire_phase, m)?)?;
     Ok(())
 }

@@ -9,6 +9,7 @@ import time
 import pytest
 
 import lightpath as lp
+from conftest import read_toml
 
 
 def test_progress_is_reported_up_to_the_total(repo):
@@ -77,3 +78,35 @@ def test_ctrl_c_stops_gradient_evaluations_too():
     # the backward pass of a short forward
     at = lp.covariance_vjp(SCENE, ["sigma_s"], samples=2_000_000)
     assert interrupted(lambda: at(at.value)) < 1.5
+
+
+def interrupted_after_half_a_second(call) -> float:
+    """Seconds from the start of `call` until it raised KeyboardInterrupt (SIGINT at 0.5 s)."""
+    timer = threading.Timer(0.5, lambda: signal.raise_signal(signal.SIGINT))
+    start = time.monotonic()
+    timer.start()
+    with pytest.raises(KeyboardInterrupt):
+        call()
+    return time.monotonic() - start
+
+
+def test_ctrl_c_stops_fits_designs_and_renders(repo, tmp_path):
+    exp = repo / "experiments" / "fit-memory-effect"
+    target = lp.memory_effect(exp / "truth.toml", samples=20_000)
+    target.save(tmp_path)
+    target = tmp_path / "memory_effect.json"
+    start = exp / "start.toml"
+    # each of these runs for minutes uninterrupted
+    assert interrupted_after_half_a_second(lambda: lp.fit(start, target, "mfp,g", samples=10**7)) < 1.5
+    adam = lambda: lp.fit(start, target, "mfp", optimizer="adam", samples=10**7, iterations=50)  # noqa: E731
+    assert interrupted_after_half_a_second(adam) < 1.5
+    assert interrupted_after_half_a_second(
+        lambda: lp.design(repo / "experiments" / "luneburg-design" / "luneburg.toml")) < 1.5
+    fibre = read_toml(repo / "experiments" / "grin-fibre" / "fibre.toml")
+    fibre["trace"]["step"] = 1e-5  # a thousand times the steps: about a minute
+    fibre["beam"][0]["count"] = 41
+    assert interrupted_after_half_a_second(lambda: lp.design(fibre, threads=1)) < 1.5
+    assert interrupted_after_half_a_second(
+        lambda: lp.render(repo / "configs" / "render_camera.toml", samples=10**7)) < 1.5
+    # and the library is usable again at once
+    assert lp.fit(start, target, "mfp", samples=4000, stages=2, iterations=3).params == ["mfp"]

@@ -16,6 +16,13 @@ use std::path::Path;
 
 /// Read the images, compute the curves and fits, write the results into `out`.
 pub fn run(config: &AcquireConfig, out: &Path) -> Result<Outcome> {
+    let file = acquire(config)?;
+    create_out(out, &["phase_acquisition.json", "phase_acquisition.png"])?;
+    write(&file, out)
+}
+
+/// Read the images and compute the correlation curves and their fits.
+pub fn acquire(config: &AcquireConfig) -> Result<PhaseAcquisitionFile> {
     let start = std::time::Instant::now();
     let mut images: Vec<[Image; 2]> = Vec::with_capacity(config.pair.len());
     for p in &config.pair {
@@ -84,19 +91,22 @@ pub fn run(config: &AcquireConfig, out: &Path) -> Result<Outcome> {
     // sort by displacement: the largest last
     records.sort_by(|a, b| a.delta_deg.total_cmp(&b.delta_deg));
     let consistency = consistency(&records);
-    create_out(out, &["phase_acquisition.json", "phase_acquisition.png"])?;
-    let file = PhaseAcquisitionFile {
+    Ok(PhaseAcquisitionFile {
         format_version: crate::io::results::FORMAT_VERSION,
         curves: records,
         consistency,
         seconds: start.elapsed().as_secs_f64(),
         version: env!("CARGO_PKG_VERSION").to_string(),
         config: config.clone(),
-    };
+    })
+}
+
+/// Write phase_acquisition.json and its plot into `out` (which must exist).
+pub fn write(file: &PhaseAcquisitionFile, out: &Path) -> Result<Outcome> {
     let json = out.join(PhaseAcquisitionFile::NAME);
     let png = out.join("phase_acquisition.png");
     file.write(&json)?;
-    plot(&file, &png)?;
+    plot(file, &png)?;
     let mut summary = String::new();
     for c in &file.curves {
         let (fit, naive) = (c.hg.as_ref(), c.hg_intensity.as_ref());

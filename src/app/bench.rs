@@ -502,6 +502,7 @@ pub fn design_iteration() -> crate::Result<String> {
             steps: 400,
             step: 0.005,
             to_exit: false,
+            stop: Default::default(),
         };
         let t0 = Instant::now();
         let (y, pullback) = op.forward(&coef)?;

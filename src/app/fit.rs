@@ -8,6 +8,7 @@ use crate::config::{MemoryEffectConfig, SceneTask};
 use crate::error::{Error, Result};
 use crate::io::ResultFile;
 use crate::io::results::{FitFile, FitLogLine, ReadingRecord};
+use crate::mc::StopFlag;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -29,13 +30,65 @@ pub struct FitOptions {
     pub budget: super::budget::Budget,
 }
 
-/// `lightpath fit`: fit medium parameters so rendered statistics match a target.
+/// `lightpath fit`: fit medium parameters so rendered statistics match a target → fit.json,
+/// fit.png (a memory-curve target), phase.png (a phase-function fit).
 pub fn fit(task: SceneTask, target_path: &Path, opts: &FitOptions, out: &Path) -> Result<Outcome> {
+    let prepared = prepare(task, target_path, opts)?;
+    create_out(out, &["fit.json", "fit.png", "phase.png"])?;
+    let show = opts.progress;
+    let fitted = prepared.run(
+        &|e| {
+            if show {
+                eprintln!("{}", e.line);
+            }
+        },
+        &StopFlag::default(),
+    )?;
+    fitted.write(out)
+}
+
+/// One logged evaluation as the fit reports it while it runs.
+pub struct Step<'a> {
+    /// The evaluation (stage-wise L-BFGS) or iteration (Adam) count so far.
+    pub count: usize,
+    /// A line for a terminal: stage or iteration, loss, gradient norm, values.
+    pub line: String,
+    pub entry: &'a crate::inverse::LogEntry,
+}
+
+/// A validated fit, ready to run: the scene the target needs, the target, and how to fit.
+pub struct Prepared {
+    cfg: crate::config::Config,
+    scene: crate::speckle::Scene,
+    target: crate::inverse::Target,
+    target_name: String,
+    params: Vec<crate::inverse::FitParam>,
+    phase: bool,
+    adam: bool,
+    iterations: usize,
+    stages: usize,
+    learning_rate: f64,
+    smooth: f64,
+}
+
+/// A finished fit: what fit.json holds, and what its plots need.
+pub struct Fitted {
+    pub file: FitFile,
+    target: crate::inverse::Target,
+    /// For phase.png: the number of scalar parameters before the phase nodes, and the
+    /// single-scattering reading of the target where it applies.
+    phase_plot: Option<(usize, Vec<crate::inverse::shortcut::Reading>)>,
+    pub summary: String,
+}
+
+/// Check the fit `opts` ask for against `task` and the target file (same scene, same setup,
+/// parameters the medium has, one evaluation within the budget) before any path is traced.
+pub fn prepare(task: SceneTask, target_path: &Path, opts: &FitOptions) -> Result<Prepared> {
     let SceneTask {
         config: mut cfg,
         scene,
     } = task;
-    use crate::inverse::{Fit, FitParam, FitSettings, Target, check_params};
+    use crate::inverse::{FitParam, Target, check_params};
     // a C(Δ, τ) map is fitted with the map's scene, built from the config's [correlation_map]
     let map_target = if crate::io::targets::is_correlation_map(target_path) {
         Some(crate::io::targets::correlation_map(target_path)?)
@@ -146,132 +199,280 @@ pub fn fit(task: SceneTask, target_path: &Path, opts: &FitOptions, out: &Path) -
         0,
         &opts.budget,
     )?;
-    create_out(out, &["fit.json", "fit.png", "phase.png"])?;
-    let model = crate::inverse::ModelSettings {
-        samples: cfg.render.samples,
-        chunk: cfg.render.chunk,
-        seed: cfg.render.seed,
-        reversed: cfg.render.reversed,
-    };
-    if adam {
-        let settings = crate::inverse::AdamSettings {
-            model,
-            iterations,
-            learning_rate: opts.learning_rate,
-            smooth: opts.smooth,
-        };
-        let fit = crate::inverse::AdamFit {
-            scene: &scene,
-            target: &target,
-            params,
-            phase,
-            settings,
-        };
-        return adam_fit(&cfg, &fit, target_path, opts.progress, out);
-    }
-    let settings = FitSettings {
-        model,
-        stages: opts.stages,
+    Ok(Prepared {
+        cfg,
+        scene,
+        target,
+        target_name: target_path.display().to_string(),
+        params,
+        phase,
+        adam,
         iterations,
-    };
-    let fit = Fit {
-        scene: &scene,
-        target: &target,
-        params: params.clone(),
-        settings,
-    };
-    let t0 = Instant::now();
-    let show = opts.progress;
-    let names: Vec<&str> = params.iter().map(|p| p.name()).collect();
-    let res = fit.run(&|e| {
-        if show {
+        stages: opts.stages,
+        learning_rate: opts.learning_rate,
+        smooth: opts.smooth,
+    })
+}
+
+impl Prepared {
+    /// Logged evaluations the fit will make: Adam's iterations; `None` for L-BFGS, whose
+    /// evaluation count is not known in advance.
+    pub fn total(&self) -> Option<usize> {
+        self.adam.then_some(self.iterations)
+    }
+
+    /// Run the fit; `progress` sees every logged evaluation, `stop` ends it early with
+    /// [`Error::Interrupted`].
+    pub fn run(&self, progress: &(dyn Fn(&Step) + Sync), stop: &StopFlag) -> Result<Fitted> {
+        let cfg = &self.cfg;
+        let model = crate::inverse::ModelSettings {
+            samples: cfg.render.samples,
+            chunk: cfg.render.chunk,
+            seed: cfg.render.seed,
+            reversed: cfg.render.reversed,
+        };
+        let count = std::sync::atomic::AtomicUsize::new(0);
+        let t0 = Instant::now();
+        if self.adam {
+            let settings = crate::inverse::AdamSettings {
+                model,
+                iterations: self.iterations,
+                learning_rate: self.learning_rate,
+                smooth: self.smooth,
+            };
+            let fit = crate::inverse::AdamFit {
+                scene: &self.scene,
+                target: &self.target,
+                params: self.params.clone(),
+                phase: self.phase,
+                settings,
+                stop: stop.clone(),
+            };
+            let res = fit.run(&|e| {
+                progress(&Step {
+                    count: count.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1,
+                    line: format!(
+                        "iteration {:>4} loss {:.6e} |grad| {:.3e}",
+                        e.stage, e.loss, e.grad_norm
+                    ),
+                    entry: e,
+                })
+            })?;
+            return Ok(self.adam_fitted(&fit, res, t0.elapsed().as_secs_f64()));
+        }
+        let fit = crate::inverse::Fit {
+            scene: &self.scene,
+            target: &self.target,
+            params: self.params.clone(),
+            settings: crate::inverse::FitSettings {
+                model,
+                stages: self.stages,
+                iterations: self.iterations,
+            },
+            stop: stop.clone(),
+        };
+        let names: Vec<&str> = self.params.iter().map(|p| p.name()).collect();
+        let res = fit.run(&|e| {
             let p: Vec<String> = names
                 .iter()
                 .zip(&e.params)
                 .map(|(n, v)| format!("{n} = {v:.5}"))
                 .collect();
-            eprintln!(
-                "stage {} loss {:.6e} |grad| {:.3e}  {}",
-                e.stage,
-                e.loss,
-                e.grad_norm,
-                p.join(", ")
+            progress(&Step {
+                count: count.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1,
+                line: format!(
+                    "stage {} loss {:.6e} |grad| {:.3e}  {}",
+                    e.stage,
+                    e.loss,
+                    e.grad_norm,
+                    p.join(", ")
+                ),
+                entry: e,
+            })
+        })?;
+        let seconds = t0.elapsed().as_secs_f64();
+        let file = FitFile {
+            format_version: crate::io::results::FORMAT_VERSION,
+            optimizer: None,
+            params: names.iter().map(|n| n.to_string()).collect(),
+            initial: res.initial.clone(),
+            fitted: res.fitted.clone(),
+            stddev: res.stddev.clone(),
+            correlation: Some(res.correlation.clone()),
+            loss: res.loss,
+            dof: None,
+            phase_cos: None,
+            phase_angle_deg: None,
+            target_values: None,
+            model_initial: res.model_initial.clone(),
+            model_fitted: res.model_fitted.clone(),
+            single_scattering_reading: None,
+            log: res
+                .log
+                .iter()
+                .map(|e| FitLogLine {
+                    stage: Some(e.stage),
+                    iteration: None,
+                    loss: e.loss,
+                    params: e.params.clone(),
+                    grad_norm: e.grad_norm,
+                })
+                .collect(),
+            learning_rate: None,
+            smooth: None,
+            convergence: Some(res.convergence),
+            samples: cfg.render.samples,
+            seed: cfg.render.seed,
+            seconds,
+            version: env!("CARGO_PKG_VERSION").into(),
+            target: self.target_name.clone(),
+            config: cfg.clone(),
+        };
+        let mut summary = format!(
+            "fit in {seconds:.1} s, final loss {:.4e}; {}\n",
+            res.loss,
+            res.convergence.line()
+        );
+        for (i, n) in names.iter().enumerate() {
+            summary += &format!(
+                "  {n:>8}: {:.5} → {:.5} ± {:.5}\n",
+                res.initial[i], res.fitted[i], res.stddev[i]
             );
         }
-    })?;
-    let seconds = t0.elapsed().as_secs_f64();
-    let file = FitFile {
-        format_version: crate::io::results::FORMAT_VERSION,
-        optimizer: None,
-        params: names.iter().map(|n| n.to_string()).collect(),
-        initial: res.initial.clone(),
-        fitted: res.fitted.clone(),
-        stddev: res.stddev.clone(),
-        correlation: Some(res.correlation.clone()),
-        loss: res.loss,
-        dof: None,
-        phase_cos: None,
-        phase_angle_deg: None,
-        target_values: None,
-        model_initial: res.model_initial.clone(),
-        model_fitted: res.model_fitted.clone(),
-        single_scattering_reading: None,
-        log: res
-            .log
-            .iter()
-            .map(|e| FitLogLine {
-                stage: Some(e.stage),
-                iteration: None,
-                loss: e.loss,
-                params: e.params.clone(),
-                grad_norm: e.grad_norm,
-            })
-            .collect(),
-        learning_rate: None,
-        smooth: None,
-        convergence: Some(res.convergence),
-        samples: cfg.render.samples,
-        seed: cfg.render.seed,
-        seconds,
-        version: env!("CARGO_PKG_VERSION").into(),
-        target: target_path.display().to_string(),
-        config: cfg.clone(),
-    };
-    let path = out.join(FitFile::NAME);
-    file.write(&path)?;
-    let mut files = vec![path];
-    files.extend(memory_fit_plot(
-        &target,
-        &res.model_initial,
-        &res.model_fitted,
-        out,
-    )?);
-    let mut summary = format!(
-        "fit in {seconds:.1} s, final loss {:.4e}; {}\n",
-        res.loss,
-        res.convergence.line()
-    );
-    for (i, n) in names.iter().enumerate() {
-        summary += &format!(
-            "  {n:>8}: {:.5} → {:.5} ± {:.5}\n",
-            res.initial[i], res.fitted[i], res.stddev[i]
-        );
-    }
-    for a in 0..names.len() {
-        for b in a + 1..names.len() {
-            let r = res.correlation[a][b];
-            summary += &format!("  correlation({}, {}) = {r:.3}", names[a], names[b]);
-            if r.abs() > 0.95 || !r.is_finite() {
-                summary += "  — strongly correlated: the data barely separate them (e.g. similarity σ_s(1 − g) ≈ const)";
+        for a in 0..names.len() {
+            for b in a + 1..names.len() {
+                let r = res.correlation[a][b];
+                summary += &format!("  correlation({}, {}) = {r:.3}", names[a], names[b]);
+                if r.abs() > 0.95 || !r.is_finite() {
+                    summary += "  — strongly correlated: the data barely separate them (e.g. similarity σ_s(1 − g) ≈ const)";
+                }
+                summary += "\n";
             }
-            summary += "\n";
+        }
+        Ok(Fitted {
+            file,
+            target: self.target.clone(),
+            phase_plot: None,
+            summary,
+        })
+    }
+
+    /// The Adam branch's result: the log, fitted values ± sd, and the single-scattering reading
+    /// where it applies.
+    fn adam_fitted(
+        &self,
+        fit: &crate::inverse::AdamFit,
+        res: crate::inverse::AdamResult,
+        seconds: f64,
+    ) -> Fitted {
+        let readings = crate::inverse::shortcut::single_scattering_readings(fit.scene, fit.target);
+        let angles: Vec<f64> = res
+            .cos
+            .iter()
+            .map(|c| c.clamp(-1.0, 1.0).acos().to_degrees())
+            .collect();
+        let file = FitFile {
+            format_version: crate::io::results::FORMAT_VERSION,
+            optimizer: Some("adam".into()),
+            params: res.names.clone(),
+            initial: res.initial.clone(),
+            fitted: res.fitted.clone(),
+            stddev: res.stddev.clone(),
+            correlation: None,
+            loss: res.loss,
+            dof: Some(res.dof),
+            phase_cos: Some(res.cos.clone()),
+            phase_angle_deg: Some(angles.clone()),
+            target_values: Some(fit.target.values()),
+            model_initial: res.model_initial.clone(),
+            model_fitted: res.model_fitted.clone(),
+            single_scattering_reading: readings.as_ref().map(|r| {
+                r.iter()
+                    .map(|r| ReadingRecord {
+                        delta_deg: r.delta_deg,
+                        angle_deg: r.angle_deg,
+                        rho: r.rho,
+                        stderr: r.stderr,
+                    })
+                    .collect()
+            }),
+            log: res
+                .log
+                .iter()
+                .map(|e| FitLogLine {
+                    stage: None,
+                    iteration: Some(e.stage),
+                    loss: e.loss,
+                    params: e.params.clone(),
+                    grad_norm: e.grad_norm,
+                })
+                .collect(),
+            learning_rate: Some(fit.settings.learning_rate),
+            smooth: Some(fit.settings.smooth),
+            convergence: Some(res.convergence),
+            samples: fit.settings.model.samples,
+            seed: fit.settings.model.seed,
+            seconds,
+            version: env!("CARGO_PKG_VERSION").into(),
+            target: self.target_name.clone(),
+            config: self.cfg.clone(),
+        };
+        let mut summary = format!(
+            "Adam fit in {seconds:.1} s ({} iterations, {}), final loss {:.4e} over {:.0} degrees of freedom\n",
+            res.log.len(),
+            res.convergence.line(),
+            res.loss,
+            res.dof
+        );
+        for (i, n) in res.names.iter().enumerate() {
+            summary += &format!(
+                "  {n:>14}: {:.5} → {:.5} ± {:.5}\n",
+                res.initial[i], res.fitted[i], res.stddev[i]
+            );
+        }
+        Fitted {
+            file,
+            target: self.target.clone(),
+            phase_plot: fit
+                .phase
+                .then(|| (fit.params.len(), readings.unwrap_or_default())),
+            summary,
         }
     }
-    Ok(Outcome {
-        files,
-        summary,
-        not_converged: res.convergence.warning(),
-    })
+}
+
+impl Fitted {
+    /// Write fit.json, fit.png (memory-curve targets) and phase.png (phase-function fits) into
+    /// `out`, which must exist.
+    pub fn write(&self, out: &Path) -> Result<Outcome> {
+        let f = &self.file;
+        let path = out.join(FitFile::NAME);
+        f.write(&path)?;
+        let mut files = vec![path];
+        if let (Some((scalars, readings)), Some(angles)) = (&self.phase_plot, &f.phase_angle_deg) {
+            let png = out.join("phase.png");
+            crate::io::plot::phase_fit(
+                &png,
+                angles,
+                &f.initial[*scalars..],
+                &f.fitted[*scalars..],
+                &f.stddev[*scalars..],
+                readings,
+            )?;
+            files.push(png);
+        }
+        files.extend(memory_fit_plot(
+            &self.target,
+            &f.model_initial,
+            &f.model_fitted,
+            out,
+        )?);
+        Ok(Outcome {
+            files,
+            summary: self.summary.clone(),
+            not_converged: f.convergence.and_then(|c| c.warning()),
+        })
+    }
 }
 
 /// fit.png for a memory-curve target: the target with error bars, the initial and fitted model.
@@ -299,117 +500,4 @@ fn memory_fit_plot(
         fitted,
     )?;
     Ok(Some(png))
-}
-
-/// The Adam branch of `lightpath fit`: fit.json (log, fitted values ± sd, the single-scattering
-/// reading where it applies), phase.png for a phase-function fit, fit.png for a memory curve.
-fn adam_fit(
-    cfg: &crate::config::Config,
-    fit: &crate::inverse::AdamFit,
-    target_path: &Path,
-    show: bool,
-    out: &Path,
-) -> Result<Outcome> {
-    let t0 = Instant::now();
-    let res = fit.run(&|e| {
-        if show {
-            eprintln!(
-                "iteration {:>4} loss {:.6e} |grad| {:.3e}",
-                e.stage, e.loss, e.grad_norm
-            );
-        }
-    })?;
-    let seconds = t0.elapsed().as_secs_f64();
-    let readings = crate::inverse::shortcut::single_scattering_readings(fit.scene, fit.target);
-    let angles: Vec<f64> = res
-        .cos
-        .iter()
-        .map(|c| c.clamp(-1.0, 1.0).acos().to_degrees())
-        .collect();
-    let file = FitFile {
-        format_version: crate::io::results::FORMAT_VERSION,
-        optimizer: Some("adam".into()),
-        params: res.names.clone(),
-        initial: res.initial.clone(),
-        fitted: res.fitted.clone(),
-        stddev: res.stddev.clone(),
-        correlation: None,
-        loss: res.loss,
-        dof: Some(res.dof),
-        phase_cos: Some(res.cos.clone()),
-        phase_angle_deg: Some(angles.clone()),
-        target_values: Some(fit.target.values()),
-        model_initial: res.model_initial.clone(),
-        model_fitted: res.model_fitted.clone(),
-        single_scattering_reading: readings.as_ref().map(|r| {
-            r.iter()
-                .map(|r| ReadingRecord {
-                    delta_deg: r.delta_deg,
-                    angle_deg: r.angle_deg,
-                    rho: r.rho,
-                    stderr: r.stderr,
-                })
-                .collect()
-        }),
-        log: res
-            .log
-            .iter()
-            .map(|e| FitLogLine {
-                stage: None,
-                iteration: Some(e.stage),
-                loss: e.loss,
-                params: e.params.clone(),
-                grad_norm: e.grad_norm,
-            })
-            .collect(),
-        learning_rate: Some(fit.settings.learning_rate),
-        smooth: Some(fit.settings.smooth),
-        convergence: Some(res.convergence),
-        samples: fit.settings.model.samples,
-        seed: fit.settings.model.seed,
-        seconds,
-        version: env!("CARGO_PKG_VERSION").into(),
-        target: target_path.display().to_string(),
-        config: cfg.clone(),
-    };
-    let path = out.join(FitFile::NAME);
-    file.write(&path)?;
-    let mut files = vec![path];
-    let scalars = fit.params.len();
-    if fit.phase {
-        let png = out.join("phase.png");
-        crate::io::plot::phase_fit(
-            &png,
-            &angles,
-            &res.initial[scalars..],
-            &res.fitted[scalars..],
-            &res.stddev[scalars..],
-            readings.as_deref().unwrap_or(&[]),
-        )?;
-        files.push(png);
-    }
-    files.extend(memory_fit_plot(
-        fit.target,
-        &res.model_initial,
-        &res.model_fitted,
-        out,
-    )?);
-    let mut summary = format!(
-        "Adam fit in {seconds:.1} s ({} iterations, {}), final loss {:.4e} over {:.0} degrees of freedom\n",
-        res.log.len(),
-        res.convergence.line(),
-        res.loss,
-        res.dof
-    );
-    for (i, n) in res.names.iter().enumerate() {
-        summary += &format!(
-            "  {n:>14}: {:.5} → {:.5} ± {:.5}\n",
-            res.initial[i], res.fitted[i], res.stddev[i]
-        );
-    }
-    Ok(Outcome {
-        files,
-        summary,
-        not_converged: res.convergence.warning(),
-    })
 }

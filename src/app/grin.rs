@@ -10,6 +10,7 @@ use crate::io::results::{
     DesignFile, DesignLogLine, GridRecord, GrinFitFile, GrinFitLogLine, RadialProfile, RayRecord,
     RaysFile,
 };
+use crate::mc::StopFlag;
 use glam::DVec3;
 use std::path::Path;
 use std::time::Instant;
@@ -22,8 +23,30 @@ pub fn design(
     budget: &super::budget::Budget,
     out: &Path,
 ) -> Result<Outcome> {
-    use crate::inverse::grin_design::radial_profile;
-    let (cfg, problem) = (&task.config, &task.problem);
+    check_design(task, budget)?;
+    create_out(
+        out,
+        &["design.json", "loss.png", "profile.png", "grid_slice_z.exr"],
+    )?;
+    let iterations = task.problem.iterations;
+    let designed = run_design(
+        task,
+        &|s| {
+            if show && (s.iteration % 10 == 0 || s.iteration + 1 == iterations) {
+                eprintln!(
+                    "level {} iteration {:>5} loss {:.5e} mean miss² {:.5e}",
+                    s.level, s.iteration, s.loss, s.miss2
+                );
+            }
+        },
+        &StopFlag::default(),
+    )?;
+    designed.write(out)
+}
+
+/// Refuse a design whose iterations would not fit the time or memory budget.
+pub fn check_design(task: &DesignTask, budget: &super::budget::Budget) -> Result<()> {
+    let problem = &task.problem;
     // each iteration traces every ray forward and runs the adjoint over every coefficient:
     // about one pilot pass on the Luneburg design experiment; three leave room for finer grids,
     // whose adjoint scatters into more memory
@@ -37,20 +60,26 @@ pub fn design(
         !problem.to_exit,
         3.0 * (problem.levels.len() * problem.iterations) as f64,
         budget,
-    )?;
-    create_out(
-        out,
-        &["design.json", "loss.png", "profile.png", "grid_slice_z.exr"],
-    )?;
+    )
+}
+
+/// A finished grid design: design.json's content and the grid sizes of its levels.
+pub struct Designed {
+    pub file: DesignFile,
+    levels: Vec<usize>,
+    pub summary: String,
+}
+
+/// Run a design: `progress` sees every iteration, `stop` ends it with [`Error::Interrupted`].
+pub fn run_design(
+    task: &DesignTask,
+    progress: &dyn Fn(&crate::inverse::grin_design::DesignStep),
+    stop: &StopFlag,
+) -> Result<Designed> {
+    use crate::inverse::grin_design::radial_profile;
+    let (cfg, problem) = (&task.config, &task.problem);
     let t0 = Instant::now();
-    let res = problem.run(&|s| {
-        if show && (s.iteration % 10 == 0 || s.iteration + 1 == problem.iterations) {
-            eprintln!(
-                "level {} iteration {:>5} loss {:.5e} mean miss² {:.5e}",
-                s.level, s.iteration, s.loss, s.miss2
-            );
-        }
-    })?;
+    let res = problem.run(progress, stop)?;
     let seconds = t0.elapsed().as_secs_f64();
     crate::config::trace::check_positive(&res.field)
         .map_err(|e| Error::Numerical(format!("design result: {}", e.0)))?;
@@ -99,58 +128,6 @@ pub fn design(
         version: env!("CARGO_PKG_VERSION").into(),
         config: cfg.clone(),
     };
-    let path = out.join(DesignFile::NAME);
-    file.write(&path)?;
-    let loss_png = out.join("loss.png");
-    let levels = res.log.iter().map(|s| s.level).max().unwrap_or(0);
-    let series: Vec<(String, Vec<(f64, f64)>)> = (0..=levels)
-        .map(|l| {
-            let n = problem.levels[l];
-            (
-                format!("level {l} ({n}³)"),
-                res.log
-                    .iter()
-                    .enumerate()
-                    .filter(|(_, s)| s.level == l)
-                    .map(|(i, s)| (i as f64, s.miss2))
-                    .collect(),
-            )
-        })
-        .collect();
-    crate::io::plot::lines(
-        &loss_png,
-        "Design: mean squared miss distance",
-        "iteration",
-        "mean miss²",
-        &series,
-        true,
-    )?;
-    let profile_png = out.join("profile.png");
-    crate::io::plot::lines(
-        &profile_png,
-        "Designed index along 26 radial directions",
-        "r",
-        "n",
-        &[
-            (
-                "mean".to_string(),
-                profile.iter().map(|p| (p.0, p.1)).collect(),
-            ),
-            (
-                "min".to_string(),
-                profile.iter().map(|p| (p.0, p.2)).collect(),
-            ),
-            (
-                "max".to_string(),
-                profile.iter().map(|p| (p.0, p.3)).collect(),
-            ),
-        ],
-        false,
-    )?;
-    let [nx, ny, nz] = g.dims;
-    let slice: Vec<f64> = res.grid_samples[nx * ny * (nz / 2)..nx * ny * (nz / 2 + 1)].to_vec();
-    let exr_path = out.join("grid_slice_z.exr");
-    crate::io::exr::write_scalar(&exr_path, &slice, nx, ny, "n")?;
     let summary = format!(
         "design in {seconds:.1} s ({} iterations over {} level(s); {}): RMS miss distance {:.4e} → {:.4e}",
         res.log.len(),
@@ -159,11 +136,69 @@ pub fn design(
         res.rms_miss_initial,
         res.rms_miss_final
     );
-    Ok(Outcome {
-        not_converged: res.convergence.warning(),
-        files: vec![path, loss_png, profile_png, exr_path],
+    Ok(Designed {
+        file,
+        levels: problem.levels.clone(),
         summary,
     })
+}
+
+impl Designed {
+    /// Write design.json, loss.png, profile.png and grid_slice_z.exr into `out`, which must exist.
+    pub fn write(&self, out: &Path) -> Result<Outcome> {
+        let file = &self.file;
+        let path = out.join(DesignFile::NAME);
+        file.write(&path)?;
+        let loss_png = out.join("loss.png");
+        let levels = file.log.iter().map(|s| s.level).max().unwrap_or(0);
+        let series: Vec<(String, Vec<(f64, f64)>)> = (0..=levels)
+            .map(|l| {
+                let n = self.levels[l];
+                (
+                    format!("level {l} ({n}³)"),
+                    file.log
+                        .iter()
+                        .enumerate()
+                        .filter(|(_, s)| s.level == l)
+                        .map(|(i, s)| (i as f64, s.mean_miss2))
+                        .collect(),
+                )
+            })
+            .collect();
+        crate::io::plot::lines(
+            &loss_png,
+            "Design: mean squared miss distance",
+            "iteration",
+            "mean miss²",
+            &series,
+            true,
+        )?;
+        let profile_png = out.join("profile.png");
+        let p = &file.radial_profile;
+        let curve =
+            |v: &[f64]| -> Vec<(f64, f64)> { p.r.iter().copied().zip(v.iter().copied()).collect() };
+        crate::io::plot::lines(
+            &profile_png,
+            "Designed index along 26 radial directions",
+            "r",
+            "n",
+            &[
+                ("mean".to_string(), curve(&p.mean)),
+                ("min".to_string(), curve(&p.min)),
+                ("max".to_string(), curve(&p.max)),
+            ],
+            false,
+        )?;
+        let [nx, ny, nz] = file.grid.dims.map(|d| d as usize);
+        let slice = &file.grid.samples[nx * ny * (nz / 2)..nx * ny * (nz / 2 + 1)];
+        let exr_path = out.join("grid_slice_z.exr");
+        crate::io::exr::write_scalar(&exr_path, slice, nx, ny, "n")?;
+        Ok(Outcome {
+            not_converged: file.convergence.and_then(|c| c.warning()),
+            files: vec![path, loss_png, profile_png, exr_path],
+            summary: self.summary.clone(),
+        })
+    }
 }
 
 /// `lightpath design` with a `[parameters]` table: fit analytic field parameters by L-BFGS on
@@ -174,8 +209,26 @@ pub fn param_fit(
     budget: &super::budget::Budget,
     out: &Path,
 ) -> Result<Outcome> {
-    use crate::eikonal::Tracer;
-    let (cfg, problem) = (&task.config, &task.problem);
+    check_param_fit(task, budget)?;
+    create_out(out, &["fit.json", "loss.png", "rays.png"])?;
+    let fitted = run_param_fit(
+        task,
+        &|s| {
+            if show {
+                eprintln!(
+                    "evaluation {:>4} mean miss² {:.5e} parameters {:?}",
+                    s.evaluation, s.mean_miss2, s.params
+                );
+            }
+        },
+        &StopFlag::default(),
+    )?;
+    fitted.write(out)
+}
+
+/// Refuse a parameter fit whose iterations would not fit the time or memory budget.
+pub fn check_param_fit(task: &ParamFitTask, budget: &super::budget::Budget) -> Result<()> {
+    let problem = &task.problem;
     // an L-BFGS iteration evaluates the loss once or twice, each a trace and its exit adjoint
     // (measured on the GRIN-fibre experiment: 5.5 of the pilot's passes per iteration)
     super::budget::check_rays(
@@ -188,17 +241,27 @@ pub fn param_fit(
         false,
         6.0 * problem.iterations as f64,
         budget,
-    )?;
-    create_out(out, &["fit.json", "loss.png", "rays.png"])?;
+    )
+}
+
+/// A finished parameter fit: fit.json's content and the fitted field's ray paths (for rays.png).
+pub struct ParamFitted {
+    pub file: GrinFitFile,
+    paths: Vec<Vec<DVec3>>,
+    pub summary: String,
+}
+
+/// Run a parameter fit: `progress` sees every evaluation, `stop` ends it with
+/// [`Error::Interrupted`].
+pub fn run_param_fit(
+    task: &ParamFitTask,
+    progress: &(dyn Fn(&crate::inverse::grin_fit::FitStep) + Sync),
+    stop: &StopFlag,
+) -> Result<ParamFitted> {
+    use crate::eikonal::Tracer;
+    let (cfg, problem) = (&task.config, &task.problem);
     let t0 = Instant::now();
-    let res = problem.run(&|s| {
-        if show {
-            eprintln!(
-                "evaluation {:>4} mean miss² {:.5e} parameters {:?}",
-                s.evaluation, s.mean_miss2, s.params
-            );
-        }
-    })?;
+    let res = problem.run(progress, stop)?;
     let seconds = t0.elapsed().as_secs_f64();
     let file = GrinFitFile {
         format_version: crate::io::results::FORMAT_VERSION,
@@ -221,23 +284,6 @@ pub fn param_fit(
         version: env!("CARGO_PKG_VERSION").into(),
         config: cfg.clone(),
     };
-    let path = out.join(GrinFitFile::NAME);
-    file.write(&path)?;
-    let loss_png = out.join("loss.png");
-    crate::io::plot::lines(
-        &loss_png,
-        "Fit: mean squared miss distance",
-        "evaluation",
-        "mean miss²",
-        &[(
-            "L-BFGS".to_string(),
-            res.log
-                .iter()
-                .map(|s| (s.evaluation as f64, s.mean_miss2))
-                .collect(),
-        )],
-        true,
-    )?;
     let tracer = Tracer {
         field: &res.field,
         step: problem.step,
@@ -261,8 +307,6 @@ pub fn param_fit(
             p
         })
         .collect();
-    let rays_png = out.join("rays.png");
-    crate::io::plot::ray_paths(&rays_png, &paths)?;
     let mut summary = format!(
         "L-BFGS fit in {seconds:.1} s ({}): RMS miss distance {:.4e} → {:.4e}\n",
         res.convergence.line(),
@@ -272,11 +316,42 @@ pub fn param_fit(
     for (i, n) in problem.names.iter().enumerate() {
         summary += &format!("  {n}: {:.6e} → {:.6e}\n", res.initial[i], res.fitted[i]);
     }
-    Ok(Outcome {
-        not_converged: res.convergence.warning(),
-        files: vec![path, loss_png, rays_png],
+    Ok(ParamFitted {
+        file,
+        paths,
         summary: summary.trim_end().to_string(),
     })
+}
+
+impl ParamFitted {
+    /// Write fit.json, loss.png and rays.png into `out`, which must exist.
+    pub fn write(&self, out: &Path) -> Result<Outcome> {
+        let file = &self.file;
+        let path = out.join(GrinFitFile::NAME);
+        file.write(&path)?;
+        let loss_png = out.join("loss.png");
+        crate::io::plot::lines(
+            &loss_png,
+            "Fit: mean squared miss distance",
+            "evaluation",
+            "mean miss²",
+            &[(
+                "L-BFGS".to_string(),
+                file.log
+                    .iter()
+                    .map(|s| (s.evaluation as f64, s.mean_miss2))
+                    .collect(),
+            )],
+            true,
+        )?;
+        let rays_png = out.join("rays.png");
+        crate::io::plot::ray_paths(&rays_png, &self.paths)?;
+        Ok(Outcome {
+            not_converged: file.convergence.and_then(|c| c.warning()),
+            files: vec![path, loss_png, rays_png],
+            summary: self.summary.clone(),
+        })
+    }
 }
 
 /// `lightpath trace`: trace a bundle of rays through an index field → rays.json and rays.png.

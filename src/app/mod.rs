@@ -172,13 +172,18 @@ impl<'a> Progress<'a> {
 pub struct Watch {
     pub done: AtomicU64,
     pub total: AtomicU64,
-    pub stop: AtomicBool,
+    pub stop: std::sync::Arc<AtomicBool>,
 }
 
 impl Watch {
     /// Ask the run to stop at its next wave of chunks.
     pub fn stop(&self) {
         self.stop.store(true, Ordering::Relaxed);
+    }
+
+    /// The stop flag for fits and designs, which hold it beyond a borrow.
+    pub fn stop_flag(&self) -> crate::mc::StopFlag {
+        crate::mc::StopFlag::new(std::sync::Arc::clone(&self.stop))
     }
 
     /// `(done, total)` units of work so far.

@@ -43,6 +43,40 @@ pub fn run(mut task: RenderTask, opts: &RunOptions, out: &Path) -> Result<Outcom
     execute(Kind::Render, Job::Render(&task), plan, opts, out)
 }
 
+/// Render `task` in memory (nothing written), with `samples` and `seed` overriding the config's;
+/// progress (in chunks) and the stop flag go through `watch`.
+pub fn evaluate(
+    mut task: RenderTask,
+    samples: Option<u64>,
+    seed: Option<u64>,
+    budget: &super::budget::Budget,
+    watch: &super::Watch,
+) -> Result<Rendered> {
+    let r = &mut task.config.render;
+    if let Some(s) = samples {
+        if s == 0 {
+            return Err(Error::input("samples = 0: must be at least 1"));
+        }
+        r.samples = s;
+    }
+    if let Some(s) = seed {
+        r.seed = s;
+    }
+    let plan = Plan::new(r.seed, r.samples, r.chunk);
+    let bar = Progress::watched(watch, plan.chunks);
+    let t0 = std::time::Instant::now();
+    let blocks = compute(
+        &task,
+        &plan,
+        0..plan.chunks,
+        Vec::new(),
+        Checkpoint::stop_only(Some(&watch.stop)),
+        budget,
+        &bar,
+    )?;
+    rendered(&task, &plan, blocks, t0.elapsed().as_secs_f64())
+}
+
 /// What `check` says of a render config.
 pub fn describe(task: &RenderTask) -> String {
     let s = &task.scene;
@@ -158,6 +192,44 @@ pub(crate) fn finish(
     seconds: f64,
     out: &Path,
 ) -> Result<Outcome> {
+    let r = rendered(task, plan, blocks, seconds)?;
+    if let Some(w) = &r.warning {
+        eprintln!("{w}");
+    }
+    r.write(out)
+}
+
+/// A finished render: `render.json`'s content and every screen's and camera's image.
+pub struct Rendered {
+    pub file: RenderFile,
+    pub images: Vec<Image>,
+    pub summary: String,
+    /// Set when a noticeable share of the power was given up (photons trapped too long).
+    pub warning: Option<String>,
+}
+
+/// One screen's or camera's image: per channel its values and standard errors, the top row
+/// first (`height × width`, row-major), time-integrated and, with time bins, per bin.
+pub struct Image {
+    /// `screen_<name>` or `camera_<name>`: the stem of its files.
+    pub stem: String,
+    /// What the preview shows (`√irradiance`, `√radiance`).
+    pub label: &'static str,
+    pub width: usize,
+    pub height: usize,
+    /// `[channel] → (values, standard errors)`, time-integrated.
+    pub total: Vec<(Vec<f64>, Vec<f64>)>,
+    /// `[bin][channel] → (values, standard errors)`; empty without time bins.
+    pub bins: Vec<Vec<(Vec<f64>, Vec<f64>)>>,
+}
+
+/// The results of a whole run (or merged shards) from its blocks.
+pub fn rendered(
+    task: &RenderTask,
+    plan: &Plan,
+    blocks: Vec<Block>,
+    seconds: f64,
+) -> Result<Rendered> {
     let scene = &task.scene;
     let est = ParticleTracer::new(scene);
     let root = merge(blocks, plan.chunks)?;
@@ -168,7 +240,7 @@ pub(crate) fn finish(
         stderr: e.stderr[i],
     };
     let bins = scene.bins();
-    let mut files = Vec::new();
+    let mut images = Vec::new();
     let mut sensors = Vec::new();
     let mut summary = Vec::new();
     for (i, s) in scene.sensors.iter().enumerate() {
@@ -195,19 +267,15 @@ pub(crate) fn finish(
         };
         match (s.kind, s.pixel_area()) {
             (SensorKind::Screen, Some(area)) => {
-                let names = write_images(
-                    out,
-                    &format!("screen_{}", s.name),
-                    Frames {
-                        e: &e,
-                        image,
-                        size: s.pixels,
-                        scale: 1.0 / area,
-                    },
-                    "√irradiance",
-                    &mut files,
-                )?;
-                record.files = names;
+                let frames = Frames {
+                    e: &e,
+                    image,
+                    size: s.pixels,
+                    scale: 1.0 / area,
+                };
+                let image = frames.image(format!("screen_{}", s.name), "√irradiance");
+                record.files = image.exr_names();
+                images.push(image);
                 record.pixels = Some(s.pixels);
                 record.pixel_area = Some(area);
             }
@@ -243,13 +311,10 @@ pub(crate) fn finish(
             size,
             scale: 1.0,
         };
-        write_images(
-            out,
-            &format!("camera_{name}"),
-            frames,
-            "√radiance",
-            &mut files,
-        )
+        let image = frames.image(format!("camera_{name}"), "√radiance");
+        let names = image.exr_names();
+        images.push(image);
+        names
     };
     for (i, c) in scene.cameras.iter().enumerate() {
         let image = est.camera_image(i);
@@ -261,7 +326,7 @@ pub(crate) fn finish(
             "{} intensity {:.4e} ± {:.1e}",
             c.name, intensity.mean, intensity.stderr
         ));
-        let names = camera_images(&c.name, image, c.pixels)?;
+        let names = camera_images(&c.name, image, c.pixels);
         cameras.push(CameraRecord {
             name: c.name.clone(),
             kind: "orthographic".into(),
@@ -281,7 +346,7 @@ pub(crate) fn finish(
             "{} irradiance {:.4e} ± {:.1e}",
             c.name, irradiance.mean, irradiance.stderr
         ));
-        let names = camera_images(&c.name, image, c.pixels)?;
+        let names = camera_images(&c.name, image, c.pixels);
         cameras.push(CameraRecord {
             name: c.name.clone(),
             kind: "pinhole".into(),
@@ -385,36 +450,53 @@ pub(crate) fn finish(
         version: env!("CARGO_PKG_VERSION").into(),
         config: task.config.clone(),
     };
-    let path = out.join(RenderFile::NAME);
-    file.write(&path)?;
-    files.insert(0, path);
     let unfinished = file.unfinished.map_or(0.0, |u| u.mean);
-    if unfinished > 1e-3 {
-        eprintln!(
+    let warning = (unfinished > 1e-3).then(|| {
+        format!(
             "warning: {unfinished:.2e} of the power was given up (photons trapped past render.max_steps steps in one flight); raise render.max_steps or check the field"
-        );
-    }
-    Ok(Outcome {
-        not_converged: None,
-        files,
-        summary: format!(
-            "rendered {} {} ({:.2} events, {:.0} steps each): {}{}{}",
-            plan.samples(),
-            if particles { "photons" } else { "camera paths" },
-            events,
-            steps,
-            if summary.is_empty() {
-                "no sensors or probes".into()
-            } else {
-                summary.join(", ")
-            },
-            match (file.absorbed, file.escaped) {
-                (Some(a), Some(e)) => format!("; absorbed {:.4}, escaped {:.4}", a.mean, e.mean),
-                _ => String::new(),
-            },
-            timed.map_or(String::new(), |t| format!(" in {t:.1} s"))
-        ),
+        )
+    });
+    let summary = format!(
+        "rendered {} {} ({:.2} events, {:.0} steps each): {}{}{}",
+        plan.samples(),
+        if particles { "photons" } else { "camera paths" },
+        events,
+        steps,
+        if summary.is_empty() {
+            "no sensors or probes".into()
+        } else {
+            summary.join(", ")
+        },
+        match (file.absorbed, file.escaped) {
+            (Some(a), Some(e)) => format!("; absorbed {:.4}, escaped {:.4}", a.mean, e.mean),
+            _ => String::new(),
+        },
+        timed.map_or(String::new(), |t| format!(" in {t:.1} s"))
+    );
+    Ok(Rendered {
+        file,
+        images,
+        summary,
+        warning,
     })
+}
+
+impl Rendered {
+    /// Write render.json and every image's EXR files and PNG preview into `out` (which must
+    /// exist).
+    pub fn write(&self, out: &Path) -> Result<Outcome> {
+        let path = out.join(RenderFile::NAME);
+        self.file.write(&path)?;
+        let mut files = vec![path];
+        for image in &self.images {
+            image.write(out, &mut files)?;
+        }
+        Ok(Outcome {
+            not_converged: None,
+            files,
+            summary: self.summary.clone(),
+        })
+    }
 }
 
 /// The frames of one image (a screen or a camera) in an estimate, scaled by `scale` (`1/area`
@@ -430,91 +512,114 @@ struct Frames<'a> {
 const MONO: ([&str; 1], [&str; 1]) = (["Y"], ["stderr"]);
 const RGB: ([&str; 3], [&str; 3]) = (["R", "G", "B"], ["stderr.R", "stderr.G", "stderr.B"]);
 
-/// Write `<stem>.exr` (the time-integrated image with its standard error: channels `Y`,
-/// `stderr`, or `R`, `G`, `B` and `stderr.R`… in colour), with time bins one `<stem>_t<bin>.exr`
-/// per bin, and a preview `<stem>.png` (square root of the values, sRGB-encoded in colour); the
-/// EXR names, the integrated one first.
-fn write_images(
-    out: &Path,
-    stem: &str,
-    f: Frames,
-    label: &str,
-    files: &mut Vec<std::path::PathBuf>,
-) -> Result<Vec<String>> {
-    let [w, h] = f.size;
-    let n = w * h;
-    let channels = f.image.channels;
-    // each channel's values and standard errors in one frame, the top row first (the images hold
-    // rows from the bottom, along the sensor's or camera's up axis; EXR viewers show row 0 on top)
-    let frame = |bin: Option<usize>| -> Vec<(Vec<f64>, Vec<f64>)> {
-        (0..channels)
-            .map(|c| {
-                let at = f.image.plane(bin, c);
-                let top_down = |k: usize| at + (h - 1 - k / w) * w + k % w;
-                (
-                    (0..n).map(|k| f.e.mean[top_down(k)].re * f.scale).collect(),
-                    (0..n).map(|k| f.e.stderr[top_down(k)] * f.scale).collect(),
-                )
-            })
+impl Frames<'_> {
+    /// The image's planes (top row first: the estimate holds rows from the bottom, along the
+    /// sensor's or camera's up axis; EXR viewers show row 0 on top).
+    fn image(&self, stem: String, label: &'static str) -> Image {
+        let [w, h] = self.size;
+        let n = w * h;
+        let frame = |bin: Option<usize>| -> Vec<(Vec<f64>, Vec<f64>)> {
+            (0..self.image.channels)
+                .map(|c| {
+                    let at = self.image.plane(bin, c);
+                    let top_down = |k: usize| at + (h - 1 - k / w) * w + k % w;
+                    (
+                        (0..n)
+                            .map(|k| self.e.mean[top_down(k)].re * self.scale)
+                            .collect(),
+                        (0..n)
+                            .map(|k| self.e.stderr[top_down(k)] * self.scale)
+                            .collect(),
+                    )
+                })
+                .collect()
+        };
+        let bins = self.image.bins;
+        Image {
+            stem,
+            label,
+            width: w,
+            height: h,
+            total: frame(None),
+            bins: if bins > 1 {
+                (0..bins).map(|b| frame(Some(b))).collect()
+            } else {
+                vec![]
+            },
+        }
+    }
+}
+
+impl Image {
+    /// The EXR files the image writes, the time-integrated one first.
+    pub fn exr_names(&self) -> Vec<String> {
+        std::iter::once(format!("{}.exr", self.stem))
+            .chain((0..self.bins.len()).map(|b| format!("{}_t{b:04}.exr", self.stem)))
             .collect()
-    };
-    let (names, errors): (&[&str], &[&str]) = if channels == 3 {
-        (&RGB.0, &RGB.1)
-    } else {
-        (&MONO.0, &MONO.1)
-    };
-    let write = |name: &str, planes: &[(Vec<f64>, Vec<f64>)]| -> Result<()> {
-        let mut list: Vec<(&str, &[f64])> = Vec::new();
-        for (c, (v, se)) in planes.iter().enumerate() {
-            list.push((names[c], v));
-            list.push((errors[c], se));
-        }
-        crate::io::exr::write_planes(&out.join(name), &list, w, h)
-    };
-    let mut written = Vec::new();
-    let total = frame(None);
-    let name = format!("{stem}.exr");
-    write(&name, &total)?;
-    files.push(out.join(&name));
-    written.push(name);
-    let bins = f.image.bins;
-    if bins > 1 {
-        for b in 0..bins {
-            let name = format!("{stem}_t{b:04}.exr");
-            write(&name, &frame(Some(b)))?;
-            written.push(name);
-        }
     }
-    // the preview's white: the 99.5th percentile, so that a few bright pixels (a point light
-    // seen directly, fireflies) do not leave the rest black
-    let mut sorted: Vec<f64> = total.iter().flat_map(|(v, _)| v.iter().cloned()).collect();
-    sorted.sort_by(f64::total_cmp);
-    let max = sorted
-        .get((sorted.len() as f64 * 0.995) as usize)
-        .or(sorted.last())
-        .copied()
-        .unwrap_or(0.0)
-        .max(0.0);
-    // the plot's rows run upwards from its bottom: back to the images' own order
-    let at = |k: usize| (h - 1 - k / w) * w + k % w;
-    let scaled = |v: f64| {
-        if max > 0.0 {
-            (v / max).max(0.0).sqrt()
+
+    /// Write `<stem>.exr` (the time-integrated image with its standard error: channels `Y`,
+    /// `stderr`, or `R`, `G`, `B` and `stderr.R`… in colour), with time bins one
+    /// `<stem>_t<bin>.exr` per bin, and a preview `<stem>.png` (square root of the values,
+    /// sRGB-encoded in colour); adds the integrated EXR and the PNG to `files`.
+    fn write(&self, out: &Path, files: &mut Vec<std::path::PathBuf>) -> Result<()> {
+        let (w, h) = (self.width, self.height);
+        let n = w * h;
+        let channels = self.total.len();
+        let (names, errors): (&[&str], &[&str]) = if channels == 3 {
+            (&RGB.0, &RGB.1)
         } else {
-            0.0
+            (&MONO.0, &MONO.1)
+        };
+        let write = |name: &str, planes: &[(Vec<f64>, Vec<f64>)]| -> Result<()> {
+            let mut list: Vec<(&str, &[f64])> = Vec::new();
+            for (c, (v, se)) in planes.iter().enumerate() {
+                list.push((names[c], v));
+                list.push((errors[c], se));
+            }
+            crate::io::exr::write_planes(&out.join(name), &list, w, h)
+        };
+        let exr = self.exr_names();
+        write(&exr[0], &self.total)?;
+        files.push(out.join(&exr[0]));
+        for (name, frame) in exr[1..].iter().zip(&self.bins) {
+            write(name, frame)?;
         }
-    };
-    let png = out.join(format!("{stem}.png"));
-    let title = format!("{label}, white at {max:.2e}");
-    if channels == 3 {
-        let rgb: Vec<[f64; 3]> = (0..n)
-            .map(|k| [0, 1, 2].map(|c| scaled(total[c].0[at(k)])))
+        // the preview's white: the 99.5th percentile, so that a few bright pixels (a point light
+        // seen directly, fireflies) do not leave the rest black
+        let mut sorted: Vec<f64> = self
+            .total
+            .iter()
+            .flat_map(|(v, _)| v.iter().cloned())
             .collect();
-        crate::io::plot::colour_image(&png, &title, stem, &rgb, w, h)?;
-    } else {
-        let preview: Vec<f64> = (0..n).map(|k| scaled(total[0].0[at(k)])).collect();
-        crate::io::plot::heat_maps(&png, &title, &[(stem.to_string(), preview)], w, h)?;
+        sorted.sort_by(f64::total_cmp);
+        let max = sorted
+            .get((sorted.len() as f64 * 0.995) as usize)
+            .or(sorted.last())
+            .copied()
+            .unwrap_or(0.0)
+            .max(0.0);
+        // the plot's rows run upwards from its bottom: back to the images' own order
+        let at = |k: usize| (h - 1 - k / w) * w + k % w;
+        let scaled = |v: f64| {
+            if max > 0.0 {
+                (v / max).max(0.0).sqrt()
+            } else {
+                0.0
+            }
+        };
+        let png = out.join(format!("{}.png", self.stem));
+        let title = format!("{}, white at {max:.2e}", self.label);
+        if channels == 3 {
+            let rgb: Vec<[f64; 3]> = (0..n)
+                .map(|k| [0, 1, 2].map(|c| scaled(self.total[c].0[at(k)])))
+                .collect();
+            crate::io::plot::colour_image(&png, &title, &self.stem, &rgb, w, h)?;
+        } else {
+            let preview: Vec<f64> = (0..n).map(|k| scaled(self.total[0].0[at(k)])).collect();
+            crate::io::plot::heat_maps(&png, &title, &[(self.stem.clone(), preview)], w, h)?;
+        }
+        files.push(png);
+        Ok(())
     }
-    files.push(png);
-    Ok(written)
 }

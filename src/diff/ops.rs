@@ -8,7 +8,7 @@
 use super::bridge::{Differentiable, Pullback};
 use super::{CovarianceGradient, Param, Reweighted, ReweightedCovariance};
 use crate::math::C64;
-use crate::mc::{Estimate, Plan, estimate, estimate_until};
+use crate::mc::{Plan, StopFlag, estimate_until};
 use crate::medium::{Medium, PhaseFunction, Scattering};
 use crate::speckle::Scene;
 use std::sync::Arc;
@@ -147,6 +147,8 @@ pub struct CovarianceOp {
     pub chunk: u64,
     pub seed: u64,
     pub proposal: Proposal,
+    /// Stops every forward and pullback of this operation once set (none from [`Self::new`]).
+    pub stop: StopFlag,
     evaluations: AtomicU64,
 }
 
@@ -188,6 +190,7 @@ impl CovarianceOp {
             chunk,
             seed,
             proposal,
+            stop: StopFlag::default(),
             evaluations: AtomicU64::new(0),
         })
     }
@@ -216,6 +219,7 @@ impl CovarianceOp {
             entries: self.entries.clone(),
             reversed: self.reversed,
             plan: Plan::new(seed, self.samples, self.chunk),
+            stop: self.stop.clone(),
         };
         // validate once here, so the pullback cannot meet an error the forward did not report
         e.reweighted(e.params.clone())?;
@@ -254,6 +258,7 @@ pub struct CovarianceEvaluation {
     entries: Vec<(usize, usize)>,
     reversed: bool,
     plan: Plan,
+    stop: StopFlag,
 }
 
 impl CovarianceEvaluation {
@@ -269,10 +274,7 @@ impl CovarianceEvaluation {
 
     fn entries(&self, stop: Option<&AtomicBool>) -> crate::Result<Entries> {
         let est = ReweightedCovariance(self.reweighted(vec![])?);
-        let est: Estimate = match stop {
-            Some(stop) => estimate_until(&est, &self.plan, stop)?,
-            None => estimate(&est, &self.plan),
-        };
+        let est = estimate_until(&est, &self.plan, stop.or(self.stop.get()))?;
         let j = self.pairs.len();
         Ok(Entries {
             value: self
@@ -307,10 +309,7 @@ impl CovarianceEvaluation {
             adjoint[a * j + b] += C64::new(dy[2 * e], dy[2 * e + 1]);
         }
         let est = CovarianceGradient::new(self.reweighted(self.params.clone())?, &adjoint);
-        let g = match stop {
-            Some(stop) => estimate_until(&est, &self.plan, stop)?,
-            None => estimate(&est, &self.plan),
-        };
+        let g = estimate_until(&est, &self.plan, stop.or(self.stop.get()))?;
         Ok(g.mean
             .iter()
             .zip(&self.factor)
@@ -321,7 +320,8 @@ impl CovarianceEvaluation {
 
 impl Pullback for CovarianceEvaluation {
     fn pullback(&self, dy: &[f64]) -> Vec<f64> {
-        // `prepare` built the same estimator successfully, so only a wrong `dy` length fails
+        // `prepare` built the same estimator successfully, so only a wrong `dy` length or the
+        // operation's stop flag fails (the caller checks the flag)
         self.pullback_until(dy, None)
             .unwrap_or_else(|_| vec![f64::NAN; self.params.len()])
     }

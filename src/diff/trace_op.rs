@@ -22,6 +22,8 @@ pub struct TraceOp {
     pub steps: usize,
     pub step: f64,
     pub to_exit: bool,
+    /// Stops the forward pass (an error) and the pullback (the rays left out) once set.
+    pub stop: crate::mc::StopFlag,
 }
 
 /// Ray groups of the backward pass (memory: one coefficient vector per group).
@@ -35,6 +37,7 @@ struct TracePullback {
     step: f64,
     to_exit: bool,
     coefficients: usize,
+    stop: crate::mc::StopFlag,
 }
 
 impl TraceOp {
@@ -72,8 +75,8 @@ impl Differentiable for TraceOp {
             let ends: Vec<_> = self
                 .rays
                 .par_iter()
-                .map(|r| tracer.trace(r.x, r.v))
-                .collect();
+                .map(|r| self.stop.check().map(|()| tracer.trace(r.x, r.v)))
+                .collect::<crate::Result<_>>()?;
             if let Some(i) = ends.iter().position(|e| !e.entered) {
                 return Err(format!(
                     "ray {i} from {} never enters the field: check the beam's center and direction",
@@ -97,8 +100,12 @@ impl Differentiable for TraceOp {
         } else {
             self.rays
                 .par_iter()
-                .map(|r| tracer.steps(*r, self.steps, self.step))
-                .collect()
+                .map(|r| {
+                    self.stop
+                        .check()
+                        .map(|()| tracer.steps(*r, self.steps, self.step))
+                })
+                .collect::<crate::Result<_>>()?
         };
         if let Some(i) = ends
             .iter()
@@ -121,6 +128,7 @@ impl Differentiable for TraceOp {
             step: self.step,
             to_exit: self.to_exit,
             coefficients: c.len(),
+            stop: self.stop.clone(),
         };
         Ok((y, Arc::new(pullback)))
     }
@@ -143,6 +151,10 @@ impl Pullback for TracePullback {
             .map(|g| {
                 let mut acc = vec![0.0; n];
                 for i in g * per..((g + 1) * per).min(self.rays.len()) {
+                    if self.stop.is_set() {
+                        // the caller reports the stop; this gradient is not used
+                        break;
+                    }
                     let d = &dy[6 * i..6 * i + 6];
                     let seed = (DVec3::new(d[0], d[1], d[2]), DVec3::new(d[3], d[4], d[5]));
                     let grid = Some(GridAdjoint {

@@ -161,8 +161,13 @@ impl FocusDesign {
         Ok(self.field_with(&self.grid_at(n, vec![self.initial; n * n * n])?))
     }
 
-    /// Run every level; `progress` sees each iteration.
-    pub fn run(&self, progress: &dyn Fn(&DesignStep)) -> crate::Result<DesignResult> {
+    /// Run every level; `progress` sees each iteration; `stop` ends the run within one ray's
+    /// trace with [`crate::Error::Interrupted`].
+    pub fn run(
+        &self,
+        progress: &dyn Fn(&DesignStep),
+        stop: &crate::mc::StopFlag,
+    ) -> crate::Result<DesignResult> {
         if self.levels.is_empty() || self.levels.iter().any(|&n| n < 4) {
             return Err(format!(
                 "design: levels {:?} must be grid sizes of at least 4 nodes per side",
@@ -186,7 +191,7 @@ impl FocusDesign {
         let mut last_grad_norm = f64::NAN;
         let miss = |g: &GridField| -> crate::Result<f64> {
             let field = self.field_with(g);
-            let op = self.op(field);
+            let op = self.op(field, stop);
             let y = values(&apply(&op, tensor(&g.coef, &burn::tensor::Device::flex()))?);
             Ok(rms_miss(&y, &self.beams))
         };
@@ -201,14 +206,19 @@ impl FocusDesign {
                     .collect();
                 grid = self.grid_at(n, samples)?;
             }
-            let op = self.op(self.field_with(&grid));
+            let op = self.op(self.field_with(&grid), stop);
             grid.coef = super::adam::minimise(
                 &grid.coef,
                 self.iterations,
                 &|_| self.learning_rate,
                 &mut |iteration, c| {
-                    let y = apply(&op, c.clone())
-                        .map_err(|e| format!("design level {level}, iteration {iteration}: {e}"))?;
+                    let y = apply(&op, c.clone()).map_err(|e| {
+                        if stop.is_set() {
+                            crate::Error::Interrupted
+                        } else {
+                            format!("design level {level}, iteration {iteration}: {e}").into()
+                        }
+                    })?;
                     let (miss2, loss) = self.loss(y, c, &foci, n);
                     let entry = DesignStep {
                         level,
@@ -219,6 +229,8 @@ impl FocusDesign {
                     Ok((loss, entry))
                 },
                 &mut |it| {
+                    // a pullback cut short by the flag: report the stop, not its gradient
+                    stop.check()?;
                     let entry = it.observed;
                     if !entry.loss.is_finite() {
                         return Err(format!(
@@ -264,7 +276,7 @@ impl FocusDesign {
         })
     }
 
-    fn op(&self, field: BoundedField) -> TraceOp {
+    fn op(&self, field: BoundedField, stop: &crate::mc::StopFlag) -> TraceOp {
         let rays = self.rays(&field);
         TraceOp {
             profile: field.profiles.len() - 1,
@@ -273,6 +285,7 @@ impl FocusDesign {
             steps: self.steps,
             step: self.step,
             to_exit: self.to_exit,
+            stop: stop.clone(),
         }
     }
 }

@@ -89,6 +89,16 @@ impl ParamFit {
     /// Mean squared miss distance over all rays and its gradient in the parameters (rays in
     /// parallel, summed in ray order: deterministic).
     pub fn loss_and_gradient(&self, theta: &[f64]) -> crate::Result<(f64, Vec<f64>)> {
+        self.loss_and_gradient_until(theta, &crate::mc::StopFlag::default())
+    }
+
+    /// [`Self::loss_and_gradient`], stopped with [`crate::Error::Interrupted`] at the next ray
+    /// once `stop` is set.
+    fn loss_and_gradient_until(
+        &self,
+        theta: &[f64],
+        stop: &crate::mc::StopFlag,
+    ) -> crate::Result<(f64, Vec<f64>)> {
         let field = self.field_with(theta)?;
         let tracer = Tracer {
             field: &field,
@@ -104,6 +114,7 @@ impl ParamFit {
             .par_iter()
             .enumerate()
             .map(|(i, &(o, d, focus))| {
+                stop.check()?;
                 let mut miss = 0.0;
                 let g = tracer
                     .exit_adjoint(o, d, &self.params, None, |e| {
@@ -132,13 +143,18 @@ impl ParamFit {
 
     /// Run L-BFGS in the scaled variables `u_i = θ_i / s_i` (`s_i` the starting magnitude), so
     /// parameters of very different size (`n_max ~ 1e-4`, `k_r ~ 4`) are balanced.
-    pub fn run(&self, progress: &(dyn Fn(&FitStep) + Sync)) -> crate::Result<ParamFitResult> {
+    /// `stop` ends the fit within one ray's trace with [`crate::Error::Interrupted`].
+    pub fn run(
+        &self,
+        progress: &(dyn Fn(&FitStep) + Sync),
+        stop: &crate::mc::StopFlag,
+    ) -> crate::Result<ParamFitResult> {
         let initial = self.initial()?;
         let scale: Vec<f64> = initial
             .iter()
             .map(|v| if *v != 0.0 { v.abs() } else { 1.0 })
             .collect();
-        let (l0, g0) = self.loss_and_gradient(&initial)?;
+        let (l0, g0) = self.loss_and_gradient_until(&initial, stop)?;
         let gnorm = g0
             .iter()
             .zip(&scale)
@@ -150,6 +166,7 @@ impl ParamFit {
             fit: self,
             scale: scale.clone(),
             loss_scale: if gnorm > 0.0 { 1.0 / gnorm } else { 1.0 },
+            stop,
         };
         let observe = |e: &lbfgs::Evaluation| {
             if let Ok(mut log) = log.lock() {
@@ -169,19 +186,21 @@ impl ParamFit {
             bounds: None,
         };
         let u0: Vec<f64> = initial.iter().zip(&scale).map(|(v, s)| v / s).collect();
-        let out = lbfgs::minimise(&objective, &u0, &settings, &observe)
-            .map_err(|e| format!("fit: {e}"))?;
+        let out = lbfgs::minimise(&objective, &u0, &settings, &observe).map_err(|e| match e {
+            crate::Error::Interrupted => e,
+            e => format!("fit: {e}").into(),
+        })?;
         let best = out.x.clone();
-        let stop = super::FitStop::from(&out.stop);
+        let reason = super::FitStop::from(&out.stop);
         let convergence = super::Convergence {
-            converged: stop.converged(),
-            stop,
+            converged: reason.converged(),
+            stop: reason,
             grad_norm: out.grad_norm / objective.loss_scale,
             evaluations: out.evaluations,
             iterations: out.iterations,
         };
         let fitted: Vec<f64> = best.iter().zip(&scale).map(|(u, s)| u * s).collect();
-        let (l1, _) = self.loss_and_gradient(&fitted)?;
+        let (l1, _) = self.loss_and_gradient_until(&fitted, stop)?;
         Ok(ParamFitResult {
             field: self.field_with(&fitted)?,
             initial,
@@ -199,12 +218,13 @@ struct Scaled<'a> {
     fit: &'a ParamFit,
     scale: Vec<f64>,
     loss_scale: f64,
+    stop: &'a crate::mc::StopFlag,
 }
 
 impl lbfgs::Objective for Scaled<'_> {
     fn eval(&self, u: &[f64]) -> crate::Result<(f64, Vec<f64>)> {
         let theta: Vec<f64> = u.iter().zip(&self.scale).map(|(u, s)| u * s).collect();
-        let (l, g) = self.fit.loss_and_gradient(&theta)?;
+        let (l, g) = self.fit.loss_and_gradient_until(&theta, self.stop)?;
         let gu = g
             .iter()
             .zip(&self.scale)

@@ -162,7 +162,7 @@ pub fn minimise(
     drop(result);
     let record = wrapped.state.into_inner().unwrap_or_default();
     if let Some(e) = record.error {
-        return Err(crate::Error::input(e));
+        return Err(e);
     }
     let best = record
         .best
@@ -213,7 +213,7 @@ struct Record {
     /// the gradient of one point separately).
     last: Option<(Vec<f64>, f64, Vec<f64>)>,
     /// An error of the objective (argmin would otherwise report it as a line-search failure).
-    error: Option<String>,
+    error: Option<crate::Error>,
 }
 
 struct Wrapped<'a> {
@@ -259,9 +259,9 @@ impl Wrapped<'_> {
         let (loss, grad) = match self.objective.eval(&p) {
             Ok(r) => r,
             Err(e) => {
-                let e = e.to_string();
-                st.error.get_or_insert(e.clone());
-                return Err(ArgminError::msg(e));
+                let message = ArgminError::msg(e.to_string());
+                st.error.get_or_insert(e);
+                return Err(message);
             }
         };
         let finite = loss.is_finite() && grad.iter().all(|g| g.is_finite());

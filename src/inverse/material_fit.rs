@@ -51,6 +51,8 @@ pub struct Fit<'a> {
     pub target: &'a Target,
     pub params: Vec<FitParam>,
     pub settings: FitSettings,
+    /// Stops the fit at its next wave of chunks with [`crate::Error::Interrupted`].
+    pub stop: crate::mc::StopFlag,
 }
 
 /// Result of [`Fit::run`].
@@ -70,9 +72,9 @@ pub struct FitResult {
 }
 
 impl Fit<'_> {
-    fn estimate<E: crate::mc::Estimator>(&self, e: &E) -> Estimate {
+    fn estimate<E: crate::mc::Estimator>(&self, e: &E) -> crate::Result<Estimate> {
         let plan = self.settings.model.plan();
-        crate::mc::estimate(e, &plan)
+        crate::mc::estimate_until(e, &plan, self.stop.get())
     }
 
     fn diff_params(&self) -> Vec<Param> {
@@ -93,7 +95,7 @@ impl Fit<'_> {
             self.settings.model.reversed,
             vec![],
         )?;
-        Ok(self.estimate(&ReweightedCovariance(r)).mean)
+        Ok(self.estimate(&ReweightedCovariance(r))?.mean)
     }
 
     /// Loss and its gradient with respect to the natural parameters.
@@ -109,7 +111,7 @@ impl Fit<'_> {
             self.settings.model.reversed,
             dp.clone(),
         )?;
-        let g = self.estimate(&CovarianceGradient::new(r, &adjoint)).mean;
+        let g = self.estimate(&CovarianceGradient::new(r, &adjoint))?.mean;
         let (ds, da) = (g[0].re, g[1].re);
         let jac = crate::medium::params::sigmas_jacobian(1.0 / m.sigma_t(), m.albedo());
         let grad = self
@@ -159,6 +161,7 @@ impl Fit<'_> {
             self.target,
             self.scene,
             &self.settings.model,
+            &self.stop,
         )?;
         let r0 = self.target.residuals(&at_opt.mean);
         // the model's per-residual Monte Carlo error (residual units) only sets the expected size
@@ -208,6 +211,7 @@ impl Fit<'_> {
                 weights: &weights,
             };
             let keep: Vec<usize> = (0..p).collect();
+            self.stop.check()?;
             let root = merge(
                 run(&est, &plan, 0..plan.chunks, &keep, &|_| {}),
                 plan.chunks,

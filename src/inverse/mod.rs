@@ -192,6 +192,7 @@ pub(crate) fn model_with_chunks(
     target: &Target,
     scene: &crate::speckle::Scene,
     model: &ModelSettings,
+    stop: &crate::mc::StopFlag,
 ) -> crate::Result<(crate::mc::Estimate, Vec<crate::math::C64>)> {
     use crate::diff::{Reweighted, ReweightedCovariance};
     use crate::mc::{Estimate, merge, run};
@@ -203,6 +204,7 @@ pub(crate) fn model_with_chunks(
         vec![],
     )?;
     let plan = model.plan();
+    stop.check()?;
     let root = merge(
         run(
             &ReweightedCovariance(r),

@@ -38,6 +38,8 @@ pub struct AdamFit<'a> {
     pub params: Vec<FitParam>,
     pub phase: bool,
     pub settings: AdamSettings,
+    /// Stops the fit at its next wave of chunks with [`crate::Error::Interrupted`].
+    pub stop: crate::mc::StopFlag,
 }
 
 /// Result of [`AdamFit::run`]. Values are natural: scalar parameters, then the normalised phase
@@ -175,7 +177,7 @@ impl AdamFit<'_> {
         let mut entries = self.target.needed();
         entries.sort_unstable();
         entries.dedup();
-        CovarianceOp::new(
+        let mut op = CovarianceOp::new(
             self.scene.clone(),
             self.op_params(nodes),
             self.target.pairs(self.scene),
@@ -183,7 +185,9 @@ impl AdamFit<'_> {
             self.settings.model.reversed,
             (self.settings.model.samples, self.settings.model.chunk, seed),
             proposal,
-        )
+        )?;
+        op.stop = self.stop.clone();
+        Ok(op)
     }
 
     /// Natural values (scalars, then normalised ρ at the nodes) and the medium at `u`.
@@ -246,8 +250,13 @@ impl AdamFit<'_> {
             s.iterations,
             &learning_rate,
             &mut |it, u| {
-                let y = apply(&stochastic, self.theta(u.clone(), nodes))
-                    .map_err(|e| format!("Adam iteration {it}: {e}"))?;
+                let y = apply(&stochastic, self.theta(u.clone(), nodes)).map_err(|e| {
+                    if self.stop.is_set() {
+                        crate::Error::Interrupted
+                    } else {
+                        format!("Adam iteration {it}: {e}").into()
+                    }
+                })?;
                 let data = apply(&loss_op, y)?;
                 let loss = values(&data)[0];
                 let total = match self.prior(u, nodes) {
@@ -257,6 +266,8 @@ impl AdamFit<'_> {
                 Ok((total, loss))
             },
             &mut |it| {
+                // a pullback stopped by the flag leaves a NaN gradient: report the stop instead
+                self.stop.check()?;
                 let loss = it.observed;
                 if !(loss.is_finite() && it.grad_norm.is_finite()) {
                     return Err(format!(
@@ -331,6 +342,7 @@ impl AdamFit<'_> {
                     self.target,
                     self.scene,
                     &s.model,
+                    &self.stop,
                 )?;
                 self.target
                     .model_stderr(&est, &kept)

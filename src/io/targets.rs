@@ -24,8 +24,11 @@ fn floats(v: &Value, key: &str, path: &Path) -> crate::Result<Vec<f64>> {
 /// whose first character is `{` or `[` is JSON, and a malformed one is reported with its line and
 /// column rather than read as CSV.
 pub fn read(path: &Path) -> crate::Result<Target> {
-    let text = std::fs::read_to_string(path)
-        .map_err(|e| format!("cannot read target {}: {e}", path.display()))?;
+    let text = std::fs::read_to_string(path).map_err(|source| crate::Error::Io {
+        action: "read target",
+        path: path.to_path_buf(),
+        source,
+    })?;
     let json = text.trim_start().starts_with(['{', '[']);
     let parsed = if json {
         Some(

@@ -361,12 +361,15 @@ pub fn estimate<E: Estimator>(est: &E, plan: &Plan) -> Estimate {
 }
 
 /// [`estimate`] that stops with [`crate::Error::Interrupted`] at its next wave of chunks once
-/// `stop` is set (the same bits when it is not).
+/// `stop` is set (the same bits when it is not, or when there is no flag).
 pub fn estimate_until<E: Estimator>(
     est: &E,
     plan: &Plan,
-    stop: &std::sync::atomic::AtomicBool,
+    stop: Option<&std::sync::atomic::AtomicBool>,
 ) -> crate::Result<Estimate> {
+    let Some(stop) = stop else {
+        return Ok(estimate(est, plan));
+    };
     let checkpoint = Checkpoint::stop_only(Some(stop));
     let blocks = resume(
         est,
@@ -379,6 +382,36 @@ pub fn estimate_until<E: Estimator>(
     )?;
     let root = merge(blocks, plan.chunks)?;
     Ok(Estimate::from_block(&root, plan))
+}
+
+/// A flag another thread may set to stop a long computation (a fit, a design, an estimate) at
+/// its next wave of chunks, ray or iteration, with [`crate::Error::Interrupted`]; none by default.
+#[derive(Clone, Debug, Default)]
+pub struct StopFlag(Option<std::sync::Arc<std::sync::atomic::AtomicBool>>);
+
+impl StopFlag {
+    pub fn new(flag: std::sync::Arc<std::sync::atomic::AtomicBool>) -> Self {
+        StopFlag(Some(flag))
+    }
+
+    /// The flag, for [`estimate_until`] and [`Checkpoint::stop_only`].
+    pub fn get(&self) -> Option<&std::sync::atomic::AtomicBool> {
+        self.0.as_deref()
+    }
+
+    pub fn is_set(&self) -> bool {
+        self.get()
+            .is_some_and(|s| s.load(std::sync::atomic::Ordering::Relaxed))
+    }
+
+    /// `Err(Interrupted)` once the flag is set.
+    pub fn check(&self) -> crate::Result<()> {
+        if self.is_set() {
+            Err(crate::Error::Interrupted)
+        } else {
+            Ok(())
+        }
+    }
 }
 
 /// Real linear functionals `x_k = Re Σ_e conj(w_ke) out_e` of another estimator's outputs, so that

@@ -1,0 +1,247 @@
+//! Rendering and acquisition from Python: `render` (a refractive, scattering volume by particle or
+//! camera path tracing, as `lightpath render`) and `acquire_phase` (the phase function read from
+//! speckle images, as `lightpath acquire-phase`).
+
+use crate::{Task, budget, json_value, py_err, real, run_watched};
+use lightpath::app::create_out;
+use lightpath::app::render::{FILES, Image, Rendered};
+use lightpath::config;
+use lightpath::io::results::PhaseAcquisitionFile;
+use pyo3::exceptions::{PyRuntimeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use std::path::PathBuf;
+
+/// `[channels, height, width]` planes (top row first) of one frame: values or standard errors.
+fn planes(frame: &[(Vec<f64>, Vec<f64>)], errors: bool) -> Vec<f64> {
+    frame
+        .iter()
+        .flat_map(|(v, e)| if errors { e } else { v }.iter().copied())
+        .collect()
+}
+
+/// One image as a dict of float64 arrays: `value` and `stderr` `[C, H, W]` (time-integrated),
+/// and with time bins `bins` and `bins_stderr` `[B, C, H, W]`.
+fn image_dict<'py>(py: Python<'py>, image: &Image) -> PyResult<Bound<'py, PyDict>> {
+    let (c, h, w) = (image.total.len(), image.height, image.width);
+    let d = PyDict::new(py);
+    d.set_item(
+        "value",
+        real(py, (planes(&image.total, false), vec![c, h, w]))?,
+    )?;
+    d.set_item(
+        "stderr",
+        real(py, (planes(&image.total, true), vec![c, h, w]))?,
+    )?;
+    if !image.bins.is_empty() {
+        let b = image.bins.len();
+        let all = |errors: bool| -> Vec<f64> {
+            image.bins.iter().flat_map(|f| planes(f, errors)).collect()
+        };
+        d.set_item("bins", real(py, (all(false), vec![b, c, h, w]))?)?;
+        d.set_item("bins_stderr", real(py, (all(true), vec![b, c, h, w]))?)?;
+    }
+    Ok(d)
+}
+
+/// A render of a refractive, scattering volume (`lightpath render`), as `render.json` and its
+/// images hold it.
+#[pyclass(frozen, module = "lightpath")]
+pub(crate) struct Render {
+    rendered: Rendered,
+}
+
+#[pymethods]
+impl Render {
+    /// `render.json` as Python values (dicts, lists, floats): every sensor's power and per-bin
+    /// flux, probes, cameras, surfaces, absorbed/escaped totals, statistics and the config.
+    #[getter]
+    fn result<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        json_value(py, &self.rendered.file)
+    }
+
+    /// dict: image name (`screen_<name>`, `camera_<name>`) → dict of float64 arrays: `value` and
+    /// `stderr` `[C, H, W]` (C = 1, or 3 for R, G, B; the top row first, as the EXR files hold
+    /// them; irradiance for screens, radiance for cameras) and, with time bins, `bins` and
+    /// `bins_stderr` `[B, C, H, W]`.
+    #[getter]
+    fn images<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let d = PyDict::new(py);
+        for image in &self.rendered.images {
+            d.set_item(&image.stem, image_dict(py, image)?)?;
+        }
+        Ok(d)
+    }
+
+    /// Photons (or camera paths) traced.
+    #[getter]
+    fn samples(&self) -> u64 {
+        self.rendered.file.samples
+    }
+
+    /// Wall time, in seconds.
+    #[getter]
+    fn seconds(&self) -> Option<f64> {
+        self.rendered.file.seconds
+    }
+
+    /// What the command prints.
+    #[getter]
+    fn summary(&self) -> String {
+        self.rendered.summary.clone()
+    }
+
+    /// A warning when a noticeable share of the power was given up, else None.
+    #[getter]
+    fn warning(&self) -> Option<String> {
+        self.rendered.warning.clone()
+    }
+
+    /// `render.json` as text, exactly as the command writes it.
+    fn to_json(&self) -> PyResult<String> {
+        serde_json::to_string(&self.rendered.file)
+            .map_err(|e| PyRuntimeError::new_err(e.to_string()))
+    }
+
+    /// Write `render.json` and every image's EXR files and PNG preview into `folder`; the paths
+    /// written.
+    fn save(&self, folder: PathBuf) -> PyResult<Vec<PathBuf>> {
+        create_out(&folder, FILES).map_err(py_err)?;
+        Ok(self.rendered.write(&folder).map_err(py_err)?.files)
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "<lightpath.Render {} samples, {} image(s)>",
+            self.rendered.file.samples,
+            self.rendered.images.len()
+        )
+    }
+}
+
+/// Render a render config (`[volume]`, lights, sensors, cameras) (`lightpath render`).
+#[pyfunction]
+#[pyo3(signature = (task, *, samples=None, seed=None, threads=None, max_minutes=240.0, max_memory_gb=8.0, progress=None))]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn render(
+    py: Python<'_>,
+    task: &Task,
+    samples: Option<u64>,
+    seed: Option<u64>,
+    threads: Option<usize>,
+    max_minutes: f64,
+    max_memory_gb: f64,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<Render> {
+    let config::Task::Render(t) = &task.task else {
+        return Err(PyValueError::new_err(format!(
+            "render: needs a render config ([volume] with lights and sensors), but the config holds {}",
+            task.task.kind().describe()
+        )));
+    };
+    let t = (**t).clone();
+    let limits = budget(max_minutes, max_memory_gb);
+    let rendered = run_watched(py, threads, progress, move |w| {
+        lightpath::app::render::evaluate(t, samples, seed, &limits, w)
+    })?;
+    Ok(Render { rendered })
+}
+
+/// The phase function read from speckle images (`lightpath acquire-phase`), as
+/// `phase_acquisition.json` holds it.
+#[pyclass(frozen, module = "lightpath")]
+pub(crate) struct PhaseAcquisition {
+    file: PhaseAcquisitionFile,
+}
+
+#[pymethods]
+impl PhaseAcquisition {
+    /// One dict per illumination displacement, smallest first: `delta_deg`, `delta_px`,
+    /// `grain_px`, `pairs`, `chi2_flat`, `dof`, `significant`, `hg` / `hg_intensity` (`g`,
+    /// `g_stderr`, `chi2_dof`) and `vmf` (`weights`, `kappas`, `chi2_dof`) where fitted, and
+    /// float64 `[R]` arrays of the readings: `angle_deg`, `correlation`, `stderr`,
+    /// `intensity`, `rho`, `rho_stderr`, `rho_intensity` (NaN where there is none).
+    #[getter]
+    fn curves<'py>(&self, py: Python<'py>) -> PyResult<Vec<Bound<'py, PyAny>>> {
+        use numpy::PyArray1;
+        self.file
+            .curves
+            .iter()
+            .map(|c| {
+                let mut summary = c.clone();
+                summary.readings.clear();
+                let d = json_value(py, &summary)?;
+                d.del_item("readings")?;
+                let column = |f: &dyn Fn(&lightpath::io::results::AcquiredReading) -> f64| {
+                    PyArray1::from_vec(py, c.readings.iter().map(f).collect())
+                };
+                d.set_item("angle_deg", column(&|r| r.reading.angle_deg))?;
+                d.set_item("correlation", column(&|r| r.reading.correlation))?;
+                d.set_item("stderr", column(&|r| r.reading.stderr))?;
+                d.set_item("intensity", column(&|r| r.reading.intensity))?;
+                d.set_item("rho", column(&|r| r.rho.unwrap_or(f64::NAN)))?;
+                d.set_item("rho_stderr", column(&|r| r.rho_stderr.unwrap_or(f64::NAN)))?;
+                d.set_item(
+                    "rho_intensity",
+                    column(&|r| r.rho_intensity.unwrap_or(f64::NAN)),
+                )?;
+                Ok(d)
+            })
+            .collect()
+    }
+
+    /// dict: whether the two largest displacements read the same correlation (`consistent`,
+    /// `chi2`, `dof`, `curves`), or None with fewer than two.
+    #[getter]
+    fn consistency<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        json_value(py, &self.file.consistency)
+    }
+
+    /// Wall time, in seconds.
+    #[getter]
+    fn seconds(&self) -> f64 {
+        self.file.seconds
+    }
+
+    /// `phase_acquisition.json` as text, exactly as the command writes it.
+    fn to_json(&self) -> PyResult<String> {
+        serde_json::to_string(&self.file).map_err(|e| PyRuntimeError::new_err(e.to_string()))
+    }
+
+    /// Write `phase_acquisition.json` and `phase_acquisition.png` into `folder`; the paths
+    /// written.
+    fn save(&self, folder: PathBuf) -> PyResult<Vec<PathBuf>> {
+        create_out(
+            &folder,
+            &["phase_acquisition.json", "phase_acquisition.png"],
+        )
+        .map_err(py_err)?;
+        Ok(lightpath::app::acquire_phase::write(&self.file, &folder)
+            .map_err(py_err)?
+            .files)
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "<lightpath.PhaseAcquisition {} displacement(s)>",
+            self.file.curves.len()
+        )
+    }
+}
+
+/// Read the phase function from speckle image pairs (`lightpath acquire-phase`), from an
+/// acquisition config (`[acquisition]` + `[[pair]]`).
+#[pyfunction]
+pub(crate) fn acquire_phase(py: Python<'_>, task: &Task) -> PyResult<PhaseAcquisition> {
+    let config::Task::Acquire(c) = &task.task else {
+        return Err(PyValueError::new_err(format!(
+            "acquire_phase: needs an acquisition config ([acquisition] + [[pair]]), but the config holds {}",
+            task.task.kind().describe()
+        )));
+    };
+    let c = (**c).clone();
+    let file = run_watched(py, None, None, move |_| {
+        lightpath::app::acquire_phase::acquire(&c)
+    })?;
+    Ok(PhaseAcquisition { file })
+}

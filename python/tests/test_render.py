@@ -1,0 +1,97 @@
+"""Rendering a refractive, scattering volume and reading a phase function from speckle images, from
+Python: the commands' JSON and files, and images whose pixels add up to the sensors' power."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+import lightpath as lp
+from conftest import read_json, read_toml
+from test_inverse import write_toml
+
+
+def test_render_equals_the_command_line_and_its_images_add_up(repo, run_cli, tmp_path):
+    # the tank's screen, with four time-of-flight bins added through the dict
+    tank = read_toml(repo / "configs" / "render_tank.toml")
+    tank["transient"] = {"bins": 4, "max_path": 60.0}
+    write_toml(tank, tmp_path / "tank.toml")
+    out = run_cli("render", str(tmp_path / "tank.toml"), "--samples", "20000", "--seed", "5")
+    cli = read_json(out / "render.json")
+    seen = []
+    py = lp.render(tank, samples=20_000, seed=5, threads=2, progress=lambda d, n: seen.append((d, n)))
+    mine = json.loads(py.to_json())
+    for d in (mine, cli):
+        d.pop("seconds")
+        d["statistics"].pop("photons_per_second")
+        d["statistics"].pop("steps_per_second")
+    assert mine == cli
+    assert py.result["sensors"][0]["power"] == cli["sensors"][0]["power"]
+    screen = cli["sensors"][0]
+    image = py.images["screen_" + screen["name"]]
+    h, w = screen["pixels"][1], screen["pixels"][0]
+    assert image["value"].shape == (1, h, w) and image["bins_stderr"].shape == (4, 1, h, w)
+    # irradiance × pixel area summed over the screen is its power; the bins add up to the whole
+    total = image["value"].sum() * screen["pixel_area"]
+    assert total == pytest.approx(screen["power"]["mean"], rel=1e-9)
+    assert np.allclose(image["bins"].sum(axis=0), image["value"], rtol=1e-9, atol=1e-15)
+    assert seen and seen[-1][0] == seen[-1][1] > 0
+    # the files are the command's, byte for byte (the EXR of every frame)
+    py.save(tmp_path / "py")
+    for name in screen["files"]:
+        assert (tmp_path / "py" / name).read_bytes() == (out / name).read_bytes(), name
+    with pytest.raises(ValueError, match="needs a render config"):
+        lp.render(repo / "configs" / "quickstart.toml")
+
+
+STEP_DEG = 0.15
+PIXELS = 64
+PEAKS = [(32, 8), (32, 40)]
+
+
+def pixel_direction(ix, iy):
+    c = (PIXELS - 1) / 2
+    v = [math.tan(math.radians((i - c) * STEP_DEG)) for i in (ix, iy)] + [1.0]
+    n = math.sqrt(sum(x * x for x in v))
+    return [x / n for x in v]
+
+
+def test_acquire_phase_equals_the_command_line(run_cli, tmp_path):
+    # speckle images of a thin HG slab under two tilted plane waves, rendered from Python
+    scene = {
+        "wavelength": 0.474,
+        "medium": {"slab": 100.0, "slab_window": 136.0, "mfp": 100.0,
+                   "phase": {"kind": "hg", "g": 0.9}},
+        "light": [{"kind": "plane_wave", "direction": pixel_direction(*p)} for p in PEAKS],
+        "view": [{"kind": "far_field_grid", "center": [0.0, 0.0, 1.0],
+                  "width_deg": PIXELS * STEP_DEG, "pixels": [PIXELS, PIXELS]}],
+        "speckle": {"realisations": 3, "paths": 3000},
+        "render": {"seed": 7, "chunk": 500},
+    }
+    lp.speckle(scene).save(tmp_path / "render")
+    acquisition = {
+        "acquisition": {"focal_length": 1.0, "pixel_pitch": math.tan(math.radians(STEP_DEG)),
+                        "n_sample": 1.0, "window": 8, "step": 4},
+        "pair": [{"first": f"render/speckle_{r:04}_l0.exr", "second": f"render/speckle_{r:04}_l1.exr",
+                  "peaks": [list(PEAKS[0]), list(PEAKS[1])]} for r in range(3)],
+    }
+    write_toml(acquisition, tmp_path / "acquire.toml")
+    cli = read_json(run_cli("acquire-phase", str(tmp_path / "acquire.toml"), quiet=False)
+                    / "phase_acquisition.json")
+    py = lp.acquire_phase(lp.load(acquisition, base=tmp_path))
+    mine = json.loads(py.to_json())
+    assert mine.pop("seconds") >= 0 and cli.pop("seconds") >= 0
+    # the echoed config holds the image paths as each loader resolved them
+    mine.pop("config"), cli.pop("config")
+    assert mine == cli
+    curve = py.curves[0]
+    readings = cli["curves"][0]["readings"]
+    assert curve["delta_deg"] == cli["curves"][0]["delta_deg"]
+    assert np.array_equal(curve["correlation"], [r["correlation"] for r in readings])
+    assert np.array_equal(curve["angle_deg"], [r["angle_deg"] for r in readings])
+    assert [p.name for p in py.save(tmp_path / "py")] == ["phase_acquisition.json", "phase_acquisition.png"]
+    with pytest.raises(ValueError, match="needs an acquisition config"):
+        lp.acquire_phase(scene)
