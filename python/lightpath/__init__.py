@@ -360,13 +360,19 @@ def mie(
     )
 
 
-def trace(config: Config, *, threads: Optional[int] = None, max_minutes: float = 240.0) -> Rays:
+def trace(
+    config: Config,
+    *,
+    threads: Optional[int] = None,
+    max_minutes: float = 240.0,
+    progress: Progress = None,
+) -> Rays:
     """Rays through an index field (``lightpath trace``), from a trace config (``[field]`` +
     ``[rays]``). A bundle estimated beyond ``max_minutes`` is refused (``ValueError``), as is a
     step too coarse for the field. Returns :class:`Rays`: ``exit_position``, ``exit_direction``
     (float64 ``[N, 3]``), ``optical_path`` ``[N]``, ``entered``/``exited``, ``paths``.
     """
-    return _lightpath.trace(load(config), threads=threads, max_minutes=max_minutes)
+    return _lightpath.trace(load(config), threads=threads, max_minutes=max_minutes, progress=progress)
 
 
 def trace_vjp(
@@ -378,6 +384,7 @@ def trace_vjp(
     coefficients: Any = None,
     threads: Optional[int] = None,
     max_minutes: float = 240.0,
+    progress: Progress = None,
 ) -> TraceVjp:
     """A trace config's rays traced to where they leave the field, with the vector–Jacobian
     product of their exits.
@@ -402,6 +409,7 @@ def trace_vjp(
         coefficients=None if coefficients is None else np.asarray(coefficients, dtype=np.float64).ravel().tolist(),
         threads=threads,
         max_minutes=max_minutes,
+        progress=progress,
     )
 
 

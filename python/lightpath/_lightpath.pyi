@@ -236,7 +236,9 @@ class TraceVjp:
         """float64 [dz, dy, dx]: the grid profile's coefficients, or None."""
     @property
     def theta(self) -> npt.NDArray[np.float64]: ...
-    def __call__(self, d_position: npt.ArrayLike, d_direction: npt.ArrayLike) -> dict[str, Any]:
+    def __call__(
+        self, d_position: npt.ArrayLike, d_direction: npt.ArrayLike, *, progress: Progress = None
+    ) -> dict[str, Any]:
         """{"params": [P], "grid": [dz, dy, dx] or None, "origin": [N, 3], "direction": [N, 3]}."""
 
 class CorrelationMap:
@@ -349,7 +351,13 @@ def mie(
     angles: int = 361,
     volume_fraction: Optional[float] = None,
 ) -> Mie: ...
-def trace(task: Task, *, threads: Optional[int] = None, max_minutes: float = 240.0) -> Rays: ...
+def trace(
+    task: Task,
+    *,
+    threads: Optional[int] = None,
+    max_minutes: float = 240.0,
+    progress: Progress = None,
+) -> Rays: ...
 def trace_vjp(
     task: Task,
     params: list[str] = ...,
@@ -359,6 +367,7 @@ def trace_vjp(
     coefficients: Optional[list[float]] = None,
     threads: Optional[int] = None,
     max_minutes: float = 240.0,
+    progress: Progress = None,
 ) -> TraceVjp: ...
 def correlation_map(
     task: Task,

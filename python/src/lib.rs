@@ -40,13 +40,38 @@ const POLL: Duration = Duration::from_millis(50);
 /// `ValueError` (the message names the key, the value and what is allowed), files `OSError`,
 /// failed computations `RuntimeError`.
 fn py_err(e: Error) -> PyErr {
-    let message = e.to_string();
+    let message = python_names(&e.to_string());
     match e {
         Error::Config(_) | Error::Input(_) => PyValueError::new_err(message),
         Error::Io { .. } => PyOSError::new_err(message),
         Error::Numerical(_) => PyRuntimeError::new_err(message),
         Error::Interrupted => PyKeyboardInterrupt::new_err(message),
     }
+}
+
+/// A message of the command line as Python says it: its flags (`--max-minutes`) are the keyword
+/// arguments (`max_minutes`).
+fn python_names(message: &str) -> String {
+    let mut out = String::with_capacity(message.len());
+    let mut rest = message;
+    while let Some(at) = rest.find("--") {
+        let (before, flag) = rest.split_at(at);
+        out.push_str(before);
+        let name: String = flag[2..]
+            .chars()
+            .take_while(|c| c.is_ascii_lowercase() || *c == '-')
+            .collect();
+        let starts_a_word = before.is_empty() || before.ends_with([' ', '(', '`', '"', '\'']);
+        if name.starts_with(|c: char| c.is_ascii_lowercase()) && starts_a_word {
+            out.push_str(&name.replace('-', "_"));
+            rest = &flag[2 + name.len()..];
+        } else {
+            out.push_str("--");
+            rest = &flag[2..];
+        }
+    }
+    out.push_str(rest);
+    out
 }
 
 fn config_err(e: config::ConfigError) -> PyErr {
@@ -1716,8 +1741,14 @@ impl Rays {
 
 /// Rays through an index field (`lightpath trace`), from a trace config (`[field]` + `[rays]`).
 #[pyfunction]
-#[pyo3(signature = (task, *, threads=None, max_minutes=240.0))]
-fn trace(py: Python<'_>, task: &Task, threads: Option<usize>, max_minutes: f64) -> PyResult<Rays> {
+#[pyo3(signature = (task, *, threads=None, max_minutes=240.0, progress=None))]
+fn trace(
+    py: Python<'_>,
+    task: &Task,
+    threads: Option<usize>,
+    max_minutes: f64,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<Rays> {
     let config::Task::Trace(t) = &task.task else {
         return Err(PyValueError::new_err(format!(
             "trace: needs a trace config ([field] + [rays]), but the config holds {}",
@@ -1726,8 +1757,8 @@ fn trace(py: Python<'_>, task: &Task, threads: Option<usize>, max_minutes: f64) 
     };
     let t = (**t).clone();
     let budget = budget(max_minutes, Budget::default().max_memory_gb);
-    let traced = run_watched(py, threads, None, move |_| {
-        lightpath::app::grin::trace_rays(&t, &budget)
+    let traced = run_watched(py, threads, progress, move |w| {
+        lightpath::app::grin::trace_rays(&t, &budget, w)
     })?;
     Ok(Rays { traced })
 }
@@ -1825,18 +1856,23 @@ impl TraceVjp {
         PyArray1::from_slice(py, &self.theta)
     }
 
-    /// `∂L/∂·` for `∂L/∂(exit position)` and `∂L/∂(exit direction)`, float64 `[N, 3]` each.
+    /// `∂L/∂·` for `∂L/∂(exit position)` and `∂L/∂(exit direction)`, float64 `[N, 3]` each;
+    /// `progress(done, total)` counts rays.
+    #[pyo3(signature = (d_position, d_direction, *, progress=None))]
     fn __call__<'py>(
         &self,
         py: Python<'py>,
         d_position: &Bound<'py, PyAny>,
         d_direction: &Bound<'py, PyAny>,
+        progress: Option<Py<PyAny>>,
     ) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
         let n = self.vjp.ends.len();
         let dx = vectors(py, d_position, n, "d_position")?;
         let dd = vectors(py, d_direction, n, "d_direction")?;
         let vjp = Arc::clone(&self.vjp);
-        let g = run_watched(py, self.threads, None, move |_| vjp.pullback(&dx, &dd))?;
+        let g = run_watched(py, self.threads, progress, move |w| {
+            vjp.pullback(&dx, &dd, w)
+        })?;
         let all_finite = g
             .params
             .iter()
@@ -1882,7 +1918,7 @@ impl TraceVjp {
 /// analytic field parameters (`profiles[i].name`), the coefficients of the field's grid profile
 /// (`grid=True`), and the rays' origins and directions.
 #[pyfunction]
-#[pyo3(signature = (task, params=Vec::new(), *, theta=None, grid=false, coefficients=None, threads=None, max_minutes=240.0))]
+#[pyo3(signature = (task, params=Vec::new(), *, theta=None, grid=false, coefficients=None, threads=None, max_minutes=240.0, progress=None))]
 #[allow(clippy::too_many_arguments)]
 fn trace_vjp(
     py: Python<'_>,
@@ -1893,6 +1929,7 @@ fn trace_vjp(
     coefficients: Option<Vec<f64>>,
     threads: Option<usize>,
     max_minutes: f64,
+    progress: Option<Py<PyAny>>,
 ) -> PyResult<TraceVjp> {
     let config::Task::Trace(t) = &task.task else {
         return Err(PyValueError::new_err(format!(
@@ -2000,7 +2037,7 @@ fn trace_vjp(
     let budget = budget(max_minutes, Budget::default().max_memory_gb);
     let (rays, step, max_steps) = (t.rays.clone(), t.step, t.max_steps);
     let grid_profile = grid_profile.filter(|_| grid);
-    let vjp = run_watched(py, threads, None, move |_| {
+    let vjp = run_watched(py, threads, progress, move |w| {
         // forward and backward: about three traces' work per ray
         lightpath::app::budget::check_rays(
             "trace_vjp",
@@ -2013,7 +2050,7 @@ fn trace_vjp(
             3.0,
             &budget,
         )?;
-        ExitVjp::new(field, parsed, grid_profile, rays, step, max_steps)
+        ExitVjp::new(field, parsed, grid_profile, rays, step, max_steps, w)
     })?;
     Ok(TraceVjp {
         vjp: Arc::new(vjp),

@@ -67,14 +67,16 @@ def test_the_wrong_kind_of_config_or_file(repo, tmp_path):
         lp.loads("wavelength = = 1")
     with pytest.raises(TypeError, match="a path, a dict or a lightpath.Task"):
         lp.load(3.0)
-    with pytest.raises(ValueError, match="--samples 0"):
+    with pytest.raises(ValueError, match="^samples 0"):
         lp.covariance(repo / "configs" / "quickstart.toml", samples=0)
     with pytest.raises(ValueError, match="memory-effect needs a \\[memory_effect\\] table"):
         lp.memory_effect(repo / "configs" / "covariance_box.toml")
-    with pytest.raises(ValueError, match="--threads 0"):
+    with pytest.raises(ValueError, match="threads 0"):
         lp.covariance(repo / "configs" / "quickstart.toml", samples=100, threads=0)
-    with pytest.raises(ValueError, match="--max-minutes"):
+    # the command line's flags are named as the keyword arguments
+    with pytest.raises(ValueError, match="max_minutes 0.01") as e:
         lp.covariance(repo / "configs" / "quickstart.toml", samples=10**12, max_minutes=0.01)
+    assert "--" not in str(e.value), e.value
 
 
 def test_relative_paths_in_a_dict_resolve_against_base(repo, tmp_path, monkeypatch):

@@ -6,6 +6,7 @@ import signal
 import threading
 import time
 
+import numpy as np
 import pytest
 
 import lightpath as lp
@@ -110,3 +111,22 @@ def test_ctrl_c_stops_fits_designs_and_renders(repo, tmp_path):
         lambda: lp.render(repo / "configs" / "render_camera.toml", samples=10**7)) < 1.5
     # and the library is usable again at once
     assert lp.fit(start, target, "mfp", samples=4000, stages=2, iterations=3).params == ["mfp"]
+
+
+def test_ray_tracing_reports_progress_and_stops_on_ctrl_c(repo):
+    luneburg = read_toml(repo / "configs" / "luneburg.toml")
+    seen = []
+    rays = lp.trace(luneburg, progress=lambda d, n: seen.append((d, n)))
+    # every ray, and the few traced again at half the step for the step error
+    assert seen[-1][0] == seen[-1][1] >= len(rays.exit_position)
+    at = lp.trace_vjp(luneburg)
+    back = []
+    at(np.ones((len(at.exit_position), 3)), np.zeros((len(at.exit_position), 3)),
+       progress=lambda d, n: back.append((d, n)))
+    assert back[-1] == (len(at.exit_position), len(at.exit_position))
+    # a bundle of seconds to minutes: a thousand times finer steps
+    luneburg["trace"]["step"] = luneburg["trace"]["step"] * 1e-3
+    luneburg["trace"]["max_steps"] = 10**7
+    luneburg["rays"]["count"] = 401
+    assert interrupted_after_half_a_second(lambda: lp.trace(luneburg)) < 1.5
+    assert interrupted_after_half_a_second(lambda: lp.trace_vjp(luneburg)) < 1.5

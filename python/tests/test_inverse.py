@@ -116,7 +116,7 @@ def test_parameter_fit_equals_the_command_line_and_finds_the_fibre(repo, run_cli
     assert py.log_params.shape == (len(cli["log"]), len(py.params))
     with pytest.raises(ValueError, match="needs a design config"):
         lp.design(repo / "configs" / "quickstart.toml")
-    with pytest.raises(ValueError, match="max.minutes"):
+    with pytest.raises(ValueError, match="beyond max_minutes"):
         lp.design(config, max_minutes=1e-7)
 
 

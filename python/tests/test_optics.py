@@ -29,7 +29,7 @@ def test_mie_equals_the_command_line(run_cli, tmp_path):
     assert trapezoid(fine.phase, -mu) * 2 * np.pi == pytest.approx(1.0, rel=1e-4)
     assert fine.g == py.g
     assert [f.name for f in py.save(tmp_path / "m")] == ["mie.json", "mie.png"]
-    with pytest.raises(ValueError, match="--diameter -1"):
+    with pytest.raises(ValueError, match="^diameter -1"):
         lp.mie(-1.0, 1.59, 0.6328)
 
 

@@ -511,10 +511,13 @@ pub fn design_iteration() -> crate::Result<String> {
         let g = pullback.pullback(&y);
         let backward = t0.elapsed().as_secs_f64();
         std::hint::black_box(g[coef.len() / 2]);
+        let ray_steps = (rays * 400) as f64;
         out += &format!(
             "design iteration, {interp:?} 128³ grid, 128² × 10 rays × 400 steps: forward {forward:.1} s + \
-             backward (every coefficient) {backward:.1} s = {:.1} s\n",
-            forward + backward
+             backward (every coefficient) {backward:.1} s = {:.1} s; {:.2e} ray-steps/s forward, {:.2e} backward\n",
+            forward + backward,
+            ray_steps / forward,
+            ray_steps / backward
         );
     }
     Ok(out)

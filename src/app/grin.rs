@@ -356,7 +356,7 @@ impl ParamFitted {
 
 /// `lightpath trace`: trace a bundle of rays through an index field → rays.json and rays.png.
 pub fn trace(task: &TraceTask, budget: &super::budget::Budget, out: &Path) -> Result<Outcome> {
-    let traced = trace_rays(task, budget)?;
+    let traced = trace_rays(task, budget, &super::Watch::default())?;
     create_out(out, &["rays.json", "rays.png"])?;
     write_trace(&traced, out)
 }
@@ -372,7 +372,13 @@ pub struct Traced {
 
 /// Trace the bundle in memory (the library's and Python's entry), with the checks of `trace`:
 /// the time budget, rays that meet the field, a positive index, and the step's error.
-pub fn trace_rays(task: &TraceTask, budget: &super::budget::Budget) -> Result<Traced> {
+/// `watch` counts traced rays (the step-error probe's few included) and stops the trace at its
+/// next ray.
+pub fn trace_rays(
+    task: &TraceTask,
+    budget: &super::budget::Budget,
+    watch: &super::Watch,
+) -> Result<Traced> {
     use crate::eikonal::{IndexField, Tracer};
     use rayon::prelude::*;
     let (field, rays) = (&task.field, &task.rays);
@@ -399,6 +405,7 @@ pub fn trace_rays(task: &TraceTask, budget: &super::budget::Budget) -> Result<Tr
     let trace_all = |tracer: &Tracer, rays: &[(DVec3, DVec3)]| {
         rays.par_iter()
             .map(|&(o, d)| {
+                watch.check()?;
                 let mut path = vec![o];
                 let mut bad = None;
                 let mut k = 0usize;
@@ -413,11 +420,18 @@ pub fn trace_rays(task: &TraceTask, budget: &super::budget::Budget) -> Result<Tr
                     k += 1;
                 });
                 path.push(end.x);
-                (end, path, bad)
+                watch.tick();
+                Ok((end, path, bad))
             })
-            .collect::<Vec<(crate::eikonal::RayEnd, Vec<DVec3>, Option<DVec3>)>>()
+            .collect::<Result<Vec<(crate::eikonal::RayEnd, Vec<DVec3>, Option<DVec3>)>>>()
     };
-    let traced = trace_all(&tracer, rays);
+    let total = |n: usize| {
+        watch
+            .total
+            .store(n as u64, std::sync::atomic::Ordering::Relaxed)
+    };
+    total(rays.len());
+    let traced = trace_all(&tracer, rays)?;
     if !traced.iter().any(|t| t.0.entered) {
         return Err(Error::input(format!(
             "rays: none of the {} rays meets the field's bounds: check rays.center / rays.origin and the direction",
@@ -456,7 +470,8 @@ pub fn trace_rays(task: &TraceTask, budget: &super::budget::Budget) -> Result<Tr
         step: 0.5 * task.step,
         max_steps: task.max_steps.saturating_mul(2),
     };
-    let again = trace_all(&fine, &probe.iter().map(|&i| rays[i]).collect::<Vec<_>>());
+    total(rays.len() + probe.len());
+    let again = trace_all(&fine, &probe.iter().map(|&i| rays[i]).collect::<Vec<_>>())?;
     let step_error = probe
         .iter()
         .zip(&again)

@@ -30,7 +30,7 @@ pub mod wave;
 
 use crate::error::{Error, Result};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::Ordering;
 
 /// What a finished command reports to the user.
 #[derive(Clone, Debug)]
@@ -165,32 +165,4 @@ impl<'a> Progress<'a> {
     }
 }
 
-/// A run observed and stopped from another thread (the Python binding polls it while the run
-/// works): units of work done and in all, and a flag that stops the run between two waves of
-/// chunks with [`Error::Interrupted`].
-#[derive(Debug, Default)]
-pub struct Watch {
-    pub done: AtomicU64,
-    pub total: AtomicU64,
-    pub stop: std::sync::Arc<AtomicBool>,
-}
-
-impl Watch {
-    /// Ask the run to stop at its next wave of chunks.
-    pub fn stop(&self) {
-        self.stop.store(true, Ordering::Relaxed);
-    }
-
-    /// The stop flag for fits and designs, which hold it beyond a borrow.
-    pub fn stop_flag(&self) -> crate::mc::StopFlag {
-        crate::mc::StopFlag::new(std::sync::Arc::clone(&self.stop))
-    }
-
-    /// `(done, total)` units of work so far.
-    pub fn progress(&self) -> (u64, u64) {
-        (
-            self.done.load(Ordering::Relaxed),
-            self.total.load(Ordering::Relaxed),
-        )
-    }
-}
+pub use crate::mc::Watch;

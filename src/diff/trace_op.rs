@@ -38,6 +38,9 @@ struct TracePullback {
     to_exit: bool,
     coefficients: usize,
     stop: crate::mc::StopFlag,
+    /// The forward's final states (fixed-step mode): the reverse pass starts from them instead of
+    /// tracing every ray again.
+    ends: Vec<Ray>,
 }
 
 impl TraceOp {
@@ -129,6 +132,7 @@ impl Differentiable for TraceOp {
             to_exit: self.to_exit,
             coefficients: c.len(),
             stop: self.stop.clone(),
+            ends: if self.to_exit { Vec::new() } else { ends },
         };
         Ok((y, Arc::new(pullback)))
     }
@@ -165,8 +169,9 @@ impl Pullback for TracePullback {
                     let ok = if self.to_exit {
                         tracer.exit_adjoint(r.x, r.v, &[], grid, |_| seed).is_ok()
                     } else {
+                        let end = self.ends[i];
                         tracer
-                            .adjoint_with_grid(r, self.steps, self.step, &[], grid, |_| seed)
+                            .adjoint_from_end(end, self.steps, self.step, &[], grid, |_| seed)
                             .is_ok()
                     };
                     if !ok {
@@ -222,6 +227,7 @@ impl ExitVjp {
         rays: Vec<(DVec3, DVec3)>,
         step: f64,
         max_steps: usize,
+        watch: &crate::mc::Watch,
     ) -> crate::Result<Self> {
         if let Some(p) = grid
             && !matches!(field.profiles.get(p), Some(Profile::Grid(_)))
@@ -233,7 +239,18 @@ impl ExitVjp {
             step,
             max_steps,
         };
-        let ends: Vec<RayEnd> = rays.par_iter().map(|&(o, d)| tracer.trace(o, d)).collect();
+        watch
+            .total
+            .store(rays.len() as u64, std::sync::atomic::Ordering::Relaxed);
+        let ends: Vec<RayEnd> = rays
+            .par_iter()
+            .map(|&(o, d)| {
+                watch.check()?;
+                let end = tracer.trace(o, d);
+                watch.tick();
+                Ok(end)
+            })
+            .collect::<crate::Result<_>>()?;
         for (i, (e, (o, d))) in ends.iter().zip(&rays).enumerate() {
             if !e.entered {
                 return Err(format!("ray {i} from {o} along {d} never enters the field").into());
@@ -269,11 +286,12 @@ impl ExitVjp {
 
     /// `∂L/∂·` from `∂L/∂(exit position)` and `∂L/∂(exit direction)` per ray. Rays run in a fixed
     /// number of groups, each summed in ray order and the groups in group order: bitwise the same
-    /// for any thread count.
+    /// for any thread count. `watch` counts the rays done and stops the pass at its next ray.
     pub fn pullback(
         &self,
         d_position: &[DVec3],
         d_direction: &[DVec3],
+        watch: &crate::mc::Watch,
     ) -> crate::Result<ExitGradients> {
         let n = self.rays.len();
         if d_position.len() != n || d_direction.len() != n {
@@ -293,6 +311,9 @@ impl ExitVjp {
             Some(Profile::Grid(g)) => g.coef.len(),
             _ => 0,
         };
+        watch
+            .total
+            .store(n as u64, std::sync::atomic::Ordering::Relaxed);
         let groups = n.clamp(1, GROUPS);
         let per = n.div_ceil(groups);
         type Part = (Vec<f64>, Vec<f64>, Vec<(DVec3, DVec3)>);
@@ -303,6 +324,7 @@ impl ExitVjp {
                 let mut grid = vec![0.0; coefficients];
                 let mut rays = Vec::with_capacity(per);
                 for i in g * per..((g + 1) * per).min(n) {
+                    watch.check()?;
                     let (o, d) = self.rays[i];
                     let adjoint = self.grid.map(|profile| GridAdjoint {
                         profile,
@@ -315,6 +337,7 @@ impl ExitVjp {
                         .map_err(|e| crate::Error::input(format!("ray {i} from {o}: {e}")))?;
                     dp.iter_mut().zip(&r.dparams).for_each(|(a, b)| *a += b);
                     rays.push((r.d_origin, r.d_direction));
+                    watch.tick();
                 }
                 Ok((dp, grid, rays))
             })

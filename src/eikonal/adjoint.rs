@@ -63,8 +63,7 @@ fn accumulate_grid(
     let Some(super::field::Profile::Grid(g)) = f.profiles.get(*profile) else {
         return;
     };
-    let ga = gn.dot(a);
-    g.visit_dcoef(x, |i, w, dw| grad[i] += w * ga + n * dw.dot(a));
+    g.scatter(x, gn.dot(a), a * n, grad);
 }
 
 use super::trace::force_jacobian as jacobian;
@@ -152,24 +151,100 @@ impl Tracer<'_> {
         loss_grad: impl FnOnce(Ray) -> (DVec3, DVec3),
     ) -> crate::Result<RayGradient> {
         let final_ray = self.steps(r0, steps, h);
-        let (mut lx, mut lv) = loss_grad(final_ray);
+        self.adjoint_from_end(final_ray, steps, h, params, grid, loss_grad)
+    }
+
+    /// [`Self::adjoint_with_grid`] from the state `steps` steps of `h` led to (what
+    /// [`Self::steps`] returned): the reverse pass alone.
+    pub fn adjoint_from_end(
+        &self,
+        final_ray: Ray,
+        steps: usize,
+        h: f64,
+        params: &[FieldParam],
+        grid: Option<GridAdjoint>,
+        loss_grad: impl FnOnce(Ray) -> (DVec3, DVec3),
+    ) -> crate::Result<RayGradient> {
+        let (lx, lv) = loss_grad(final_ray);
         let mut acc = Accumulators {
             params,
             dp: vec![0.0; params.len()],
             grid,
         };
-        let mut r = final_ray;
-        for _ in 0..steps {
-            let prev = self.leapfrog(r, -h); // reconstruct by reversing the integrator
-            (lx, lv) = self.adjoint_step(prev, h, lx, lv, &mut acc)?;
-            r = prev;
-        }
+        let (_, lx, lv) = self.reverse_steps(final_ray, steps, h, lx, lv, &mut acc)?;
         Ok(RayGradient {
             final_ray,
             dx0: lx,
             dv0: lv,
             dparams: acc.dp,
         })
+    }
+
+    /// The adjoint of `steps` full leapfrog steps of `h` that ended in `r`, given the adjoints
+    /// `(lx, lv)` of the state after them, reconstructing the states by reversing the integrator;
+    /// returns the first state and its adjoints. The same map as repeated [`Self::adjoint_step`]
+    /// on the reconstructed states, arranged for one field evaluation and one accumulation a
+    /// step: the evaluation at each reconstructed state serves its reconstruction and both
+    /// adjoint steps that meet there (taking the next state's end point as reconstructed rather
+    /// than re-stepped, a round-off difference), and the two parameter contributions at a state
+    /// are accumulated together (they are linear in the adjoint).
+    fn reverse_steps(
+        &self,
+        mut r: Ray,
+        steps: usize,
+        h: f64,
+        mut lx: DVec3,
+        mut lv: DVec3,
+        acc: &mut Accumulators,
+    ) -> crate::Result<(Ray, DVec3, DVec3)> {
+        if steps == 0 {
+            return Ok((r, lx, lv));
+        }
+        let f = self.field;
+        let (mut n1, mut g1, hess) = f.eval(r.x);
+        let mut j1 = super::trace::jacobian_of(n1, g1, hess);
+        // the adjoint vector waiting to be accumulated at `r` (from the step after it)
+        let mut pending = DVec3::ZERO;
+        for _ in 0..steps {
+            // reverse the step: exactly `leapfrog(r, -h)`, its force at r from the last evaluation
+            let back = -h;
+            let v_half = r.v + g1 * n1 * (0.5 * back);
+            let x0 = r.x + v_half * back;
+            let (n0, g0, hess) = f.eval(x0);
+            let prev = Ray {
+                x: x0,
+                v: v_half + g0 * n0 * (0.5 * back),
+            };
+            let j0 = super::trace::jacobian_of(n0, g0, hess);
+            // v' = v½ + h/2 F(x'): x' collects J_F(x') λ_v' h/2 on top of λ_x'
+            let lx1 = lx + j1 * lv * (0.5 * h);
+            self.accumulate_force(r.x, (n1, g1), pending + lv * (0.5 * h), acc)?;
+            // x' = x + h v½ and v½ = v + h/2 F(x)
+            let l_half = lv + lx1 * h;
+            lx = lx1 + j0 * l_half * (0.5 * h);
+            lv = l_half;
+            pending = l_half * (0.5 * h);
+            (r, n1, g1, j1) = (prev, n0, g0, j0);
+        }
+        self.accumulate_force(r.x, (n1, g1), pending, acc)?;
+        Ok((r, lx, lv))
+    }
+
+    /// `λ·∂F/∂θ` at `x` into the accumulators (analytic parameters and grid taps), given
+    /// `(n, ∇n)` there.
+    fn accumulate_force(
+        &self,
+        x: DVec3,
+        (n, g): (f64, DVec3),
+        a: DVec3,
+        acc: &mut Accumulators,
+    ) -> crate::Result<()> {
+        let Accumulators { params, dp, grid } = acc;
+        for (d, p) in dp.iter_mut().zip(params.iter()) {
+            *d += dforce(self.field, x, n, g, p)?.dot(a);
+        }
+        accumulate_grid(self.field, x, (n, g), a, grid);
+        Ok(())
     }
 
     /// The same gradient from a stored path (tape), for cross-checking the reversal.
@@ -245,7 +320,7 @@ fn accumulate_dn(f: &BoundedField, x: DVec3, ln: f64, acc: &mut Accumulators) ->
     if let Some(GridAdjoint { profile, grad }) = &mut acc.grid
         && let Some(super::field::Profile::Grid(g)) = f.profiles.get(*profile)
     {
-        g.visit_dcoef(x, |i, w, _| grad[i] += ln * w);
+        g.scatter(x, ln, DVec3::ZERO, grad);
     }
     f.grad(x) * ln
 }
@@ -362,12 +437,7 @@ impl Tracer<'_> {
             let s = -(ex.dot(xdot) + ev.dot(vdot)) / nu.dot(xdot);
             ex += nu * s;
             (lx, lv) = self.adjoint_step(seg.last, seg.tau, ex, ev, &mut acc)?;
-            let mut r = seg.last;
-            for _ in 0..seg.steps {
-                let prev = self.leapfrog(r, -self.step);
-                (lx, lv) = self.adjoint_step(prev, self.step, lx, lv, &mut acc)?;
-                r = prev;
-            }
+            (_, lx, lv) = self.reverse_steps(seg.last, seg.steps, self.step, lx, lv, &mut acc)?;
         }
         // the first state inside: v = d_in n(x_in)
         let start = segments[0].start;

@@ -124,6 +124,18 @@ impl Profile {
         }
     }
 
+    /// Value and gradient (grids skip the Hessian; the same bits as [`Self::eval`]'s).
+    #[inline]
+    fn value_grad(&self, x: DVec3) -> (f64, DVec3) {
+        match self {
+            Profile::Grid(g) => g.value_grad(x),
+            p => {
+                let (n, g, _) = p.eval(x);
+                (n, g)
+            }
+        }
+    }
+
     fn eval(&self, x: DVec3) -> (f64, DVec3, DMat3) {
         match *self {
             Profile::Constant { n } => (n, DVec3::ZERO, DMat3::ZERO),
@@ -498,6 +510,28 @@ impl IndexField for BoundedField {
 }
 
 impl BoundedField {
+    /// `(n, ∇n)` at `x` (what ray tracing needs): the same bits as [`IndexField::eval`]'s first two.
+    #[inline]
+    pub fn value_grad(&self, x: DVec3) -> (f64, DVec3) {
+        if !self.bounds.contains(x) {
+            return (self.n_out, DVec3::ZERO);
+        }
+        self.value_grad_inside(x)
+    }
+
+    /// [`Self::value_grad`] at `x` known to be inside the bounds.
+    #[inline]
+    pub fn value_grad_inside(&self, x: DVec3) -> (f64, DVec3) {
+        let (n, g) = self.profiles.iter().fold((0.0, DVec3::ZERO), |(n, g), p| {
+            let (pn, pg) = p.value_grad(x);
+            (n + pn, g + pg)
+        });
+        if self.scale == 1.0 && self.offset == 0.0 {
+            return (n, g);
+        }
+        (self.offset + self.scale * n, g * self.scale)
+    }
+
     /// `(n, ∇n, ∇²n)` at `x` known to be inside the bounds (no inside–outside test: free flights
     /// that have proved it by the bounds' clearance skip it).
     #[inline]

@@ -22,6 +22,12 @@ pub struct GridField {
     pub interp: Interp,
 }
 
+/// The taps of a grid at one point: coefficient offsets per axis and `(w, w', w'')` per axis.
+struct Stencil<const N: usize> {
+    offsets: [[usize; N]; 3],
+    weights: [[[f64; N]; 3]; 3],
+}
+
 /// Cubic B-spline weights and their first and second derivatives at fraction `t`.
 fn bspline(t: f64) -> ([f64; 4], [f64; 4], [f64; 4]) {
     let (t2, t3) = (t * t, t * t * t);
@@ -193,26 +199,157 @@ impl GridField {
         }
     }
 
-    /// Value, gradient and Hessian at `x`.
-    pub fn eval(&self, x: DVec3) -> (f64, DVec3, DMat3) {
-        let (mut v, mut g, mut h) = (0.0, DVec3::ZERO, [[0.0; 3]; 3]);
-        self.taps(x, |i, w, dw, hw| {
-            let c = self.coef[i];
-            v += c * w;
-            g += dw * c;
-            for r in 0..3 {
-                for s in 0..3 {
-                    h[r][s] += c * hw[r][s];
+    /// The clamped coefficient offsets along each axis (y premultiplied by the row length, z by
+    /// the plane size) and the per-axis weights `(w, w', w'')` of the `N` taps a side at `x`
+    /// (`N` = 4 tricubic, 2 trilinear).
+    #[inline(always)]
+    fn stencil<const N: usize>(&self, x: DVec3) -> Stencil<N> {
+        let u = (x - self.origin) / self.spacing;
+        let base = u.floor();
+        let t = u - base;
+        let off = if N == 4 { -1 } else { 0 };
+        let [nx, ny, nz] = self.dims;
+        let axis = |b: f64, n: usize, stride: usize| -> [usize; N] {
+            std::array::from_fn(|a| {
+                (b as isize + off + a as isize).clamp(0, n as isize - 1) as usize * stride
+            })
+        };
+        let weights = |t: f64| -> [[f64; N]; 3] {
+            if N == 4 {
+                let (w, d, dd) = bspline(t);
+                [
+                    std::array::from_fn(|i| w[i]),
+                    std::array::from_fn(|i| d[i]),
+                    std::array::from_fn(|i| dd[i]),
+                ]
+            } else {
+                [
+                    std::array::from_fn(|i| if i == 0 { 1.0 - t } else { t }),
+                    std::array::from_fn(|i| if i == 0 { -1.0 } else { 1.0 }),
+                    [0.0; N],
+                ]
+            }
+        };
+        Stencil {
+            offsets: [
+                axis(base.x, nx, 1),
+                axis(base.y, ny, nx),
+                axis(base.z, nz, nx * ny),
+            ],
+            weights: [weights(t.x), weights(t.y), weights(t.z)],
+        }
+    }
+
+    /// Value, gradient and (with `HESSIAN`) Hessian at `x`, contracted one axis at a time (x, then
+    /// y, then z): ~5× fewer operations than summing the 64 tap products. Value and gradient are
+    /// the same bits with and without the Hessian.
+    #[inline(always)]
+    fn contract<const N: usize, const HESSIAN: bool>(&self, x: DVec3) -> (f64, DVec3, DMat3) {
+        let Stencil {
+            offsets: [ix, iy, iz],
+            weights: [[wx, dx, ddx], [wy, dy, ddy], [wz, dz, ddz]],
+        } = self.stencil::<N>(x);
+        let c = &self.coef;
+        let (mut v, mut gx, mut gy, mut gz) = (0.0, 0.0, 0.0, 0.0);
+        let mut h = [0.0; 6]; // xx, xy, xz, yy, yz, zz
+        for k in 0..N {
+            let (mut t00, mut t10, mut t01) = (0.0, 0.0, 0.0);
+            let (mut t20, mut t11, mut t02) = (0.0, 0.0, 0.0);
+            for j in 0..N {
+                let row = iz[k] + iy[j];
+                let (mut r0, mut r1, mut r2) = (0.0, 0.0, 0.0);
+                for i in 0..N {
+                    let cv = c[row + ix[i]];
+                    r0 += cv * wx[i];
+                    r1 += cv * dx[i];
+                    if HESSIAN && N == 4 {
+                        r2 += cv * ddx[i];
+                    }
+                }
+                t00 += r0 * wy[j];
+                t10 += r1 * wy[j];
+                t01 += r0 * dy[j];
+                if HESSIAN {
+                    t11 += r1 * dy[j];
+                }
+                if HESSIAN && N == 4 {
+                    t20 += r2 * wy[j];
+                    t02 += r0 * ddy[j];
                 }
             }
-        });
+            v += t00 * wz[k];
+            gx += t10 * wz[k];
+            gy += t01 * wz[k];
+            gz += t00 * dz[k];
+            if HESSIAN {
+                h[1] += t11 * wz[k];
+                h[2] += t10 * dz[k];
+                h[4] += t01 * dz[k];
+            }
+            // trilinear weights are linear along each axis: no second derivative
+            if HESSIAN && N == 4 {
+                h[0] += t20 * wz[k];
+                h[3] += t02 * wz[k];
+                h[5] += t00 * ddz[k];
+            }
+        }
         let s = self.spacing;
-        let hess = DMat3::from_cols(
-            DVec3::from_array(h[0]),
-            DVec3::from_array(h[1]),
-            DVec3::from_array(h[2]),
-        ) * (1.0 / (s * s));
-        (v, g / s, hess)
+        let hess = if HESSIAN {
+            DMat3::from_cols_array(&[h[0], h[1], h[2], h[1], h[3], h[4], h[2], h[4], h[5]])
+                * (1.0 / (s * s))
+        } else {
+            DMat3::ZERO
+        };
+        (v, DVec3::new(gx, gy, gz) / s, hess)
+    }
+
+    /// Value, gradient and Hessian at `x`.
+    pub fn eval(&self, x: DVec3) -> (f64, DVec3, DMat3) {
+        match self.interp {
+            Interp::Tricubic => self.contract::<4, true>(x),
+            Interp::Trilinear => self.contract::<2, true>(x),
+        }
+    }
+
+    /// Value and gradient at `x` (the same bits as [`Self::eval`]'s, without the Hessian): what
+    /// ray tracing needs.
+    pub fn value_grad(&self, x: DVec3) -> (f64, DVec3) {
+        let (v, g, _) = match self.interp {
+            Interp::Tricubic => self.contract::<4, false>(x),
+            Interp::Trilinear => self.contract::<2, false>(x),
+        };
+        (v, g)
+    }
+
+    /// `grad[i] += a·w_i(x) + b·∇w_i(x)` for every tap `i` at `x` (`w_i = ∂n/∂c_i`; clamped taps
+    /// repeat an index and add): the adjoint's sparse accumulation into every coefficient, one
+    /// axis at a time.
+    pub fn scatter(&self, x: DVec3, a: f64, b: DVec3, grad: &mut [f64]) {
+        match self.interp {
+            Interp::Tricubic => self.scatter_n::<4>(x, a, b, grad),
+            Interp::Trilinear => self.scatter_n::<2>(x, a, b, grad),
+        }
+    }
+
+    #[inline(always)]
+    fn scatter_n<const N: usize>(&self, x: DVec3, a: f64, b: DVec3, grad: &mut [f64]) {
+        let Stencil {
+            offsets: [ix, iy, iz],
+            weights: [[wx, dx, _], [wy, dy, _], [wz, dz, _]],
+        } = self.stencil::<N>(x);
+        let b = b / self.spacing;
+        for k in 0..N {
+            // w_i = wx wy wz, ∇w_i = (dx wy wz, wx dy wz, wx wy dz): per row, wx·α + dx·β
+            let (az, bz) = (wz[k] * a + dz[k] * b.z, wz[k] * b.y);
+            for j in 0..N {
+                let alpha = wy[j] * az + dy[j] * bz;
+                let beta = wy[j] * wz[k] * b.x;
+                let row = iz[k] + iy[j];
+                for i in 0..N {
+                    grad[row + ix[i]] += wx[i] * alpha + dx[i] * beta;
+                }
+            }
+        }
     }
 
     /// The value alone at `x` (no derivatives): the inside–outside test of a signed-distance grid.
@@ -241,15 +378,6 @@ impl GridField {
             }
         }
         v
-    }
-
-    /// Visit every coefficient that `n(x)` depends on with `(index, ∂n/∂c, ∇(∂n/∂c))` (clamped
-    /// taps may repeat an index; their contributions add). This is the sparse form the adjoint
-    /// accumulates over all coefficients with (8 taps trilinear, 64 tricubic).
-    #[inline]
-    pub fn visit_dcoef(&self, x: DVec3, mut visit: impl FnMut(usize, f64, DVec3)) {
-        let s = 1.0 / self.spacing;
-        self.taps(x, |i, w, dw, _| visit(i, w, dw * s));
     }
 
     /// `(∂n/∂c, ∇(∂n/∂c))` for coefficient `which` at `x` (clamped taps sum).
@@ -345,6 +473,68 @@ mod tests {
             ] {
                 let (a, b) = (g.value(x), g.eval(x).0);
                 assert!((a - b).abs() < 1e-13, "{interp:?} at {x}: {a} vs {b}");
+            }
+        }
+    }
+
+    /// The axis-by-axis contraction equals the sum over the 64 (8) tap products, and the scatter
+    /// adds each coefficient's `a ∂n/∂c + b·∇∂n/∂c` ([`GridField::dcoef`]), in the clamped margin
+    /// (repeated taps) too; `value_grad` is `eval`'s value and gradient, bit for bit.
+    #[test]
+    fn contraction_and_scatter_equal_the_tap_sums() {
+        let dims = [6, 5, 7];
+        for interp in [Interp::Tricubic, Interp::Trilinear] {
+            let g = GridField::from_samples(
+                DVec3::new(-1.0, -0.5, 0.0),
+                0.3,
+                dims,
+                samples(dims),
+                interp,
+            )
+            .unwrap();
+            for x in [
+                DVec3::new(-0.41, 0.23, 0.77),
+                DVec3::new(-1.7, 1.4, -0.6),
+                DVec3::new(0.49, 0.69, 1.79),
+            ] {
+                let (mut v, mut gr, mut h) = (0.0, DVec3::ZERO, [[0.0; 3]; 3]);
+                g.taps(x, |i, w, dw, hw| {
+                    v += g.coef[i] * w;
+                    gr += dw * g.coef[i];
+                    for r in 0..3 {
+                        for c in 0..3 {
+                            h[r][c] += g.coef[i] * hw[r][c];
+                        }
+                    }
+                });
+                let (ev, eg, eh) = g.eval(x);
+                let s = g.spacing;
+                assert!((ev - v).abs() < 1e-13, "{interp:?} {x}: {ev} vs {v}");
+                assert!(
+                    (eg - gr / s).length() < 1e-12,
+                    "{interp:?} {x}: {eg} vs {gr}"
+                );
+                for (r, row) in h.iter().enumerate() {
+                    for (c, want) in row.iter().enumerate() {
+                        let want = want / (s * s);
+                        assert!(
+                            (eh.col(c)[r] - want).abs() < 1e-11,
+                            "{interp:?} H[{r}][{c}]"
+                        );
+                    }
+                }
+                assert_eq!(g.value_grad(x), (ev, eg));
+                let (a, b) = (0.7, DVec3::new(-0.3, 1.1, 0.4));
+                let mut grad = vec![0.0; g.coef.len()];
+                g.scatter(x, a, b, &mut grad);
+                for (i, got) in grad.iter().enumerate() {
+                    let (w, dw) = g.dcoef(x, i);
+                    let want = a * w + b.dot(dw);
+                    assert!(
+                        (got - want).abs() < 1e-12,
+                        "{interp:?} coefficient {i}: {got} vs {want}"
+                    );
+                }
             }
         }
     }

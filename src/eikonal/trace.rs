@@ -43,7 +43,7 @@ impl Tracer<'_> {
     /// `n∇n` at `x` (zero outside the bounds).
     #[inline]
     pub(crate) fn force(&self, x: DVec3) -> DVec3 {
-        let (n, g, _) = self.field.eval(x);
+        let (n, g) = self.field.value_grad(x);
         g * n
     }
 
@@ -173,7 +173,7 @@ impl Tracer<'_> {
         let h = self.step;
         // the field at the end of a step (n and the force n∇n) starts the next: one evaluation
         // per step, the same numbers as `leapfrog`
-        let (mut n_r, g, _) = self.field.eval(r.x);
+        let (mut n_r, g) = self.field.value_grad(r.x);
         let mut force = g * n_r;
         for k in 0..self.max_steps {
             let v_half = r.v + force * (0.5 * h);
@@ -201,7 +201,7 @@ impl Tracer<'_> {
                             x: end.x,
                             v: reflected * n_in,
                         };
-                        let (n, g, _) = self.field.eval(r.x);
+                        let (n, g) = self.field.value_grad(r.x);
                         (n_r, force) = (n, g * n);
                         start = r;
                         segment_steps = 0;
@@ -219,7 +219,7 @@ impl Tracer<'_> {
                     }
                 }
             }
-            let (n_next, g, _) = self.field.eval_inside(x);
+            let (n_next, g) = self.field.value_grad_inside(x);
             let force_next = g * n_next;
             opl += 0.5 * h * (n_r.powi(2) + n_next.powi(2));
             r = Ray {

@@ -9,6 +9,8 @@
 use crate::math::{C64, Rng, stream_rng};
 use rayon::prelude::*;
 use std::ops::Range;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
 /// A sampler of complex-valued quantities: the estimator ("solver") the engine ("executor") drives.
 /// Estimators never spawn threads, print or write files.
@@ -411,6 +413,50 @@ impl StopFlag {
         } else {
             Ok(())
         }
+    }
+}
+
+/// A run observed and stopped from another thread (the Python binding polls it while the run
+/// works): units of work done and in all, and a flag that stops the run at its next wave of
+/// chunks, ray or iteration with [`crate::Error::Interrupted`].
+#[derive(Debug, Default)]
+pub struct Watch {
+    pub done: AtomicU64,
+    pub total: AtomicU64,
+    pub stop: Arc<AtomicBool>,
+}
+
+impl Watch {
+    /// Ask the run to stop.
+    pub fn stop(&self) {
+        self.stop.store(true, Ordering::Relaxed);
+    }
+
+    /// The stop flag for fits and designs, which hold it beyond a borrow.
+    pub fn stop_flag(&self) -> StopFlag {
+        StopFlag::new(Arc::clone(&self.stop))
+    }
+
+    /// One more unit of work done.
+    pub fn tick(&self) {
+        self.done.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// `Err(Interrupted)` once the run was asked to stop.
+    pub fn check(&self) -> crate::Result<()> {
+        if self.stop.load(Ordering::Relaxed) {
+            Err(crate::Error::Interrupted)
+        } else {
+            Ok(())
+        }
+    }
+
+    /// `(done, total)` units of work so far.
+    pub fn progress(&self) -> (u64, u64) {
+        (
+            self.done.load(Ordering::Relaxed),
+            self.total.load(Ordering::Relaxed),
+        )
     }
 }
 

@@ -447,7 +447,7 @@ impl<'v> Connector<'v> {
         let (n_in, n_out) = (field.n(end.x), field.n_out);
         let eta = n_in / n_out;
         let force = {
-            let (n, g, _) = field.eval(end.x);
+            let (n, g) = field.value_grad(end.x);
             g * n
         };
         let outgoing = |d: DVec3, at: DVec3| -> Option<DVec3> {

@@ -79,7 +79,7 @@ impl<'v> Flyer<'v> {
         let (mut r, mut s, mut opl) = (r, 0.0, 0.0);
         // the force at the end of a step starts the next (one field evaluation per step, the same
         // numbers as `Tracer::leapfrog`)
-        let (mut n0, g0, _) = field.eval(r.x);
+        let (mut n0, g0) = field.value_grad(r.x);
         let mut force = g0 * n0;
         // distance that may still be run before the next inside–outside test
         let mut clear = self.clearance(r.x);
@@ -97,7 +97,7 @@ impl<'v> Flyer<'v> {
                 field.bounds.contains(x)
             };
             let (next, tau, boundary, n_next, force_next) = if inside {
-                let (n1, g1, _) = field.eval_inside(x);
+                let (n1, g1) = field.value_grad_inside(x);
                 let f1 = g1 * n1;
                 let next = Ray {
                     x,
