@@ -377,3 +377,65 @@ count = 5
     assert!(b < 0.5 * a, "exit mode: miss {a} → {b}");
     let _ = std::fs::remove_dir_all(&d);
 }
+
+/// The operation's outputs and its gradient over every coefficient are the same bits on 1, 2 or 3
+/// threads, and each ray's output is what tracing it alone gives (the forward steps four rays at a
+/// time, interleaved; 9 rays leave a batch of one). Would catch a reduction whose order follows
+/// the threads, or a batch that mixes rays up.
+#[test]
+fn trace_op_is_bitwise_the_same_for_any_thread_count() {
+    use lightpath::diff::bridge::Differentiable;
+    use lightpath::eikonal::Tracer;
+    for interp in [Interp::Tricubic, Interp::Trilinear] {
+        let g = grid(interp, |p| {
+            1.5 - 0.05 * (p.x * p.x + p.y * p.y) + 0.01 * p.z
+        });
+        let op = op(g.clone(), 120);
+        let run = |threads: usize| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| {
+                    let (y, pullback) = op.forward(&g.coef).unwrap();
+                    let dy: Vec<f64> = (0..y.len()).map(|k| 0.3 + 0.01 * k as f64).collect();
+                    (y, pullback.pullback(&dy))
+                })
+        };
+        let one = run(1);
+        for threads in [2, 3] {
+            let other = run(threads);
+            assert!(
+                one.0
+                    .iter()
+                    .zip(&other.0)
+                    .all(|(a, b)| a.to_bits() == b.to_bits()),
+                "{interp:?}: outputs differ on {threads} threads"
+            );
+            assert!(
+                one.1
+                    .iter()
+                    .zip(&other.1)
+                    .all(|(a, b)| a.to_bits() == b.to_bits()),
+                "{interp:?}: gradients differ on {threads} threads"
+            );
+        }
+        let tracer = Tracer {
+            field: &op.field,
+            step: op.step,
+            max_steps: op.steps,
+        };
+        for (i, r) in op.rays.iter().enumerate() {
+            let alone = tracer.steps(*r, op.steps, op.step);
+            let got = &one.0[6 * i..6 * i + 6];
+            let want: Vec<f64> = alone
+                .x
+                .to_array()
+                .into_iter()
+                .chain(alone.v.to_array())
+                .collect();
+            assert_eq!(got, &want[..], "{interp:?}: ray {i}");
+        }
+        assert!(one.1.iter().any(|x| *x != 0.0));
+    }
+}

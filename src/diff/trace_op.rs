@@ -101,14 +101,24 @@ impl Differentiable for TraceOp {
                 })
                 .collect()
         } else {
-            self.rays
-                .par_iter()
-                .map(|r| {
-                    self.stop
-                        .check()
-                        .map(|()| tracer.steps(*r, self.steps, self.step))
+            // four rays at a time, interleaved (the same bits as one by one)
+            let batches: Vec<Vec<Ray>> = self
+                .rays
+                .par_chunks(4)
+                .map(|b| {
+                    self.stop.check()?;
+                    Ok(match *b {
+                        [a, b, c, d] => tracer
+                            .steps_interleaved([a, b, c, d], self.steps, self.step)
+                            .to_vec(),
+                        _ => b
+                            .iter()
+                            .map(|r| tracer.steps(*r, self.steps, self.step))
+                            .collect(),
+                    })
                 })
-                .collect::<crate::Result<_>>()?
+                .collect::<crate::Result<_>>()?;
+            batches.concat()
         };
         if let Some(i) = ends
             .iter()
@@ -154,7 +164,8 @@ impl Pullback for TracePullback {
             .into_par_iter()
             .map(|g| {
                 let mut acc = vec![0.0; n];
-                for i in g * per..((g + 1) * per).min(self.rays.len()) {
+                let rays = g * per..((g + 1) * per).min(self.rays.len());
+                for i in rays {
                     if self.stop.is_set() {
                         // the caller reports the stop; this gradient is not used
                         break;

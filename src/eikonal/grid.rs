@@ -240,11 +240,74 @@ impl GridField {
         }
     }
 
-    /// Value, gradient and (with `HESSIAN`) Hessian at `x`, contracted one axis at a time (x, then
-    /// y, then z): ~5× fewer operations than summing the 64 tap products. Value and gradient are
-    /// the same bits with and without the Hessian.
+    /// Value, gradient and (with `HESSIAN`) Hessian at `x`, contracted one axis at a time: along
+    /// y and z with the four x-taps side by side (independent lanes the compiler vectorises, the
+    /// same operations in every lane), then along x. About 5× fewer operations than summing the 64
+    /// tap products; value and gradient are the same bits with and without the Hessian.
     #[inline(always)]
     fn contract<const N: usize, const HESSIAN: bool>(&self, x: DVec3) -> (f64, DVec3, DMat3) {
+        let Stencil {
+            offsets: [ix, iy, iz],
+            weights: [[wx, dx, ddx], [wy, dy, ddy], [wz, dz, ddz]],
+        } = self.stencil::<N>(x);
+        let c = &self.coef;
+        // a_yz[l]: the x-tap l contracted with the y- and z-derivatives of orders y and z
+        let (mut a00, mut a10, mut a01) = ([0.0; N], [0.0; N], [0.0; N]);
+        let (mut a20, mut a11, mut a02) = ([0.0; N], [0.0; N], [0.0; N]);
+        for k in 0..N {
+            let (mut s0, mut s1, mut s2) = ([0.0; N], [0.0; N], [0.0; N]);
+            for j in 0..N {
+                let row = iz[k] + iy[j];
+                let cv: [f64; N] = std::array::from_fn(|i| c[row + ix[i]]);
+                for l in 0..N {
+                    s0[l] += cv[l] * wy[j];
+                    s1[l] += cv[l] * dy[j];
+                    if HESSIAN && N == 4 {
+                        s2[l] += cv[l] * ddy[j];
+                    }
+                }
+            }
+            for l in 0..N {
+                a00[l] += s0[l] * wz[k];
+                a10[l] += s1[l] * wz[k];
+                a01[l] += s0[l] * dz[k];
+                if HESSIAN {
+                    a11[l] += s1[l] * dz[k];
+                }
+                // trilinear weights are linear along each axis: no second derivative
+                if HESSIAN && N == 4 {
+                    a20[l] += s2[l] * wz[k];
+                    a02[l] += s0[l] * ddz[k];
+                }
+            }
+        }
+        let dot = |a: &[f64; N], w: &[f64; N]| {
+            let mut s = 0.0;
+            for l in 0..N {
+                s += a[l] * w[l];
+            }
+            s
+        };
+        let s = self.spacing;
+        let grad = DVec3::new(dot(&a00, &dx), dot(&a10, &wx), dot(&a01, &wx)) / s;
+        let hess = if HESSIAN {
+            let (xy, xz, yz) = (dot(&a10, &dx), dot(&a01, &dx), dot(&a11, &wx));
+            let (xx, yy, zz) = if N == 4 {
+                (dot(&a00, &ddx), dot(&a20, &wx), dot(&a02, &wx))
+            } else {
+                (0.0, 0.0, 0.0)
+            };
+            DMat3::from_cols_array(&[xx, xy, xz, xy, yy, yz, xz, yz, zz]) * (1.0 / (s * s))
+        } else {
+            DMat3::ZERO
+        };
+        (dot(&a00, &wx), grad, hess)
+    }
+
+    /// [`Self::contract`] for trilinear grids, x first (two taps a side leave no lanes to fill):
+    /// value, gradient and (with `HESSIAN`) Hessian, the same bits with and without it.
+    #[inline(always)]
+    fn contract_rows<const N: usize, const HESSIAN: bool>(&self, x: DVec3) -> (f64, DVec3, DMat3) {
         let Stencil {
             offsets: [ix, iy, iz],
             weights: [[wx, dx, ddx], [wy, dy, ddy], [wz, dz, ddz]],
@@ -305,30 +368,79 @@ impl GridField {
 
     /// Value, gradient and Hessian at `x`.
     pub fn eval(&self, x: DVec3) -> (f64, DVec3, DMat3) {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU has AVX2 (checked just above).
+            return unsafe { self.eval_avx2(x) };
+        }
+        self.eval_portable(x)
+    }
+
+    #[inline(always)]
+    fn eval_portable(&self, x: DVec3) -> (f64, DVec3, DMat3) {
         match self.interp {
             Interp::Tricubic => self.contract::<4, true>(x),
-            Interp::Trilinear => self.contract::<2, true>(x),
+            Interp::Trilinear => self.contract_rows::<2, true>(x),
         }
+    }
+
+    /// The same operations in the same order with 256-bit vectors: the same bits.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn eval_avx2(&self, x: DVec3) -> (f64, DVec3, DMat3) {
+        self.eval_portable(x)
     }
 
     /// Value and gradient at `x` (the same bits as [`Self::eval`]'s, without the Hessian): what
     /// ray tracing needs.
     pub fn value_grad(&self, x: DVec3) -> (f64, DVec3) {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU has AVX2 (checked just above).
+            return unsafe { self.value_grad_avx2(x) };
+        }
+        self.value_grad_portable(x)
+    }
+
+    #[inline(always)]
+    fn value_grad_portable(&self, x: DVec3) -> (f64, DVec3) {
         let (v, g, _) = match self.interp {
             Interp::Tricubic => self.contract::<4, false>(x),
-            Interp::Trilinear => self.contract::<2, false>(x),
+            Interp::Trilinear => self.contract_rows::<2, false>(x),
         };
         (v, g)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn value_grad_avx2(&self, x: DVec3) -> (f64, DVec3) {
+        self.value_grad_portable(x)
     }
 
     /// `grad[i] += a·w_i(x) + b·∇w_i(x)` for every tap `i` at `x` (`w_i = ∂n/∂c_i`; clamped taps
     /// repeat an index and add): the adjoint's sparse accumulation into every coefficient, one
     /// axis at a time.
     pub fn scatter(&self, x: DVec3, a: f64, b: DVec3, grad: &mut [f64]) {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU has AVX2 (checked just above).
+            return unsafe { self.scatter_avx2(x, a, b, grad) };
+        }
+        self.scatter_portable(x, a, b, grad)
+    }
+
+    #[inline(always)]
+    fn scatter_portable(&self, x: DVec3, a: f64, b: DVec3, grad: &mut [f64]) {
         match self.interp {
             Interp::Tricubic => self.scatter_n::<4>(x, a, b, grad),
             Interp::Trilinear => self.scatter_n::<2>(x, a, b, grad),
         }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn scatter_avx2(&self, x: DVec3, a: f64, b: DVec3, grad: &mut [f64]) {
+        self.scatter_portable(x, a, b, grad)
     }
 
     #[inline(always)]
@@ -338,6 +450,7 @@ impl GridField {
             weights: [[wx, dx, _], [wy, dy, _], [wz, dz, _]],
         } = self.stencil::<N>(x);
         let b = b / self.spacing;
+        let contiguous = ix[N - 1] == ix[0] + N - 1;
         for k in 0..N {
             // w_i = wx wy wz, ∇w_i = (dx wy wz, wx dy wz, wx wy dz): per row, wx·α + dx·β
             let (az, bz) = (wz[k] * a + dz[k] * b.z, wz[k] * b.y);
@@ -345,8 +458,16 @@ impl GridField {
                 let alpha = wy[j] * az + dy[j] * bz;
                 let beta = wy[j] * wz[k] * b.x;
                 let row = iz[k] + iy[j];
-                for i in 0..N {
-                    grad[row + ix[i]] += wx[i] * alpha + dx[i] * beta;
+                if contiguous {
+                    // the N taps of the row side by side (no clamped repeats): vector lanes
+                    let start = row + ix[0];
+                    for (l, g) in grad[start..start + N].iter_mut().enumerate() {
+                        *g += wx[l] * alpha + dx[l] * beta;
+                    }
+                } else {
+                    for i in 0..N {
+                        grad[row + ix[i]] += wx[i] * alpha + dx[i] * beta;
+                    }
                 }
             }
         }
@@ -448,6 +569,39 @@ mod tests {
                     "{interp:?} hessian col {a}: {} vs {fdg}",
                     hess.col(a)
                 );
+            }
+        }
+    }
+
+    /// The vectorised (AVX2) kernels give the portable kernels' bits: the same operations in the
+    /// same order, in wider registers.
+    #[test]
+    fn vector_kernels_equal_the_portable_ones() {
+        let dims = [6, 5, 7];
+        for interp in [Interp::Tricubic, Interp::Trilinear] {
+            let g = GridField::from_samples(
+                DVec3::new(-1.0, -0.5, 0.0),
+                0.3,
+                dims,
+                samples(dims),
+                interp,
+            )
+            .unwrap();
+            for x in [
+                DVec3::new(-0.41, 0.23, 0.77),
+                DVec3::new(-1.7, 1.4, -0.6),
+                DVec3::new(0.49, 0.69, 1.79),
+            ] {
+                assert_eq!(g.eval(x), g.eval_portable(x), "{interp:?} at {x}");
+                assert_eq!(
+                    g.value_grad(x),
+                    g.value_grad_portable(x),
+                    "{interp:?} at {x}"
+                );
+                let (mut a, mut b) = (vec![0.0; g.coef.len()], vec![0.0; g.coef.len()]);
+                g.scatter(x, 0.7, DVec3::new(-0.3, 1.1, 0.4), &mut a);
+                g.scatter_portable(x, 0.7, DVec3::new(-0.3, 1.1, 0.4), &mut b);
+                assert_eq!(a, b, "{interp:?} at {x}");
             }
         }
     }
