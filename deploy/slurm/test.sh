@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# End-to-end check on a real (one-node) Slurm: start it (single-node.sh), run a covariance and a
-# speckle run as 4-shard job arrays with dependent merges, and compare the merged results with one
-# run on this machine, number for number. Needs root; prints the timings.
+# End-to-end check on a real (one-node) Slurm: start it (single-node.sh), run a covariance, a
+# speckle, a wave-solver and a refractive render run as 4-shard job arrays with dependent merges,
+# and compare the merged results with one run on this machine, number for number. Needs root;
+# prints the timings.
 #   deploy/slurm/test.sh
 set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
@@ -34,13 +35,22 @@ chunk = 1000
 seed = 11
 CONF
 status=0
-for command in covariance speckle; do
-    file=$command.json
+# command, config, result file, options
+runs=(
+    "covariance $work/scene.toml covariance.json"
+    "speckle $work/scene.toml speckle.json"
+    "wave $root/experiments/wave-vs-mc/od2.toml covariance.json --realizations 64"
+    "render $root/configs/render_tank.toml render.json --samples 200000"
+)
+for run in "${runs[@]}"; do
+    read -r command config file options <<<"$run"
+    # shellcheck disable=SC2086 # options holds several words
     t0=$(date +%s.%N)
-    target/release/lightpath "$command" "$work/scene.toml" --out "$work/single-$command" --quiet >/dev/null
+    target/release/lightpath "$command" "$config" --out "$work/single-$command" --quiet $options >/dev/null
     t1=$(date +%s.%N)
+    # shellcheck disable=SC2086
     read -r array merge < <(LIGHTPATH=target/release/lightpath \
-        "$here/submit.sh" "$command" "$work/scene.toml" "$work/slurm-$command" 4)
+        "$here/submit.sh" "$command" "$config" "$work/slurm-$command" 4 $options)
     while squeue -h -j "${array%%;*},$merge" 2>/dev/null | grep -q .; do
         sleep 1
     done
@@ -48,10 +58,15 @@ for command in covariance speckle; do
     state=$(sacct -n -X -j "$merge" -o State 2>/dev/null | tr -d ' ' || true)
     if python3 - "$work/single-$command/$file" "$work/slurm-$command/merged/$file" <<'PY'
 import json, sys
-a, b = (json.load(open(p)) for p in sys.argv[1:3])
-keys = [k for k in a if k not in ("seconds", "version")]
-bad = [k for k in keys if a[k] != b.get(k)]
-sys.exit(1 if bad else 0)
+timings = {"seconds", "version", "photons_per_second", "steps_per_second"}
+def strip(x):
+    if isinstance(x, dict):
+        return {k: strip(v) for k, v in x.items() if k not in timings}
+    if isinstance(x, list):
+        return [strip(v) for v in x]
+    return x
+a, b = (strip(json.load(open(p))) for p in sys.argv[1:3])
+sys.exit(0 if a == b else 1)
 PY
     then
         printf '%s: 4 Slurm shards merged equal one run (one run %.1f s; submit to merged %.1f s)\n' \

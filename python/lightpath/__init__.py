@@ -294,6 +294,7 @@ def covariance_vjp(
     threads: Optional[int] = None,
     max_minutes: float = 240.0,
     max_memory_gb: float = 8.0,
+    progress: Progress = None,
 ) -> CovarianceVjp:
     """The covariance at ``theta`` and its vector–Jacobian product.
 
@@ -325,6 +326,7 @@ def covariance_vjp(
         threads=threads,
         max_minutes=max_minutes,
         max_memory_gb=max_memory_gb,
+        progress=progress,
     )
 
 

@@ -139,7 +139,7 @@ class CovarianceVjp:
     @property
     def theta(self) -> npt.NDArray[np.float64]:
         """float64 [P]."""
-    def __call__(self, adjoint: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    def __call__(self, adjoint: npt.ArrayLike, *, progress: Progress = None) -> npt.NDArray[np.float64]:
         """∂L/∂θ (float64 [P]) for the adjoint ∂L/∂Re C + i ∂L/∂Im C ([L, L, V, V])."""
 
 class Mie:
@@ -339,6 +339,7 @@ def covariance_vjp(
     threads: Optional[int] = None,
     max_minutes: float = 240.0,
     max_memory_gb: float = 8.0,
+    progress: Progress = None,
 ) -> CovarianceVjp: ...
 def mie(
     diameter: float,

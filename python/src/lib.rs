@@ -745,11 +745,13 @@ impl CovarianceVjp {
     }
 
     /// `∂L/∂θ` (float64 `[P]`) for the adjoint `∂L/∂Re C + i ∂L/∂Im C` (complex or real
-    /// `[L, L, V, V]`).
+    /// `[L, L, V, V]`); `progress(done, total)` counts chunks.
+    #[pyo3(signature = (adjoint, *, progress=None))]
     fn __call__<'py>(
         &self,
         py: Python<'py>,
         adjoint: &Bound<'py, PyAny>,
+        progress: Option<Py<PyAny>>,
     ) -> PyResult<Bound<'py, PyArray1<f64>>> {
         // any array-like of real or complex numbers, as complex128
         let kwargs = pyo3::types::PyDict::new(py);
@@ -779,8 +781,8 @@ impl CovarianceVjp {
             ));
         }
         let evaluation = Arc::clone(&self.evaluation);
-        let gradient = run_watched(py, self.threads, None, move |w| {
-            evaluation.pullback_until(&dy, Some(&*w.stop))
+        let gradient = run_watched(py, self.threads, progress, move |w| {
+            evaluation.pullback_until(&dy, Some(w))
         })?;
         if gradient.iter().any(|g| !g.is_finite()) {
             return Err(PyRuntimeError::new_err(
@@ -803,7 +805,7 @@ impl CovarianceVjp {
 /// re-weighted to `theta`: common random numbers, so the value is smooth in `theta` and the VJP is
 /// its exact gradient. `proposal = theta` gives unbiased gradients of the expectation instead.
 #[pyfunction]
-#[pyo3(signature = (task, params, *, theta=None, proposal=None, samples=None, seed=None, threads=None, max_minutes=240.0, max_memory_gb=8.0))]
+#[pyo3(signature = (task, params, *, theta=None, proposal=None, samples=None, seed=None, threads=None, max_minutes=240.0, max_memory_gb=8.0, progress=None))]
 #[allow(clippy::too_many_arguments)]
 fn covariance_vjp(
     py: Python<'_>,
@@ -816,6 +818,7 @@ fn covariance_vjp(
     threads: Option<usize>,
     max_minutes: f64,
     max_memory_gb: f64,
+    progress: Option<Py<PyAny>>,
 ) -> PyResult<CovarianceVjp> {
     let scene_task = task.scene("covariance_vjp")?;
     let render = &scene_task.config.render;
@@ -900,7 +903,7 @@ fn covariance_vjp(
     )
     .map_err(py_err)?;
     let at = theta.clone();
-    let (entries, evaluation) = run_watched(py, threads, None, move |w| {
+    let (entries, evaluation) = run_watched(py, threads, progress, move |w| {
         // the covariance's own time and memory estimate, before any path
         let afford = |est: &lightpath::diff::ReweightedCovariance<'_>, plan: &Plan| {
             let paths = plan.samples() as f64;
@@ -914,7 +917,7 @@ fn covariance_vjp(
                 &budget,
             )
         };
-        op.forward_until(&at, &w.stop, &afford)
+        op.forward_until(&at, w, &afford)
     })?;
     Ok(CovarianceVjp {
         params,

@@ -130,3 +130,12 @@ def test_ray_tracing_reports_progress_and_stops_on_ctrl_c(repo):
     luneburg["rays"]["count"] = 401
     assert interrupted_after_half_a_second(lambda: lp.trace(luneburg)) < 1.5
     assert interrupted_after_half_a_second(lambda: lp.trace_vjp(luneburg)) < 1.5
+
+
+def test_gradient_evaluations_report_progress():
+    from test_gradients import SCENE
+
+    seen, back = [], []
+    at = lp.covariance_vjp(SCENE, ["sigma_s"], samples=20_000, progress=lambda d, n: seen.append((d, n)))
+    at(at.value, progress=lambda d, n: back.append((d, n)))
+    assert seen[-1][0] == seen[-1][1] > 1 and back[-1] == seen[-1]

@@ -8,11 +8,11 @@
 use super::bridge::{Differentiable, Pullback};
 use super::{CovarianceGradient, Param, Reweighted, ReweightedCovariance};
 use crate::math::C64;
-use crate::mc::{Plan, StopFlag, estimate_until};
+use crate::mc::{Plan, StopFlag, Watch, estimate_until, estimate_watched};
 use crate::medium::{Medium, PhaseFunction, Scattering};
 use crate::speckle::Scene;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU64, Ordering};
 
 /// The medium `base` with `params` set to `theta`, and per parameter the factor that turns the
 /// gradient the estimators compute into `∂/∂θ`.
@@ -227,18 +227,19 @@ impl CovarianceOp {
     }
 
     /// The entries at `θ` with their standard errors and the evaluation, whose
-    /// [`CovarianceEvaluation::pullback_until`] gives the VJP (one forward pass for both). Stops
-    /// with [`crate::Error::Interrupted`] once `stop` is set. `afford` sees the estimator and its
-    /// plan before any path is traced and may refuse the run (a time or memory budget).
+    /// [`CovarianceEvaluation::pullback_until`] gives the VJP (one forward pass for both),
+    /// observed through `watch` (chunks done; a stop with [`crate::Error::Interrupted`]).
+    /// `afford` sees the estimator and its plan before any path is traced and may refuse the run
+    /// (a time or memory budget).
     pub fn forward_until(
         &self,
         theta: &[f64],
-        stop: &AtomicBool,
+        watch: &Watch,
         afford: &dyn Fn(&ReweightedCovariance<'_>, &Plan) -> crate::Result<()>,
     ) -> crate::Result<(Entries, CovarianceEvaluation)> {
         let e = self.prepare(theta)?;
         afford(&ReweightedCovariance(e.reweighted(vec![])?), &e.plan)?;
-        let entries = e.entries(Some(stop))?;
+        let entries = e.entries(Some(watch))?;
         Ok((entries, e))
     }
 
@@ -272,9 +273,12 @@ impl CovarianceEvaluation {
         )
     }
 
-    fn entries(&self, stop: Option<&AtomicBool>) -> crate::Result<Entries> {
+    fn entries(&self, watch: Option<&Watch>) -> crate::Result<Entries> {
         let est = ReweightedCovariance(self.reweighted(vec![])?);
-        let est = estimate_until(&est, &self.plan, stop.or(self.stop.get()))?;
+        let est = match watch {
+            Some(w) => estimate_watched(&est, &self.plan, w)?,
+            None => estimate_until(&est, &self.plan, self.stop.get())?,
+        };
         let j = self.pairs.len();
         Ok(Entries {
             value: self
@@ -292,9 +296,9 @@ impl CovarianceEvaluation {
 }
 
 impl CovarianceEvaluation {
-    /// `∂L/∂θ` from `dy` (`∂L/∂Re C_e`, `∂L/∂Im C_e` interleaved per entry), stopping with
-    /// [`crate::Error::Interrupted`] once `stop` is set.
-    pub fn pullback_until(&self, dy: &[f64], stop: Option<&AtomicBool>) -> crate::Result<Vec<f64>> {
+    /// `∂L/∂θ` from `dy` (`∂L/∂Re C_e`, `∂L/∂Im C_e` interleaved per entry), observed through
+    /// `watch` if given (chunks done; a stop with [`crate::Error::Interrupted`]).
+    pub fn pullback_until(&self, dy: &[f64], watch: Option<&Watch>) -> crate::Result<Vec<f64>> {
         if dy.len() != 2 * self.entries.len() {
             return Err(format!(
                 "{} adjoint values for {} complex entries",
@@ -309,7 +313,10 @@ impl CovarianceEvaluation {
             adjoint[a * j + b] += C64::new(dy[2 * e], dy[2 * e + 1]);
         }
         let est = CovarianceGradient::new(self.reweighted(self.params.clone())?, &adjoint);
-        let g = estimate_until(&est, &self.plan, stop.or(self.stop.get()))?;
+        let g = match watch {
+            Some(w) => estimate_watched(&est, &self.plan, w)?,
+            None => estimate_until(&est, &self.plan, self.stop.get())?,
+        };
         Ok(g.mean
             .iter()
             .zip(&self.factor)

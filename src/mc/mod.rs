@@ -386,6 +386,28 @@ pub fn estimate_until<E: Estimator>(
     Ok(Estimate::from_block(&root, plan))
 }
 
+/// [`estimate`] observed through `watch`: chunks done of the plan's (its `total`), and a stop at
+/// the next wave of chunks with [`crate::Error::Interrupted`] (the same bits otherwise).
+pub fn estimate_watched<E: Estimator>(
+    est: &E,
+    plan: &Plan,
+    watch: &Watch,
+) -> crate::Result<Estimate> {
+    watch.total.store(plan.chunks, Ordering::Relaxed);
+    watch.done.store(0, Ordering::Relaxed);
+    let blocks = resume(
+        est,
+        plan,
+        0..plan.chunks,
+        &[],
+        &|n| watch.done.store(n, Ordering::Relaxed),
+        Vec::new(),
+        Some(Checkpoint::stop_only(Some(&watch.stop))),
+    )?;
+    let root = merge(blocks, plan.chunks)?;
+    Ok(Estimate::from_block(&root, plan))
+}
+
 /// A flag another thread may set to stop a long computation (a fit, a design, an estimate) at
 /// its next wave of chunks, ray or iteration, with [`crate::Error::Interrupted`]; none by default.
 #[derive(Clone, Debug, Default)]
