@@ -66,14 +66,7 @@ def test_other_python_threads_run_while_lightpath_computes(repo):
 def test_ctrl_c_stops_gradient_evaluations_too():
     from test_gradients import SCENE
 
-    def interrupted(call):
-        timer = threading.Timer(0.5, lambda: signal.raise_signal(signal.SIGINT))
-        start = time.monotonic()
-        timer.start()
-        with pytest.raises(KeyboardInterrupt):
-            call()
-        return time.monotonic() - start
-
+    interrupted = interrupted_after_half_a_second
     # the forward pass (about half a minute uninterrupted)
     assert interrupted(lambda: lp.covariance_vjp(SCENE, ["sigma_s"], samples=5_000_000)) < 1.5
     # the backward pass of a short forward

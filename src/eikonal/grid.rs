@@ -518,6 +518,26 @@ impl GridField {
 mod tests {
     use super::*;
 
+    /// Points inside the test grid, in its clamped margin, and near its far corner.
+    const POINTS: [DVec3; 3] = [
+        DVec3::new(-0.41, 0.23, 0.77),
+        DVec3::new(-1.7, 1.4, -0.6),
+        DVec3::new(0.49, 0.69, 1.79),
+    ];
+
+    /// A 6×5×7 grid of smooth samples.
+    fn test_grid(interp: Interp) -> GridField {
+        let dims = [6, 5, 7];
+        GridField::from_samples(
+            DVec3::new(-1.0, -0.5, 0.0),
+            0.3,
+            dims,
+            samples(dims),
+            interp,
+        )
+        .unwrap()
+    }
+
     fn samples(dims: [usize; 3]) -> Vec<f64> {
         let mut s = Vec::new();
         for k in 0..dims[2] {
@@ -577,21 +597,9 @@ mod tests {
     /// same order, in wider registers.
     #[test]
     fn vector_kernels_equal_the_portable_ones() {
-        let dims = [6, 5, 7];
         for interp in [Interp::Tricubic, Interp::Trilinear] {
-            let g = GridField::from_samples(
-                DVec3::new(-1.0, -0.5, 0.0),
-                0.3,
-                dims,
-                samples(dims),
-                interp,
-            )
-            .unwrap();
-            for x in [
-                DVec3::new(-0.41, 0.23, 0.77),
-                DVec3::new(-1.7, 1.4, -0.6),
-                DVec3::new(0.49, 0.69, 1.79),
-            ] {
+            let g = test_grid(interp);
+            for x in POINTS {
                 assert_eq!(g.eval(x), g.eval_portable(x), "{interp:?} at {x}");
                 assert_eq!(
                     g.value_grad(x),
@@ -636,21 +644,9 @@ mod tests {
     /// (repeated taps) too; `value_grad` is `eval`'s value and gradient, bit for bit.
     #[test]
     fn contraction_and_scatter_equal_the_tap_sums() {
-        let dims = [6, 5, 7];
         for interp in [Interp::Tricubic, Interp::Trilinear] {
-            let g = GridField::from_samples(
-                DVec3::new(-1.0, -0.5, 0.0),
-                0.3,
-                dims,
-                samples(dims),
-                interp,
-            )
-            .unwrap();
-            for x in [
-                DVec3::new(-0.41, 0.23, 0.77),
-                DVec3::new(-1.7, 1.4, -0.6),
-                DVec3::new(0.49, 0.69, 1.79),
-            ] {
+            let g = test_grid(interp);
+            for x in POINTS {
                 let (mut v, mut gr, mut h) = (0.0, DVec3::ZERO, [[0.0; 3]; 3]);
                 g.taps(x, |i, w, dw, hw| {
                     v += g.coef[i] * w;
