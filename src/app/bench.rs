@@ -465,6 +465,16 @@ fn ultrasonic_rates(quick: bool) -> String {
     )
 }
 
+/// Floating-point operations of one forward and one reverse step of a design iteration, counted
+/// by hand in the kernels (stencil weights, the axis-by-axis contraction, the leapfrog; the
+/// reverse: the evaluation with the Hessian, the force Jacobian, the adjoint step and the scatter).
+fn step_flops(interp: crate::eikonal::grid::Interp) -> (f64, f64) {
+    match interp {
+        crate::eikonal::grid::Interp::Tricubic => (490.0, 1320.0),
+        crate::eikonal::grid::Interp::Trilinear => (110.0, 330.0),
+    }
+}
+
 /// One design iteration at the published GPU benchmark's scale, measured (not extrapolated): a
 /// 128³ grid (Luneburg samples), 128² rays × 10 (a collimated bundle), 400 leapfrog steps each,
 /// forward and backward of [`crate::eikonal::TraceOp`] (the gradient of every coefficient).
@@ -484,6 +494,8 @@ pub fn design_iteration() -> crate::Result<String> {
         })
         .collect();
     let rays = 128 * 128 * 10;
+    // the machine's practical FMA peak: what a tuned real GEMM reaches on every thread
+    let (dgemm, _) = gemm_rates(576, 8);
     let mut out = String::new();
     for interp in [Interp::Tricubic, Interp::Trilinear] {
         let grid = GridField::from_samples(origin, spacing, [n; 3], samples.clone(), interp)?;
@@ -517,12 +529,20 @@ pub fn design_iteration() -> crate::Result<String> {
         let backward = t0.elapsed().as_secs_f64();
         std::hint::black_box(g[coef.len() / 2]);
         let ray_steps = (rays * 400) as f64;
+        let (fwd_flops, back_flops) = step_flops(interp);
+        let (fwd_rate, back_rate) = (
+            ray_steps * fwd_flops / forward * 1e-9,
+            ray_steps * back_flops / backward * 1e-9,
+        );
         out += &format!(
             "design iteration, {interp:?} 128³ grid, 128² × 10 rays × 400 steps: forward {forward:.1} s + \
-             backward (every coefficient) {backward:.1} s = {:.1} s; {:.2e} ray-steps/s forward, {:.2e} backward\n",
+             backward (every coefficient) {backward:.1} s = {:.1} s; {:.2e} ray-steps/s forward, {:.2e} backward; \
+             ~{fwd_rate:.1} and ~{back_rate:.1} GFLOP/s ({:.0} % and {:.0} % of dgemm's {dgemm:.1} GFLOP/s)\n",
             forward + backward,
             ray_steps / forward,
-            ray_steps / backward
+            ray_steps / backward,
+            100.0 * fwd_rate / dgemm,
+            100.0 * back_rate / dgemm
         );
     }
     Ok(out)
