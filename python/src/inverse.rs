@@ -3,27 +3,16 @@
 //! L-BFGS, as `lightpath design`). Each returns the command's result file as an object with
 //! numpy arrays; `save` writes the command's files.
 
-use crate::{Task, budget, json_value, py_err, real, run_watched};
+use crate::{Task, budget, json_text, json_value, py_err, real, run_watched};
 use lightpath::app::create_out;
 use lightpath::app::fit::{FitOptions, Fitted};
 use lightpath::app::grin::{Designed, ParamFitted};
 use lightpath::config;
-use lightpath::inverse::Convergence;
 use numpy::{PyArray1, PyArrayDyn};
-use pyo3::exceptions::{PyRuntimeError, PyValueError};
+use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use std::path::PathBuf;
 use std::sync::atomic::Ordering;
-
-/// How a fit or design ended, as a dict: `converged`, `stop` (why), `grad_norm`, `evaluations`,
-/// `iterations`.
-fn convergence<'py>(py: Python<'py>, c: &Option<Convergence>) -> PyResult<Bound<'py, PyAny>> {
-    json_value(py, c)
-}
-
-fn to_json(x: &impl serde::Serialize) -> PyResult<String> {
-    serde_json::to_string(x).map_err(|e| PyRuntimeError::new_err(e.to_string()))
-}
 
 /// A fit of medium parameters (and a tabulated phase function) to a target (`lightpath fit`), as
 /// `fit.json` holds it. Values are natural (mfp and σ in the scene's length unit, g, albedo,
@@ -88,7 +77,7 @@ impl Fit {
     /// dict: `converged`, `stop` (why it stopped), `grad_norm`, `evaluations`, `iterations`.
     #[getter]
     fn convergence<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        convergence(py, &self.fitted.file.convergence)
+        json_value(py, &self.fitted.file.convergence)
     }
 
     /// float64 `[K]`: the target's statistics (memory curve or covariance entries, as the
@@ -144,7 +133,7 @@ impl Fit {
 
     /// `fit.json` as text, exactly as the command writes it.
     fn to_json(&self) -> PyResult<String> {
-        to_json(&self.fitted.file)
+        json_text(&self.fitted.file)
     }
 
     /// Write `fit.json`, `fit.png` (a memory-curve target) and `phase.png` (a phase fit) into
@@ -217,7 +206,7 @@ pub(crate) fn fit(
         w.total
             .store(prepared.total().unwrap_or(0) as u64, Ordering::Relaxed);
         let stop = w.stop_flag();
-        prepared.run(&|s| w.done.store(s.count as u64, Ordering::Relaxed), &stop)
+        prepared.run(&|_| w.tick(), &stop)
     })?;
     Ok(Fit { fitted })
 }
@@ -343,7 +332,7 @@ impl Design {
     /// dict: `converged`, `stop`, `grad_norm`, `evaluations`, `iterations`.
     #[getter]
     fn convergence<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        convergence(py, &self.designed.file.convergence)
+        json_value(py, &self.designed.file.convergence)
     }
 
     /// Wall time, in seconds.
@@ -360,7 +349,7 @@ impl Design {
 
     /// `design.json` as text, exactly as the command writes it.
     fn to_json(&self) -> PyResult<String> {
-        to_json(&self.designed.file)
+        json_text(&self.designed.file)
     }
 
     /// Write `design.json`, `loss.png`, `profile.png` and `grid_slice_z.exr` into `folder`; the
@@ -450,7 +439,7 @@ impl GrinFit {
     /// dict: `converged`, `stop`, `grad_norm`, `evaluations`, `iterations`.
     #[getter]
     fn convergence<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        convergence(py, &self.fitted.file.convergence)
+        json_value(py, &self.fitted.file.convergence)
     }
 
     /// Wall time, in seconds.
@@ -467,7 +456,7 @@ impl GrinFit {
 
     /// `fit.json` as text, exactly as the command writes it.
     fn to_json(&self) -> PyResult<String> {
-        to_json(&self.fitted.file)
+        json_text(&self.fitted.file)
     }
 
     /// Write `fit.json`, `loss.png` and `rays.png` into `folder`; the paths written.
@@ -507,15 +496,7 @@ pub(crate) fn design(
             let total = (t.problem.levels.len() * t.problem.iterations) as u64;
             let designed = run_watched(py, threads, progress, move |w| {
                 w.total.store(total, Ordering::Relaxed);
-                let done = std::sync::atomic::AtomicU64::new(0);
-                lightpath::app::grin::run_design(
-                    &t,
-                    &|_| {
-                        let n = done.fetch_add(1, Ordering::Relaxed) + 1;
-                        w.done.store(n, Ordering::Relaxed);
-                    },
-                    &w.stop_flag(),
-                )
+                lightpath::app::grin::run_design(&t, &|_| w.tick(), &w.stop_flag())
             })?;
             Ok(Py::new(py, Design { designed })?.into_any())
         }
@@ -524,11 +505,7 @@ pub(crate) fn design(
             lightpath::app::grin::check_param_fit(&t, &limits).map_err(py_err)?;
             let fitted = run_watched(py, threads, progress, move |w| {
                 // L-BFGS's evaluation count is not known in advance: total 0
-                lightpath::app::grin::run_param_fit(
-                    &t,
-                    &|s| w.done.store(s.evaluation as u64 + 1, Ordering::Relaxed),
-                    &w.stop_flag(),
-                )
+                lightpath::app::grin::run_param_fit(&t, &|_| w.tick(), &w.stop_flag())
             })?;
             Ok(Py::new(py, GrinFit { fitted })?.into_any())
         }

@@ -322,10 +322,14 @@ fn flat4(x: &Nested4) -> (Vec<f64>, Vec<usize>) {
     (v, shape)
 }
 
+/// A result file (or any serialisable value) as JSON text, as the command writes it.
+fn json_text(x: &impl serde::Serialize) -> PyResult<String> {
+    serde_json::to_string(x).map_err(|e| PyRuntimeError::new_err(e.to_string()))
+}
+
 /// A serialisable value as the Python value `json.loads` makes of it (dicts, lists, floats).
 fn json_value<'py>(py: Python<'py>, x: &impl serde::Serialize) -> PyResult<Bound<'py, PyAny>> {
-    let text = serde_json::to_string(x).map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
-    py.import("json")?.call_method1("loads", (text,))
+    py.import("json")?.call_method1("loads", (json_text(x)?,))
 }
 
 fn flat2(x: &Nested2) -> (Vec<f64>, Vec<usize>) {
@@ -401,7 +405,7 @@ impl Run {
 
     /// The config the run used, as JSON text (every default filled in).
     fn config_json(&self) -> PyResult<String> {
-        serde_json::to_string(&self.run.config).map_err(|e| PyRuntimeError::new_err(e.to_string()))
+        json_text(&self.run.config)
     }
 
     fn __repr__(&self) -> String {
@@ -532,7 +536,7 @@ impl Covariance {
 
     /// `covariance.json` as text, exactly as the command writes it.
     fn to_json(&self) -> PyResult<String> {
-        serde_json::to_string(&self.file).map_err(|e| PyRuntimeError::new_err(e.to_string()))
+        json_text(&self.file)
     }
 
     /// Write `covariance.json` into `folder` (created if needed); the paths written.
@@ -612,7 +616,7 @@ impl MemoryEffect {
 
     /// `memory_effect.json` as text, exactly as the command writes it.
     fn to_json(&self) -> PyResult<String> {
-        serde_json::to_string(&self.file).map_err(|e| PyRuntimeError::new_err(e.to_string()))
+        json_text(&self.file)
     }
 
     /// Write `memory_effect.json` and `memory_effect.png` into `folder`; the paths written.
@@ -685,7 +689,7 @@ impl Speckle {
 
     /// `speckle.json` as text, exactly as the command writes it.
     fn to_json(&self) -> PyResult<String> {
-        serde_json::to_string(&self.file).map_err(|e| PyRuntimeError::new_err(e.to_string()))
+        json_text(&self.file)
     }
 
     /// Write `speckle.json` and one `speckle_NNNN.exr` per realisation into `folder`; the paths
@@ -1000,7 +1004,7 @@ impl CorrelationMap {
 
     /// `correlation_map.json` as text, exactly as the command writes it.
     fn to_json(&self) -> PyResult<String> {
-        serde_json::to_string(&self.file).map_err(|e| PyRuntimeError::new_err(e.to_string()))
+        json_text(&self.file)
     }
 
     /// Write `correlation_map.json` and `correlation_map.png` into `folder`; the paths written.
@@ -1200,7 +1204,7 @@ impl TiltShift {
 
     /// `tilt_shift.json` as text, exactly as the command writes it.
     fn to_json(&self) -> PyResult<String> {
-        serde_json::to_string(&self.file).map_err(|e| PyRuntimeError::new_err(e.to_string()))
+        json_text(&self.file)
     }
 
     /// Write `tilt_shift.json` and `tilt_shift.png` into `folder`; the paths written.
@@ -1557,7 +1561,7 @@ impl Mie {
 
     /// `mie.json` as text, exactly as the command writes it.
     fn to_json(&self) -> PyResult<String> {
-        serde_json::to_string(&self.file).map_err(|e| PyRuntimeError::new_err(e.to_string()))
+        json_text(&self.file)
     }
 
     /// Write `mie.json` and the polar plot `mie.png` into `folder`; the paths written.
@@ -1721,7 +1725,7 @@ impl Rays {
 
     /// `rays.json` as text, exactly as the command writes it.
     fn to_json(&self) -> PyResult<String> {
-        serde_json::to_string(&self.traced.file).map_err(|e| PyRuntimeError::new_err(e.to_string()))
+        json_text(&self.traced.file)
     }
 
     /// Write `rays.json` and `rays.png` into `folder`; the paths written.

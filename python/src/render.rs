@@ -2,12 +2,12 @@
 //! camera path tracing, as `lightpath render`) and `acquire_phase` (the phase function read from
 //! speckle images, as `lightpath acquire-phase`).
 
-use crate::{Task, budget, json_value, py_err, real, run_watched};
+use crate::{Task, budget, json_text, json_value, py_err, real, run_watched};
 use lightpath::app::create_out;
 use lightpath::app::render::{FILES, Image, Rendered};
 use lightpath::config;
 use lightpath::io::results::PhaseAcquisitionFile;
-use pyo3::exceptions::{PyRuntimeError, PyValueError};
+use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use std::path::PathBuf;
@@ -99,8 +99,7 @@ impl Render {
 
     /// `render.json` as text, exactly as the command writes it.
     fn to_json(&self) -> PyResult<String> {
-        serde_json::to_string(&self.rendered.file)
-            .map_err(|e| PyRuntimeError::new_err(e.to_string()))
+        json_text(&self.rendered.file)
     }
 
     /// Write `render.json` and every image's EXR files and PNG preview into `folder`; the paths
@@ -205,7 +204,7 @@ impl PhaseAcquisition {
 
     /// `phase_acquisition.json` as text, exactly as the command writes it.
     fn to_json(&self) -> PyResult<String> {
-        serde_json::to_string(&self.file).map_err(|e| PyRuntimeError::new_err(e.to_string()))
+        json_text(&self.file)
     }
 
     /// Write `phase_acquisition.json` and `phase_acquisition.png` into `folder`; the paths

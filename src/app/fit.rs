@@ -39,21 +39,12 @@ pub fn fit(task: SceneTask, target_path: &Path, opts: &FitOptions, out: &Path) -
     let fitted = prepared.run(
         &|e| {
             if show {
-                eprintln!("{}", e.line);
+                eprintln!("{}", prepared.line(e));
             }
         },
         &StopFlag::default(),
     )?;
     fitted.write(out)
-}
-
-/// One logged evaluation as the fit reports it while it runs.
-pub struct Step<'a> {
-    /// The evaluation (stage-wise L-BFGS) or iteration (Adam) count so far.
-    pub count: usize,
-    /// A line for a terminal: stage or iteration, loss, gradient norm, values.
-    pub line: String,
-    pub entry: &'a crate::inverse::LogEntry,
 }
 
 /// A validated fit, ready to run: the scene the target needs, the target, and how to fit.
@@ -215,6 +206,30 @@ pub fn prepare(task: SceneTask, target_path: &Path, opts: &FitOptions) -> Result
 }
 
 impl Prepared {
+    /// A logged evaluation as a line for a terminal: iteration (Adam) or stage (L-BFGS), loss,
+    /// gradient norm and, for L-BFGS, the values.
+    pub fn line(&self, e: &crate::inverse::LogEntry) -> String {
+        if self.adam {
+            return format!(
+                "iteration {:>4} loss {:.6e} |grad| {:.3e}",
+                e.stage, e.loss, e.grad_norm
+            );
+        }
+        let values: Vec<String> = self
+            .params
+            .iter()
+            .zip(&e.params)
+            .map(|(p, v)| format!("{} = {v:.5}", p.name()))
+            .collect();
+        format!(
+            "stage {} loss {:.6e} |grad| {:.3e}  {}",
+            e.stage,
+            e.loss,
+            e.grad_norm,
+            values.join(", ")
+        )
+    }
+
     /// Logged evaluations the fit will make: Adam's iterations; `None` for L-BFGS, whose
     /// evaluation count is not known in advance.
     pub fn total(&self) -> Option<usize> {
@@ -223,7 +238,11 @@ impl Prepared {
 
     /// Run the fit; `progress` sees every logged evaluation, `stop` ends it early with
     /// [`Error::Interrupted`].
-    pub fn run(&self, progress: &(dyn Fn(&Step) + Sync), stop: &StopFlag) -> Result<Fitted> {
+    pub fn run(
+        &self,
+        progress: &(dyn Fn(&crate::inverse::LogEntry) + Sync),
+        stop: &StopFlag,
+    ) -> Result<Fitted> {
         let cfg = &self.cfg;
         let model = crate::inverse::ModelSettings {
             samples: cfg.render.samples,
@@ -231,7 +250,6 @@ impl Prepared {
             seed: cfg.render.seed,
             reversed: cfg.render.reversed,
         };
-        let count = std::sync::atomic::AtomicUsize::new(0);
         let t0 = Instant::now();
         if self.adam {
             let settings = crate::inverse::AdamSettings {
@@ -248,16 +266,7 @@ impl Prepared {
                 settings,
                 stop: stop.clone(),
             };
-            let res = fit.run(&|e| {
-                progress(&Step {
-                    count: count.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1,
-                    line: format!(
-                        "iteration {:>4} loss {:.6e} |grad| {:.3e}",
-                        e.stage, e.loss, e.grad_norm
-                    ),
-                    entry: e,
-                })
-            })?;
+            let res = fit.run(progress)?;
             return Ok(self.adam_fitted(&fit, res, t0.elapsed().as_secs_f64()));
         }
         let fit = crate::inverse::Fit {
@@ -272,24 +281,7 @@ impl Prepared {
             stop: stop.clone(),
         };
         let names: Vec<&str> = self.params.iter().map(|p| p.name()).collect();
-        let res = fit.run(&|e| {
-            let p: Vec<String> = names
-                .iter()
-                .zip(&e.params)
-                .map(|(n, v)| format!("{n} = {v:.5}"))
-                .collect();
-            progress(&Step {
-                count: count.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1,
-                line: format!(
-                    "stage {} loss {:.6e} |grad| {:.3e}  {}",
-                    e.stage,
-                    e.loss,
-                    e.grad_norm,
-                    p.join(", ")
-                ),
-                entry: e,
-            })
-        })?;
+        let res = fit.run(progress)?;
         let seconds = t0.elapsed().as_secs_f64();
         let file = FitFile {
             format_version: crate::io::results::FORMAT_VERSION,

@@ -59,19 +59,8 @@ impl Tracer<'_> {
     }
 
     /// `n` leapfrog steps (used for reversibility checks and fixed-length propagation).
-    pub fn steps(&self, mut r: Ray, n: usize, h: f64) -> Ray {
-        // the force at the end of a step starts the next one: one field evaluation per step,
-        // bit-identical to repeated `leapfrog`
-        let mut f = self.force(r.x);
-        for _ in 0..n {
-            let v_half = r.v + f * (0.5 * h);
-            let x = r.x + v_half * h;
-            f = self.force(x);
-            r = Ray {
-                x,
-                v: v_half + f * (0.5 * h),
-            };
-        }
+    pub fn steps(&self, r: Ray, n: usize, h: f64) -> Ray {
+        let [r] = self.steps_interleaved([r], n, h);
         r
     }
 
@@ -79,6 +68,8 @@ impl Tracer<'_> {
     /// evaluations overlap in the processor (one ray's steps form a chain of dependent
     /// evaluations); each ray gets the same bits as alone.
     pub fn steps_interleaved<const K: usize>(&self, mut r: [Ray; K], n: usize, h: f64) -> [Ray; K] {
+        // the force at the end of a step starts the next: one field evaluation per step,
+        // bit-identical to repeated `leapfrog`
         let mut f: [DVec3; K] = std::array::from_fn(|k| self.force(r[k].x));
         for _ in 0..n {
             for k in 0..K {

@@ -195,7 +195,7 @@ pub struct Checkpoint<'a> {
     save: Option<Save<'a>>,
     saved_at: u64,
     saved_when: std::time::Instant,
-    stop: Option<&'a std::sync::atomic::AtomicBool>,
+    stop: Option<&'a AtomicBool>,
 }
 
 impl<'a> Checkpoint<'a> {
@@ -216,7 +216,7 @@ impl<'a> Checkpoint<'a> {
 
     /// A checkpoint that never saves and stops the run once `stop` (if any) is set: a run in
     /// memory that can be interrupted.
-    pub fn stop_only(stop: Option<&'a std::sync::atomic::AtomicBool>) -> Self {
+    pub fn stop_only(stop: Option<&'a AtomicBool>) -> Self {
         Checkpoint {
             every: u64::MAX,
             interval: std::time::Duration::MAX,
@@ -228,7 +228,7 @@ impl<'a> Checkpoint<'a> {
     }
 
     /// The flag that stops the run, if any (for runs nested inside this one).
-    pub fn stop_flag(&self) -> Option<&'a std::sync::atomic::AtomicBool> {
+    pub fn stop_flag(&self) -> Option<&'a AtomicBool> {
         self.stop
     }
 
@@ -239,10 +239,7 @@ impl<'a> Checkpoint<'a> {
 
     /// `done` units are finished and reduced into `blocks`: save them if a checkpoint is due.
     pub fn offer(&mut self, done: u64, blocks: &[Block]) -> crate::Result<()> {
-        if self
-            .stop
-            .is_some_and(|s| s.load(std::sync::atomic::Ordering::Relaxed))
-        {
+        if self.stop.is_some_and(|s| s.load(Ordering::Relaxed)) {
             return Err(crate::Error::Interrupted);
         }
         if let Some(save) = self.save.as_mut()
@@ -367,20 +364,29 @@ pub fn estimate<E: Estimator>(est: &E, plan: &Plan) -> Estimate {
 pub fn estimate_until<E: Estimator>(
     est: &E,
     plan: &Plan,
-    stop: Option<&std::sync::atomic::AtomicBool>,
+    stop: Option<&AtomicBool>,
 ) -> crate::Result<Estimate> {
-    let Some(stop) = stop else {
-        return Ok(estimate(est, plan));
-    };
-    let checkpoint = Checkpoint::stop_only(Some(stop));
+    match stop {
+        Some(stop) => estimate_observed(est, plan, stop, &|_| {}),
+        None => Ok(estimate(est, plan)),
+    }
+}
+
+/// The whole plan with `progress(chunks done)`, stopping once `stop` is set.
+fn estimate_observed<E: Estimator>(
+    est: &E,
+    plan: &Plan,
+    stop: &AtomicBool,
+    progress: &(dyn Fn(u64) + Sync),
+) -> crate::Result<Estimate> {
     let blocks = resume(
         est,
         plan,
         0..plan.chunks,
         &[],
-        &|_| {},
+        progress,
         Vec::new(),
-        Some(checkpoint),
+        Some(Checkpoint::stop_only(Some(stop))),
     )?;
     let root = merge(blocks, plan.chunks)?;
     Ok(Estimate::from_block(&root, plan))
@@ -395,37 +401,28 @@ pub fn estimate_watched<E: Estimator>(
 ) -> crate::Result<Estimate> {
     watch.total.store(plan.chunks, Ordering::Relaxed);
     watch.done.store(0, Ordering::Relaxed);
-    let blocks = resume(
-        est,
-        plan,
-        0..plan.chunks,
-        &[],
-        &|n| watch.done.store(n, Ordering::Relaxed),
-        Vec::new(),
-        Some(Checkpoint::stop_only(Some(&watch.stop))),
-    )?;
-    let root = merge(blocks, plan.chunks)?;
-    Ok(Estimate::from_block(&root, plan))
+    estimate_observed(est, plan, &watch.stop, &|n| {
+        watch.done.store(n, Ordering::Relaxed)
+    })
 }
 
 /// A flag another thread may set to stop a long computation (a fit, a design, an estimate) at
 /// its next wave of chunks, ray or iteration, with [`crate::Error::Interrupted`]; none by default.
 #[derive(Clone, Debug, Default)]
-pub struct StopFlag(Option<std::sync::Arc<std::sync::atomic::AtomicBool>>);
+pub struct StopFlag(Option<Arc<AtomicBool>>);
 
 impl StopFlag {
-    pub fn new(flag: std::sync::Arc<std::sync::atomic::AtomicBool>) -> Self {
+    pub fn new(flag: Arc<AtomicBool>) -> Self {
         StopFlag(Some(flag))
     }
 
     /// The flag, for [`estimate_until`] and [`Checkpoint::stop_only`].
-    pub fn get(&self) -> Option<&std::sync::atomic::AtomicBool> {
+    pub fn get(&self) -> Option<&AtomicBool> {
         self.0.as_deref()
     }
 
     pub fn is_set(&self) -> bool {
-        self.get()
-            .is_some_and(|s| s.load(std::sync::atomic::Ordering::Relaxed))
+        self.get().is_some_and(|s| s.load(Ordering::Relaxed))
     }
 
     /// `Err(Interrupted)` once the flag is set.
