@@ -263,6 +263,19 @@ pub struct CovarianceEvaluation {
 }
 
 impl CovarianceEvaluation {
+    /// The evaluation's plan of `est`, observed through `watch` if given, else stopped by the
+    /// operation's flag.
+    fn estimate<E: crate::mc::Estimator>(
+        &self,
+        est: &E,
+        watch: Option<&Watch>,
+    ) -> crate::Result<crate::mc::Estimate> {
+        match watch {
+            Some(w) => estimate_watched(est, &self.plan, w),
+            None => estimate_until(est, &self.plan, self.stop.get()),
+        }
+    }
+
     fn reweighted(&self, params: Vec<Param>) -> crate::Result<Reweighted<'_>> {
         Reweighted::new(
             &self.proposal,
@@ -274,11 +287,7 @@ impl CovarianceEvaluation {
     }
 
     fn entries(&self, watch: Option<&Watch>) -> crate::Result<Entries> {
-        let est = ReweightedCovariance(self.reweighted(vec![])?);
-        let est = match watch {
-            Some(w) => estimate_watched(&est, &self.plan, w)?,
-            None => estimate_until(&est, &self.plan, self.stop.get())?,
-        };
+        let est = self.estimate(&ReweightedCovariance(self.reweighted(vec![])?), watch)?;
         let j = self.pairs.len();
         Ok(Entries {
             value: self
@@ -313,10 +322,7 @@ impl CovarianceEvaluation {
             adjoint[a * j + b] += C64::new(dy[2 * e], dy[2 * e + 1]);
         }
         let est = CovarianceGradient::new(self.reweighted(self.params.clone())?, &adjoint);
-        let g = match watch {
-            Some(w) => estimate_watched(&est, &self.plan, w)?,
-            None => estimate_until(&est, &self.plan, self.stop.get())?,
-        };
+        let g = self.estimate(&est, watch)?;
         Ok(g.mean
             .iter()
             .zip(&self.factor)
