@@ -124,6 +124,8 @@ enum Command {
         /// Limits on one objective evaluation
         #[command(flatten)]
         budget: BudgetArgs,
+        #[command(flatten)]
+        checkpoints: CheckpointArgs,
         #[arg(long)]
         quiet: bool,
     },
@@ -153,6 +155,8 @@ enum Command {
         /// this many minutes
         #[arg(long, default_value_t = 240.0)]
         max_minutes: f64,
+        #[command(flatten)]
+        checkpoints: CheckpointArgs,
     },
     /// Spheres by Lorenz–Mie theory: efficiencies, cross-sections, g, amplitudes S1/S2 and the
     /// phase function (one diameter, or a log-normal distribution) → mie.json + mie.png
@@ -249,9 +253,19 @@ struct CheckpointArgs {
     /// uninterrupted run
     #[arg(long, value_name = "DIR")]
     resume: Option<PathBuf>,
-    /// Save checkpoint.bin every N chunks (speckle: every N images); default: every two minutes
+    /// Save checkpoint.bin every N chunks (speckle: every N images; fit and design: every N
+    /// evaluations or iterations); default: every two minutes
     #[arg(long, value_name = "N")]
     checkpoint_every: Option<u64>,
+}
+
+impl CheckpointArgs {
+    fn resume(&self) -> app::Resume {
+        app::Resume {
+            from: self.resume.clone(),
+            every: self.checkpoint_every,
+        }
+    }
 }
 
 /// What a run may use: refused before any work when the estimate is beyond it.
@@ -401,6 +415,7 @@ fn dispatch(command: Option<Command>) -> Result<Outcome> {
             learning_rate,
             smooth,
             budget,
+            checkpoints,
             quiet,
         }) => {
             let task = scene(&config, "fit")?;
@@ -418,6 +433,7 @@ fn dispatch(command: Option<Command>) -> Result<Outcome> {
                 smooth,
                 progress: !quiet,
                 budget: budget.budget(),
+                resume: checkpoints.resume(),
             };
             with_threads(threads, || app::fit::fit(task, &target, &opts, &out))
         }
@@ -443,12 +459,15 @@ fn dispatch(command: Option<Command>) -> Result<Outcome> {
             threads,
             quiet,
             max_minutes,
+            checkpoints,
         }) => match config::load(&config)? {
             Task::Design(t) => with_threads(threads, || {
-                app::grin::design(&t, !quiet, &minutes_only(max_minutes), &out)
+                let budget = minutes_only(max_minutes);
+                app::grin::design(&t, !quiet, &budget, &checkpoints.resume(), &out)
             }),
             Task::ParamFit(t) => with_threads(threads, || {
-                app::grin::param_fit(&t, !quiet, &minutes_only(max_minutes), &out)
+                let budget = minutes_only(max_minutes);
+                app::grin::param_fit(&t, !quiet, &budget, &checkpoints.resume(), &out)
             }),
             other => Err(wrong_task(
                 &config,

@@ -236,6 +236,56 @@ fn damaged_or_edited_shards_are_refused() {
     merge_with(&edited, "does not fit the run");
 }
 
+/// Run `args` (which write into `out`) and kill it with SIGKILL `kills` times, each a random moment
+/// (0–30 ms) after it saved a new `checkpoint.bin`, resuming it from that checkpoint each time;
+/// then let it finish. Returns how often it was killed and resumed.
+fn kill_and_resume(args: &[&str], out: &Path, kills: usize, seed: u64) -> (usize, usize) {
+    use std::os::unix::fs::MetadataExt;
+    let checkpoint = out.join("checkpoint.bin");
+    // checkpoints are written under another name and renamed: a new save is a new inode
+    let saved = || std::fs::metadata(&checkpoint).ok().map(|m| m.ino());
+    let mut rng = seed;
+    let (mut killed, mut resumed) = (0, 0);
+    loop {
+        let mut a = args.to_vec();
+        if saved().is_some() {
+            a.extend(["--resume", out.to_str().unwrap()]);
+            resumed += 1;
+        }
+        let before = saved();
+        let mut child = Command::new(env!("CARGO_BIN_EXE_lightpath"))
+            .args(&a)
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap();
+        if killed == kills {
+            let status = child.wait().unwrap();
+            assert!(
+                status.success() || status.code() == Some(3),
+                "{a:?}: {status}"
+            );
+            return (killed, resumed);
+        }
+        while child.try_wait().unwrap().is_none() && saved() == before {
+            std::thread::sleep(std::time::Duration::from_millis(2));
+        }
+        rng = rng
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        std::thread::sleep(std::time::Duration::from_millis((rng >> 33) % 30));
+        if child.try_wait().unwrap().is_none() {
+            child.kill().unwrap(); // SIGKILL
+            killed += 1;
+        }
+        child.wait().unwrap();
+        if !checkpoint.exists() {
+            // finished before the kill: no checkpoint to resume
+            return (killed, resumed);
+        }
+    }
+}
+
 /// A run killed with SIGKILL at arbitrary moments and resumed from its checkpoint, again and again,
 /// ends with the same bytes as an uninterrupted run (covariance and speckle); a checkpoint is not
 /// resumed by another run, and a finished run leaves none behind.
@@ -265,39 +315,8 @@ fn killed_and_resumed_runs_equal_uninterrupted_ones() {
         lightpath(&[cmd, c, "--out", whole.to_str().unwrap()]);
         let out = d.join(format!("{cmd}-killed"));
         let o = out.to_str().unwrap();
-        let mut rng = 0x9e37_79b9_u64;
-        let (mut kills, mut resumes) = (0, 0);
-        let mut resumed = false;
-        for attempt in 0..40 {
-            let mut args = vec![cmd, c, "--out", o, "--checkpoint-every", every, "--quiet"];
-            if resumed {
-                args.extend(["--resume", o]);
-                resumes += 1;
-            }
-            let mut child = Command::new(env!("CARGO_BIN_EXE_lightpath"))
-                .args(&args)
-                .spawn()
-                .unwrap();
-            if attempt < 4 {
-                rng = rng
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
-                let ms = 200 + (rng >> 33) % 600;
-                std::thread::sleep(std::time::Duration::from_millis(ms));
-                if child.try_wait().unwrap().is_none() {
-                    child.kill().unwrap(); // SIGKILL
-                    kills += 1;
-                }
-                child.wait().unwrap();
-                resumed = out.join("checkpoint.bin").exists();
-                if out.join(file).exists() {
-                    break;
-                }
-            } else {
-                assert!(child.wait().unwrap().success());
-                break;
-            }
-        }
+        let args = [cmd, c, "--out", o, "--checkpoint-every", every, "--quiet"];
+        let (kills, resumes) = kill_and_resume(&args, &out, 3, 0x9e37_79b9);
         assert!(
             kills >= 2 && resumes >= 2,
             "{cmd}: {kills} kills, {resumes} resumes: the run ended before it was interrupted twice"
@@ -348,4 +367,158 @@ fn killed_and_resumed_runs_equal_uninterrupted_ones() {
     ]);
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("another run"), "{err}");
+}
+
+/// A result file as JSON without its wall-clock time.
+fn without_seconds(path: &Path) -> serde_json::Value {
+    let mut v: serde_json::Value = serde_json::from_slice(&std::fs::read(path).unwrap()).unwrap();
+    v.as_object_mut().unwrap().remove("seconds");
+    v
+}
+
+/// Fits and designs killed with SIGKILL just after a checkpoint, three times, and resumed each time
+/// end with the same result file as an uninterrupted run: the material fit (L-BFGS stages), an Adam
+/// fit (stochastic gradients, a fresh seed per iteration, tail averaging), a grid design (Adam over
+/// three grid levels) and a GRIN parameter fit (L-BFGS on the exit adjoint). A checkpoint is not
+/// resumed with other options, and a refused resume leaves the folder's results alone.
+#[test]
+fn killed_and_resumed_fits_and_designs_equal_uninterrupted_ones() {
+    let d: PathBuf =
+        std::env::temp_dir().join(format!("lightpath-resume-fits-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    let truth = SCENE
+        .replace(
+            "[[light]]\nkind = \"point\"\nposition = [1.0, 0.0, -6.0]\n",
+            "",
+        )
+        .replace("samples = 7000", "samples = 100000");
+    std::fs::write(d.join("truth.toml"), &truth).unwrap();
+    let target = d.join("target");
+    lightpath(&[
+        "covariance",
+        d.join("truth.toml").to_str().unwrap(),
+        "--out",
+        target.to_str().unwrap(),
+    ]);
+    let start = truth
+        .replace("mfp = 2.0", "mfp = 4.0")
+        .replace("samples = 100000", "samples = 20000")
+        .replace("seed = 4", "seed = 2");
+    std::fs::write(d.join("start.toml"), start).unwrap();
+    let repo = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let fibre = std::fs::read_to_string(repo.join("experiments/grin-fibre/fibre.toml"))
+        .unwrap()
+        .replace("step = 0.005", "step = 0.001");
+    std::fs::write(d.join("fibre.toml"), fibre).unwrap();
+    let (s, t) = (d.join("start.toml"), target.join("covariance.json"));
+    let (s, t) = (s.to_str().unwrap(), t.to_str().unwrap());
+    let luneburg = repo.join("experiments/luneburg-design/luneburg.toml");
+    let fibre = d.join("fibre.toml");
+    let adam = [
+        "fit",
+        s,
+        "--target",
+        t,
+        "--fit",
+        "mfp,albedo",
+        "--optimizer",
+        "adam",
+        "--iterations",
+        "60",
+        "--learning-rate",
+        "0.1",
+    ];
+    let cases: [(&str, Vec<&str>, &str, &str); 4] = [
+        (
+            "lbfgs",
+            vec!["fit", s, "--target", t, "--fit", "mfp,albedo"],
+            "fit.json",
+            "1",
+        ),
+        ("adam", adam.to_vec(), "fit.json", "1"),
+        (
+            "grid",
+            vec!["design", luneburg.to_str().unwrap()],
+            "design.json",
+            "5",
+        ),
+        (
+            "params",
+            vec!["design", fibre.to_str().unwrap()],
+            "fit.json",
+            "1",
+        ),
+    ];
+    for (name, args, file, every) in &cases {
+        let whole = d.join(format!("{name}-whole"));
+        let mut a = args.clone();
+        a.extend(["--out", whole.to_str().unwrap(), "--quiet"]);
+        let o = Command::new(env!("CARGO_BIN_EXE_lightpath"))
+            .args(&a)
+            .output()
+            .unwrap();
+        assert!(
+            o.status.success() || o.status.code() == Some(3),
+            "{name}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let out = d.join(format!("{name}-killed"));
+        let mut a = args.clone();
+        a.extend([
+            "--out",
+            out.to_str().unwrap(),
+            "--quiet",
+            "--checkpoint-every",
+            every,
+        ]);
+        let (kills, resumes) = kill_and_resume(&a, &out, 3, 0x2545_f491 + name.len() as u64);
+        eprintln!("{name}: {kills} kills, {resumes} resumes");
+        assert!(
+            kills >= 2 && resumes >= 2,
+            "{name}: {kills} kills, {resumes} resumes"
+        );
+        assert!(
+            !out.join("checkpoint.bin").exists(),
+            "{name}: a finished run keeps no checkpoint"
+        );
+        assert_eq!(
+            without_seconds(&whole.join(file)),
+            without_seconds(&out.join(file)),
+            "{name}: resumed after {kills} kills differs from the uninterrupted run"
+        );
+    }
+    // a checkpoint of a fit with other options is refused, and the refusal changes nothing
+    let out = d.join("adam-killed");
+    let o = out.to_str().unwrap();
+    let mut a = adam.to_vec();
+    a.extend(["--out", o, "--quiet", "--checkpoint-every", "1"]);
+    let mut child = Command::new(env!("CARGO_BIN_EXE_lightpath"))
+        .args(&a)
+        .spawn()
+        .unwrap();
+    while !out.join("checkpoint.bin").exists() && child.try_wait().unwrap().is_none() {
+        std::thread::sleep(std::time::Duration::from_millis(2));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    std::fs::write(out.join("fit.json"), b"kept").unwrap();
+    let mut other = adam.to_vec();
+    other[9] = "61";
+    other.extend(["--out", o, "--resume", o]);
+    let (code, err) = lightpath_status(&other);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("another run"), "{err}");
+    assert_eq!(std::fs::read(out.join("fit.json")).unwrap(), b"kept");
+    let none = d.join("lbfgs-whole");
+    let (code, err) = lightpath_status(&[
+        "design",
+        fibre.to_str().unwrap(),
+        "--out",
+        none.to_str().unwrap(),
+        "--resume",
+        none.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("no checkpoint.bin"), "{err}");
 }

@@ -232,7 +232,9 @@ fn luneburg_problem(
 #[test]
 fn coarse_to_fine_design_focuses_three_beams() {
     let problem = luneburg_problem(vec![6, 9], 40);
-    let res = problem.run(&|_| {}, &Default::default()).unwrap();
+    let res = problem
+        .run(&|_| {}, &Default::default(), &Default::default())
+        .unwrap();
     eprintln!(
         "RMS miss {:.4} → {:.4}; final loss {:.4e}",
         res.rms_miss_initial,

@@ -52,7 +52,11 @@ fn ultrasonic_focal_depth_matches_paraxial_closed_form() {
         iterations: 40,
     };
     let res = fit
-        .run(&|s| eprintln!("{s:?}"), &Default::default())
+        .run(
+            &|s| eprintln!("{s:?}"),
+            &Default::default(),
+            &Default::default(),
+        )
         .unwrap();
     let alpha = std::f64::consts::PI / (2.0 * depth);
     let want = 2.0 * n0 * alpha * alpha / (k_r * k_r - 2.0 * alpha * alpha);
@@ -109,7 +113,9 @@ fn fibre_fit_finds_the_sech_profile() {
         max_steps: 100_000,
         iterations: 100,
     };
-    let res = fit.run(&|_| {}, &Default::default()).unwrap();
+    let res = fit
+        .run(&|_| {}, &Default::default(), &Default::default())
+        .unwrap();
     let (c1, c2) = (res.fitted[0], res.fitted[1]);
     let (s1, s2) = (-n0 * alpha.powi(2) / 2.0, 5.0 * n0 * alpha.powi(4) / 24.0);
     eprintln!("c1 {c1:.6e} (sech {s1:.6e}), c2 {c2:.6e} (sech {s2:.6e})");

@@ -62,6 +62,7 @@ fn options(
         smooth: 0.0,
         progress: false,
         budget: Default::default(),
+        resume: Default::default(),
     }
 }
 
@@ -174,6 +175,7 @@ fn bad_fit_requests_are_clear_errors() {
         smooth: 0.0,
         progress: false,
         budget: Default::default(),
+        resume: Default::default(),
     };
     let err = fit(
         cfg(),
@@ -271,6 +273,7 @@ seed = 3
         smooth: 0.0,
         progress: false,
         budget: Default::default(),
+        resume: Default::default(),
     };
     // one step from the truth: the model's entries are the map's
     let _ = fit(scene_from_text(MAP).unwrap(), &target, &opts, &d.join("o"));

@@ -1,4 +1,4 @@
-//! Fitting a tabulated phase function with burn's Adam, and the single-scattering
+//! Fitting a tabulated phase function with Adam, and the single-scattering
 //! reading of paper 004 (Claim 1) that such a fit is compared with.
 
 use glam::DVec3;
@@ -156,7 +156,7 @@ fn adam_recovers_a_tabulated_phase_function() {
         },
         stop: Default::default(),
     };
-    let res = fit.run(&|_| {}).unwrap();
+    let res = fit.run(&|_| {}, &Default::default()).unwrap();
     let want = Table::from_rho(Some(COS.to_vec()), TRUTH.to_vec()).unwrap();
     let want = want.nodes().1;
     eprintln!("loss {:.2} over {} dof", res.loss, res.dof);

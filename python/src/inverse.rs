@@ -8,6 +8,7 @@ use lightpath::app::create_out;
 use lightpath::app::fit::{FitOptions, Fitted};
 use lightpath::app::grin::{Designed, ParamFitted};
 use lightpath::config;
+use lightpath::inverse::journal::Journal;
 use numpy::{PyArray1, PyArrayDyn};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -200,13 +201,14 @@ pub(crate) fn fit(
         smooth,
         progress: false,
         budget: budget(max_minutes, max_memory_gb),
+        resume: Default::default(),
     };
     let prepared = lightpath::app::fit::prepare(scene, &target, &opts).map_err(py_err)?;
     let fitted = run_watched(py, threads, progress, move |w| {
         w.total
             .store(prepared.total().unwrap_or(0) as u64, Ordering::Relaxed);
         let stop = w.stop_flag();
-        prepared.run(&|_| w.tick(), &stop)
+        prepared.run(&|_| w.tick(), &stop, &Journal::default())
     })?;
     Ok(Fit { fitted })
 }
@@ -496,7 +498,12 @@ pub(crate) fn design(
             let total = (t.problem.levels.len() * t.problem.iterations) as u64;
             let designed = run_watched(py, threads, progress, move |w| {
                 w.total.store(total, Ordering::Relaxed);
-                lightpath::app::grin::run_design(&t, &|_| w.tick(), &w.stop_flag())
+                lightpath::app::grin::run_design(
+                    &t,
+                    &|_| w.tick(),
+                    &w.stop_flag(),
+                    &Journal::default(),
+                )
             })?;
             Ok(Py::new(py, Design { designed })?.into_any())
         }
@@ -505,7 +512,12 @@ pub(crate) fn design(
             lightpath::app::grin::check_param_fit(&t, &limits).map_err(py_err)?;
             let fitted = run_watched(py, threads, progress, move |w| {
                 // L-BFGS's evaluation count is not known in advance: total 0
-                lightpath::app::grin::run_param_fit(&t, &|_| w.tick(), &w.stop_flag())
+                lightpath::app::grin::run_param_fit(
+                    &t,
+                    &|_| w.tick(),
+                    &w.stop_flag(),
+                    &Journal::default(),
+                )
             })?;
             Ok(Py::new(py, GrinFit { fitted })?.into_any())
         }

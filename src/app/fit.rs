@@ -28,12 +28,15 @@ pub struct FitOptions {
     pub progress: bool,
     /// Refuse fits whose single objective evaluation is estimated beyond this time or memory.
     pub budget: super::budget::Budget,
+    /// Checkpoints (`checkpoint.bin` in the output folder) and resuming from them.
+    pub resume: super::Resume,
 }
 
 /// `lightpath fit`: fit medium parameters so rendered statistics match a target → fit.json,
 /// fit.png (a memory-curve target), phase.png (a phase-function fit).
 pub fn fit(task: SceneTask, target_path: &Path, opts: &FitOptions, out: &Path) -> Result<Outcome> {
     let prepared = prepare(task, target_path, opts)?;
+    let journal = super::journal("fit", prepared.identity()?, &opts.resume, out)?;
     create_out(out, &["fit.json", "fit.png", "phase.png"])?;
     let show = opts.progress;
     let fitted = prepared.run(
@@ -43,8 +46,11 @@ pub fn fit(task: SceneTask, target_path: &Path, opts: &FitOptions, out: &Path) -
             }
         },
         &StopFlag::default(),
+        &journal,
     )?;
-    fitted.write(out)
+    let outcome = fitted.write(out)?;
+    super::remove_checkpoint(out)?;
+    Ok(outcome)
 }
 
 /// A validated fit, ready to run: the scene the target needs, the target, and how to fit.
@@ -53,6 +59,8 @@ pub struct Prepared {
     scene: crate::speckle::Scene,
     target: crate::inverse::Target,
     target_name: String,
+    /// CRC-32 of the target file (what a checkpoint is checked against).
+    target_crc: u32,
     params: Vec<crate::inverse::FitParam>,
     phase: bool,
     adam: bool,
@@ -195,6 +203,11 @@ pub fn prepare(task: SceneTask, target_path: &Path, opts: &FitOptions) -> Result
         scene,
         target,
         target_name: target_path.display().to_string(),
+        target_crc: crc32fast::hash(&std::fs::read(target_path).map_err(|source| Error::Io {
+            action: "read",
+            path: target_path.to_path_buf(),
+            source,
+        })?),
         params,
         phase,
         adam,
@@ -236,12 +249,33 @@ impl Prepared {
         self.adam.then_some(self.iterations)
     }
 
+    /// Everything the fit's result depends on (config, target file, parameters, optimiser and its
+    /// settings): a checkpoint is resumed only by the same fit.
+    pub fn identity(&self) -> Result<serde_json::Value> {
+        let params: Vec<&str> = self.params.iter().map(|p| p.name()).collect();
+        let config = serde_json::to_value(&self.cfg)
+            .map_err(|e| Error::input(format!("the fit's config cannot be recorded: {e}")))?;
+        Ok(serde_json::json!({
+            "config": config,
+            "target_crc32": self.target_crc,
+            "params": params,
+            "phase": self.phase,
+            "adam": self.adam,
+            "iterations": self.iterations,
+            "stages": self.stages,
+            "learning_rate": self.learning_rate,
+            "smooth": self.smooth,
+        }))
+    }
+
     /// Run the fit; `progress` sees every logged evaluation, `stop` ends it early with
-    /// [`Error::Interrupted`].
+    /// [`Error::Interrupted`], `journal` records it (and replays the run it was saved from; an
+    /// in-memory [`Journal::default`](crate::inverse::journal::Journal) when nothing is saved).
     pub fn run(
         &self,
         progress: &(dyn Fn(&crate::inverse::LogEntry) + Sync),
         stop: &StopFlag,
+        journal: &crate::inverse::journal::Journal,
     ) -> Result<Fitted> {
         let cfg = &self.cfg;
         let model = crate::inverse::ModelSettings {
@@ -266,7 +300,7 @@ impl Prepared {
                 settings,
                 stop: stop.clone(),
             };
-            let res = fit.run(progress)?;
+            let res = fit.run(progress, journal)?;
             return Ok(self.adam_fitted(&fit, res, t0.elapsed().as_secs_f64()));
         }
         let fit = crate::inverse::Fit {
@@ -281,7 +315,7 @@ impl Prepared {
             stop: stop.clone(),
         };
         let names: Vec<&str> = self.params.iter().map(|p| p.name()).collect();
-        let res = fit.run(progress)?;
+        let res = fit.run(progress, journal)?;
         let seconds = t0.elapsed().as_secs_f64();
         let file = FitFile {
             format_version: crate::io::results::FORMAT_VERSION,

@@ -21,9 +21,11 @@ pub fn design(
     task: &DesignTask,
     show: bool,
     budget: &super::budget::Budget,
+    resume: &super::Resume,
     out: &Path,
 ) -> Result<Outcome> {
     check_design(task, budget)?;
+    let journal = super::journal("design", identity(&task.config)?, resume, out)?;
     create_out(
         out,
         &["design.json", "loss.png", "profile.png", "grid_slice_z.exr"],
@@ -40,8 +42,18 @@ pub fn design(
             }
         },
         &StopFlag::default(),
+        &journal,
     )?;
-    designed.write(out)
+    let outcome = designed.write(out)?;
+    super::remove_checkpoint(out)?;
+    Ok(outcome)
+}
+
+/// What a design's result depends on: its config (a checkpoint is resumed only by the same
+/// design).
+fn identity(config: &impl serde::Serialize) -> Result<serde_json::Value> {
+    serde_json::to_value(config)
+        .map_err(|e| Error::input(format!("the design's config cannot be recorded: {e}")))
 }
 
 /// Refuse a design whose iterations would not fit the time or memory budget.
@@ -70,16 +82,18 @@ pub struct Designed {
     pub summary: String,
 }
 
-/// Run a design: `progress` sees every iteration, `stop` ends it with [`Error::Interrupted`].
+/// Run a design: `progress` sees every iteration, `stop` ends it with [`Error::Interrupted`],
+/// `journal` records it (and replays the run it was saved from).
 pub fn run_design(
     task: &DesignTask,
     progress: &dyn Fn(&crate::inverse::grin_design::DesignStep),
     stop: &StopFlag,
+    journal: &crate::inverse::journal::Journal,
 ) -> Result<Designed> {
     use crate::inverse::grin_design::radial_profile;
     let (cfg, problem) = (&task.config, &task.problem);
     let t0 = Instant::now();
-    let res = problem.run(progress, stop)?;
+    let res = problem.run(progress, stop, journal)?;
     let seconds = t0.elapsed().as_secs_f64();
     crate::config::trace::check_positive(&res.field)
         .map_err(|e| Error::Numerical(format!("design result: {}", e.0)))?;
@@ -207,9 +221,11 @@ pub fn param_fit(
     task: &ParamFitTask,
     show: bool,
     budget: &super::budget::Budget,
+    resume: &super::Resume,
     out: &Path,
 ) -> Result<Outcome> {
     check_param_fit(task, budget)?;
+    let journal = super::journal("design", identity(&task.config)?, resume, out)?;
     create_out(out, &["fit.json", "loss.png", "rays.png"])?;
     let fitted = run_param_fit(
         task,
@@ -222,8 +238,11 @@ pub fn param_fit(
             }
         },
         &StopFlag::default(),
+        &journal,
     )?;
-    fitted.write(out)
+    let outcome = fitted.write(out)?;
+    super::remove_checkpoint(out)?;
+    Ok(outcome)
 }
 
 /// Refuse a parameter fit whose iterations would not fit the time or memory budget.
@@ -252,16 +271,17 @@ pub struct ParamFitted {
 }
 
 /// Run a parameter fit: `progress` sees every evaluation, `stop` ends it with
-/// [`Error::Interrupted`].
+/// [`Error::Interrupted`], `journal` records it (and replays the run it was saved from).
 pub fn run_param_fit(
     task: &ParamFitTask,
     progress: &(dyn Fn(&crate::inverse::grin_fit::FitStep) + Sync),
     stop: &StopFlag,
+    journal: &crate::inverse::journal::Journal,
 ) -> Result<ParamFitted> {
     use crate::eikonal::Tracer;
     let (cfg, problem) = (&task.config, &task.problem);
     let t0 = Instant::now();
-    let res = problem.run(progress, stop)?;
+    let res = problem.run(progress, stop, journal)?;
     let seconds = t0.elapsed().as_secs_f64();
     let file = GrinFitFile {
         format_version: crate::io::results::FORMAT_VERSION,

@@ -105,6 +105,87 @@ pub fn create_out(out: &Path, owned: &[&str]) -> Result<()> {
     Ok(())
 }
 
+/// How a fit or design saves and resumes (`--resume DIR`, `--checkpoint-every N`).
+#[derive(Clone, Debug, Default)]
+pub struct Resume {
+    /// Continue the killed run whose `checkpoint.bin` is in this folder.
+    pub from: Option<PathBuf>,
+    /// Save after this many evaluations (Adam: iterations); default every two minutes.
+    pub every: Option<u64>,
+}
+
+/// The journal of a fit or design of `kind` whose results depend on `identity`, saved to
+/// `out/checkpoint.bin`: fresh (any earlier checkpoint there is removed), or
+/// with `resume.from` the one saved there, which must belong to the same run. Called before
+/// [`create_out`], so a refused resume leaves the folder as it was.
+pub fn journal(
+    kind: &str,
+    identity: serde_json::Value,
+    resume: &Resume,
+    out: &Path,
+) -> Result<crate::inverse::journal::Journal> {
+    use crate::inverse::journal::{Journal, Saver};
+    use crate::io::state::{JournalHeader, read_journal, write_journal};
+    let header = JournalHeader {
+        kind: kind.into(),
+        identity,
+        version: env!("CARGO_PKG_VERSION").into(),
+    };
+    let path = out.join(run::CHECKPOINT_FILE);
+    let (entries, snapshot) = match &resume.from {
+        Some(dir) => {
+            let saved = dir.join(run::CHECKPOINT_FILE);
+            if !saved.exists() {
+                return Err(Error::input(format!(
+                    "--resume {}: no {} there (the run finished, never saved one, or wrote elsewhere)",
+                    dir.display(),
+                    run::CHECKPOINT_FILE
+                )));
+            }
+            let (h, entries, snapshot) = read_journal(&saved)?;
+            if h != header {
+                return Err(Error::input(format!(
+                    "--resume {}: the checkpoint belongs to another run (command, config, target, options or version differ); resume with the command, config and options that started it",
+                    dir.display()
+                )));
+            }
+            (entries, snapshot)
+        }
+        None => {
+            remove_checkpoint(out)?;
+            (Vec::new(), None)
+        }
+    };
+    let save = move |saved: &crate::inverse::journal::Saved<'_>| {
+        write_journal(&path, &header, saved).map_err(|source| Error::Io {
+            action: "write",
+            path: path.clone(),
+            source,
+        })
+    };
+    Ok(Journal::new(
+        Saver {
+            every: resume.every,
+            save: Box::new(save),
+        },
+        entries,
+        snapshot,
+    ))
+}
+
+/// Remove `out/checkpoint.bin`: a finished run has nothing left to resume, a fresh one replaces it.
+pub fn remove_checkpoint(out: &Path) -> Result<()> {
+    let path = out.join(run::CHECKPOINT_FILE);
+    match std::fs::remove_file(&path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(Error::Io {
+            action: "remove",
+            path,
+            source: e,
+        }),
+        _ => Ok(()),
+    }
+}
+
 /// Whether `name` is `pattern`, or matches `prefix*suffix` when the pattern holds one `*`.
 fn matches_pattern(name: &str, pattern: &str) -> bool {
     match pattern.split_once('*') {

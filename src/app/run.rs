@@ -327,14 +327,8 @@ pub(crate) fn execute(
         finish(kind, task, &plan, blocks, t0.elapsed().as_secs_f64(), out)?
     };
     // the run is complete: its checkpoint has nothing left to resume
-    match std::fs::remove_file(out.join(CHECKPOINT_FILE)) {
-        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(Error::Io {
-            action: "remove",
-            path: out.join(CHECKPOINT_FILE),
-            source: e,
-        }),
-        _ => Ok(outcome),
-    }
+    super::remove_checkpoint(out)?;
+    Ok(outcome)
 }
 
 /// What a progress bar counts for `units` units of work of `kind`: chunks (speckle: chunks of

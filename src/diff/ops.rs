@@ -200,6 +200,12 @@ impl CovarianceOp {
         self.evaluations.load(Ordering::Relaxed)
     }
 
+    /// Continue as if `evaluations` had been made: the next `AtTheta` evaluation draws its paths
+    /// with `seed + evaluations` (a resumed fit picks up its seeds where it stopped).
+    pub fn seek(&self, evaluations: u64) {
+        self.evaluations.store(evaluations, Ordering::Relaxed);
+    }
+
     fn prepare(&self, theta: &[f64]) -> crate::Result<CovarianceEvaluation> {
         let (target, factor) = medium_at(&self.scene.medium, &self.params, theta)?;
         let n = self.evaluations.fetch_add(1, Ordering::Relaxed);

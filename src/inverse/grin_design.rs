@@ -1,5 +1,5 @@
 //! Graded-index design (lecture 003's GRIN optimisation targets): shape a grid index
-//! field so collimated beams pass through their foci, by burn's Adam through [`TraceOp`], coarse to
+//! field so collimated beams pass through their foci, by Adam through [`TraceOp`], coarse to
 //! fine.
 //!
 //! The loss is the mean squared miss distance — the distance from each beam's focus to the
@@ -8,6 +8,7 @@
 //! coefficients along each axis. Each level starts from the previous level's field sampled on a
 //! finer grid.
 
+use super::journal::{Journal, Numbers, recall};
 use crate::diff::TraceOp;
 use crate::diff::bridge::{apply, device, tensor, values};
 use crate::eikonal::grid::{GridField, Interp};
@@ -57,6 +58,28 @@ pub struct DesignStep {
     /// Mean squared miss distance (without the smoothness term).
     pub miss2: f64,
     pub loss: f64,
+}
+
+impl Numbers for DesignStep {
+    fn to_numbers(&self) -> Vec<f64> {
+        vec![
+            self.level as f64,
+            self.iteration as f64,
+            self.miss2,
+            self.loss,
+        ]
+    }
+    fn from_numbers(v: &[f64]) -> Option<Self> {
+        match *v {
+            [level, iteration, miss2, loss] => Some(DesignStep {
+                level: level as usize,
+                iteration: iteration as usize,
+                miss2,
+                loss,
+            }),
+            _ => None,
+        }
+    }
 }
 
 /// The designed field and the history.
@@ -162,11 +185,13 @@ impl FocusDesign {
     }
 
     /// Run every level; `progress` sees each iteration; `stop` ends the run within one ray's
-    /// trace with [`crate::Error::Interrupted`].
+    /// trace with [`crate::Error::Interrupted`]; `journal` records the run (and replays the
+    /// run it was saved from).
     pub fn run(
         &self,
         progress: &dyn Fn(&DesignStep),
         stop: &crate::mc::StopFlag,
+        journal: &Journal,
     ) -> crate::Result<DesignResult> {
         if self.levels.is_empty() || self.levels.iter().any(|&n| n < 4) {
             return Err(format!(
@@ -195,7 +220,7 @@ impl FocusDesign {
             let y = values(&apply(&op, tensor(&g.coef, &burn::tensor::Device::flex()))?);
             Ok(rms_miss(&y, &self.beams))
         };
-        let rms_miss_initial = miss(&grid)?;
+        let rms_miss_initial = recall(journal, &grid.coef, || miss(&grid))?;
         for (level, &n) in self.levels.iter().enumerate() {
             if level > 0 {
                 // the previous level's contribution, sampled at the finer nodes
@@ -211,6 +236,8 @@ impl FocusDesign {
                 &grid.coef,
                 self.iterations,
                 &|_| self.learning_rate,
+                self.iterations,
+                journal,
                 &mut |iteration, c| {
                     let y = apply(&op, c.clone()).map_err(|e| {
                         if stop.is_set() {
@@ -243,7 +270,8 @@ impl FocusDesign {
                     log.push(entry);
                     Ok(())
                 },
-            )?;
+            )?
+            .last;
         }
         let grid_samples = (0..grid.coef.len())
             .map(|i| grid.eval(Self::node(&grid, i)).0)

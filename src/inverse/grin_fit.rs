@@ -141,20 +141,32 @@ impl ParamFit {
         Ok((loss / n, grad.iter().map(|g| g / n).collect()))
     }
 
+    /// [`Self::loss_and_gradient`] through `journal`.
+    fn recorded(
+        &self,
+        theta: &[f64],
+        stop: &crate::mc::StopFlag,
+        journal: &super::journal::Journal,
+    ) -> crate::Result<(f64, Vec<f64>)> {
+        super::journal::recall(journal, theta, || self.loss_and_gradient_until(theta, stop))
+    }
+
     /// Run L-BFGS in the scaled variables `u_i = θ_i / s_i` (`s_i` the starting magnitude), so
     /// parameters of very different size (`n_max ~ 1e-4`, `k_r ~ 4`) are balanced.
     /// `stop` ends the fit within one ray's trace with [`crate::Error::Interrupted`].
+    /// `journal` records the evaluations (and replays the run it was saved from).
     pub fn run(
         &self,
         progress: &(dyn Fn(&FitStep) + Sync),
         stop: &crate::mc::StopFlag,
+        journal: &super::journal::Journal,
     ) -> crate::Result<ParamFitResult> {
         let initial = self.initial()?;
         let scale: Vec<f64> = initial
             .iter()
             .map(|v| if *v != 0.0 { v.abs() } else { 1.0 })
             .collect();
-        let (l0, g0) = self.loss_and_gradient_until(&initial, stop)?;
+        let (l0, g0) = self.recorded(&initial, stop, journal)?;
         let gnorm = g0
             .iter()
             .zip(&scale)
@@ -167,6 +179,7 @@ impl ParamFit {
             scale: scale.clone(),
             loss_scale: if gnorm > 0.0 { 1.0 / gnorm } else { 1.0 },
             stop,
+            journal,
         };
         let observe = |e: &lbfgs::Evaluation| {
             if let Ok(mut log) = log.lock() {
@@ -200,7 +213,7 @@ impl ParamFit {
             iterations: out.iterations,
         };
         let fitted: Vec<f64> = best.iter().zip(&scale).map(|(u, s)| u * s).collect();
-        let (l1, _) = self.loss_and_gradient_until(&fitted, stop)?;
+        let (l1, _) = self.recorded(&fitted, stop, journal)?;
         Ok(ParamFitResult {
             field: self.field_with(&fitted)?,
             initial,
@@ -219,12 +232,13 @@ struct Scaled<'a> {
     scale: Vec<f64>,
     loss_scale: f64,
     stop: &'a crate::mc::StopFlag,
+    journal: &'a super::journal::Journal,
 }
 
 impl lbfgs::Objective for Scaled<'_> {
     fn eval(&self, u: &[f64]) -> crate::Result<(f64, Vec<f64>)> {
         let theta: Vec<f64> = u.iter().zip(&self.scale).map(|(u, s)| u * s).collect();
-        let (l, g) = self.fit.loss_and_gradient_until(&theta, self.stop)?;
+        let (l, g) = self.fit.recorded(&theta, self.stop, self.journal)?;
         let gu = g
             .iter()
             .zip(&self.scale)

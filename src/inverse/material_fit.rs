@@ -12,6 +12,7 @@
 //! left, see [`NEAR`]), a last stage holds that proposal and runs L-BFGS to its convergence test
 //! inside the box: the fit has converged. Otherwise it stops at the stage limit and says so.
 
+use super::journal::{Journal, Numbers, recall};
 use super::lbfgs::{self, Bounds};
 use super::{Convergence, FitParam, FitStop, LogEntry, Target, medium_with};
 use crate::diff::{CovarianceGradient, Param, Reweighted, ReweightedCovariance};
@@ -33,6 +34,29 @@ pub const NEAR: f64 = 1.0;
 
 /// Standard deviations, correlations, the damped loss and the Gauss–Newton decrement.
 type Uncertainty = (Vec<f64>, Vec<Vec<f64>>, f64, f64);
+
+impl Numbers for Uncertainty {
+    fn to_numbers(&self) -> Vec<f64> {
+        let mut v = vec![self.2, self.3];
+        v.extend(&self.0);
+        self.1.iter().for_each(|row| v.extend(row));
+        v
+    }
+    fn from_numbers(v: &[f64]) -> Option<Self> {
+        let p = (v.len().checked_sub(2)? as f64).sqrt() as usize;
+        let (head, rest) = v.split_at_checked(2)?;
+        if rest.len() != p + p * p {
+            return None;
+        }
+        let (stddev, correlation) = rest.split_at(p);
+        Some((
+            stddev.to_vec(),
+            correlation.chunks(p.max(1)).map(|r| r.to_vec()).collect(),
+            head[0],
+            head[1],
+        ))
+    }
+}
 
 /// Settings of the Monte Carlo inside the objective.
 #[derive(Clone, Copy, Debug)]
@@ -134,6 +158,33 @@ impl Fit<'_> {
             medium: medium_with(&self.scene.medium, &self.params, v),
             ..self.scene.clone()
         }
+    }
+
+    /// [`Self::loss_and_gradient`] at `v` with paths of the proposal at natural values `centre`,
+    /// through `journal`.
+    fn recorded_loss_and_gradient(
+        &self,
+        journal: &Journal,
+        centre: &[f64],
+        v: &[f64],
+    ) -> crate::Result<(f64, Vec<f64>)> {
+        let inputs: Vec<f64> = [0.0].iter().chain(centre).chain(v).copied().collect();
+        recall(journal, &inputs, || {
+            self.loss_and_gradient(&self.proposal(centre), v)
+        })
+    }
+
+    /// [`Self::uncertainty`] at `v` with paths of the proposal at `centre`, through `journal`.
+    fn recorded_uncertainty(
+        &self,
+        journal: &Journal,
+        centre: &[f64],
+        v: &[f64],
+    ) -> crate::Result<Uncertainty> {
+        let inputs: Vec<f64> = [1.0].iter().chain(centre).chain(v).copied().collect();
+        recall(journal, &inputs, || {
+            self.uncertainty(v, &self.proposal(centre))
+        })
     }
 
     /// The gradient in the unconstrained variables from the natural one.
@@ -268,9 +319,9 @@ impl Fit<'_> {
         stage: usize,
         centre: &[f64],
         grad_u: &[f64],
-        iterations: usize,
-        radius: f64,
+        (iterations, radius): (usize, f64),
         record: &(dyn Fn(LogEntry) + Sync),
+        journal: &Journal,
     ) -> crate::Result<(lbfgs::Outcome, f64)> {
         let g0u = grad_u.iter().map(|g| g * g).sum::<f64>().sqrt();
         if !g0u.is_finite() {
@@ -278,7 +329,6 @@ impl Fit<'_> {
                 format!("fit stage {stage}: the gradient is not finite at {centre:?}").into(),
             );
         }
-        let proposal = self.proposal(centre);
         let u0: Vec<f64> = self
             .params
             .iter()
@@ -287,7 +337,8 @@ impl Fit<'_> {
             .collect();
         let objective = StageObjective {
             fit: self,
-            proposal: &proposal,
+            centre,
+            journal,
             scale: if g0u > 0.0 { 0.5 / g0u } else { 1.0 },
         };
         let settings = lbfgs::Settings {
@@ -315,7 +366,12 @@ impl Fit<'_> {
     /// Run the fit from the scene's current parameter values: trust-region stages that re-centre
     /// the proposal until the Gauss–Newton step left is within a standard deviation, then a final
     /// stage with the proposal held fixed, minimised to convergence; or the stage limit.
-    pub fn run(&self, progress: &(dyn Fn(&LogEntry) + Sync)) -> crate::Result<FitResult> {
+    /// `journal` records the fit's evaluations (and replays the run it was saved from).
+    pub fn run(
+        &self,
+        progress: &(dyn Fn(&LogEntry) + Sync),
+        journal: &Journal,
+    ) -> crate::Result<FitResult> {
         let initial: Vec<f64> = self
             .params
             .iter()
@@ -329,7 +385,7 @@ impl Fit<'_> {
             }
         };
         let mut current = initial.clone();
-        let (loss_0, g) = self.loss_and_gradient(&self.proposal(&current), &current)?;
+        let (loss_0, g) = self.recorded_loss_and_gradient(journal, &current, &current)?;
         if !loss_0.is_finite() {
             return Err(format!(
                 "fit: the loss is not finite at the start {current:?} (does light reach the views?)"
@@ -352,7 +408,14 @@ impl Fit<'_> {
             }
             // near the optimum the last stage holds its proposal and runs L-BFGS to convergence
             let iterations = self.settings.iterations * if near { 4 } else { 1 };
-            let (out, scale) = self.stage(stage, &current, &grad_u, iterations, radius, &record)?;
+            let (out, scale) = self.stage(
+                stage,
+                &current,
+                &grad_u,
+                (iterations, radius),
+                &record,
+                journal,
+            )?;
             evaluations += out.evaluations;
             let interior = !out.at_bound.iter().any(|b| *b);
             let next: Vec<f64> = self
@@ -362,15 +425,14 @@ impl Fit<'_> {
                 .map(|(p, u)| p.natural(*u))
                 .collect();
             if near && interior && out.stop.converged() {
-                let held = self.proposal(&current);
-                uncertainty = Some(self.uncertainty(&next, &held)?);
+                uncertainty = Some(self.recorded_uncertainty(journal, &current, &next)?);
                 current = next;
                 grad_norm = out.grad_norm / scale;
                 stop = FitStop::from(&out.stop);
                 break;
             }
             // fresh paths at the stage's best evaluated point
-            let (loss_n, g_n) = self.loss_and_gradient(&self.proposal(&next), &next)?;
+            let (loss_n, g_n) = self.recorded_loss_and_gradient(journal, &next, &next)?;
             evaluations += 1;
             if !(loss_n.is_finite() && g_n.iter().all(|g| g.is_finite())) {
                 radius /= 4.0;
@@ -386,14 +448,14 @@ impl Fit<'_> {
             near = false;
             uncertainty = None;
             if interior {
-                let u = self.uncertainty(&current, &self.proposal(&current))?;
+                let u = self.recorded_uncertainty(journal, &current, &current)?;
                 near = u.3 < NEAR;
                 uncertainty = Some(u);
             }
         }
         let (stddev, correlation, loss, _) = match uncertainty {
             Some(u) => u,
-            None => self.uncertainty(&current, &self.proposal(&current))?,
+            None => self.recorded_uncertainty(journal, &current, &current)?,
         };
         let model_initial = self.target.model_values(&self.covariance(
             &Scene {
@@ -429,7 +491,9 @@ impl Fit<'_> {
 /// scaled so its first gradient has norm ½ (a modest first trial step).
 struct StageObjective<'f, 'a> {
     fit: &'f Fit<'a>,
-    proposal: &'f Scene,
+    /// Natural values of the proposal medium.
+    centre: &'f [f64],
+    journal: &'f Journal,
     scale: f64,
 }
 
@@ -447,7 +511,9 @@ impl StageObjective<'_, '_> {
 impl lbfgs::Objective for StageObjective<'_, '_> {
     fn eval(&self, u: &[f64]) -> crate::Result<(f64, Vec<f64>)> {
         let v = self.natural(u);
-        let (loss, g) = self.fit.loss_and_gradient(self.proposal, &v)?;
+        let (loss, g) = self
+            .fit
+            .recorded_loss_and_gradient(self.journal, self.centre, &v)?;
         let gu = self.fit.unconstrained_gradient(&v, &g);
         Ok((
             loss * self.scale,

@@ -16,6 +16,7 @@
 pub mod adam;
 pub mod grin_design;
 pub mod grin_fit;
+pub mod journal;
 pub mod lbfgs;
 pub mod material_fit;
 pub mod phase_fit;

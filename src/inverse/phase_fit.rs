@@ -1,4 +1,4 @@
-//! Many-parameter fits with burn's Adam through the burn bridge: typically every node
+//! Many-parameter fits with Adam through the burn bridge: typically every node
 //! value of a tabulated phase function, optionally with `mfp`, `albedo`, `g`.
 //!
 //! The loss is written in burn tensors: the covariance entries are a burn operation
@@ -203,8 +203,13 @@ impl AdamFit<'_> {
         Ok((v, m))
     }
 
-    /// Run Adam from the scene's current values; `progress` sees every iteration.
-    pub fn run(&self, progress: &(dyn Fn(&LogEntry) + Sync)) -> crate::Result<AdamResult> {
+    /// Run Adam from the scene's current values; `progress` sees every iteration; `journal`
+    /// records the run (and replays the run it was saved from).
+    pub fn run(
+        &self,
+        progress: &(dyn Fn(&LogEntry) + Sync),
+        journal: &super::journal::Journal,
+    ) -> crate::Result<AdamResult> {
         let cos = self.nodes()?;
         let nodes = cos.len();
         let m = &self.scene.medium;
@@ -239,17 +244,21 @@ impl AdamFit<'_> {
         };
         let mut log = Vec::with_capacity(s.iterations);
         let tail = s.iterations - (s.iterations / 3).max(1);
-        let mut average = vec![0.0; u0.len()];
         // the step decays geometrically to 1/20 of --learning-rate over the run, so the noisy
         // stochastic gradients settle and the averaged tail is not still travelling
         let learning_rate = |it: usize| {
             s.learning_rate * 20f64.powf(-(it as f64) / (s.iterations.max(2) - 1) as f64)
         };
-        super::adam::minimise(
+        let average = super::adam::minimise(
             &u0,
             s.iterations,
             &learning_rate,
+            tail,
+            journal,
             &mut |it, u| {
+                // iteration `it` draws its paths with seed + it, also when resumed
+                stochastic.seek(it as u64);
+                let params = self.natural(&values(&u), nodes)?.0;
                 let y = apply(&stochastic, self.theta(u.clone(), nodes)).map_err(|e| {
                     if self.stop.is_set() {
                         crate::Error::Interrupted
@@ -263,34 +272,30 @@ impl AdamFit<'_> {
                     Some(p) => data + p,
                     None => data,
                 };
-                Ok((total, loss))
+                Ok((total, (loss, params)))
             },
             &mut |it| {
                 // a pullback stopped by the flag leaves a NaN gradient: report the stop instead
                 self.stop.check()?;
-                let loss = it.observed;
+                let (loss, params) = it.observed;
                 if !(loss.is_finite() && it.grad_norm.is_finite()) {
                     return Err(format!(
                         "Adam iteration {}: the loss or its gradient is not finite (loss {loss}); try a smaller --learning-rate",
                         it.iteration
                     ).into());
                 }
-                if it.iteration >= tail {
-                    for (a, x) in average.iter_mut().zip(it.x) {
-                        *a += x / (s.iterations - tail) as f64;
-                    }
-                }
                 let entry = LogEntry {
                     stage: it.iteration,
                     loss,
-                    params: self.natural(it.x, nodes)?.0,
+                    params,
                     grad_norm: it.grad_norm,
                 };
                 progress(&entry);
                 log.push(entry);
                 Ok(())
             },
-        )?;
+        )?
+        .average;
         self.finish(&u0, &average, &cos, log)
     }
 

@@ -1,5 +1,7 @@
 //! Shard state files (`state.bin`): the header of the run and the engine blocks of one shard, so
-//! that `lightpath merge` reproduces the single run bit for bit.
+//! that `lightpath merge` reproduces the single run bit for bit. A fit's or design's checkpoint
+//! (its [`Journal`](crate::inverse::journal::Journal)) is saved in the same style, see
+//! [`write_journal`].
 //!
 //! Layout (little endian): `LPSTATE2`, `u64` header length, header JSON, `u64` block count, then per
 //! block `start, len, n_sum, n_sq, n_kept` (`u64`) and the `f64` data of `sum` (re, im), `sq`,
@@ -137,19 +139,8 @@ pub fn read_state(path: &Path) -> crate::Result<(StateHeader, Vec<Block>)> {
         if !data.starts_with(MAGIC) {
             return Err("not a lightpath state file".into());
         }
-        let body = data
-            .len()
-            .checked_sub(4)
-            .filter(|&n| n >= 8)
-            .ok_or("file is truncated")?;
-        let stored = u32::from_le_bytes(data[body..].try_into().expect("4 bytes"));
-        if crc32fast::hash(&data[..body]) != stored {
-            return Err("checksum mismatch: the file was changed or damaged after it was written; run the shard again".into());
-        }
-        let mut c = Cursor {
-            data: &data[..body],
-            pos: 8,
-        };
+        let body = checked_body(&data).map_err(|e| format!("{e}; run the shard again"))?;
+        let mut c = Cursor { data: body, pos: 8 };
         let hl = c.len()?;
         let header: StateHeader =
             serde_json::from_slice(c.take(hl)?).map_err(|e| format!("bad header: {e}"))?;
@@ -184,6 +175,106 @@ pub fn read_state(path: &Path) -> crate::Result<(StateHeader, Vec<Block>)> {
         Ok((header, blocks))
     };
     parse().map_err(|e| crate::Error::input(format!("{}: {e}", path.display())))
+}
+
+const JOURNAL_MAGIC: &[u8; 8] = b"LPJOURN1";
+
+/// Which fit or design a journal belongs to.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct JournalHeader {
+    /// `fit` or `design`.
+    pub kind: String,
+    /// Everything the run's results depend on (config, target, options), as JSON.
+    pub identity: serde_json::Value,
+    pub version: String,
+}
+
+/// A fit's or design's checkpoint. Layout (little endian): `LPJOURN1`, `u64` header length, header
+/// JSON, `u64` entry count, per entry its `u64` key, `u64` length and `f64` values, then a `u64`
+/// snapshot length (`u64::MAX`: none) and its bytes; last the CRC-32 of everything before it.
+pub fn write_journal(
+    path: &Path,
+    header: &JournalHeader,
+    saved: &crate::inverse::journal::Saved<'_>,
+) -> std::io::Result<()> {
+    let mut buf = Vec::new();
+    buf.extend_from_slice(JOURNAL_MAGIC);
+    let h = serde_json::to_vec(header).map_err(std::io::Error::other)?;
+    buf.extend_from_slice(&(h.len() as u64).to_le_bytes());
+    buf.extend_from_slice(&h);
+    buf.extend_from_slice(&(saved.entries.len() as u64).to_le_bytes());
+    for e in saved.entries {
+        buf.extend_from_slice(&e.key.to_le_bytes());
+        buf.extend_from_slice(&(e.values.len() as u64).to_le_bytes());
+        for v in &e.values {
+            buf.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    match saved.snapshot {
+        Some(b) => {
+            buf.extend_from_slice(&(b.len() as u64).to_le_bytes());
+            buf.extend_from_slice(b);
+        }
+        None => buf.extend_from_slice(&u64::MAX.to_le_bytes()),
+    }
+    let crc = crc32fast::hash(&buf);
+    buf.extend_from_slice(&crc.to_le_bytes());
+    write_atomic(path, &buf)
+}
+
+/// A checkpoint written by [`write_journal`]: its header, entries and snapshot.
+pub type Journaled = (
+    JournalHeader,
+    Vec<crate::inverse::journal::Entry>,
+    Option<Vec<u8>>,
+);
+
+pub fn read_journal(path: &Path) -> crate::Result<Journaled> {
+    let data = std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+    let parse = || -> crate::Result<Journaled> {
+        if !data.starts_with(JOURNAL_MAGIC) {
+            return Err("not the checkpoint of a fit or design".into());
+        }
+        let body = checked_body(&data)?;
+        let mut c = Cursor { data: body, pos: 8 };
+        let hl = c.len()?;
+        let header: JournalHeader =
+            serde_json::from_slice(c.take(hl)?).map_err(|e| format!("bad header: {e}"))?;
+        let n = c.len()?;
+        let mut entries = Vec::with_capacity(n.min(1 << 16));
+        for _ in 0..n {
+            let key = c.u64()?;
+            let len = c.len()?;
+            let values = (0..len).map(|_| c.f64()).collect::<crate::Result<_>>()?;
+            entries.push(crate::inverse::journal::Entry { key, values });
+        }
+        let snapshot = match c.u64()? {
+            u64::MAX => None,
+            len if len as usize <= body.len() => Some(c.take(len as usize)?.to_vec()),
+            _ => return Err("file is corrupt (length field too large)".into()),
+        };
+        if c.pos != body.len() {
+            return Err("file is corrupt (bytes after the snapshot)".into());
+        }
+        Ok((header, entries, snapshot))
+    };
+    parse().map_err(|e| crate::Error::input(format!("{}: {e}", path.display())))
+}
+
+/// `data` without its trailing CRC-32, which must match.
+fn checked_body(data: &[u8]) -> crate::Result<&[u8]> {
+    let body = data
+        .len()
+        .checked_sub(4)
+        .filter(|&n| n >= 8)
+        .ok_or("file is truncated")?;
+    let stored = u32::from_le_bytes(data[body..].try_into().expect("4 bytes"));
+    if crc32fast::hash(&data[..body]) != stored {
+        return Err(
+            "checksum mismatch: the file was changed or damaged after it was written".into(),
+        );
+    }
+    Ok(&data[..body])
 }
 
 /// Write `bytes` to `path` through a temporary file, so a reader never sees half a file.
