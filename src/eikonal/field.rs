@@ -125,7 +125,7 @@ impl Profile {
     }
 
     /// Value and gradient (grids skip the Hessian; the same bits as [`Self::eval`]'s).
-    #[inline]
+    #[inline(always)]
     fn value_grad(&self, x: DVec3) -> (f64, DVec3) {
         match self {
             Profile::Grid(g) => g.value_grad(x),
@@ -501,6 +501,7 @@ impl IndexField for BoundedField {
                 .iter()
                 .fold(DMat3::ZERO, |acc, p| acc + p.eval(x).2)
     }
+    #[inline]
     fn eval(&self, x: DVec3) -> (f64, DVec3, DMat3) {
         if !self.bounds.contains(x) {
             return (self.n_out, DVec3::ZERO, DMat3::ZERO);
@@ -511,7 +512,7 @@ impl IndexField for BoundedField {
 
 impl BoundedField {
     /// `(n, ∇n)` at `x` (what ray tracing needs): the same bits as [`IndexField::eval`]'s first two.
-    #[inline]
+    #[inline(always)]
     pub fn value_grad(&self, x: DVec3) -> (f64, DVec3) {
         if !self.bounds.contains(x) {
             return (self.n_out, DVec3::ZERO);
@@ -520,8 +521,13 @@ impl BoundedField {
     }
 
     /// [`Self::value_grad`] at `x` known to be inside the bounds.
-    #[inline]
+    #[inline(always)]
     pub fn value_grad_inside(&self, x: DVec3) -> (f64, DVec3) {
+        if let ([Profile::Grid(grid)], 1.0, 0.0) =
+            (self.profiles.as_slice(), self.scale, self.offset)
+        {
+            return grid.value_grad(x);
+        }
         let (n, g) = self.profiles.iter().fold((0.0, DVec3::ZERO), |(n, g), p| {
             let (pn, pg) = p.value_grad(x);
             (n + pn, g + pg)
@@ -536,6 +542,12 @@ impl BoundedField {
     /// that have proved it by the bounds' clearance skip it).
     #[inline]
     pub fn eval_inside(&self, x: DVec3) -> (f64, DVec3, DMat3) {
+        // one grid (a design): straight to its kernel, past the general profile dispatch
+        if let ([Profile::Grid(grid)], 1.0, 0.0) =
+            (self.profiles.as_slice(), self.scale, self.offset)
+        {
+            return grid.eval(x);
+        }
         let (n, g, h) =
             self.profiles
                 .iter()

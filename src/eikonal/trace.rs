@@ -41,7 +41,7 @@ pub struct Tracer<'f> {
 
 impl Tracer<'_> {
     /// `n∇n` at `x` (zero outside the bounds).
-    #[inline]
+    #[inline(always)]
     pub(crate) fn force(&self, x: DVec3) -> DVec3 {
         let (n, g) = self.field.value_grad(x);
         g * n

@@ -60,15 +60,18 @@ impl EventSink for CovSink {
     }
 }
 
-/// A batch of event vectors `A` (J × n, column-major) with its conjugate, and the accumulator
-/// `acc += A Aᴴ` (J × J row-major; only tiles on or above the diagonal are computed, as `C` is
-/// Hermitian).
+/// A batch of event vectors `a_e` and the accumulator `acc += Σ_e a_e a_eᴴ` (J × J), computed in
+/// real arithmetic, whose matrix products run at about twice the rate of complex ones: with
+/// `X = [Re a_e, Im a_e]_e` and `Y = [Im a_e, −Re a_e]_e` (J × 2n, the two columns of each event
+/// side by side), `Re acc += X Xᵀ` and `Im acc += Y Xᵀ`. The real part is symmetric and the
+/// imaginary part antisymmetric, so only tiles on or above the diagonal are multiplied.
 pub struct Batch {
     j: usize,
     cols: usize,
-    a: Vec<C64>,
-    conj: Vec<C64>,
-    acc: Vec<C64>,
+    x: Vec<f64>,
+    y: Vec<f64>,
+    re: Vec<f64>,
+    im: Vec<f64>,
 }
 
 impl Batch {
@@ -76,9 +79,10 @@ impl Batch {
         Batch {
             j,
             cols: 0,
-            a: vec![C64::default(); j * BATCH],
-            conj: vec![C64::default(); j * BATCH],
-            acc: vec![C64::default(); j * j],
+            x: vec![0.0; 2 * j * BATCH],
+            y: vec![0.0; 2 * j * BATCH],
+            re: vec![0.0; j * j],
+            im: vec![0.0; j * j],
         }
     }
 
@@ -88,9 +92,14 @@ impl Batch {
             self.flush();
         }
         let (j, c) = (self.j, self.cols);
-        self.a[c * j..(c + 1) * j].copy_from_slice(a);
-        for (d, s) in self.conj[c * j..(c + 1) * j].iter_mut().zip(a) {
-            *d = s.conj();
+        let (x, y) = (&mut self.x[2 * c * j..], &mut self.y[2 * c * j..]);
+        let (x_re, x_im) = x[..2 * j].split_at_mut(j);
+        let (y_im, y_re) = y[..2 * j].split_at_mut(j);
+        for (r, z) in a.iter().enumerate() {
+            x_re[r] = z.re;
+            x_im[r] = z.im;
+            y_im[r] = z.im;
+            y_re[r] = -z.re;
         }
         self.cols += 1;
     }
@@ -99,30 +108,29 @@ impl Batch {
         if self.cols == 0 {
             return;
         }
-        let j = self.j;
+        let (j, k) = (self.j, 2 * self.cols);
         let tile = j.div_ceil(TILES);
         for r0 in (0..j).step_by(tile) {
-            let m = tile.min(j - r0);
-            for c0 in (r0..j).step_by(tile) {
-                let n = tile.min(j - c0);
-                // SAFETY: A is j × cols column-major (element (r, e) at e·j + r); conj(A)ᵀ is read from
-                // `conj` with row stride j; acc is j × j row-major. Offsets stay in bounds.
+            // a row block times every column from its own diagonal tile on: one product (the
+            // row block packed once), only tiles on or above the diagonal
+            let (m, n) = (tile.min(j - r0), j - r0);
+            for (left, acc) in [(&self.x, &mut self.re), (&self.y, &mut self.im)] {
+                // SAFETY: X and Y are j × k column-major (element (r, e) at e·j + r); Xᵀ is read
+                // from `x` with row stride j; acc is j × j row-major. Offsets stay in bounds.
                 unsafe {
-                    matrixmultiply::zgemm(
-                        matrixmultiply::CGemmOption::Standard,
-                        matrixmultiply::CGemmOption::Standard,
+                    matrixmultiply::dgemm(
                         m,
-                        self.cols,
+                        k,
                         n,
-                        [1.0, 0.0],
-                        self.a.as_ptr().add(r0) as *const [f64; 2],
+                        1.0,
+                        left.as_ptr().add(r0),
                         1,
                         j as isize,
-                        self.conj.as_ptr().add(c0) as *const [f64; 2],
+                        self.x.as_ptr().add(r0),
                         j as isize,
                         1,
-                        [1.0, 0.0],
-                        self.acc.as_mut_ptr().add(r0 * j + c0) as *mut [f64; 2],
+                        1.0,
+                        acc.as_mut_ptr().add(r0 * j + r0),
                         j as isize,
                         1,
                     );
@@ -140,14 +148,15 @@ impl Batch {
         for a in 0..j {
             for b in 0..j {
                 let z = if b / tile >= a / tile {
-                    self.acc[a * j + b]
+                    C64::new(self.re[a * j + b], self.im[a * j + b])
                 } else {
-                    self.acc[b * j + a].conj()
+                    C64::new(self.re[b * j + a], -self.im[b * j + a])
                 };
                 out[a * j + b] += z;
             }
         }
-        self.acc.iter_mut().for_each(|v| *v = C64::default());
+        self.re.iter_mut().for_each(|v| *v = 0.0);
+        self.im.iter_mut().for_each(|v| *v = 0.0);
     }
 }
 
@@ -219,7 +228,7 @@ impl Estimator for Covariance<'_> {
 
     fn scratch_bytes(&self) -> usize {
         let j = self.fields();
-        // two batches (single, multiple): A and conj(A) of j × BATCH, and the j × j accumulator
+        // two batches (single, multiple): X and Y of j × 2·BATCH reals, and the j × j accumulator
         2 * (2 * j * BATCH + j * j) * std::mem::size_of::<C64>()
     }
 
@@ -246,5 +255,46 @@ impl Estimator for Covariance<'_> {
         for ((t, a), b) in total.iter_mut().zip(single.iter()).zip(multi.iter()) {
             *t = a + b;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The batched real products equal the direct sum of the rank-1 terms `a aᴴ` (full batches,
+    /// a partial one, and a size that does not divide into tiles), entry by entry.
+    #[test]
+    fn batch_equals_the_sum_of_rank_one_terms() {
+        let j = 23;
+        let mut rng = crate::math::stream_rng(7, 0);
+        use rand::RngExt;
+        let events: Vec<Vec<C64>> = (0..2 * BATCH + 5)
+            .map(|_| {
+                (0..j)
+                    .map(|_| C64::new(rng.random::<f64>() - 0.5, rng.random::<f64>() - 0.5))
+                    .collect()
+            })
+            .collect();
+        let mut batch = Batch::new(j);
+        events.iter().for_each(|a| batch.push(a));
+        let mut out = vec![C64::default(); j * j];
+        batch.drain_into(&mut out);
+        for a in 0..j {
+            for b in 0..j {
+                let direct: C64 = events.iter().map(|e| e[a] * e[b].conj()).sum();
+                let d = (out[a * j + b] - direct).norm();
+                assert!(
+                    d < 1e-12 * events.len() as f64,
+                    "[{a}][{b}]: {} vs {direct}",
+                    out[a * j + b]
+                );
+            }
+        }
+        // drained: the accumulator starts again from zero
+        let mut again = vec![C64::default(); j * j];
+        batch.push(&events[0]);
+        batch.drain_into(&mut again);
+        assert!((again[j + 2] - events[0][1] * events[0][2].conj()).norm() < 1e-15);
     }
 }
