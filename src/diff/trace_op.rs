@@ -29,6 +29,10 @@ pub struct TraceOp {
 /// Ray groups of the backward pass (memory: one coefficient vector per group).
 const GROUPS: usize = 16;
 
+/// Rays stepped together by the fixed-step forward: one ray's steps are a chain of dependent field
+/// evaluations, several chains overlap in the processor.
+const INTERLEAVED: usize = 4;
+
 struct TracePullback {
     field: BoundedField,
     profile: usize,
@@ -101,17 +105,17 @@ impl Differentiable for TraceOp {
                 })
                 .collect()
         } else {
-            // four rays at a time, interleaved (the same bits as one by one)
+            // INTERLEAVED rays at a time (the same bits as one by one)
             let batches: Vec<Vec<Ray>> = self
                 .rays
-                .par_chunks(4)
+                .par_chunks(INTERLEAVED)
                 .map(|b| {
                     self.stop.check()?;
-                    Ok(match *b {
-                        [a, b, c, d] => tracer
-                            .steps_interleaved([a, b, c, d], self.steps, self.step)
+                    Ok(match <[Ray; INTERLEAVED]>::try_from(b) {
+                        Ok(batch) => tracer
+                            .steps_interleaved(batch, self.steps, self.step)
                             .to_vec(),
-                        _ => b
+                        Err(_) => b
                             .iter()
                             .map(|r| tracer.steps(*r, self.steps, self.step))
                             .collect(),
@@ -192,10 +196,18 @@ impl Pullback for TracePullback {
                 acc
             })
             .collect();
+        // each coefficient summed over the groups in group order (in parallel over coefficients)
         let mut total = vec![0.0; n];
-        for p in &parts {
-            total.iter_mut().zip(p).for_each(|(t, x)| *t += x);
-        }
+        total
+            .par_chunks_mut(1 << 14)
+            .enumerate()
+            .for_each(|(c, chunk)| {
+                let start = c << 14;
+                for p in &parts {
+                    let part = &p[start..start + chunk.len()];
+                    chunk.iter_mut().zip(part).for_each(|(t, x)| *t += x);
+                }
+            });
         total
     }
 }
