@@ -431,6 +431,8 @@ def fit(
     max_minutes: float = 240.0,
     max_memory_gb: float = 8.0,
     progress: Progress = None,
+    checkpoint: Union[str, "os.PathLike[str]", None] = None,
+    checkpoint_every: Optional[int] = None,
 ) -> Fit:
     """Fit medium parameters (and a tabulated phase function) so the scene's statistics match a
     target (``lightpath fit``).
@@ -445,30 +447,18 @@ def fit(
     scalars (``stages``, ``iterations`` per stage, default 15); Adam for ``phase``
     (``iterations``, default 150; ``learning_rate``, ``smooth``). ``samples``/``seed`` set the
     paths of one objective evaluation. ``progress(done, total)`` counts logged evaluations
-    (``total`` 0 for L-BFGS, whose count is not known in advance). Returns a :class:`Fit`.
+    (``total`` 0 for L-BFGS, whose count is not known in advance). With ``checkpoint``, a folder,
+    the fit saves its progress there (``checkpoint.bin``, every two minutes or every
+    ``checkpoint_every`` evaluations) and, called again with the same arguments after an
+    interruption (Ctrl-C, an exception in ``progress``, a crash), continues from it to the same
+    result as an uninterrupted fit; the file is removed when the fit finishes. Returns a
+    :class:`Fit`.
     """
     import tempfile
 
     names = fit if isinstance(fit, str) else ",".join(fit)
     task = load(config)
-    if hasattr(target, "save") and not isinstance(target, (str, os.PathLike)):
-        with tempfile.TemporaryDirectory(prefix="lightpath-target-") as folder:
-            written = [Path(p) for p in target.save(folder)]
-            json_files = [p for p in written if p.suffix == ".json"]
-            if not json_files:
-                raise ValueError(f"target: a {type(target).__name__} writes no JSON result to fit")
-            return _fit(task, json_files[0], names, samples, seed, stages, iterations, optimizer,
-                        learning_rate, smooth, threads, max_minutes, max_memory_gb, progress)
-    return _fit(task, Path(target), names, samples, seed, stages, iterations, optimizer,
-                learning_rate, smooth, threads, max_minutes, max_memory_gb, progress)
-
-
-def _fit(task, target, names, samples, seed, stages, iterations, optimizer, learning_rate, smooth,
-         threads, max_minutes, max_memory_gb, progress):
-    return _lightpath.fit(
-        task,
-        target,
-        names,
+    options = dict(
         samples=samples,
         seed=seed,
         stages=stages,
@@ -480,7 +470,17 @@ def _fit(task, target, names, samples, seed, stages, iterations, optimizer, lear
         max_minutes=max_minutes,
         max_memory_gb=max_memory_gb,
         progress=progress,
+        checkpoint=None if checkpoint is None else Path(checkpoint),
+        checkpoint_every=checkpoint_every,
     )
+    if hasattr(target, "save") and not isinstance(target, (str, os.PathLike)):
+        with tempfile.TemporaryDirectory(prefix="lightpath-target-") as folder:
+            written = [Path(p) for p in target.save(folder)]
+            json_files = [p for p in written if p.suffix == ".json"]
+            if not json_files:
+                raise ValueError(f"target: a {type(target).__name__} writes no JSON result to fit")
+            return _lightpath.fit(task, json_files[0], names, **options)
+    return _lightpath.fit(task, Path(target), names, **options)
 
 
 def design(
@@ -490,13 +490,16 @@ def design(
     max_minutes: float = 240.0,
     max_memory_gb: float = 8.0,
     progress: Progress = None,
+    checkpoint: Union[str, "os.PathLike[str]", None] = None,
+    checkpoint_every: Optional[int] = None,
 ) -> Union[Design, GrinFit]:
     """Run a design config (``lightpath design``): a grid index field shaped by Adam so the beams
     pass through their foci (returns a :class:`Design`), or, with a ``[parameters]`` table, the
     analytic field parameters fitted by L-BFGS (returns a :class:`GrinFit`). A design estimated
     beyond ``max_minutes`` or ``max_memory_gb`` is refused before any work (``ValueError``).
     ``progress(done, total)`` counts Adam iterations over every level, or L-BFGS evaluations
-    (``total`` 0: not known in advance). Ctrl-C stops it within one ray's trace.
+    (``total`` 0: not known in advance). Ctrl-C stops it within one ray's trace. ``checkpoint``
+    and ``checkpoint_every`` (iterations or evaluations) save and resume it as in :func:`fit`.
     """
     return _lightpath.design(
         load(config),
@@ -504,6 +507,8 @@ def design(
         max_minutes=max_minutes,
         max_memory_gb=max_memory_gb,
         progress=progress,
+        checkpoint=None if checkpoint is None else Path(checkpoint),
+        checkpoint_every=checkpoint_every,
     )
 
 

@@ -561,6 +561,8 @@ def fit(
     max_minutes: float = 240.0,
     max_memory_gb: float = 8.0,
     progress: Progress = None,
+    checkpoint: Union[str, PathLike[str], None] = None,
+    checkpoint_every: Optional[int] = None,
 ) -> Fit: ...
 def design(
     task: Task,
@@ -569,6 +571,8 @@ def design(
     max_minutes: float = 240.0,
     max_memory_gb: float = 8.0,
     progress: Progress = None,
+    checkpoint: Union[str, PathLike[str], None] = None,
+    checkpoint_every: Optional[int] = None,
 ) -> Union[Design, GrinFit]: ...
 def render(
     task: Task,

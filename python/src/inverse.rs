@@ -170,7 +170,7 @@ impl Fit {
 /// Fit medium parameters (and a phase function) of a speckle scene so its statistics match the
 /// target file (`lightpath fit`).
 #[pyfunction]
-#[pyo3(signature = (task, target, fit, *, samples=None, seed=None, stages=30, iterations=None, optimizer=None, learning_rate=0.05, smooth=0.0, threads=None, max_minutes=240.0, max_memory_gb=8.0, progress=None))]
+#[pyo3(signature = (task, target, fit, *, samples=None, seed=None, stages=30, iterations=None, optimizer=None, learning_rate=0.05, smooth=0.0, threads=None, max_minutes=240.0, max_memory_gb=8.0, progress=None, checkpoint=None, checkpoint_every=None))]
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn fit(
     py: Python<'_>,
@@ -188,6 +188,8 @@ pub(crate) fn fit(
     max_minutes: f64,
     max_memory_gb: f64,
     progress: Option<Py<PyAny>>,
+    checkpoint: Option<PathBuf>,
+    checkpoint_every: Option<u64>,
 ) -> PyResult<Fit> {
     let scene = task.scene("fit")?;
     let opts = FitOptions {
@@ -204,13 +206,43 @@ pub(crate) fn fit(
         resume: Default::default(),
     };
     let prepared = lightpath::app::fit::prepare(scene, &target, &opts).map_err(py_err)?;
+    let journal = journal(
+        "fit",
+        prepared.identity(),
+        checkpoint.as_deref(),
+        checkpoint_every,
+    )?;
     let fitted = run_watched(py, threads, progress, move |w| {
         w.total
             .store(prepared.total().unwrap_or(0) as u64, Ordering::Relaxed);
         let stop = w.stop_flag();
-        prepared.run(&|_| w.tick(), &stop, &Journal::default())
+        prepared.run(&|_| w.tick(), &stop, &journal)
     })?;
+    finished(checkpoint.as_deref())?;
     Ok(Fit { fitted })
+}
+
+/// The journal of a fit or design: kept in `checkpoint` (continuing the run saved there) when
+/// given, else in memory only.
+fn journal(
+    kind: &str,
+    identity: lightpath::Result<serde_json::Value>,
+    checkpoint: Option<&std::path::Path>,
+    every: Option<u64>,
+) -> PyResult<Journal> {
+    match checkpoint {
+        Some(dir) => {
+            lightpath::app::resumable(kind, identity.map_err(py_err)?, dir, every).map_err(py_err)
+        }
+        None => Ok(Journal::default()),
+    }
+}
+
+/// A finished run's checkpoint has nothing left to resume.
+fn finished(checkpoint: Option<&std::path::Path>) -> PyResult<()> {
+    checkpoint.map_or(Ok(()), |dir| {
+        lightpath::app::remove_checkpoint(dir).map_err(py_err)
+    })
 }
 
 /// A grid index field designed by Adam so beams pass through their foci (`lightpath design`),
@@ -481,7 +513,8 @@ impl GrinFit {
 /// A design config run (`lightpath design`): a grid design (`Design`) or, with a
 /// `[parameters]` table, an analytic parameter fit (`GrinFit`).
 #[pyfunction]
-#[pyo3(signature = (task, *, threads=None, max_minutes=240.0, max_memory_gb=8.0, progress=None))]
+#[pyo3(signature = (task, *, threads=None, max_minutes=240.0, max_memory_gb=8.0, progress=None, checkpoint=None, checkpoint_every=None))]
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn design(
     py: Python<'_>,
     task: &Task,
@@ -489,36 +522,35 @@ pub(crate) fn design(
     max_minutes: f64,
     max_memory_gb: f64,
     progress: Option<Py<PyAny>>,
+    checkpoint: Option<PathBuf>,
+    checkpoint_every: Option<u64>,
 ) -> PyResult<Py<PyAny>> {
     let limits = budget(max_minutes, max_memory_gb);
+    let checkpoint = checkpoint.as_deref();
     match &task.task {
         config::Task::Design(t) => {
             let t = (**t).clone();
             lightpath::app::grin::check_design(&t, &limits).map_err(py_err)?;
+            let identity = lightpath::app::grin::identity(&t.config);
+            let journal = journal("design", identity, checkpoint, checkpoint_every)?;
             let total = (t.problem.levels.len() * t.problem.iterations) as u64;
             let designed = run_watched(py, threads, progress, move |w| {
                 w.total.store(total, Ordering::Relaxed);
-                lightpath::app::grin::run_design(
-                    &t,
-                    &|_| w.tick(),
-                    &w.stop_flag(),
-                    &Journal::default(),
-                )
+                lightpath::app::grin::run_design(&t, &|_| w.tick(), &w.stop_flag(), &journal)
             })?;
+            finished(checkpoint)?;
             Ok(Py::new(py, Design { designed })?.into_any())
         }
         config::Task::ParamFit(t) => {
             let t = (**t).clone();
             lightpath::app::grin::check_param_fit(&t, &limits).map_err(py_err)?;
+            let identity = lightpath::app::grin::identity(&t.config);
+            let journal = journal("design", identity, checkpoint, checkpoint_every)?;
             let fitted = run_watched(py, threads, progress, move |w| {
                 // L-BFGS's evaluation count is not known in advance: total 0
-                lightpath::app::grin::run_param_fit(
-                    &t,
-                    &|_| w.tick(),
-                    &w.stop_flag(),
-                    &Journal::default(),
-                )
+                lightpath::app::grin::run_param_fit(&t, &|_| w.tick(), &w.stop_flag(), &journal)
             })?;
+            finished(checkpoint)?;
             Ok(Py::new(py, GrinFit { fitted })?.into_any())
         }
         other => Err(PyValueError::new_err(format!(

@@ -143,3 +143,38 @@ def write_toml(d: dict, path) -> None:
             lines.append(f"[[{name}]]" if isinstance(table, list) else f"[{name}]")
             lines += [f"{k} = {value(v)}" for k, v in row.items()]
     path.write_text("\n".join(lines) + "\n")
+
+
+class Stop(Exception):
+    pass
+
+
+def stop_after(count):
+    def progress(done, total):
+        if done >= count:
+            raise Stop
+    return progress
+
+
+def test_interrupted_designs_resume_from_their_checkpoint(repo, tmp_path):
+    luneburg = repo / "experiments" / "luneburg-design" / "luneburg.toml"
+    fibre = read_toml(repo / "experiments" / "grin-fibre" / "fibre.toml")
+    fibre["trace"]["step"] = 0.001
+    for config, stop_at in [(luneburg, 100), (fibre, 10)]:
+        whole = lp.design(config)
+        folder = tmp_path / f"checkpoint-{stop_at}"
+        with pytest.raises(Stop):
+            lp.design(config, checkpoint=folder, checkpoint_every=1, progress=stop_after(stop_at))
+        assert (folder / "checkpoint.bin").exists()
+        resumed = lp.design(config, checkpoint=folder)
+        assert without_times(json.loads(resumed.to_json())) == without_times(json.loads(whole.to_json()))
+        assert not (folder / "checkpoint.bin").exists(), "a finished design keeps no checkpoint"
+    # a checkpoint of another design is refused, and left where it is
+    other = read_toml(luneburg)
+    other["design"]["learning_rate"] = 0.01
+    folder = tmp_path / "other"
+    with pytest.raises(Stop):
+        lp.design(other, checkpoint=folder, checkpoint_every=1, progress=stop_after(20))
+    with pytest.raises(ValueError, match="another run"):
+        lp.design(luneburg, checkpoint=folder)
+    assert (folder / "checkpoint.bin").exists()

@@ -51,7 +51,7 @@ pub fn design(
 
 /// What a design's result depends on: its config (a checkpoint is resumed only by the same
 /// design).
-fn identity(config: &impl serde::Serialize) -> Result<serde_json::Value> {
+pub fn identity(config: &impl serde::Serialize) -> Result<serde_json::Value> {
     serde_json::to_value(config)
         .map_err(|e| Error::input(format!("the design's config cannot be recorded: {e}")))
 }

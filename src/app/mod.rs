@@ -145,8 +145,8 @@ pub fn journal(
             let (h, entries, snapshot) = read_journal(&saved)?;
             if h != header {
                 return Err(Error::input(format!(
-                    "--resume {}: the checkpoint belongs to another run (command, config, target, options or version differ); resume with the command, config and options that started it",
-                    dir.display()
+                    "{}: the checkpoint belongs to another run (command, config, target, options or version differ); resume with the command, config and options that started it, or remove it to start afresh",
+                    saved.display()
                 )));
             }
             (entries, snapshot)
@@ -171,6 +171,27 @@ pub fn journal(
         entries,
         snapshot,
     ))
+}
+
+/// The journal of a fit or design kept in `dir` (created if need be), for callers without a
+/// `--resume` flag (the Python package): it continues the run saved there, which must be the same
+/// run, or starts one. Remove the checkpoint with [`remove_checkpoint`] once the run has finished.
+pub fn resumable(
+    kind: &str,
+    identity: serde_json::Value,
+    dir: &Path,
+    every: Option<u64>,
+) -> Result<crate::inverse::journal::Journal> {
+    std::fs::create_dir_all(dir).map_err(|source| Error::Io {
+        action: "create checkpoint folder",
+        path: dir.to_path_buf(),
+        source,
+    })?;
+    let from = dir
+        .join(run::CHECKPOINT_FILE)
+        .exists()
+        .then(|| dir.to_path_buf());
+    journal(kind, identity, &Resume { from, every }, dir)
 }
 
 /// Remove `out/checkpoint.bin`: a finished run has nothing left to resume, a fresh one replaces it.
