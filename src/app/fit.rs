@@ -270,7 +270,7 @@ impl Prepared {
 
     /// Run the fit; `progress` sees every logged evaluation, `stop` ends it early with
     /// [`Error::Interrupted`], `journal` records it (and replays the run it was saved from; an
-    /// in-memory [`Journal::default`](crate::inverse::journal::Journal) when nothing is saved).
+    /// [`Journal::default`](crate::inverse::journal::Journal) when nothing is saved).
     pub fn run(
         &self,
         progress: &(dyn Fn(&crate::inverse::LogEntry) + Sync),

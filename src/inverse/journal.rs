@@ -34,8 +34,8 @@ pub struct Saver {
     pub save: Save,
 }
 
-/// The record of one fit (see the module docs). [`Journal::default`] keeps it in memory only: a
-/// run that cannot be resumed.
+/// The record of one fit (see the module docs). [`Journal::default`] keeps nothing: a run that
+/// cannot be resumed.
 #[derive(Default)]
 pub struct Journal {
     inner: Mutex<Inner>,
@@ -109,6 +109,10 @@ impl Journal {
         values: Vec<f64>,
         snapshot: Option<&dyn Fn() -> crate::Result<Vec<u8>>>,
     ) -> crate::Result<()> {
+        // a journal that is never saved has nothing to keep (and nothing to replay)
+        let Some(saver) = &self.saver else {
+            return Ok(());
+        };
         let mut st = self.lock();
         st.entries.push(Entry {
             key: key(inputs),
@@ -116,9 +120,6 @@ impl Journal {
         });
         st.cursor = st.entries.len();
         st.unsaved += 1;
-        let Some(saver) = &self.saver else {
-            return Ok(());
-        };
         let when = *st.saved_when.get_or_insert_with(Instant::now);
         let due = match saver.every {
             Some(n) => st.unsaved >= n.max(1),

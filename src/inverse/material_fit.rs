@@ -43,6 +43,7 @@ impl Numbers for Uncertainty {
         v
     }
     fn from_numbers(v: &[f64]) -> Option<Self> {
+        // p standard deviations and p² correlations after the two numbers: ⌊√(p + p²)⌋ = p
         let p = (v.len().checked_sub(2)? as f64).sqrt() as usize;
         let (head, rest) = v.split_at_checked(2)?;
         if rest.len() != p + p * p {

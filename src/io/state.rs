@@ -59,37 +59,60 @@ impl StateHeader {
 }
 
 pub fn write_state(path: &Path, header: &StateHeader, blocks: &[Block]) -> std::io::Result<()> {
+    write_framed(path, MAGIC, header, |buf| {
+        buf.extend_from_slice(&(blocks.len() as u64).to_le_bytes());
+        for b in blocks {
+            for v in [
+                b.start,
+                b.len,
+                b.sum.len() as u64,
+                b.sq.len() as u64,
+                b.kept.len() as u64,
+            ] {
+                buf.extend_from_slice(&v.to_le_bytes());
+            }
+            for z in &b.sum {
+                buf.extend_from_slice(&z.re.to_le_bytes());
+                buf.extend_from_slice(&z.im.to_le_bytes());
+            }
+            for v in &b.sq {
+                buf.extend_from_slice(&v.to_le_bytes());
+            }
+            for z in &b.kept {
+                buf.extend_from_slice(&z.re.to_le_bytes());
+                buf.extend_from_slice(&z.im.to_le_bytes());
+            }
+        }
+    })
+}
+
+/// Write `magic`, the header as JSON after its `u64` length, what `body` appends, and the CRC-32
+/// of all of it, to `path` atomically.
+fn write_framed(
+    path: &Path,
+    magic: &[u8; 8],
+    header: &impl Serialize,
+    body: impl FnOnce(&mut Vec<u8>),
+) -> std::io::Result<()> {
     let mut buf = Vec::new();
-    buf.extend_from_slice(MAGIC);
+    buf.extend_from_slice(magic);
     let h = serde_json::to_vec(header).map_err(std::io::Error::other)?;
     buf.extend_from_slice(&(h.len() as u64).to_le_bytes());
     buf.extend_from_slice(&h);
-    buf.extend_from_slice(&(blocks.len() as u64).to_le_bytes());
-    for b in blocks {
-        for v in [
-            b.start,
-            b.len,
-            b.sum.len() as u64,
-            b.sq.len() as u64,
-            b.kept.len() as u64,
-        ] {
-            buf.extend_from_slice(&v.to_le_bytes());
-        }
-        for z in &b.sum {
-            buf.extend_from_slice(&z.re.to_le_bytes());
-            buf.extend_from_slice(&z.im.to_le_bytes());
-        }
-        for v in &b.sq {
-            buf.extend_from_slice(&v.to_le_bytes());
-        }
-        for z in &b.kept {
-            buf.extend_from_slice(&z.re.to_le_bytes());
-            buf.extend_from_slice(&z.im.to_le_bytes());
-        }
-    }
+    body(&mut buf);
     let crc = crc32fast::hash(&buf);
     buf.extend_from_slice(&crc.to_le_bytes());
     crate::io::write_atomic(path, &buf)
+}
+
+/// The header of a file [`write_framed`] wrote (its magic already checked), and a cursor on the
+/// body after it; the checksum must match.
+fn read_framed<H: serde::de::DeserializeOwned>(data: &[u8]) -> crate::Result<(H, Cursor<'_>)> {
+    let body = checked_body(data)?;
+    let mut c = Cursor { data: body, pos: 8 };
+    let hl = c.len()?;
+    let header = serde_json::from_slice(c.take(hl)?).map_err(|e| format!("bad header: {e}"))?;
+    Ok((header, c))
 }
 
 struct Cursor<'a> {
@@ -139,11 +162,8 @@ pub fn read_state(path: &Path) -> crate::Result<(StateHeader, Vec<Block>)> {
         if !data.starts_with(MAGIC) {
             return Err("not a lightpath state file".into());
         }
-        let body = checked_body(&data).map_err(|e| format!("{e}; run the shard again"))?;
-        let mut c = Cursor { data: body, pos: 8 };
-        let hl = c.len()?;
-        let header: StateHeader =
-            serde_json::from_slice(c.take(hl)?).map_err(|e| format!("bad header: {e}"))?;
+        let (header, mut c): (StateHeader, _) =
+            read_framed(&data).map_err(|e| format!("{e}; run the shard again"))?;
         let n = c.len()?;
         let mut blocks = Vec::with_capacity(n.min(1024));
         for _ in 0..n {
@@ -197,29 +217,23 @@ pub fn write_journal(
     header: &JournalHeader,
     saved: &crate::inverse::journal::Saved<'_>,
 ) -> std::io::Result<()> {
-    let mut buf = Vec::new();
-    buf.extend_from_slice(JOURNAL_MAGIC);
-    let h = serde_json::to_vec(header).map_err(std::io::Error::other)?;
-    buf.extend_from_slice(&(h.len() as u64).to_le_bytes());
-    buf.extend_from_slice(&h);
-    buf.extend_from_slice(&(saved.entries.len() as u64).to_le_bytes());
-    for e in saved.entries {
-        buf.extend_from_slice(&e.key.to_le_bytes());
-        buf.extend_from_slice(&(e.values.len() as u64).to_le_bytes());
-        for v in &e.values {
-            buf.extend_from_slice(&v.to_le_bytes());
+    write_framed(path, JOURNAL_MAGIC, header, |buf| {
+        buf.extend_from_slice(&(saved.entries.len() as u64).to_le_bytes());
+        for e in saved.entries {
+            buf.extend_from_slice(&e.key.to_le_bytes());
+            buf.extend_from_slice(&(e.values.len() as u64).to_le_bytes());
+            for v in &e.values {
+                buf.extend_from_slice(&v.to_le_bytes());
+            }
         }
-    }
-    match saved.snapshot {
-        Some(b) => {
-            buf.extend_from_slice(&(b.len() as u64).to_le_bytes());
-            buf.extend_from_slice(b);
+        match saved.snapshot {
+            Some(b) => {
+                buf.extend_from_slice(&(b.len() as u64).to_le_bytes());
+                buf.extend_from_slice(b);
+            }
+            None => buf.extend_from_slice(&u64::MAX.to_le_bytes()),
         }
-        None => buf.extend_from_slice(&u64::MAX.to_le_bytes()),
-    }
-    let crc = crc32fast::hash(&buf);
-    buf.extend_from_slice(&crc.to_le_bytes());
-    write_atomic(path, &buf)
+    })
 }
 
 /// A checkpoint written by [`write_journal`]: its header, entries and snapshot.
@@ -235,11 +249,7 @@ pub fn read_journal(path: &Path) -> crate::Result<Journaled> {
         if !data.starts_with(JOURNAL_MAGIC) {
             return Err("not the checkpoint of a fit or design".into());
         }
-        let body = checked_body(&data)?;
-        let mut c = Cursor { data: body, pos: 8 };
-        let hl = c.len()?;
-        let header: JournalHeader =
-            serde_json::from_slice(c.take(hl)?).map_err(|e| format!("bad header: {e}"))?;
+        let (header, mut c): (JournalHeader, _) = read_framed(&data)?;
         let n = c.len()?;
         let mut entries = Vec::with_capacity(n.min(1 << 16));
         for _ in 0..n {
@@ -250,10 +260,10 @@ pub fn read_journal(path: &Path) -> crate::Result<Journaled> {
         }
         let snapshot = match c.u64()? {
             u64::MAX => None,
-            len if len as usize <= body.len() => Some(c.take(len as usize)?.to_vec()),
+            len if len as usize <= c.data.len() => Some(c.take(len as usize)?.to_vec()),
             _ => return Err("file is corrupt (length field too large)".into()),
         };
-        if c.pos != body.len() {
+        if c.pos != c.data.len() {
             return Err("file is corrupt (bytes after the snapshot)".into());
         }
         Ok((header, entries, snapshot))

@@ -62,14 +62,14 @@ impl EventSink for CovSink {
 
 /// A batch of event vectors `a_e` and the accumulator `acc += Σ_e a_e a_eᴴ` (J × J), computed in
 /// real arithmetic, whose matrix products run at about twice the rate of complex ones: with
-/// `X = [Re a_e, Im a_e]_e` and `Y = [Im a_e, −Re a_e]_e` (J × 2n, the two columns of each event
-/// side by side), `Re acc += X Xᵀ` and `Im acc += Y Xᵀ`. The real part is symmetric and the
-/// imaginary part antisymmetric, so only tiles on or above the diagonal are multiplied.
+/// `X = [Re a_e, Im a_e]_e` (J × 2n, the two columns of each event side by side),
+/// `Re acc += X Xᵀ` and `Im acc += Im A · Re Aᵀ − Re A · Im Aᵀ` (the same columns read with a
+/// stride). The real part is symmetric and the imaginary part antisymmetric, so only tiles on or
+/// above the diagonal are multiplied.
 pub struct Batch {
     j: usize,
     cols: usize,
     x: Vec<f64>,
-    y: Vec<f64>,
     re: Vec<f64>,
     im: Vec<f64>,
 }
@@ -80,7 +80,6 @@ impl Batch {
             j,
             cols: 0,
             x: vec![0.0; 2 * j * BATCH],
-            y: vec![0.0; 2 * j * BATCH],
             re: vec![0.0; j * j],
             im: vec![0.0; j * j],
         }
@@ -92,14 +91,9 @@ impl Batch {
             self.flush();
         }
         let (j, c) = (self.j, self.cols);
-        let (x, y) = (&mut self.x[2 * c * j..], &mut self.y[2 * c * j..]);
-        let (x_re, x_im) = x[..2 * j].split_at_mut(j);
-        let (y_im, y_re) = y[..2 * j].split_at_mut(j);
-        for (r, z) in a.iter().enumerate() {
-            x_re[r] = z.re;
-            x_im[r] = z.im;
-            y_im[r] = z.im;
-            y_re[r] = -z.re;
+        let (x_re, x_im) = self.x[2 * c * j..2 * (c + 1) * j].split_at_mut(j);
+        for ((re, im), z) in x_re.iter_mut().zip(x_im).zip(a) {
+            (*re, *im) = (z.re, z.im);
         }
         self.cols += 1;
     }
@@ -108,26 +102,26 @@ impl Batch {
         if self.cols == 0 {
             return;
         }
-        let (j, k) = (self.j, 2 * self.cols);
+        let (j, n) = (self.j, self.cols);
         let tile = j.div_ceil(TILES);
         for r0 in (0..j).step_by(tile) {
-            // a row block times every column from its own diagonal tile on: one product (the
-            // row block packed once), only tiles on or above the diagonal
-            let (m, n) = (tile.min(j - r0), j - r0);
-            for (left, acc) in [(&self.x, &mut self.re), (&self.y, &mut self.im)] {
-                // SAFETY: X and Y are j × k column-major (element (r, e) at e·j + r); Xᵀ is read
-                // from `x` with row stride j; acc is j × j row-major. Offsets stay in bounds.
+            // each row block times every column from its own diagonal tile on: one product per
+            // term (the row block packed once), only tiles on or above the diagonal
+            let block = |left, right, k, stride, sign, acc: &mut [f64]| {
+                // SAFETY: X is j × 2n column-major (element (r, e) at e·j + r): the operands
+                // start at offsets below 2j and k columns at `stride` stay within 2n·j; acc is
+                // j × j row-major.
                 unsafe {
                     matrixmultiply::dgemm(
-                        m,
+                        tile.min(j - r0),
                         k,
-                        n,
-                        1.0,
-                        left.as_ptr().add(r0),
+                        j - r0,
+                        sign,
+                        self.x.as_ptr().add(left + r0),
                         1,
-                        j as isize,
-                        self.x.as_ptr().add(r0),
-                        j as isize,
+                        stride as isize,
+                        self.x.as_ptr().add(right + r0),
+                        stride as isize,
                         1,
                         1.0,
                         acc.as_mut_ptr().add(r0 * j + r0),
@@ -135,7 +129,11 @@ impl Batch {
                         1,
                     );
                 }
-            }
+            };
+            // Re: X Xᵀ over all 2n columns; Im: Im A · Re Aᵀ − Re A · Im Aᵀ (every other column)
+            block(0, 0, 2 * n, j, 1.0, &mut self.re);
+            block(j, 0, n, 2 * j, 1.0, &mut self.im);
+            block(0, j, n, 2 * j, -1.0, &mut self.im);
         }
         self.cols = 0;
     }
@@ -228,8 +226,9 @@ impl Estimator for Covariance<'_> {
 
     fn scratch_bytes(&self) -> usize {
         let j = self.fields();
-        // two batches (single, multiple): X and Y of j × 2·BATCH reals, and the j × j accumulator
-        2 * (2 * j * BATCH + j * j) * std::mem::size_of::<C64>()
+        // two batches (single, multiple): X (j × 2·BATCH reals) and the accumulator (j × j, its
+        // real and imaginary parts)
+        2 * (2 * j * BATCH + 2 * j * j) * std::mem::size_of::<f64>()
     }
 
     fn scratch(&self) -> CovScratch {
