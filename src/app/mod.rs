@@ -134,14 +134,7 @@ pub fn journal(
     let path = out.join(run::CHECKPOINT_FILE);
     let (entries, snapshot) = match &resume.from {
         Some(dir) => {
-            let saved = dir.join(run::CHECKPOINT_FILE);
-            if !saved.exists() {
-                return Err(Error::input(format!(
-                    "--resume {}: no {} there (the run finished, never saved one, or wrote elsewhere)",
-                    dir.display(),
-                    run::CHECKPOINT_FILE
-                )));
-            }
+            let saved = saved_checkpoint(dir)?;
             let (h, entries, snapshot) = read_journal(&saved)?;
             if h != header {
                 return Err(Error::input(format!(
@@ -192,6 +185,19 @@ pub fn resumable(
         .exists()
         .then(|| dir.to_path_buf());
     journal(kind, identity, &Resume { from, every }, dir)
+}
+
+/// `dir/checkpoint.bin`, which `--resume dir` needs.
+fn saved_checkpoint(dir: &Path) -> Result<PathBuf> {
+    let path = dir.join(run::CHECKPOINT_FILE);
+    if !path.exists() {
+        return Err(Error::input(format!(
+            "--resume {}: no {} there (the run finished, never saved one, or wrote elsewhere)",
+            dir.display(),
+            run::CHECKPOINT_FILE
+        )));
+    }
+    Ok(path)
 }
 
 /// Remove `out/checkpoint.bin`: a finished run has nothing left to resume, a fresh one replaces it.

@@ -348,14 +348,7 @@ fn resumed_blocks(
     whole: u64,
     dir: &Path,
 ) -> Result<Vec<Block>> {
-    let path = dir.join(CHECKPOINT_FILE);
-    if !path.exists() {
-        return Err(Error::input(format!(
-            "--resume {}: no {CHECKPOINT_FILE} there (the run finished, never saved one, or wrote elsewhere)",
-            dir.display()
-        )));
-    }
-    let (saved, blocks) = read_state(&path)?;
+    let (saved, blocks) = read_state(&super::saved_checkpoint(dir)?)?;
     if !saved.same_run(header) || saved.shard != header.shard {
         return Err(Error::input(format!(
             "--resume {}: the checkpoint belongs to another run (command, config, seed, samples, shard or version differ); resume with the command and config that started it",

@@ -161,31 +161,37 @@ impl Fit<'_> {
         }
     }
 
-    /// [`Self::loss_and_gradient`] at `v` with paths of the proposal at natural values `centre`,
-    /// through `journal`.
+    /// `compute(proposal)` for the parameters `v`, with paths of the proposal at natural values
+    /// `centre`, through `journal` (`what` tells the kinds of record apart in its check).
+    fn recorded<T: Numbers>(
+        &self,
+        journal: &Journal,
+        what: f64,
+        (centre, v): (&[f64], &[f64]),
+        compute: impl FnOnce(&Scene) -> crate::Result<T>,
+    ) -> crate::Result<T> {
+        let inputs: Vec<f64> = [what].iter().chain(centre).chain(v).copied().collect();
+        recall(journal, &inputs, || compute(&self.proposal(centre)))
+    }
+
+    /// [`Self::loss_and_gradient`] through `journal`.
     fn recorded_loss_and_gradient(
         &self,
         journal: &Journal,
         centre: &[f64],
         v: &[f64],
     ) -> crate::Result<(f64, Vec<f64>)> {
-        let inputs: Vec<f64> = [0.0].iter().chain(centre).chain(v).copied().collect();
-        recall(journal, &inputs, || {
-            self.loss_and_gradient(&self.proposal(centre), v)
-        })
+        self.recorded(journal, 0.0, (centre, v), |p| self.loss_and_gradient(p, v))
     }
 
-    /// [`Self::uncertainty`] at `v` with paths of the proposal at `centre`, through `journal`.
+    /// [`Self::uncertainty`] through `journal`.
     fn recorded_uncertainty(
         &self,
         journal: &Journal,
         centre: &[f64],
         v: &[f64],
     ) -> crate::Result<Uncertainty> {
-        let inputs: Vec<f64> = [1.0].iter().chain(centre).chain(v).copied().collect();
-        recall(journal, &inputs, || {
-            self.uncertainty(v, &self.proposal(centre))
-        })
+        self.recorded(journal, 1.0, (centre, v), |p| self.uncertainty(v, p))
     }
 
     /// The gradient in the unconstrained variables from the natural one.
