@@ -377,3 +377,122 @@ fn command_reads_png_tiff_and_exr() {
         "pixel (5, 0) is not a finite number",
     );
 }
+
+/// `[fit]` hands the readings to `lightpath fit` as normalised correlations over each window: from
+/// images of an OD 2 slab (mfp 5) and a guess of twice the true mfp, the fit recovers it.
+#[test]
+fn readings_become_a_fit_target() {
+    use lightpath::io::ResultFile;
+    use lightpath::io::results::FitFile;
+    let dir = std::env::temp_dir().join(format!("lightpath-handoff-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let images = render(2.0, 0.7, P1, P2, 20);
+    let mut pairs = Vec::new();
+    for (k, [a, b]) in images.iter().enumerate() {
+        let (na, nb) = (format!("a{k}.exr"), format!("b{k}.exr"));
+        lightpath::io::exr::write_scalar(&dir.join(&na), &a.data, SIDE, SIDE, "I").unwrap();
+        lightpath::io::exr::write_scalar(&dir.join(&nb), &b.data, SIDE, SIDE, "I").unwrap();
+        pairs.push((na, nb, [P1, P2]));
+    }
+    let cfg = acquisition(&dir, &pairs);
+    let mut text = std::fs::read_to_string(&cfg).unwrap();
+    text += "[fit]\nscene = \"slab.toml\"\n";
+    std::fs::write(&cfg, text).unwrap();
+    std::fs::write(
+        dir.join("slab.toml"),
+        "wavelength = 1.0\n[medium]\nslab = 10.0\nslab_window = 200.0\nmfp = 10.0\nalbedo = 1.0\nphase = { kind = \"hg\", g = 0.7 }\n[render]\nsamples = 10000\nseed = 3\n",
+    )
+    .unwrap();
+    let out = dir.join("out");
+    let o = lightpath(&[
+        "acquire-phase",
+        cfg.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(stdout.contains("lightpath fit"), "{stdout}");
+    let fit = dir.join("fit");
+    let o = lightpath(&[
+        "fit",
+        out.join("fit_scene.toml").to_str().unwrap(),
+        "--target",
+        out.join("fit_target.json").to_str().unwrap(),
+        "--fit",
+        "mfp",
+        "--out",
+        fit.to_str().unwrap(),
+    ]);
+    eprintln!("{}", String::from_utf8_lossy(&o.stdout));
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let f = FitFile::read(&fit.join("fit.json")).unwrap();
+    let (mfp, sd) = (f.fitted[0], f.stddev[0]);
+    eprintln!("mfp {mfp} ± {sd} (truth 5)");
+    assert!((mfp - 5.0).abs() < 3.0 * sd, "mfp {mfp} ± {sd}");
+    assert!(sd < 0.2 * mfp, "too uncertain to tell: ± {sd}");
+}
+
+/// `source_shift` places the second illumination from the first through the relay (magnification
+/// `−f / f_source`): the readings equal those with the peaks given by hand, and a stage axis taken
+/// the wrong way round is reported.
+#[test]
+fn source_translation_places_the_second_illumination() {
+    use lightpath::io::ResultFile;
+    use lightpath::io::results::PhaseAcquisitionFile;
+    let dir = std::env::temp_dir().join(format!("lightpath-source-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    // the ballistic light focuses on one pixel of each image, far above the speckle
+    let mut pairs = Vec::new();
+    for (k, [a, b]) in rendered().iter().take(8).enumerate() {
+        let (mut a, mut b) = (a.clone(), b.clone());
+        let top = a.data.iter().chain(&b.data).fold(0.0f64, |m, &v| m.max(v));
+        a.data[P1[1] as usize * SIDE + P1[0] as usize] = 100.0 * top;
+        b.data[P2[1] as usize * SIDE + P2[0] as usize] = 100.0 * top;
+        let (na, nb) = (format!("a{k}.exr"), format!("b{k}.exr"));
+        lightpath::io::exr::write_scalar(&dir.join(&na), &a.data, SIDE, SIDE, "I").unwrap();
+        lightpath::io::exr::write_scalar(&dir.join(&nb), &b.data, SIDE, SIDE, "I").unwrap();
+        pairs.push((na, nb, [P1, P2]));
+    }
+    let read = |name: &str, text: String| {
+        let cfg = dir.join(format!("{name}.toml"));
+        std::fs::write(&cfg, text).unwrap();
+        let out = dir.join(name);
+        let o = lightpath(&[
+            "acquire-phase",
+            cfg.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let f = PhaseAcquisitionFile::read(&out.join("phase_acquisition.json")).unwrap();
+        (f, String::from_utf8_lossy(&o.stdout).to_string())
+    };
+    let by_hand = std::fs::read_to_string(acquisition(&dir, &pairs)).unwrap();
+    // Δ = P2 − P1 = 20 px along y; with f_source = 2 f the source moved −2 · 20 pitch
+    let pitch = 0.15f64.to_radians().tan();
+    let shifted = |shift: [f64; 2]| {
+        let mut text = by_hand
+            .lines()
+            .filter(|l| !l.starts_with("peaks"))
+            .collect::<Vec<_>>()
+            .join("\n");
+        text = text.replacen("[[pair]]", "source_focal_length = 2.0\n[[pair]]", 1);
+        text.replace("[[pair]]", &format!("[[pair]]\nsource_shift = {shift:?}"))
+    };
+    let (a, _) = read("by_hand", by_hand.clone());
+    let (b, _) = read("shifted", shifted([0.0, -40.0 * pitch]));
+    assert_eq!(a.curves, b.curves);
+    assert!(b.warnings.is_empty(), "{:?}", b.warnings);
+    // the stage's axes swapped against the sensor's: the peak is found 28 px from where the
+    // translation puts it
+    let (c, stdout) = read("swapped", shifted([-40.0 * pitch, 0.0]));
+    assert_eq!(c.warnings.len(), 8, "{:?}", c.warnings);
+    assert!(
+        stdout.contains("warning: pair[0]: source_shift puts"),
+        "{stdout}"
+    );
+    assert!(c.warnings[0].contains("(28 px away)"), "{}", c.warnings[0]);
+}

@@ -64,7 +64,7 @@ fn measure(s: &Scene, intensity: bool, samples: u64, seed: u64) -> Target {
     let entries = (0..n)
         .map(|i| Entry {
             light: [0, 1],
-            view: [i, n + i],
+            views: vec![[i, n + i]],
             value: if intensity {
                 Measured::Intensity(e.value[i].norm_sqr())
             } else {

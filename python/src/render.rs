@@ -156,10 +156,11 @@ pub(crate) struct PhaseAcquisition {
 #[pymethods]
 impl PhaseAcquisition {
     /// One dict per illumination displacement, smallest first: `delta_deg`, `delta_px`,
-    /// `grain_px`, `pairs`, `chi2_flat`, `dof`, `significant`, `hg` / `hg_intensity` (`g`,
-    /// `g_stderr`, `chi2_dof`) and `vmf` (`weights`, `kappas`, `chi2_dof`) where fitted, and
-    /// float64 `[R]` arrays of the readings: `angle_deg`, `correlation`, `stderr`,
-    /// `intensity`, `rho`, `rho_stderr`, `rho_intensity` (NaN where there is none).
+    /// `first_px`, `grain_px`, `pairs`, `chi2_flat`, `dof`, `significant`, `hg` /
+    /// `hg_intensity` (`g`, `g_stderr`, `chi2_dof`) and `vmf` (`weights`, `kappas`, `chi2_dof`)
+    /// where fitted, and float64 `[R]` arrays of the readings: `angle_deg`, `correlation`,
+    /// `stderr`, `intensity`, `normalised`, `normalised_stderr` (Eq. 4 over the window means),
+    /// `rho`, `rho_stderr`, `rho_intensity` (NaN where there is none).
     #[getter]
     fn curves<'py>(&self, py: Python<'py>) -> PyResult<Vec<Bound<'py, PyAny>>> {
         use numpy::PyArray1;
@@ -178,6 +179,11 @@ impl PhaseAcquisition {
                 d.set_item("correlation", column(&|r| r.reading.correlation))?;
                 d.set_item("stderr", column(&|r| r.reading.stderr))?;
                 d.set_item("intensity", column(&|r| r.reading.intensity))?;
+                d.set_item("normalised", column(&|r| r.reading.normalised))?;
+                d.set_item(
+                    "normalised_stderr",
+                    column(&|r| r.reading.normalised_stderr),
+                )?;
                 d.set_item("rho", column(&|r| r.rho.unwrap_or(f64::NAN)))?;
                 d.set_item("rho_stderr", column(&|r| r.rho_stderr.unwrap_or(f64::NAN)))?;
                 d.set_item(

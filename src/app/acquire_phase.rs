@@ -1,8 +1,12 @@
 //! `lightpath acquire-phase`: the phase function read from speckle images of a slab under tilted
-//! illuminations (paper 004) → `phase_acquisition.json` + `phase_acquisition.png`.
+//! illuminations (paper 004) → `phase_acquisition.json` + `phase_acquisition.png`; with `[fit]`,
+//! also `fit_scene.toml` + `fit_target.json`, the readings as a target of `lightpath fit` (thick
+//! samples, where the single-scattering reading is biased).
 
 use super::{Outcome, create_out};
 use crate::config::AcquireConfig;
+use crate::config::acquire::HandoffConfig;
+use crate::config::{LightConfig, ViewConfig};
 use crate::error::{Error, Result};
 use crate::inverse::phase_from_speckle::{
     Curve, PairError, fit_hg, fit_vmf, flatness, hg, read_curves, significant,
@@ -12,12 +16,21 @@ use crate::io::images::{Image, read_image};
 use crate::io::results::{
     AcquiredCurve, AcquiredReading, Consistency, HgRecord, PhaseAcquisitionFile, VmfRecord,
 };
+use glam::DVec3;
 use std::path::Path;
 
 /// Read the images, compute the curves and fits, write the results into `out`.
 pub fn run(config: &AcquireConfig, out: &Path) -> Result<Outcome> {
     let file = acquire(config)?;
-    create_out(out, &["phase_acquisition.json", "phase_acquisition.png"])?;
+    create_out(
+        out,
+        &[
+            "phase_acquisition.json",
+            "phase_acquisition.png",
+            SCENE,
+            TARGET,
+        ],
+    )?;
     write(&file, out)
 }
 
@@ -49,18 +62,14 @@ pub fn acquire(config: &AcquireConfig) -> Result<PhaseAcquisitionFile> {
             }
         }
     }
+    let mut warnings = Vec::new();
     let pairs: Vec<crate::inverse::phase_from_speckle::Pair> = images
         .iter()
-        .zip(&config.pair)
-        .map(|([a, b], p)| crate::inverse::phase_from_speckle::Pair {
+        .enumerate()
+        .map(|(i, [a, b])| crate::inverse::phase_from_speckle::Pair {
             first: a,
             second: b,
-            peaks: p.peaks.unwrap_or_else(|| {
-                [
-                    crate::inverse::phase_from_speckle::brightest(a),
-                    crate::inverse::phase_from_speckle::brightest(b),
-                ]
-            }),
+            peaks: peaks(config, i, [a, b], &mut warnings),
         })
         .collect();
     let curves = read_curves(&pairs, &relay, &settings).map_err(|(i, e)| {
@@ -71,6 +80,10 @@ pub fn acquire(config: &AcquireConfig) -> Result<PhaseAcquisitionFile> {
                 "pair[{i}]: {} and {} differ in size",
                 p.first.display(),
                 p.second.display()
+            ),
+            PairError::NoDisplacement if p.source_shift.is_some() => format!(
+                "pair[{i}].source_shift = {:?} moves the illumination by less than a pixel ({p1:?} → {p2:?}): the correlation reading needs two illuminations Δ ≠ 0 apart",
+                p.source_shift.unwrap_or_default()
             ),
             PairError::NoDisplacement => format!(
                 "pair[{i}]: the illuminations coincide (ballistic peaks at {p1:?} in {} and {p2:?} in {}): the correlation reading needs two illuminations Δ ≠ 0 apart (give pair[{i}].peaks if the brightest pixels are not the ballistic peaks)",
@@ -93,6 +106,8 @@ pub fn acquire(config: &AcquireConfig) -> Result<PhaseAcquisitionFile> {
     let consistency = consistency(&records);
     Ok(PhaseAcquisitionFile {
         format_version: crate::io::results::FORMAT_VERSION,
+        axis_px: relay.axis_px,
+        warnings,
         curves: records,
         consistency,
         seconds: start.elapsed().as_secs_f64(),
@@ -101,13 +116,59 @@ pub fn acquire(config: &AcquireConfig) -> Result<PhaseAcquisitionFile> {
     })
 }
 
+/// The ballistic peaks of pair `i`: as given; or the first image's brightest pixel and, with a
+/// `source_shift`, the second placed from it through the relay — noting in `warnings` when the
+/// second image's brightest pixel is elsewhere (a flipped axis or a wrong focal length) —; else
+/// both brightest pixels.
+fn peaks(
+    config: &AcquireConfig,
+    i: usize,
+    [a, b]: [&Image; 2],
+    warnings: &mut Vec<String>,
+) -> [[f64; 2]; 2] {
+    use crate::inverse::phase_from_speckle::brightest;
+    if let Some(p) = config.pair[i].peaks {
+        return p;
+    }
+    let first = brightest(a);
+    let Some(d) = config.source_delta_px(i) else {
+        return [first, brightest(b)];
+    };
+    let second = [first[0] + d[0], first[1] + d[1]];
+    let seen = brightest(b);
+    let miss = (seen[0] - second[0]).hypot(seen[1] - second[1]);
+    if miss > config.acquisition.ballistic_radius.max(3.0) {
+        warnings.push(format!(
+            "pair[{i}]: source_shift puts the second illumination at {second:?} but the brightest pixel of {} is at {seen:?} ({miss:.0} px away); check the stage's axes against the sensor's and acquisition.source_focal_length",
+            config.pair[i].second.display()
+        ));
+    }
+    [first, second]
+}
+
 /// Write phase_acquisition.json and its plot into `out` (which must exist).
 pub fn write(file: &PhaseAcquisitionFile, out: &Path) -> Result<Outcome> {
     let json = out.join(PhaseAcquisitionFile::NAME);
     let png = out.join("phase_acquisition.png");
     file.write(&json)?;
     plot(file, &png)?;
+    let mut files = vec![json, png];
+    if let Some(fit) = &file.config.fit {
+        let (scene, target) = handoff(file, fit)?;
+        for (name, text) in [(SCENE, scene), (TARGET, target)] {
+            let path = out.join(name);
+            crate::io::write_atomic(&path, text.as_bytes()).map_err(|source| Error::Io {
+                action: "write",
+                path: path.clone(),
+                source,
+            })?;
+            files.push(path);
+        }
+    }
     let mut summary = String::new();
+    for w in &file.warnings {
+        summary += &format!("warning: {w}\n");
+    }
     for c in &file.curves {
         let (fit, naive) = (c.hg.as_ref(), c.hg_intensity.as_ref());
         summary += &format!(
@@ -148,8 +209,15 @@ pub fn write(file: &PhaseAcquisitionFile, out: &Path) -> Result<Outcome> {
             c.dof
         );
     }
+    if file.config.fit.is_some() {
+        summary += &format!(
+            "\nfit on: lightpath fit {} --target {} --fit mfp,g",
+            out.join(SCENE).display(),
+            out.join(TARGET).display()
+        );
+    }
     Ok(Outcome {
-        files: vec![json, png],
+        files,
         summary: summary.trim_end().to_string(),
         not_converged: None,
     })
@@ -219,6 +287,7 @@ fn record(c: &Curve, s: &crate::inverse::phase_from_speckle::Settings) -> Acquir
         chi2_dof: f.chi2_dof,
     };
     AcquiredCurve {
+        first_px: c.first_px,
         delta_px: c.delta_px,
         delta_deg: c.delta_deg,
         grain_px: c.grain_px,
@@ -348,4 +417,103 @@ fn plot(file: &PhaseAcquisitionFile, path: &Path) -> Result<()> {
         &points,
         &curves,
     )
+}
+
+/// The hand-off files' names.
+const SCENE: &str = "fit_scene.toml";
+const TARGET: &str = "fit_target.json";
+
+/// The readings as a `lightpath fit` target and the scene to fit it on: the sample's scene with
+/// one plane-wave light per illumination and far-field views at `window_points²` Gauss–Legendre
+/// points of every window (both images), all directions inside the sample; each reading becomes a
+/// normalised intensity correlation over its window's view pairs (Eq. 4 over the window means,
+/// which the camera's scale does not enter).
+fn handoff(file: &PhaseAcquisitionFile, fit: &HandoffConfig) -> Result<(String, String)> {
+    let path = std::path::absolute(&fit.scene)
+        .map_err(|e| Error::input(format!("fit.scene = {}: {e}", fit.scene.display())))?;
+    let text = std::fs::read_to_string(&path).map_err(|source| Error::Io {
+        action: "read",
+        path: path.clone(),
+        source,
+    })?;
+    let mut value: toml::Value = toml::from_str(&text)
+        .map_err(|e| Error::input(format!("fit.scene {}: invalid TOML: {e}", path.display())))?;
+    let (relay, settings) = file
+        .config
+        .relay_and_settings(file.axis_px)
+        .map_err(|e| Error::input(e.0))?;
+    let (nodes, _) = crate::math::gauss_legendre(fit.window_points as usize);
+    fn index(list: &mut Vec<DVec3>, d: DVec3) -> usize {
+        list.iter()
+            .position(|x| (*x - d).length() < 1e-12)
+            .unwrap_or_else(|| {
+                list.push(d);
+                list.len() - 1
+            })
+    }
+    let (mut lights, mut views, mut entries) = (Vec::new(), Vec::new(), Vec::new());
+    let w = settings.window as f64;
+    let half = (settings.window / 2) as f64;
+    for c in &file.curves {
+        let (p1, d) = (c.first_px, c.delta_px);
+        let l1 = index(&mut lights, relay.direction(p1[0], p1[1]));
+        let l2 = index(&mut lights, relay.direction(p1[0] + d[0], p1[1] + d[1]));
+        let norm = d[0].hypot(d[1]);
+        let u = [-d[1] / norm, d[0] / norm];
+        for r in &c.readings {
+            let t = r.reading.offset_px;
+            // the window as the reading placed it: pixels c − half … c − half + w − 1
+            let lo = [
+                (p1[0] + t * u[0]).round() - half - 0.5,
+                (p1[1] + t * u[1]).round() - half - 0.5,
+            ];
+            let mut pairs = Vec::new();
+            for gy in &nodes {
+                for gx in &nodes {
+                    let (x, y) = (lo[0] + 0.5 * w * (gx + 1.0), lo[1] + 0.5 * w * (gy + 1.0));
+                    let v1 = index(&mut views, relay.direction(x, y));
+                    let v2 = index(&mut views, relay.direction(x + d[0], y + d[1]));
+                    pairs.push([v1, v2]);
+                }
+            }
+            entries.push(serde_json::json!({
+                "light": [l1, l2],
+                "views": pairs,
+                "normalised_intensity_correlation": r.reading.normalised,
+                "stderr": r.reading.normalised_stderr,
+            }));
+        }
+    }
+    // the sample's scene with these lights and views, checked by the one loader
+    let lights: Vec<LightConfig> = lights
+        .iter()
+        .map(|d| LightConfig::PlaneWave {
+            direction: d.to_array(),
+        })
+        .collect();
+    let views: Vec<ViewConfig> = views
+        .iter()
+        .map(|d| ViewConfig::FarField {
+            direction: d.to_array(),
+        })
+        .collect();
+    let table = value
+        .as_table_mut()
+        .ok_or_else(|| Error::input(format!("fit.scene {}: not a table", path.display())))?;
+    for (key, list) in [
+        ("light", toml::Value::try_from(&lights)),
+        ("view", toml::Value::try_from(&views)),
+    ] {
+        table.insert(key.into(), list.map_err(|e| Error::input(e.to_string()))?);
+    }
+    let base = path.parent().unwrap_or(Path::new("/"));
+    let cfg = crate::config::load_value(value, base)
+        .and_then(|t| t.into_scene("fit.scene"))
+        .map_err(|e| Error::input(format!("fit.scene {}: {}", path.display(), e.0)))?
+        .config;
+    let scene = toml::to_string(&cfg)
+        .map_err(|e| Error::input(format!("fit.scene: cannot write it back: {e}")))?;
+    let target = serde_json::to_string_pretty(&serde_json::json!({ "entries": entries }))
+        .map_err(|e| Error::input(e.to_string()))?;
+    Ok((scene, target))
 }

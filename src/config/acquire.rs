@@ -11,10 +11,16 @@
 //! step = 100                # between readings along τ, pixels (default: window)
 //! ballistic_radius = 20     # masked around each ballistic peak, pixels
 //! axis_px = [2048.0, 2048.0]  # optical axis on the sensor (default: the image centre)
+//! source_focal_length = 105000.0  # of the lens in front of the source (with pair.source_shift)
 //! [[pair]]
 //! first = "img_000.png"     # EXR, 8/16-bit PNG or TIFF (relative to this file)
 //! second = "img_001.png"
 //! peaks = [[2048.0, 2048.0], [2048.0, 2300.0]]   # optional: else the brightest pixels
+//! # or: source_shift = [0.0, 1400.0]  # the point source's translation (second − first): the
+//! #     relay images it onto the sensor, Δ = −(focal_length / source_focal_length) shift / pitch
+//! [fit]                     # optional: hand the readings to `lightpath fit`
+//! scene = "slab.toml"       # a speckle scene of the sample (wavelength, [medium], [render])
+//! window_points = 2         # Gauss–Legendre points per window side in the model (1–4)
 //! ```
 
 use super::scene::positive;
@@ -28,6 +34,23 @@ use std::path::{Path, PathBuf};
 pub struct AcquireConfig {
     pub acquisition: AcquisitionConfig,
     pub pair: Vec<PairConfig>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fit: Option<HandoffConfig>,
+}
+
+/// `[fit]`: write the readings as a `lightpath fit` target (normalised intensity correlations over
+/// each window) with the scene it is fitted on (`scene`'s, its lights and views replaced by the
+/// illuminations and the windows' directions inside the sample).
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct HandoffConfig {
+    pub scene: PathBuf,
+    #[serde(default = "two")]
+    pub window_points: f64,
+}
+
+fn two() -> f64 {
+    2.0
 }
 
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
@@ -46,6 +69,9 @@ pub struct AcquisitionConfig {
     pub ballistic_radius: f64,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub axis_px: Option<[f64; 2]>,
+    /// Focal length of the lens that collimates the point source (with `pair.source_shift`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub source_focal_length: Option<f64>,
 }
 
 fn one() -> f64 {
@@ -59,11 +85,31 @@ pub struct PairConfig {
     pub second: PathBuf,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub peaks: Option<[[f64; 2]; 2]>,
+    /// The point source's translation on its stage between the two images (second − first).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub source_shift: Option<[f64; 2]>,
+}
+
+impl AcquireConfig {
+    /// The illumination displacement on the sensor that `pair[i].source_shift` gives, pixels: the
+    /// two lenses image the source plane onto the sensor with magnification `−f / f_source` (a 4f
+    /// relay inverts), so a translation `s` moves the ballistic peak by `−(f / f_source) s / pitch`.
+    pub fn source_delta_px(&self, i: usize) -> Option<[f64; 2]> {
+        let a = &self.acquisition;
+        let (s, f) = (self.pair[i].source_shift?, a.source_focal_length?);
+        let m = -a.focal_length / f / a.pixel_pitch;
+        Some([m * s[0], m * s[1]])
+    }
 }
 
 impl AcquireConfig {
     /// Image paths relative to the config's folder.
     pub(crate) fn resolve_paths(&mut self, base: &Path) {
+        if let Some(f) = &mut self.fit
+            && f.scene.is_relative()
+        {
+            f.scene = base.join(&f.scene);
+        }
         for p in &mut self.pair {
             for f in [&mut p.first, &mut p.second] {
                 if f.is_relative() {
@@ -128,7 +174,35 @@ impl AcquireConfig {
                 "pair: the list is empty; give at least one [[pair]] with first and second",
             );
         }
+        if let Some(f) = &self.fit
+            && !(f.window_points.fract() == 0.0 && (1.0..=4.0).contains(&f.window_points))
+        {
+            return err(format!(
+                "fit.window_points = {}: must be a whole number within [1, 4]",
+                f.window_points
+            ));
+        }
+        if let Some(f) = self.acquisition.source_focal_length {
+            positive("acquisition.source_focal_length", f)?;
+        }
         for (i, p) in self.pair.iter().enumerate() {
+            if let Some(s) = p.source_shift {
+                if !s.iter().all(|v| v.is_finite()) {
+                    return err(format!(
+                        "pair[{i}].source_shift = {s:?}: must be a finite translation"
+                    ));
+                }
+                if p.peaks.is_some() {
+                    return err(format!(
+                        "pair[{i}]: give peaks or source_shift, not both (source_shift places the second peak from the first)"
+                    ));
+                }
+                if self.acquisition.source_focal_length.is_none() {
+                    return err(format!(
+                        "pair[{i}].source_shift needs acquisition.source_focal_length (the lens in front of the source) to turn the translation into a tilt"
+                    ));
+                }
+            }
             if let Some(peaks) = p.peaks
                 && !peaks.iter().flatten().all(|v| v.is_finite())
             {
@@ -138,5 +212,52 @@ impl AcquireConfig {
             }
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    const BASE: &str =
+        "[acquisition]\nfocal_length = 1.0\npixel_pitch = 0.01\nn_sample = 1.0\nwindow = 8\n";
+
+    fn refused(extra: &str, pair: &str, needle: &str) {
+        let text = format!("{BASE}{extra}[[pair]]\nfirst = \"a.exr\"\nsecond = \"b.exr\"\n{pair}");
+        let e = crate::config::load_text(&text).expect_err(needle);
+        assert!(e.0.contains(needle), "{needle}: {}", e.0);
+    }
+
+    #[test]
+    fn hand_off_and_source_translation_are_checked_by_key() {
+        refused(
+            "",
+            "source_shift = [0.0, 1.0]\n",
+            "pair[0].source_shift needs acquisition.source_focal_length",
+        );
+        refused(
+            "source_focal_length = 2.0\n",
+            "source_shift = [0.0, 1.0]\npeaks = [[1.0, 1.0], [1.0, 9.0]]\n",
+            "give peaks or source_shift, not both",
+        );
+        refused(
+            "source_focal_length = -2.0\n",
+            "",
+            "acquisition.source_focal_length",
+        );
+        refused(
+            "source_focal_length = 2.0\n",
+            "source_shift = [0.0, nan]\n",
+            "pair[0].source_shift = [0.0, NaN]: must be a finite translation",
+        );
+        let fit =
+            |f: &str| format!("{BASE}[[pair]]\nfirst = \"a.exr\"\nsecond = \"b.exr\"\n[fit]\n{f}");
+        let e = crate::config::load_text(&fit("scene = \"s.toml\"\nwindow_points = 7\n"))
+            .expect_err("window_points");
+        assert!(
+            e.0.contains("fit.window_points = 7: must be a whole number within [1, 4]"),
+            "{}",
+            e.0
+        );
+        assert!(crate::config::load_text(&fit("window_points = 2\n")).is_err());
+        assert!(crate::config::load_text(&fit("scene = \"s.toml\"\n")).is_ok());
     }
 }

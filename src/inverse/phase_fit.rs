@@ -333,42 +333,35 @@ impl AdamFit<'_> {
         let (c, sd) = model(u)?;
         let r0 = self.target.residuals(&c);
         // the model's own Monte Carlo error damps each residual (as in the L-BFGS fit); a memory
-        // curve's comes from the per-chunk estimates of a run at the fitted medium (delta method)
-        let damp: Vec<f64> = match self.target {
-            Target::Memory { .. } => {
-                let scene = Scene {
-                    medium: medium.clone(),
-                    ..self.scene.clone()
-                };
-                let s = &self.settings;
-                let (est, kept) = super::model_with_chunks(
-                    &scene,
-                    medium.clone(),
-                    self.target,
-                    self.scene,
-                    &s.model,
-                    &self.stop,
-                )?;
-                self.target
-                    .model_stderr(&est, &kept)
-                    .iter()
-                    .map(|m| 1.0 / (1.0 + m * m).sqrt())
-                    .collect()
-            }
-            _ => {
-                let est = crate::mc::Estimate {
-                    mean: c.clone(),
-                    stderr: sd,
-                    samples: self.settings.model.samples,
-                    chunks: 0,
-                };
-                self.target
-                    .model_stderr(&est, &[])
-                    .iter()
-                    .map(|m| 1.0 / (1.0 + m * m).sqrt())
-                    .collect()
-            }
+        // curve's and normalised correlations' come from the per-chunk estimates of a run at the
+        // fitted medium (delta method)
+        let model_error = if !self.target.keep().is_empty() {
+            let scene = Scene {
+                medium: medium.clone(),
+                ..self.scene.clone()
+            };
+            let (est, kept) = super::model_with_chunks(
+                &scene,
+                medium.clone(),
+                self.target,
+                self.scene,
+                &self.settings.model,
+                &self.stop,
+            )?;
+            self.target.model_stderr(&est, &kept)
+        } else {
+            let est = crate::mc::Estimate {
+                mean: c.clone(),
+                stderr: sd,
+                samples: self.settings.model.samples,
+                chunks: 0,
+            };
+            self.target.model_stderr(&est, &[])
         };
+        let damp: Vec<f64> = model_error
+            .iter()
+            .map(|m| 1.0 / (1.0 + m * m).sqrt())
+            .collect();
         let n = u.len();
         let mut jac = vec![vec![0.0; n]; r0.len()];
         for k in 0..n {

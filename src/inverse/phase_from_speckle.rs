@@ -11,6 +11,13 @@
 //!   measured from the first image's intensity autocorrelation, and `X = (I¹ − Ī¹)(I² − Ī²)`. For
 //!   Gaussian speckle `Var X = Ī¹²Ī²² (1 + 4r + 3r²)` with `r = C / (Ī¹Ī²)` (from the bivariate
 //!   exponential moments `E[I₁ᵐI₂ⁿ] = m! n! Σ_k C(m,k) C(n,k) rᵏ`); its `r → 0` limit is Eq. 5.
+//! - The normalised reading `r = C / (Ī¹Ī²)` estimates `|C12|² / (C11 C22)` (a model's quantity,
+//!   free of the camera's scale). Its window means bias it: `E[C] = |C12|² (1 − a)` with `a =
+//!   A_c / N` (the means share `A_c` speckles' worth of covariance), and the ratio adds `(2 + r) a`
+//!   from `Var Ī / Ī² = a`, `Cov(Ī¹, Ī²) = r a Ī¹Ī²`, less `4 r a` from `Cov(X, Ī) = 2 r a Ī¹Ī²Ī`
+//!   (Gaussian moments above): `E[r̂] ≈ r (1 − (3 − r) a)`, which the reading divides out. Its
+//!   variance by the same expansion is `a (1 + 4r − 3r² + 2r³)`: below `Var X / (Ī¹Ī²)²`, since
+//!   the means move with the product.
 //! - The naive (intensity) reading is `ρ ∝ ⟨I¹⟩_W`, which is right only for single scattering.
 //! - Pixels map to directions through the relay (`tan θ = r · pitch / f` in air) and into the sample
 //!   by Snell's law (`n_out sin θ_out = n_sample sin θ_in`, flat parallel faces).
@@ -93,6 +100,11 @@ pub struct Reading {
     pub stderr: f64,
     /// `⟨I¹⟩_W`: the naive (intensity) reading.
     pub intensity: f64,
+    /// Eq. 4 divided by the window means `⟨I¹⟩_W ⟨I²⟩_W`, averaged over the pairs: the camera's
+    /// scale cancels, so a model can be fitted to it (`normalised_intensity_correlation`).
+    pub normalised: f64,
+    /// Its standard error, `√((1 + 4r − 3r² + 2r³) / N_eff)` per pair (module docs).
+    pub normalised_stderr: f64,
     /// Pairs averaged.
     pub pairs: usize,
 }
@@ -100,6 +112,8 @@ pub struct Reading {
 /// Readings of pairs that share one `Δ`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Curve {
+    /// The first illumination's ballistic peak (of the group's first pair), pixels.
+    pub first_px: [f64; 2],
     /// `Δ` in pixels (second peak minus first).
     pub delta_px: [f64; 2],
     /// The angle between the two illuminations inside the sample.
@@ -282,6 +296,8 @@ fn read_pair(pair: &Pair, relay: &Relay, s: &Settings) -> Result<PairReadings, P
                 correlation: c,
                 stderr: var.sqrt(),
                 intensity: m1,
+                normalised: c / (m1 * m2),
+                normalised_stderr: (grain / n).sqrt(),
                 pairs: 1,
             },
         ));
@@ -311,8 +327,9 @@ pub fn read_curves(
         delta: [f64; 2],
         /// The first illumination's peak in the group's first pair.
         first: [f64; 2],
-        /// per step index: the first pair's reading, and every pair's (C, Var₀, Ī¹Ī², Ī¹)
-        sums: std::collections::BTreeMap<i64, (Reading, Vec<[f64; 4]>)>,
+        /// per step index: the first pair's reading, and every pair's (C, Var₀, Ī¹Ī², Ī¹, C/Ī¹Ī²,
+        /// Var₀/(Ī¹Ī²)²)
+        sums: std::collections::BTreeMap<i64, (Reading, Vec<[f64; 6]>)>,
         grain: f64,
         count: usize,
     }
@@ -344,16 +361,27 @@ pub fn read_curves(
         g.count += 1;
         for (k, product, r) in readings {
             let e = g.sums.entry(k).or_insert((r, Vec::new()));
-            e.1.push([r.correlation, r.stderr * r.stderr, product, r.intensity]);
+            e.1.push([
+                r.correlation,
+                r.stderr * r.stderr,
+                product,
+                r.intensity,
+                r.normalised,
+                r.normalised_stderr.powi(2),
+            ]);
         }
     }
     Ok(groups
         .into_iter()
         .map(|g| {
             let first = g.first;
+            // the window's own means bias C / Ī¹Ī² by −(3 − r) A_c/N to first order (module docs)
+            let grain = g.grain / g.count as f64;
+            let a = grain / (s.window * s.window) as f64;
             let i1 = relay.direction(first[0], first[1]);
             let i2 = relay.direction(first[0] + g.delta[0], first[1] + g.delta[1]);
             Curve {
+                first_px: first,
                 delta_px: g.delta,
                 delta_deg: i1.dot(i2).clamp(-1.0, 1.0).acos().to_degrees(),
                 readings: g
@@ -379,12 +407,32 @@ pub fn read_curves(
                             / (total * total);
                         r.correlation = c;
                         r.stderr = var.sqrt();
+                        // the same for C / Ī¹Ī², whose pooled value is r itself; its variance by the
+                        // delta method (module docs)
+                        let w: Vec<f64> = parts
+                            .iter()
+                            .map(|p| 1.0 / p[5].max(f64::MIN_POSITIVE))
+                            .collect();
+                        let total: f64 = w.iter().sum();
+                        let x = parts.iter().zip(&w).map(|(p, w)| w * p[4]).sum::<f64>() / total;
+                        let rr = x.clamp(0.0, 1.0);
+                        let var = parts
+                            .iter()
+                            .zip(&w)
+                            .map(|(p, w)| {
+                                w * w * p[5] * (1.0 + 4.0 * rr - 3.0 * rr * rr + 2.0 * rr.powi(3))
+                            })
+                            .sum::<f64>()
+                            / (total * total);
+                        let unbias = 1.0 / (1.0 - (3.0 - rr) * a).max(0.5);
+                        r.normalised = x * unbias;
+                        r.normalised_stderr = var.sqrt() * unbias;
                         r.intensity = parts.iter().map(|p| p[3]).sum::<f64>() / parts.len() as f64;
                         r.pairs = parts.len();
                         r
                     })
                     .collect(),
-                grain_px: g.grain / g.count as f64,
+                grain_px: grain,
             }
         })
         .collect())

@@ -46,8 +46,8 @@ pub fn single_scattering_readings(scene: &Scene, target: &Target) -> Option<Vec<
         ) = (
             scene.lights[e.light[0]],
             scene.lights[e.light[1]],
-            scene.views[e.view[0]],
-            scene.views[e.view[1]],
+            scene.views[e.views[0][0]],
+            scene.views[e.views[0][1]],
         )
         else {
             return None;
@@ -75,6 +75,8 @@ pub fn single_scattering_readings(scene: &Scene, target: &Target) -> Option<Vec<
         let single = m.sigma_s * integral.norm();
         let (c, sd) = match e.value {
             Measured::Field(z) => (z.norm(), stderr.as_ref().map_or(f64::NAN, |s| s[i])),
+            // a normalised correlation has no scale to read ρ against
+            Measured::Normalised(_) => return None,
             Measured::Intensity(x) => {
                 let c = x.max(0.0).sqrt();
                 // d sqrt(x) = dx / (2 sqrt x)

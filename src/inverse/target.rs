@@ -3,9 +3,12 @@
 //! "stderr": [...]}`), covariances (our `covariance.json`, from Monte Carlo or the wave solver), and
 //! arbitrary sets of measured entries (`{"entries": [{"light": [l1, l2], "view": [v1, v2], "re": ..,
 //! "im": .., "stderr": ..}, {"light": .., "view": .., "intensity_correlation": .., "stderr": ..}]}`,
-//! indices into the config's lights and views): complex field covariances `C = E[u1 ū2] − m1 m̄2`, or
+//! indices into the config's lights and views): complex field covariances `C = E[u1 ū2] − m1 m̄2`,
 //! intensity correlations `E[I1 I2] − E[I1] E[I2] = |C|²` (Gaussian speckle; paper 004, Eqs. 4, 8),
-//! which is what a camera measures.
+//! which is what a camera measures, or — when the camera's scale is unknown — normalised intensity
+//! correlations over a window of view pairs `(v1ₖ, v2ₖ)` (`{"light": .., "views": [[v1, v2], ..],
+//! "normalised_intensity_correlation": ..}`): `⟨|C12|²⟩ₖ / (⟨C11⟩ₖ ⟨C22⟩ₖ)`, Eq. 4 divided by the
+//! window means, as `lightpath acquire-phase` writes it.
 //! Each gives the loss (weighted least squares, by the target's standard errors when it has them),
 //! its adjoint `∂L/∂C` and the residuals.
 
@@ -37,19 +40,47 @@ pub enum Target {
     },
 }
 
-/// One measured entry: lights `(l1, l2)`, views `(v1, v2)` and what was measured.
+/// One measured entry: lights `(l1, l2)`, view pairs `(v1, v2)` and what was measured.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Entry {
     pub light: [usize; 2],
-    pub view: [usize; 2],
+    /// One view pair; a normalised correlation may average several (the points of a window).
+    pub views: Vec<[usize; 2]>,
     pub value: Measured,
 }
 
-/// A measured field covariance `C`, or an intensity correlation `|C|²`.
+/// A measured field covariance `C`, an intensity correlation `|C|²`, or a normalised intensity
+/// correlation `⟨|C12|²⟩ₖ / (⟨C11⟩ₖ ⟨C22⟩ₖ)` over the entry's view pairs `k`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Measured {
     Field(C64),
     Intensity(f64),
+    Normalised(f64),
+}
+
+/// The covariance indices one entry reads: per view pair, `(a, b)` into the target's pairs.
+type Terms = Vec<(usize, usize)>;
+
+/// A normalised correlation `r = K Σ|C_ab|² / (Σ C_aa · Σ C_bb)` over the terms of one entry, and
+/// its adjoint for `∂L/∂r = g` added into `adj` (`dL = Re Σ conj(Ā) dC`).
+fn normalised(c: &[C64], j: usize, terms: &[(usize, usize)], g: f64, adj: &mut [C64]) -> f64 {
+    let k = terms.len() as f64;
+    let (mut s, mut a, mut b) = (0.0, 0.0, 0.0);
+    for &(p, q) in terms {
+        s += c[p * j + q].norm_sqr();
+        a += c[p * j + p].re;
+        b += c[q * j + q].re;
+    }
+    let r = k * s / (a * b);
+    if g != 0.0 {
+        for &(p, q) in terms {
+            // d|C|² = Re(conj(2C) dC); dr/d|C|² = K / (A B)
+            adj[p * j + q] += c[p * j + q] * (2.0 * g * k / (a * b));
+            adj[p * j + p] += C64::new(-g * r / a, 0.0);
+            adj[q * j + q] += C64::new(-g * r / b, 0.0);
+        }
+    }
+    r
 }
 
 impl Target {
@@ -94,7 +125,7 @@ impl Target {
                 for (i, e) in entries.iter().enumerate() {
                     let finite = match e.value {
                         Measured::Field(z) => z.re.is_finite() && z.im.is_finite(),
-                        Measured::Intensity(c) => c.is_finite(),
+                        Measured::Intensity(c) | Measured::Normalised(c) => c.is_finite(),
                     };
                     if !finite {
                         return Err(
@@ -131,12 +162,14 @@ impl Target {
             Target::Covariance { .. } => Ok(()),
             Target::Entries { entries, .. } => {
                 for (i, e) in entries.iter().enumerate() {
-                    if e.light.iter().any(|l| *l >= nl) || e.view.iter().any(|v| *v >= nv) {
+                    if e.light.iter().any(|l| *l >= nl)
+                        || e.views.iter().flatten().any(|v| *v >= nv)
+                    {
                         return Err(format!(
-                            "target {}: entries[{i}] has light {:?}, view {:?}; the config has {nl} light(s) and {nv} view(s) (indices from 0)",
+                            "target {}: entries[{i}] has light {:?}, views {:?}; the config has {nl} light(s) and {nv} view(s) (indices from 0)",
                             path.display(),
                             e.light,
-                            e.view
+                            e.views
                         ).into());
                     }
                 }
@@ -145,15 +178,20 @@ impl Target {
         }
     }
 
-    /// For an entries target: each entry's `(a, b)` indices into [`Self::pairs`].
-    pub fn entry_indices(&self) -> Vec<(usize, usize)> {
+    /// For an entries target: per entry, each view pair's `(a, b)` indices into [`Self::pairs`].
+    pub fn entry_terms(&self) -> Vec<Terms> {
         match self {
             Target::Entries { entries, .. } => {
                 let pairs = entry_pairs(entries);
                 let at = |l: usize, v: usize| pairs.binary_search(&(l, v)).unwrap_or(0);
                 entries
                     .iter()
-                    .map(|e| (at(e.light[0], e.view[0]), at(e.light[1], e.view[1])))
+                    .map(|e| {
+                        e.views
+                            .iter()
+                            .map(|v| (at(e.light[0], v[0]), at(e.light[1], v[1])))
+                            .collect()
+                    })
                     .collect()
             }
             _ => vec![],
@@ -191,7 +229,18 @@ impl Target {
                 let j = lights * views;
                 (0..j * j).map(|i| (i / j, i % j)).collect()
             }
-            Target::Entries { .. } => self.entry_indices(),
+            Target::Entries { entries, .. } => {
+                let mut e = Vec::new();
+                for (entry, terms) in entries.iter().zip(self.entry_terms()) {
+                    for (a, b) in terms {
+                        e.push((a, b));
+                        if let Measured::Normalised(_) = entry.value {
+                            e.extend([(a, a), (b, b)]);
+                        }
+                    }
+                }
+                e
+            }
         }
     }
 
@@ -212,7 +261,7 @@ impl Target {
                 .iter()
                 .map(|e| match e.value {
                     Measured::Field(z) => z.re,
-                    Measured::Intensity(c) => c,
+                    Measured::Intensity(c) | Measured::Normalised(c) => c,
                 })
                 .collect(),
         }
@@ -235,17 +284,19 @@ impl Target {
                 let j = entry_pairs(entries).len();
                 entries
                     .iter()
-                    .zip(self.entry_indices())
-                    .map(|(e, (a, b))| match e.value {
-                        Measured::Field(_) => c[a * j + b].re,
-                        Measured::Intensity(_) => c[a * j + b].norm_sqr(),
+                    .zip(self.entry_terms())
+                    .map(|(e, t)| match e.value {
+                        Measured::Field(_) => c[t[0].0 * j + t[0].1].re,
+                        Measured::Intensity(_) => c[t[0].0 * j + t[0].1].norm_sqr(),
+                        Measured::Normalised(_) => normalised(c, j, &t, 0.0, &mut []),
                     })
                     .collect()
             }
         }
     }
 
-    /// Outputs whose per-chunk means the model's error estimate needs (memory: `C00, Ctt, C0t`).
+    /// Outputs whose per-chunk means the model's error estimate needs (memory: `C00, Ctt, C0t`;
+    /// entries: those of the normalised correlations, sorted).
     pub fn keep(&self) -> Vec<usize> {
         match self {
             Target::Memory { angles_deg, .. } => {
@@ -256,7 +307,20 @@ impl Target {
                 }
                 k
             }
-            Target::Covariance { .. } | Target::Entries { .. } => vec![],
+            Target::Entries { entries, .. } => {
+                let j = entry_pairs(entries).len();
+                let mut k: Vec<usize> = entries
+                    .iter()
+                    .zip(self.entry_terms())
+                    .filter(|(e, _)| matches!(e.value, Measured::Normalised(_)))
+                    .flat_map(|(_, t)| t)
+                    .flat_map(|(a, b)| [a * j + b, a * j + a, b * j + b])
+                    .collect();
+                k.sort_unstable();
+                k.dedup();
+                k
+            }
+            Target::Covariance { .. } => vec![],
         }
     }
 
@@ -301,14 +365,53 @@ impl Target {
                 .collect(),
             Target::Entries { entries, stderr } => {
                 let j = entry_pairs(entries).len();
+                let keep = self.keep();
+                let chunks = kept.len() / keep.len().max(1);
+                let mut adj = vec![C64::default(); j * j];
                 let mut out = Vec::new();
-                for ((i, e), (a, b)) in entries.iter().enumerate().zip(self.entry_indices()) {
+                for ((i, e), t) in entries.iter().enumerate().zip(self.entry_terms()) {
+                    let (a, b) = t[0];
                     let (m, sd) = (est.mean[a * j + b], est.stderr[a * j + b]);
                     let s = stderr.as_ref().map_or(1.0, |s| s[i]);
                     match e.value {
                         Measured::Field(_) => out.extend([sd / s / 2f64.sqrt(); 2]),
                         // |C|² by the delta method: Var ≈ 4 (re² Var re + im² Var im) = 2 |C|² sd²
                         Measured::Intensity(_) => out.push(2f64.sqrt() * m.norm() * sd / s),
+                        // the delta method over the entry's outputs: per chunk when kept
+                        // (correlations included), else as if independent
+                        Measured::Normalised(_) => {
+                            normalised(&est.mean, j, &t, 1.0, &mut adj);
+                            let used: Vec<usize> = t
+                                .iter()
+                                .flat_map(|&(a, b)| [a * j + b, a * j + a, b * j + b])
+                                .collect::<std::collections::BTreeSet<_>>()
+                                .into_iter()
+                                .collect();
+                            let var = if chunks > 1 {
+                                let mut v = 0.0;
+                                for k in 0..chunks {
+                                    let row = &kept[k * keep.len()..(k + 1) * keep.len()];
+                                    let lin: f64 = used
+                                        .iter()
+                                        .map(|&o| {
+                                            let d = row[keep.binary_search(&o).unwrap_or(0)]
+                                                - est.mean[o];
+                                            adj[o].re * d.re + adj[o].im * d.im
+                                        })
+                                        .sum();
+                                    v += lin * lin;
+                                }
+                                v / ((chunks as f64 - 1.0) * chunks as f64)
+                            } else {
+                                used.iter()
+                                    .map(|&o| adj[o].norm_sqr() * est.stderr[o].powi(2) / 2.0)
+                                    .sum()
+                            };
+                            for o in used {
+                                adj[o] = C64::default();
+                            }
+                            out.push(var.sqrt() / s);
+                        }
                     }
                 }
                 out
@@ -342,7 +445,8 @@ impl Target {
             Target::Entries { entries, stderr } => {
                 let j = entry_pairs(entries).len();
                 let mut out = Vec::new();
-                for ((i, e), (a, b)) in entries.iter().enumerate().zip(self.entry_indices()) {
+                for ((i, e), terms) in entries.iter().enumerate().zip(self.entry_terms()) {
+                    let (a, b) = terms[0];
                     let (m, s) = (c[a * j + b], stderr.as_ref().map_or(1.0, |s| s[i]));
                     match e.value {
                         Measured::Field(t) => {
@@ -350,6 +454,9 @@ impl Target {
                             out.extend([d.re, d.im]);
                         }
                         Measured::Intensity(t) => out.push((m.norm_sqr() - t) / s),
+                        Measured::Normalised(t) => {
+                            out.push((normalised(c, j, &terms, 0.0, &mut []) - t) / s)
+                        }
                     }
                 }
                 out
@@ -380,9 +487,10 @@ impl Target {
             }
             Target::Entries { entries, stderr } => {
                 let j = entry_pairs(entries).len();
-                let idx = self.entry_indices();
+                let idx = self.entry_terms();
                 let mut r = 0;
-                for (i, (e, (p, q))) in entries.iter_mut().zip(idx).enumerate() {
+                for (i, (e, terms)) in entries.iter_mut().zip(idx).enumerate() {
+                    let (p, q) = terms[0];
                     let (m, s) = (c[p * j + q], stderr.as_ref().map_or(1.0, |s| s[i]));
                     e.value = match e.value {
                         Measured::Field(_) => {
@@ -392,6 +500,11 @@ impl Target {
                         Measured::Intensity(_) => {
                             r += 1;
                             Measured::Intensity(m.norm_sqr() - a[r - 1] * s)
+                        }
+                        Measured::Normalised(_) => {
+                            r += 1;
+                            let x = normalised(c, j, &terms, 0.0, &mut []);
+                            Measured::Normalised(x - a[r - 1] * s)
                         }
                     };
                 }
@@ -438,7 +551,8 @@ impl Target {
             Target::Entries { entries, stderr } => {
                 let j = entry_pairs(entries).len();
                 let mut l = 0.0;
-                for ((i, e), (a, b)) in entries.iter().enumerate().zip(self.entry_indices()) {
+                for ((i, e), terms) in entries.iter().enumerate().zip(self.entry_terms()) {
+                    let (a, b) = terms[0];
                     let (m, s) = (c[a * j + b], stderr.as_ref().map_or(1.0, |s| s[i]));
                     match e.value {
                         Measured::Field(t) => {
@@ -451,6 +565,13 @@ impl Target {
                             let res = (m.norm_sqr() - t) / s;
                             l += res * res;
                             adj[a * j + b] += m * (4.0 * res / s);
+                        }
+                        Measured::Normalised(t) => {
+                            // the adjoint of r at ∂L/∂r = 2 res / s, added in place
+                            let r = normalised(c, j, &terms, 0.0, &mut []);
+                            let res = (r - t) / s;
+                            l += res * res;
+                            normalised(c, j, &terms, 2.0 * res / s, &mut adj);
                         }
                     }
                 }
@@ -465,9 +586,102 @@ impl Target {
 fn entry_pairs(entries: &[Entry]) -> Vec<(usize, usize)> {
     let mut p: Vec<(usize, usize)> = entries
         .iter()
-        .flat_map(|e| [(e.light[0], e.view[0]), (e.light[1], e.view[1])])
+        .flat_map(|e| {
+            e.views
+                .iter()
+                .flat_map(|v| [(e.light[0], v[0]), (e.light[1], v[1])])
+        })
         .collect();
     p.sort_unstable();
     p.dedup();
     p
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Two lights × three views seen through a 2-point window, with Hermitian-looking values.
+    fn window() -> (Target, Vec<C64>) {
+        let entries = vec![
+            Entry {
+                light: [0, 1],
+                views: vec![[0, 1], [1, 2]],
+                value: Measured::Normalised(0.05),
+            },
+            Entry {
+                light: [0, 1],
+                views: vec![[2, 0]],
+                value: Measured::Intensity(0.3),
+            },
+        ];
+        let t = Target::Entries {
+            entries,
+            stderr: Some(vec![0.01, 0.2]),
+        };
+        let j = 6; // pairs (l, v) with l ∈ {0, 1}, v ∈ {0, 1, 2}
+        let c: Vec<C64> = (0..j * j)
+            .map(|i| {
+                let (a, b) = (i / j, i % j);
+                if a == b {
+                    C64::new(1.0 + 0.3 * a as f64, 0.0)
+                } else {
+                    C64::new(0.1 * (a + 2 * b) as f64 % 0.7, 0.05 * (a as f64 - b as f64))
+                }
+            })
+            .collect();
+        (t, c)
+    }
+
+    #[test]
+    fn normalised_correlations_have_the_adjoint_of_their_loss() {
+        let (t, c) = window();
+        let (_, adj) = t.loss(&c);
+        let h = 1e-6;
+        let mut checked = 0;
+        for i in 0..c.len() {
+            for (part, unit) in [(0, C64::new(h, 0.0)), (1, C64::new(0.0, h))] {
+                let (mut up, mut down) = (c.clone(), c.clone());
+                up[i] += unit;
+                down[i] -= unit;
+                let fd = (t.loss(&up).0 - t.loss(&down).0) / (2.0 * h);
+                let an = if part == 0 { adj[i].re } else { adj[i].im };
+                assert!(
+                    (fd - an).abs() < 1e-6 * (1.0 + fd.abs()),
+                    "entry {i}.{part}: {fd} vs {an}"
+                );
+                checked += (an != 0.0) as usize;
+            }
+        }
+        // off-diagonals of both window points, both diagonals of each, and the intensity entry
+        assert!(checked >= 8, "{checked} non-zero adjoint parts");
+    }
+
+    #[test]
+    fn normalised_correlations_are_the_window_ratio() {
+        let (t, c) = window();
+        let j = 6;
+        // pairs sorted: (0,0)=0 (0,1)=1 (0,2)=2 (1,0)=3 (1,1)=4 (1,2)=5; window terms (0,4), (1,5)
+        let s = c[4].norm_sqr() + c[j + 5].norm_sqr();
+        let want = 2.0 * s / ((c[0].re + c[j + 1].re) * (c[4 * j + 4].re + c[5 * j + 5].re));
+        assert!((t.model_values(&c)[0] - want).abs() < 1e-15);
+        // the residual vector–Jacobian product matches the residuals' finite differences
+        let a = [0.7, -1.3];
+        let vjp = t.residual_vjp(&c, &a);
+        let h = 1e-6;
+        for i in [0, 4, j + 5, 5 * j + 5] {
+            let (mut up, mut down) = (c.clone(), c.clone());
+            up[i].re += h;
+            down[i].re -= h;
+            let (ru, rd) = (t.residuals(&up), t.residuals(&down));
+            let fd: f64 = (0..2).map(|k| a[k] * (ru[k] - rd[k]) / (2.0 * h)).sum();
+            assert!(
+                (fd - vjp[i].re).abs() < 1e-6 * (1.0 + fd.abs()),
+                "{i}: {fd} vs {}",
+                vjp[i].re
+            );
+        }
+        // the model keeps what the delta method needs: the window's three outputs per point
+        assert_eq!(t.keep(), vec![0, 4, j + 1, j + 5, 4 * j + 4, 5 * j + 5]);
+    }
 }

@@ -686,6 +686,9 @@ pub struct AcquiredReading {
 /// The readings of the pairs sharing one illumination displacement.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct AcquiredCurve {
+    /// The first illumination's ballistic peak, pixels.
+    #[serde(default)]
+    pub first_px: [f64; 2],
     pub delta_px: [f64; 2],
     pub delta_deg: f64,
     pub grain_px: f64,
@@ -717,9 +720,16 @@ pub struct Consistency {
 pub struct PhaseAcquisitionFile {
     #[serde(default)]
     pub format_version: u32,
+    /// The optical axis on the sensor the directions were computed with, pixels.
+    #[serde(default)]
+    pub axis_px: [f64; 2],
     pub curves: Vec<AcquiredCurve>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub consistency: Option<Consistency>,
+    /// What looked wrong but did not stop the reading (e.g. a peak away from where the source
+    /// translation puts it).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
     pub seconds: f64,
     pub version: String,
     pub config: crate::config::AcquireConfig,

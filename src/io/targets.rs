@@ -220,7 +220,7 @@ pub fn correlation_map(path: &Path) -> crate::Result<MapTarget> {
         for p in 0..t {
             entries.push(Entry {
                 light: [0, d],
-                view: [p, d * t + p],
+                views: vec![[p, d * t + p]],
                 value: Measured::Field(C64::new(re[d][p], im[d][p])),
             });
             stderr.push(se[d][p]);
@@ -311,16 +311,20 @@ fn entries_json(v: &Value, path: &Path) -> crate::Result<Target> {
     let (mut entries, mut stderr) = (Vec::new(), Vec::new());
     for (i, e) in list.iter().enumerate() {
         let at = |what: &str| format!("{}: entries[{i}]: {what}", path.display());
-        let index_pair = |key: &str| -> crate::Result<[usize; 2]> {
-            match e[key]
+        let two = |v: &Value| -> Option<[usize; 2]> {
+            match v
                 .as_array()
                 .map(|a| a.iter().map(Value::as_u64).collect::<Vec<_>>())
             {
                 Some(a) if a.len() == 2 && a.iter().all(Option::is_some) => {
-                    Ok([a[0].unwrap_or(0) as usize, a[1].unwrap_or(0) as usize])
+                    Some([a[0].unwrap_or(0) as usize, a[1].unwrap_or(0) as usize])
                 }
-                _ => Err(at(&format!("`{key}` must be two indices, e.g. [0, 1]")).into()),
+                _ => None,
             }
+        };
+        let index_pair = |key: &str| -> crate::Result<[usize; 2]> {
+            two(&e[key])
+                .ok_or_else(|| at(&format!("`{key}` must be two indices, e.g. [0, 1]")).into())
         };
         let num = |key: &str| {
             e.get(key).map(|x| {
@@ -328,12 +332,46 @@ fn entries_json(v: &Value, path: &Path) -> crate::Result<Target> {
                     .ok_or_else(|| at(&format!("`{key}` is not a number")))
             })
         };
-        let value = match (num("re"), num("im"), num("intensity_correlation")) {
-            (Some(re), Some(im), None) => Measured::Field(C64::new(re?, im?)),
-            (None, None, Some(c)) => Measured::Intensity(c?),
+        let value = match (
+            num("re"),
+            num("im"),
+            num("intensity_correlation"),
+            num("normalised_intensity_correlation"),
+        ) {
+            (Some(re), Some(im), None, None) => Measured::Field(C64::new(re?, im?)),
+            (None, None, Some(c), None) => Measured::Intensity(c?),
+            (None, None, None, Some(c)) => Measured::Normalised(c?),
             _ => {
                 return Err(crate::Error::input(at(
-                    "give either `re` and `im` (field covariance) or `intensity_correlation`",
+                    "give one of `re` and `im` (field covariance), `intensity_correlation` or `normalised_intensity_correlation`",
+                )));
+            }
+        };
+        // one view pair, or (normalised correlations) a window of them
+        let views = match (e.get("view"), e.get("views")) {
+            (Some(_), None) => vec![index_pair("view")?],
+            (None, Some(list)) if matches!(value, Measured::Normalised(_)) => {
+                let pairs: Option<Vec<[usize; 2]>> = list
+                    .as_array()
+                    .map(|a| a.iter().map(two).collect())
+                    .unwrap_or(None);
+                match pairs {
+                    Some(p) if !p.is_empty() => p,
+                    _ => {
+                        return Err(crate::Error::input(at(
+                            "`views` must be a non-empty list of index pairs, e.g. [[0, 1], [2, 3]]",
+                        )));
+                    }
+                }
+            }
+            (None, Some(_)) => {
+                return Err(crate::Error::input(at(
+                    "`views` (a window of view pairs) goes with `normalised_intensity_correlation`; give one `view` pair",
+                )));
+            }
+            _ => {
+                return Err(crate::Error::input(at(
+                    "give `view` (two indices) or, for a normalised correlation, `views`",
                 )));
             }
         };
@@ -342,7 +380,7 @@ fn entries_json(v: &Value, path: &Path) -> crate::Result<Target> {
         }
         entries.push(Entry {
             light: index_pair("light")?,
-            view: index_pair("view")?,
+            views,
             value,
         });
     }
