@@ -10,6 +10,7 @@
 //! window = 100              # side of the averaging window, pixels
 //! step = 100                # between readings along τ, pixels (default: window)
 //! ballistic_radius = 20     # masked around each ballistic peak, pixels
+//! register_px = 3           # search ±3 px to register each window (optics' distortion; default 0)
 //! axis_px = [2048.0, 2048.0]  # optical axis on the sensor (default: the image centre)
 //! source_focal_length = 105000.0  # of the lens in front of the source (with pair.source_shift)
 //! [[pair]]
@@ -67,6 +68,9 @@ pub struct AcquisitionConfig {
     pub step: Option<f64>,
     #[serde(default)]
     pub ballistic_radius: f64,
+    /// Pixels (a whole number): the local shifts searched to register the windows.
+    #[serde(default)]
+    pub register_px: f64,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub axis_px: Option<[f64; 2]>,
     /// Focal length of the lens that collimates the point source (with `pair.source_shift`).
@@ -144,6 +148,12 @@ impl AcquireConfig {
                 a.ballistic_radius
             ));
         }
+        if !(a.register_px.fract() == 0.0 && (0.0..=16.0).contains(&a.register_px)) {
+            return err(format!(
+                "acquisition.register_px = {}: must be a whole number of pixels within [0, 16]",
+                a.register_px
+            ));
+        }
         let axis = a.axis_px.unwrap_or(centre);
         if !axis.iter().all(|v| v.is_finite()) {
             return err(format!(
@@ -162,6 +172,7 @@ impl AcquireConfig {
                 window: a.window as usize,
                 step: step as usize,
                 ballistic_radius: a.ballistic_radius,
+                register_px: a.register_px as usize,
             },
         ))
     }
@@ -247,6 +258,11 @@ mod tests {
             "source_focal_length = 2.0\n",
             "source_shift = [0.0, nan]\n",
             "pair[0].source_shift = [0.0, NaN]: must be a finite translation",
+        );
+        refused(
+            "register_px = 2.5\n",
+            "",
+            "acquisition.register_px = 2.5: must be a whole number of pixels within [0, 16]",
         );
         let fit =
             |f: &str| format!("{BASE}[[pair]]\nfirst = \"a.exr\"\nsecond = \"b.exr\"\n[fit]\n{f}");

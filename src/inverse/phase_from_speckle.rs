@@ -78,6 +78,8 @@ pub struct Settings {
     pub step: usize,
     /// Radius of the disk masked around each ballistic peak, pixels.
     pub ballistic_radius: f64,
+    /// Largest local shift of the second image's windows searched to register them (0: none).
+    pub register_px: usize,
 }
 
 /// One image pair, with its ballistic peaks (the illumination directions) in pixels.
@@ -203,12 +205,163 @@ pub enum PairError {
     NoWindows,
 }
 
+/// Pixel sums of a window read in parts: `Σ I¹`, `Σ I²`, `Σ I¹I²`, the pixel count, and the
+/// saturated pixels met (per image, as `y · width + x`).
+#[derive(Default)]
+struct Sums {
+    m1: f64,
+    m2: f64,
+    m12: f64,
+    n: f64,
+    sat: [Vec<i64>; 2],
+}
+
+impl Sums {
+    /// Add the rows `rows` of the window centred at `c1` in the first image and `c2` in the
+    /// second; `false` (nothing usable) where either leaves its image or touches a ballistic disk.
+    fn add(
+        &mut self,
+        pair: &Pair,
+        s: &Settings,
+        c1: [i64; 2],
+        c2: [i64; 2],
+        rows: std::ops::Range<i64>,
+    ) -> bool {
+        let (a, b) = (pair.first, pair.second);
+        let [p1, p2] = pair.peaks;
+        let (w, half) = (s.window as i64, (s.window / 2) as i64);
+        let fits = |c: [i64; 2]| {
+            c[0] - half >= 0
+                && c[1] - half + rows.start >= 0
+                && c[0] - half + w <= a.width as i64
+                && c[1] - half + rows.end <= a.height as i64
+        };
+        if !fits(c1) || !fits(c2) {
+            return false;
+        }
+        let masked = |x: i64, y: i64, peak: [f64; 2]| {
+            (x as f64 - peak[0]).hypot(y as f64 - peak[1]) <= s.ballistic_radius
+        };
+        for dy in rows {
+            for dx in 0..w {
+                let (x1, y1) = (c1[0] - half + dx, c1[1] - half + dy);
+                let (x2, y2) = (c2[0] - half + dx, c2[1] - half + dy);
+                if masked(x1, y1, p1) || masked(x2, y2, p2) || masked(x1, y1, p2) {
+                    return false;
+                }
+                let (v1, v2) = (
+                    a.at(x1 as usize, y1 as usize),
+                    b.at(x2 as usize, y2 as usize),
+                );
+                if a.full_scale.is_some_and(|f| v1 >= f) {
+                    self.sat[0].push(y1 * a.width as i64 + x1);
+                }
+                if b.full_scale.is_some_and(|f| v2 >= f) {
+                    self.sat[1].push(y2 * b.width as i64 + x2);
+                }
+                self.m1 += v1;
+                self.m2 += v2;
+                self.m12 += v1 * v2;
+                self.n += 1.0;
+            }
+        }
+        true
+    }
+
+    /// `C / (Ī¹Ī²)` of what was added.
+    fn normalised(&self) -> f64 {
+        let (m1, m2) = (self.m1 / self.n, self.m2 / self.n);
+        (self.m12 / self.n - m1 * m2) / (m1 * m2)
+    }
+}
+
+/// The registration shift of each window half, keyed by (step index, half).
+type Shifts = std::collections::BTreeMap<(i64, usize), [i64; 2]>;
+
+/// A candidate shift and its summed normalised correlation.
+type Scored = ([i64; 2], f64);
+
+/// Registration shifts (paper 004, App. A: optics distort the pixel-to-direction map, so a window
+/// of the second image can sit a few pixels from where `Δ` puts it): per step index along the line
+/// and window half (top, bottom), the shift within `±register_px` that maximises the normalised
+/// correlation summed over the pairs and over the windows within two window widths — chosen on
+/// the *other* half, so that the maximum of noisy correlations does not read as correlation (on
+/// pure noise the readings stay flat).
+fn registration(pairs: &[&Pair], s: &Settings) -> Shifts {
+    let r = s.register_px as i64;
+    let h = (s.window as i64 / 2).max(1);
+    let halves = [0..h, h..s.window as i64];
+    // per (step, half, shift): the summed normalised correlation
+    let mut score: std::collections::BTreeMap<(i64, usize), Vec<Scored>> = Default::default();
+    for pair in pairs {
+        let [p1, p2] = pair.peaks;
+        let delta = [(p2[0] - p1[0]).round(), (p2[1] - p1[1]).round()];
+        let norm = delta[0].hypot(delta[1]).max(1.0);
+        let u = [-delta[1] / norm, delta[0] / norm];
+        let reach = (pair.first.width + pair.first.height) as i64;
+        for k in -reach..=reach {
+            let t = k as f64 * s.step as f64;
+            let c1 = [
+                (p1[0] + t * u[0]).round() as i64,
+                (p1[1] + t * u[1]).round() as i64,
+            ];
+            for (half, rows) in halves.iter().enumerate() {
+                for dy in -r..=r {
+                    for dx in -r..=r {
+                        let c2 = [c1[0] + delta[0] as i64 + dx, c1[1] + delta[1] as i64 + dy];
+                        let mut sums = Sums::default();
+                        if !sums.add(pair, s, c1, c2, rows.clone()) {
+                            continue;
+                        }
+                        let list = score.entry((k, half)).or_default();
+                        match list.iter_mut().find(|(d, _)| *d == [dx, dy]) {
+                            Some((_, v)) => *v += sums.normalised(),
+                            None => list.push(([dx, dy], sums.normalised())),
+                        }
+                    }
+                }
+            }
+        }
+    }
+    let best = |list: &Vec<Scored>| {
+        list.iter()
+            .filter(|(_, v)| v.is_finite())
+            .max_by(|a, b| a.1.total_cmp(&b.1).then(b.0.cmp(&a.0)))
+            .map_or([0, 0], |(d, _)| *d)
+    };
+    // distortion varies slowly across the image: a window's shift is chosen on the scores of its
+    // neighbours within two window widths too, so weak windows borrow the strong ones' evidence
+    let reach = (2 * s.window).div_ceil(s.step.max(1)) as i64;
+    let mut out = std::collections::BTreeMap::new();
+    for &(k, half) in score.keys() {
+        // the top half's shift from the bottom half's scores, and the other way round
+        let mut pooled: Vec<Scored> = Vec::new();
+        for j in k - reach..=k + reach {
+            for &(d, v) in score.get(&(j, 1 - half)).into_iter().flatten() {
+                match pooled.iter_mut().find(|(e, _)| *e == d) {
+                    Some((_, w)) => *w += v,
+                    None => pooled.push((d, v)),
+                }
+            }
+        }
+        if !pooled.is_empty() {
+            out.insert((k, half), best(&pooled));
+        }
+    }
+    out
+}
+
 /// One pair's readings `(step index, Ī¹Ī², reading)` and its speckle grain area.
 type PairReadings = (Vec<(i64, f64, Reading)>, f64);
 
 /// Eq. 4 over `window`-pixel squares along the line ⟂ Δ through the first peak, for one pair.
 /// Returns readings keyed by their step index along the line.
-fn read_pair(pair: &Pair, relay: &Relay, s: &Settings) -> Result<PairReadings, PairError> {
+fn read_pair(
+    pair: &Pair,
+    relay: &Relay,
+    s: &Settings,
+    shift: &dyn Fn(i64, usize) -> [i64; 2],
+) -> Result<PairReadings, PairError> {
     let (a, b) = (pair.first, pair.second);
     if (a.width, a.height) != (b.width, b.height) {
         return Err(PairError::Sizes);
@@ -221,9 +374,6 @@ fn read_pair(pair: &Pair, relay: &Relay, s: &Settings) -> Result<PairReadings, P
     }
     let u = [-delta[1] / norm, delta[0] / norm];
     let half = (s.window / 2) as i64;
-    let masked = |x: i64, y: i64, peak: [f64; 2]| {
-        (x as f64 - peak[0]).hypot(y as f64 - peak[1]) <= s.ballistic_radius
-    };
     let i1 = relay.direction(p1[0], p1[1]);
     let grain = grain_area(a, s.window, p1, s.ballistic_radius);
     let reach = (a.width + a.height) as i64;
@@ -246,39 +396,22 @@ fn read_pair(pair: &Pair, relay: &Relay, s: &Settings) -> Result<PairReadings, P
         if !inside(c1) || !inside(c2) {
             continue;
         }
-        let (mut m1, mut m2, mut m12, mut n) = (0.0, 0.0, 0.0, 0.0);
-        let mut hit = false;
-        let mut sat: [Vec<i64>; 2] = Default::default();
-        for dy in 0..s.window as i64 {
-            for dx in 0..s.window as i64 {
-                let (x1, y1) = (c1[0] - half + dx, c1[1] - half + dy);
-                let (x2, y2) = (c2[0] - half + dx, c2[1] - half + dy);
-                if masked(x1, y1, p1) || masked(x2, y2, p2) || masked(x1, y1, p2) {
-                    hit = true;
-                    break;
-                }
-                let (v1, v2) = (
-                    a.at(x1 as usize, y1 as usize),
-                    b.at(x2 as usize, y2 as usize),
-                );
-                if a.full_scale.is_some_and(|f| v1 >= f) {
-                    sat[0].push(y1 * a.width as i64 + x1);
-                }
-                if b.full_scale.is_some_and(|f| v2 >= f) {
-                    sat[1].push(y2 * b.width as i64 + x2);
-                }
-                m1 += v1;
-                m2 += v2;
-                m12 += v1 * v2;
-                n += 1.0;
-            }
-            if hit {
-                break;
-            }
-        }
-        if hit {
+        // the window's two halves, each against the second image at its registration shift
+        let h = half.max(1);
+        let mut sums = Sums::default();
+        let read = [(0..h, shift(k, 0)), (h..s.window as i64, shift(k, 1))]
+            .into_iter()
+            .all(|(rows, d)| sums.add(pair, s, c1, [c2[0] + d[0], c2[1] + d[1]], rows));
+        if !read {
             continue;
         }
+        let Sums {
+            m1,
+            m2,
+            m12,
+            n,
+            sat,
+        } = sums;
         saturated[0].extend(&sat[0]);
         saturated[1].extend(&sat[1]);
         let (m1, m2) = (m1 / n, m2 / n);
@@ -333,17 +466,36 @@ pub fn read_curves(
         grain: f64,
         count: usize,
     }
-    let mut groups: Vec<Group> = Vec::new();
-    for (i, p) in pairs.iter().enumerate() {
-        let (readings, grain) = read_pair(p, relay, s).map_err(|e| (i, e))?;
-        let d = [
+    let displacement = |p: &Pair| {
+        [
             (p.peaks[1][0] - p.peaks[0][0]).round(),
             (p.peaks[1][1] - p.peaks[0][1]).round(),
-        ];
-        let g = match groups
-            .iter_mut()
-            .position(|g| (g.delta[0] - d[0]).abs() <= 1.0 && (g.delta[1] - d[1]).abs() <= 1.0)
-        {
+        ]
+    };
+    let near = |a: [f64; 2], b: [f64; 2]| (a[0] - b[0]).abs() <= 1.0 && (a[1] - b[1]).abs() <= 1.0;
+    // registration shifts per group of pairs (the first pair's Δ stands for the group)
+    let mut registered: Vec<([f64; 2], Shifts)> = Vec::new();
+    if s.register_px > 0 {
+        for p in pairs {
+            let d = displacement(p);
+            if !registered.iter().any(|(g, _)| near(*g, d)) {
+                let members: Vec<&Pair> =
+                    pairs.iter().filter(|q| near(displacement(q), d)).collect();
+                registered.push((d, registration(&members, s)));
+            }
+        }
+    }
+    let mut groups: Vec<Group> = Vec::new();
+    for (i, p) in pairs.iter().enumerate() {
+        let d = displacement(p);
+        let shifts = registered.iter().find(|(g, _)| near(*g, d)).map(|(_, m)| m);
+        let shift = |k: i64, half: usize| {
+            shifts
+                .and_then(|m| m.get(&(k, half)).copied())
+                .unwrap_or([0, 0])
+        };
+        let (readings, grain) = read_pair(p, relay, s, &shift).map_err(|e| (i, e))?;
+        let g = match groups.iter_mut().position(|g| near(g.delta, d)) {
             Some(g) => g,
             None => {
                 groups.push(Group {
