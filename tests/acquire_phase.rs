@@ -86,16 +86,7 @@ fn rendered() -> &'static [[Image; 2]] {
 #[test]
 fn reads_the_phase_function_of_rendered_images() {
     // readings along the row ⟂ Δ through the first illumination
-    let (p1, p2) = (P1, P2);
-    let images = rendered();
-    let pairs: Vec<Pair> = images
-        .iter()
-        .map(|[a, b]| Pair {
-            first: a,
-            second: b,
-            peaks: [p1, p2],
-        })
-        .collect();
+    let pairs = pairs_of(rendered());
     let curves = read_curves(&pairs, &relay(), &settings()).unwrap();
     assert_eq!(curves.len(), 1);
     let c = &curves[0];
@@ -160,19 +151,29 @@ fn noise(seed: u64) -> Image {
     }
 }
 
-#[test]
-fn pure_noise_reads_flat() {
-    let images: Vec<[Image; 2]> = (0..20)
+/// 20 pairs of noise images.
+fn noise_images() -> Vec<[Image; 2]> {
+    (0..20)
         .map(|k| [noise(2 * k + 1), noise(2 * k + 2)])
-        .collect();
-    let pairs: Vec<Pair> = images
+        .collect()
+}
+
+/// The pairs of `images`, all with the illuminations at `P1` and `P2`.
+fn pairs_of(images: &[[Image; 2]]) -> Vec<Pair<'_>> {
+    images
         .iter()
         .map(|[a, b]| Pair {
             first: a,
             second: b,
-            peaks: [[32.0, 12.0], [32.0, 32.0]],
+            peaks: [P1, P2],
         })
-        .collect();
+        .collect()
+}
+
+#[test]
+fn pure_noise_reads_flat() {
+    let images = noise_images();
+    let pairs = pairs_of(&images);
     let c = &read_curves(&pairs, &relay(), &settings()).unwrap()[0];
     let (chi2, dof) = flatness(c);
     eprintln!(
@@ -518,14 +519,7 @@ fn registration_finds_displaced_windows_and_leaves_noise_flat() {
         })
         .collect();
     let read = |images: &[[Image; 2]], register_px: usize| {
-        let pairs: Vec<Pair> = images
-            .iter()
-            .map(|[a, b]| Pair {
-                first: a,
-                second: b,
-                peaks: [P1, P2],
-            })
-            .collect();
+        let pairs = pairs_of(images);
         let s = Settings {
             register_px,
             ..settings()
@@ -557,17 +551,8 @@ fn registration_finds_displaced_windows_and_leaves_noise_flat() {
     assert!(significant(&c, &settings()));
     assert!((fit.g - 0.9).abs() < 3.0 * fit.g_stderr, "{fit:?}");
     // noise: the shift chosen on one half does not select noise on the other
-    let images: Vec<[Image; 2]> = (0..20)
-        .map(|k| [noise(2 * k + 1), noise(2 * k + 2)])
-        .collect();
-    let pairs: Vec<Pair> = images
-        .iter()
-        .map(|[a, b]| Pair {
-            first: a,
-            second: b,
-            peaks: [[32.0, 12.0], [32.0, 32.0]],
-        })
-        .collect();
+    let images = noise_images();
+    let pairs = pairs_of(&images);
     let s = Settings {
         register_px: 3,
         ..settings()

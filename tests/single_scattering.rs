@@ -163,10 +163,66 @@ fn slab_transmission_is_claim_1_when_paraxial() {
     assert_eq!(checked, 4);
 }
 
+/// Point and focused lights and views in a box: the quadrature of the first event's own amplitudes
+/// (spherical waves, `Υ` of the lenses) against the Monte Carlo's single-scattering block, and
+/// against itself on panels half as wide.
 #[test]
-fn refuses_other_endpoints() {
+fn point_and_focused_endpoints_match_monte_carlo_single_scattering() {
     let m = Medium {
-        geometry: Geometry::boxed([2.0, 2.0, 2.0]),
+        geometry: Geometry::boxed([4.0, 4.0, 3.0]),
+        sigma_s: 0.3,
+        sigma_a: 0.05,
+        scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g: 0.5 }),
+    };
+    let axis = DVec3::Z;
+    let focused = |x: f64| Light::Focused {
+        focus: DVec3::new(x, 0.0, 0.0),
+        axis,
+        gamma: 1.0 / 0.3f64.powi(2),
+    };
+    let scene = Scene::new(
+        1.0,
+        m,
+        vec![
+            focused(0.0),
+            focused(0.4),
+            Light::Point {
+                position: DVec3::new(0.5, -0.3, -4.0),
+            },
+        ],
+        vec![
+            View::Focused {
+                focus: DVec3::new(0.2, 0.1, 0.5),
+                axis,
+                gamma: 1.0 / 0.3f64.powi(2),
+            },
+            far([0.3, 0.0, 1.0]),
+        ],
+    );
+    let (worst, noise) = against_monte_carlo(&scene, 400_000);
+    assert!(worst < 4.5, "worst |z| {worst}");
+    assert!(noise < 0.05, "test too noisy: {noise}");
+    // the panels are fine enough: halving them moves no entry by more than 1e-4 of the largest
+    let (a, b) = (
+        single::covariance(&scene).unwrap(),
+        single::quadrature(&scene, 2.0).unwrap(),
+    );
+    let top = a.iter().map(|z| z.norm()).fold(0.0, f64::max);
+    let moved = a
+        .iter()
+        .zip(&b)
+        .map(|(x, y)| (x - y).norm())
+        .fold(0.0, f64::max);
+    assert!(
+        moved < 1e-4 * top,
+        "refined quadrature moved by {moved} of {top}"
+    );
+}
+
+#[test]
+fn refuses_point_endpoints_in_a_slab_and_boxes_beyond_the_quadrature() {
+    let m = Medium {
+        geometry: Geometry::slab(2.0, 20.0),
         sigma_s: 0.4,
         sigma_a: 0.0,
         scattering: mixture(),
@@ -180,7 +236,20 @@ fn refuses_other_endpoints() {
         vec![far([0.0, 0.0, 1.0])],
     );
     let e = single::covariance(&scene).unwrap_err().to_string();
-    assert!(e.contains("light[0]") && e.contains("plane wave"), "{e}");
+    assert!(e.contains("light[0]") && e.contains("medium.box"), "{e}");
+    // a box too large for the quadrature is refused before any work
+    let huge = Scene {
+        medium: Medium {
+            geometry: Geometry::boxed([400.0, 400.0, 400.0]),
+            ..scene.medium.clone()
+        },
+        ..scene.clone()
+    };
+    let e = single::covariance(&huge).unwrap_err().to_string();
+    assert!(
+        e.contains("quadrature nodes") && e.contains("Monte Carlo"),
+        "{e}"
+    );
 }
 
 #[test]

@@ -449,6 +449,29 @@ fn read_pair(
     Ok((out, grain))
 }
 
+/// The mean of column `value` of the pairs' parts with weights `1 / part[var]`, and its variance
+/// `Σ w² part[var] factor(mean, part) / (Σ w)²`.
+fn pooled(
+    parts: &[[f64; 6]],
+    value: usize,
+    var: usize,
+    factor: impl Fn(f64, &[f64; 6]) -> f64,
+) -> (f64, f64) {
+    let w: Vec<f64> = parts
+        .iter()
+        .map(|p| 1.0 / p[var].max(f64::MIN_POSITIVE))
+        .collect();
+    let total: f64 = w.iter().sum();
+    let mean = parts.iter().zip(&w).map(|(p, w)| w * p[value]).sum::<f64>() / total;
+    let spread = parts
+        .iter()
+        .zip(&w)
+        .map(|(p, w)| w * w * p[var] * factor(mean, p))
+        .sum::<f64>()
+        / (total * total);
+    (mean, spread)
+}
+
 /// Read every pair and average the pairs that share a `Δ` (within a pixel), reading by reading
 /// (inverse-variance weights). Errors name the pair by its index.
 pub fn read_curves(
@@ -542,40 +565,19 @@ pub fn read_curves(
                     .map(|(mut r, parts)| {
                         // weights 1/Var₀; then Var X = Var₀ (1 + 4r + 3r²) with the pooled C
                         // (Gaussian speckle, module docs)
-                        let w: Vec<f64> = parts
-                            .iter()
-                            .map(|p| 1.0 / p[1].max(f64::MIN_POSITIVE))
-                            .collect();
-                        let total: f64 = w.iter().sum();
-                        let c = parts.iter().zip(&w).map(|(p, w)| w * p[0]).sum::<f64>() / total;
-                        let var = parts
-                            .iter()
-                            .zip(&w)
-                            .map(|(p, w)| {
-                                let r = (c / p[2]).clamp(0.0, 1.0);
-                                w * w * p[1] * (1.0 + 4.0 * r + 3.0 * r * r)
-                            })
-                            .sum::<f64>()
-                            / (total * total);
+                        let (c, var) = pooled(&parts, 0, 1, |c, p| {
+                            let r = (c / p[2]).clamp(0.0, 1.0);
+                            1.0 + 4.0 * r + 3.0 * r * r
+                        });
                         r.correlation = c;
                         r.stderr = var.sqrt();
                         // the same for C / Ī¹Ī², whose pooled value is r itself; its variance by the
                         // delta method (module docs)
-                        let w: Vec<f64> = parts
-                            .iter()
-                            .map(|p| 1.0 / p[5].max(f64::MIN_POSITIVE))
-                            .collect();
-                        let total: f64 = w.iter().sum();
-                        let x = parts.iter().zip(&w).map(|(p, w)| w * p[4]).sum::<f64>() / total;
+                        let (x, var) = pooled(&parts, 4, 5, |x, _| {
+                            let r = x.clamp(0.0, 1.0);
+                            1.0 + 4.0 * r - 3.0 * r * r + 2.0 * r.powi(3)
+                        });
                         let rr = x.clamp(0.0, 1.0);
-                        let var = parts
-                            .iter()
-                            .zip(&w)
-                            .map(|(p, w)| {
-                                w * w * p[5] * (1.0 + 4.0 * rr - 3.0 * rr * rr + 2.0 * rr.powi(3))
-                            })
-                            .sum::<f64>()
-                            / (total * total);
                         let unbias = 1.0 / (1.0 - (3.0 - rr) * a).max(0.5);
                         r.normalised = x * unbias;
                         r.normalised_stderr = var.sqrt() * unbias;

@@ -289,6 +289,8 @@ pub fn resume<E: Estimator>(
     if let Some(c) = checkpoint.as_mut() {
         c.start(next);
     }
+    let stop = checkpoint.as_ref().and_then(|c| c.stop_flag());
+    let stopped = || stop.is_some_and(|s| s.load(Ordering::Relaxed));
     progress(next - range.start);
     while next < range.end {
         let count = ((range.end - next) as usize).min(WAVE);
@@ -296,12 +298,20 @@ pub fn resume<E: Estimator>(
             .par_iter_mut()
             .enumerate()
             .for_each(|(i, (out, scratch))| {
+                // once asked to stop, chunks not yet begun are skipped: the wave is discarded
+                // below, so a stop waits for one chunk, not a whole wave
+                if stopped() {
+                    return;
+                }
                 let chunk = next + i as u64;
                 out.iter_mut().for_each(|z| *z = C64::default());
                 let s = scratch.get_or_insert_with(|| est.scratch());
                 let mut rng = stream_rng(plan.seed, chunk);
                 est.run_chunk(&mut rng, plan.chunk_paths, s, out);
             });
+        if stopped() {
+            return Err(crate::Error::Interrupted);
+        }
         for (i, (out, _)) in bufs[..count].iter().enumerate() {
             reducer.push(Block::leaf(next + i as u64, out, plan.chunk_paths, keep));
         }

@@ -249,36 +249,25 @@ impl<'a> SubpathSampler<'a> {
         }
     }
 
-    /// Trace one subpath and report its events to `sink`.
-    pub fn trace<S: EventSink>(&self, rng: &mut Rng, sc: &mut PathScratch, sink: &mut S) {
+    /// The single-scattering (`B = 1`) amplitudes of every pair at vertex `x1`, scattered by a
+    /// particle of type `kind`, into `sc.a`: `υ(i→x₁) υ(x₁→v)` (Eq. 5; `Υ` for lenses, Eq. 18),
+    /// before the first vertex's `√(σ_s / p(x₁))`. Leaves what each terminal looks like from `x1`
+    /// in `sc` for the rest of the path. The closed-form single scattering integrates these.
+    pub fn single_at<'s>(&self, x1: DVec3, kind: usize, sc: &'s mut PathScratch) -> &'s [C64] {
         let s = self.scene;
         let m = &s.medium;
-        let geo = &m.geometry;
-        let sigma_t = m.sigma_t();
-        let albedo = m.albedo();
         let t = &self.terminals;
-        let drawn = t.first.draw(geo, rng);
-        if !geo.contains(drawn.x) {
-            return;
-        }
-        let x1 = drawn.x;
-        // σ_s / p(x₁): σ_s V for a uniform first vertex (V per unit area for a slab)
-        let volume = m.sigma_s * drawn.inv_pdf;
-        let kind1 = m.scattering.pick(|| uniform(rng));
-        let (phase1, lobes1) = (m.scattering.phase(kind1), &t.lobes[kind1]);
+        let (phase1, lobes1) = (m.scattering.phase(kind), &t.lobes[kind]);
         for (e, c) in t.lights.iter().zip(sc.first_l.iter_mut()) {
             *c = e.seen_from(x1, m, s.k);
         }
         for (e, c) in t.views.iter().zip(sc.first_v.iter_mut()) {
             *c = e.seen_from(x1, m, s.k);
         }
-
-        // B = 1: a_j = sqrt(V) υ(i→x1) υ(i→x1→v).
-        let root = volume.sqrt();
         if let Some(q) = &t.quadrature {
             self.quadrature_first(q, x1, sc);
             for (n, &(l, v)) in self.pairs.iter().enumerate() {
-                sc.a[n] = self.quadrature_single(q, l, v, sc, phase1, lobes1) * root;
+                sc.a[n] = self.quadrature_single(q, l, v, sc, phase1, lobes1);
             }
         } else {
             let nlobes = lobes1.lobes.len();
@@ -304,8 +293,34 @@ impl<'a> SubpathSampler<'a> {
                         .map(|c| lens_pair_term(c, av, sc.view_bound[v]))
                         .sum(),
                     (sl, sv, _) => sl.single(sv, phase1, lobes1),
-                } * root;
+                };
             }
+        }
+        &sc.a
+    }
+
+    /// Trace one subpath and report its events to `sink`.
+    pub fn trace<S: EventSink>(&self, rng: &mut Rng, sc: &mut PathScratch, sink: &mut S) {
+        let s = self.scene;
+        let m = &s.medium;
+        let geo = &m.geometry;
+        let sigma_t = m.sigma_t();
+        let albedo = m.albedo();
+        let t = &self.terminals;
+        let drawn = t.first.draw(geo, rng);
+        if !geo.contains(drawn.x) {
+            return;
+        }
+        let x1 = drawn.x;
+        // σ_s / p(x₁): σ_s V for a uniform first vertex (V per unit area for a slab)
+        let volume = m.sigma_s * drawn.inv_pdf;
+        let kind1 = m.scattering.pick(|| uniform(rng));
+        let (phase1, lobes1) = (m.scattering.phase(kind1), &t.lobes[kind1]);
+        // B = 1: a_j = sqrt(V) υ(i→x1) υ(i→x1→v).
+        self.single_at(x1, kind1, sc);
+        let root = volume.sqrt();
+        for a in sc.a.iter_mut() {
+            *a *= root;
         }
         sink.event(false, &sc.a, rng);
 
