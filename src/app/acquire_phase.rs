@@ -148,13 +148,19 @@ fn peaks(
 
 /// Write phase_acquisition.json and its plot into `out` (which must exist).
 pub fn write(file: &PhaseAcquisitionFile, out: &Path) -> Result<Outcome> {
+    // the hand-off first: a scene it cannot use stops the command before any file is written
+    let handoff = file
+        .config
+        .fit
+        .as_ref()
+        .map(|fit| handoff(file, fit))
+        .transpose()?;
     let json = out.join(PhaseAcquisitionFile::NAME);
     let png = out.join("phase_acquisition.png");
     file.write(&json)?;
     plot(file, &png)?;
     let mut files = vec![json, png];
-    if let Some(fit) = &file.config.fit {
-        let (scene, target) = handoff(file, fit)?;
+    if let Some((scene, target)) = handoff {
         for (name, text) in [(SCENE, scene), (TARGET, target)] {
             let path = out.join(name);
             crate::io::write_atomic(&path, text.as_bytes()).map_err(|source| Error::Io {
@@ -460,7 +466,13 @@ fn handoff(file: &PhaseAcquisitionFile, fit: &HandoffConfig) -> Result<(String, 
         let l2 = index(&mut lights, relay.direction(p1[0] + d[0], p1[1] + d[1]));
         let norm = d[0].hypot(d[1]);
         let u = [-d[1] / norm, d[0] / norm];
-        for r in &c.readings {
+        // a window without light (both means 0) has no normalised reading
+        let usable = |r: &&AcquiredReading| {
+            r.reading.normalised.is_finite()
+                && r.reading.normalised_stderr.is_finite()
+                && r.reading.normalised_stderr > 0.0
+        };
+        for r in c.readings.iter().filter(usable) {
             let t = r.reading.offset_px;
             // the window as the reading placed it: pixels c − half … c − half + w − 1
             let lo = [

@@ -429,7 +429,7 @@ fn read_pair(
                 correlation: c,
                 stderr: var.sqrt(),
                 intensity: m1,
-                normalised: c / (m1 * m2),
+                normalised: if m1 * m2 > 0.0 { c / (m1 * m2) } else { 0.0 },
                 normalised_stderr: (grain / n).sqrt(),
                 pairs: 1,
             },

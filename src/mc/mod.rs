@@ -369,8 +369,8 @@ pub fn estimate<E: Estimator>(est: &E, plan: &Plan) -> Estimate {
     Estimate::from_block(&root, plan)
 }
 
-/// [`estimate`] that stops with [`crate::Error::Interrupted`] at its next wave of chunks once
-/// `stop` is set (the same bits when it is not, or when there is no flag).
+/// [`estimate`] that stops with [`crate::Error::Interrupted`] once `stop` is set and the chunks
+/// already begun end (the same bits when it is not, or when there is no flag).
 pub fn estimate_until<E: Estimator>(
     est: &E,
     plan: &Plan,
@@ -402,8 +402,8 @@ fn estimate_observed<E: Estimator>(
     Ok(Estimate::from_block(&root, plan))
 }
 
-/// [`estimate`] observed through `watch`: chunks done of the plan's (its `total`), and a stop at
-/// the next wave of chunks with [`crate::Error::Interrupted`] (the same bits otherwise).
+/// [`estimate`] observed through `watch`: chunks done of the plan's (its `total`), and a stop once
+/// the chunks begun end, with [`crate::Error::Interrupted`] (the same bits otherwise).
 pub fn estimate_watched<E: Estimator>(
     est: &E,
     plan: &Plan,
@@ -417,7 +417,7 @@ pub fn estimate_watched<E: Estimator>(
 }
 
 /// A flag another thread may set to stop a long computation (a fit, a design, an estimate) at
-/// its next wave of chunks, ray or iteration, with [`crate::Error::Interrupted`]; none by default.
+/// its next chunk, ray or iteration, with [`crate::Error::Interrupted`]; none by default.
 #[derive(Clone, Debug, Default)]
 pub struct StopFlag(Option<Arc<AtomicBool>>);
 
@@ -446,8 +446,8 @@ impl StopFlag {
 }
 
 /// A run observed and stopped from another thread (the Python binding polls it while the run
-/// works): units of work done and in all, and a flag that stops the run at its next wave of
-/// chunks, ray or iteration with [`crate::Error::Interrupted`].
+/// works): units of work done and in all, and a flag that stops the run at its next chunk, ray
+/// or iteration with [`crate::Error::Interrupted`].
 #[derive(Debug, Default)]
 pub struct Watch {
     pub done: AtomicU64,
