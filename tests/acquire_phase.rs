@@ -2,7 +2,7 @@
 //! slab of known phase function, on pure noise, and through `lightpath acquire-phase`.
 
 use lightpath::inverse::phase_from_speckle::{
-    Pair, Relay, Settings, fit_hg, flatness, read_curves, significant,
+    Pair, Relay, Settings, fit_correlation, fit_hg, flatness, read_curves, significant,
 };
 use lightpath::io::images::Image;
 use lightpath::mc::{Plan, merge, run};
@@ -91,17 +91,12 @@ fn reads_the_phase_function_of_rendered_images() {
     assert_eq!(curves.len(), 1);
     let c = &curves[0];
     assert!(significant(c, &settings()), "{:?}", flatness(c));
-    let (mu, y, sd): (Vec<f64>, Vec<f64>, Vec<f64>) = c
+    let fit = fit_correlation(c).unwrap();
+    let mu: Vec<f64> = c
         .readings
         .iter()
-        .map(|r| (r.angle_deg.to_radians().cos(), r.correlation, r.stderr))
-        .fold((vec![], vec![], vec![]), |mut a, (m, y, s)| {
-            a.0.push(m);
-            a.1.push(y);
-            a.2.push(s);
-            a
-        });
-    let fit = fit_hg(&mu, &y, &sd, 2).unwrap();
+        .map(|r| r.angle_deg.to_radians().cos())
+        .collect();
     let naive_sd: Vec<f64> = c.readings.iter().map(|r| 0.02 * r.intensity).collect();
     let naive_y: Vec<f64> = c.readings.iter().map(|r| r.intensity).collect();
     let naive = fit_hg(&mu, &naive_y, &naive_sd, 1).unwrap();
@@ -215,6 +210,21 @@ fn write_tiff16(path: &std::path::Path, image: &Image, scale: f64) {
         .unwrap()
         .write_image::<colortype::Gray16>(image.width as u32, image.height as u32, &data)
         .unwrap();
+}
+
+/// Each pair written as `a{k}.exr`, `b{k}.exr` in `dir`, listed with the peaks `P1`, `P2`.
+fn write_pairs(
+    dir: &std::path::Path,
+    images: &[[Image; 2]],
+) -> Vec<(String, String, [[f64; 2]; 2])> {
+    let mut pairs = Vec::new();
+    for (k, [a, b]) in images.iter().enumerate() {
+        let (na, nb) = (format!("a{k}.exr"), format!("b{k}.exr"));
+        lightpath::io::exr::write_scalar(&dir.join(&na), &a.data, SIDE, SIDE, "I").unwrap();
+        lightpath::io::exr::write_scalar(&dir.join(&nb), &b.data, SIDE, SIDE, "I").unwrap();
+        pairs.push((na, nb, [P1, P2]));
+    }
+    pairs
 }
 
 fn acquisition(
@@ -385,18 +395,11 @@ fn command_reads_png_tiff_and_exr() {
 #[test]
 fn readings_become_a_fit_target() {
     use lightpath::io::ResultFile;
-    use lightpath::io::results::FitFile;
+    use lightpath::io::results::{FitFile, PhaseAcquisitionFile};
     let dir = std::env::temp_dir().join(format!("lightpath-handoff-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
-    let images = render(2.0, 0.7, P1, P2, 20);
-    let mut pairs = Vec::new();
-    for (k, [a, b]) in images.iter().enumerate() {
-        let (na, nb) = (format!("a{k}.exr"), format!("b{k}.exr"));
-        lightpath::io::exr::write_scalar(&dir.join(&na), &a.data, SIDE, SIDE, "I").unwrap();
-        lightpath::io::exr::write_scalar(&dir.join(&nb), &b.data, SIDE, SIDE, "I").unwrap();
-        pairs.push((na, nb, [P1, P2]));
-    }
+    let pairs = write_pairs(&dir, &render(2.0, 0.7, P1, P2, 20));
     let cfg = acquisition(&dir, &pairs);
     let mut text = std::fs::read_to_string(&cfg).unwrap();
     text += "[fit]\nscene = \"slab.toml\"\n";
@@ -416,6 +419,16 @@ fn readings_become_a_fit_target() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let stdout = String::from_utf8_lossy(&o.stdout);
     assert!(stdout.contains("lightpath fit"), "{stdout}");
+    // windows of 8 pixels read every 3: every third reading shares no pixel with the one before
+    let read = PhaseAcquisitionFile::read(&out.join("phase_acquisition.json")).unwrap();
+    let readings = read.curves[0].readings.len();
+    let target: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("fit_target.json")).unwrap())
+            .unwrap();
+    assert_eq!(
+        target["entries"].as_array().unwrap().len(),
+        readings.div_ceil(3)
+    );
     let fit = dir.join("fit");
     let o = lightpath(&[
         "fit",
@@ -447,17 +460,18 @@ fn source_translation_places_the_second_illumination() {
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     // the ballistic light focuses on one pixel of each image, far above the speckle
-    let mut pairs = Vec::new();
-    for (k, [a, b]) in rendered().iter().take(8).enumerate() {
-        let (mut a, mut b) = (a.clone(), b.clone());
-        let top = a.data.iter().chain(&b.data).fold(0.0f64, |m, &v| m.max(v));
-        a.data[P1[1] as usize * SIDE + P1[0] as usize] = 100.0 * top;
-        b.data[P2[1] as usize * SIDE + P2[0] as usize] = 100.0 * top;
-        let (na, nb) = (format!("a{k}.exr"), format!("b{k}.exr"));
-        lightpath::io::exr::write_scalar(&dir.join(&na), &a.data, SIDE, SIDE, "I").unwrap();
-        lightpath::io::exr::write_scalar(&dir.join(&nb), &b.data, SIDE, SIDE, "I").unwrap();
-        pairs.push((na, nb, [P1, P2]));
-    }
+    let peaked: Vec<[Image; 2]> = rendered()
+        .iter()
+        .take(8)
+        .map(|[a, b]| {
+            let (mut a, mut b) = (a.clone(), b.clone());
+            let top = a.data.iter().chain(&b.data).fold(0.0f64, |m, &v| m.max(v));
+            a.data[P1[1] as usize * SIDE + P1[0] as usize] = 100.0 * top;
+            b.data[P2[1] as usize * SIDE + P2[0] as usize] = 100.0 * top;
+            [a, b]
+        })
+        .collect();
+    let pairs = write_pairs(&dir, &peaked);
     let read = |name: &str, text: String| {
         let cfg = dir.join(format!("{name}.toml"));
         std::fs::write(&cfg, text).unwrap();
@@ -525,15 +539,9 @@ fn registration_finds_displaced_windows_and_leaves_noise_flat() {
             ..settings()
         };
         let c = read_curves(&pairs, &relay(), &s).unwrap().remove(0);
-        let mu: Vec<f64> = c
-            .readings
-            .iter()
-            .map(|r| r.angle_deg.to_radians().cos())
-            .collect();
-        let y: Vec<f64> = c.readings.iter().map(|r| r.correlation).collect();
-        let sd: Vec<f64> = c.readings.iter().map(|r| r.stderr).collect();
-        let sum: f64 = y.iter().sum();
-        (c, fit_hg(&mu, &y, &sd, 2), sum)
+        let sum: f64 = c.readings.iter().map(|r| r.correlation).sum();
+        let fit = fit_correlation(&c);
+        (c, fit, sum)
     };
     let (_, _, aligned) = read(rendered(), 0);
     let (_, _, lost) = read(&moved, 0);

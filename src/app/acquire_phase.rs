@@ -9,7 +9,7 @@ use crate::config::acquire::HandoffConfig;
 use crate::config::{LightConfig, ViewConfig};
 use crate::error::{Error, Result};
 use crate::inverse::phase_from_speckle::{
-    Curve, PairError, fit_hg, fit_vmf, flatness, hg, read_curves, significant,
+    Curve, PairError, fit_correlation, fit_hg, fit_vmf, flatness, hg, read_curves, significant,
 };
 use crate::io::ResultFile;
 use crate::io::images::{Image, read_image};
@@ -240,7 +240,7 @@ fn record(c: &Curve, s: &crate::inverse::phase_from_speckle::Settings) -> Acquir
         .collect();
     let y: Vec<f64> = c.readings.iter().map(|r| r.correlation).collect();
     let sd: Vec<f64> = c.readings.iter().map(|r| r.stderr).collect();
-    let hg_fit = if sig { fit_hg(&mu, &y, &sd, 2) } else { None };
+    let hg_fit = if sig { fit_correlation(c) } else { None };
     // the naive reading's error: ⟨I⟩ / √(pairs · N / grain) (speckle statistics)
     let n = (s.window * s.window) as f64;
     let naive_y: Vec<f64> = c.readings.iter().map(|r| r.intensity).collect();
@@ -431,9 +431,9 @@ const TARGET: &str = "fit_target.json";
 
 /// The readings as a `lightpath fit` target and the scene to fit it on: the sample's scene with
 /// one plane-wave light per illumination and far-field views at `window_points²` Gauss–Legendre
-/// points of every window (both images), all directions inside the sample; each reading becomes a
-/// normalised intensity correlation over its window's view pairs (Eq. 4 over the window means,
-/// which the camera's scale does not enter).
+/// points of every window (both images), all directions inside the sample; each reading whose
+/// window overlaps no earlier one becomes a normalised intensity correlation over its window's
+/// view pairs (Eq. 4 over the window means, which the camera's scale does not enter).
 fn handoff(file: &PhaseAcquisitionFile, fit: &HandoffConfig) -> Result<(String, String)> {
     let path = std::path::absolute(&fit.scene)
         .map_err(|e| Error::input(format!("fit.scene = {}: {e}", fit.scene.display())))?;
@@ -472,13 +472,18 @@ fn handoff(file: &PhaseAcquisitionFile, fit: &HandoffConfig) -> Result<(String, 
                 && r.reading.normalised_stderr.is_finite()
                 && r.reading.normalised_stderr > 0.0
         };
+        // windows that share no pixel, so the entries' errors are independent (overlapping
+        // readings would count the same speckles twice and shrink the fit's error bars)
+        let mut last: Option<[f64; 2]> = None;
         for r in c.readings.iter().filter(usable) {
             let t = r.reading.offset_px;
             // the window as the reading placed it: pixels c − half … c − half + w − 1
-            let lo = [
-                (p1[0] + t * u[0]).round() - half - 0.5,
-                (p1[1] + t * u[1]).round() - half - 0.5,
-            ];
+            let centre = [(p1[0] + t * u[0]).round(), (p1[1] + t * u[1]).round()];
+            if last.is_some_and(|l| (centre[0] - l[0]).abs().max((centre[1] - l[1]).abs()) < w) {
+                continue;
+            }
+            last = Some(centre);
+            let lo = [centre[0] - half - 0.5, centre[1] - half - 0.5];
             let mut pairs = Vec::new();
             for gy in &nodes {
                 for gx in &nodes {

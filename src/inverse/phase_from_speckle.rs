@@ -626,6 +626,18 @@ pub struct HgFit {
     pub chi2_dof: f64,
 }
 
+/// The HG fit of a curve's correlations (`C ∝ HG²`, Eq. 5's errors).
+pub fn fit_correlation(c: &Curve) -> Option<HgFit> {
+    let mu: Vec<f64> = c
+        .readings
+        .iter()
+        .map(|r| r.angle_deg.to_radians().cos())
+        .collect();
+    let y: Vec<f64> = c.readings.iter().map(|r| r.correlation).collect();
+    let sd: Vec<f64> = c.readings.iter().map(|r| r.stderr).collect();
+    fit_hg(&mu, &y, &sd, 2)
+}
+
 /// Fit `y ≈ A · HG(g, μ)^power` with standard errors `sd`: `A` profiled out, `g` scanned over
 /// (−0.99, 0.999) and refined by a parabola; `g`'s error from `Δχ² = 1`.
 pub fn fit_hg(mu: &[f64], y: &[f64], sd: &[f64], power: i32) -> Option<HgFit> {
