@@ -2,7 +2,8 @@
 //! slab of known phase function, on pure noise, and through `lightpath acquire-phase`.
 
 use lightpath::inverse::phase_from_speckle::{
-    Pair, Relay, Settings, fit_correlation, fit_hg, flatness, read_curves, significant,
+    Pair, Relay, Settings, correlation_points, fit_correlation, fit_hg, flatness, read_curves,
+    significant,
 };
 use lightpath::io::images::Image;
 use lightpath::mc::{Plan, merge, run};
@@ -92,11 +93,7 @@ fn reads_the_phase_function_of_rendered_images() {
     let c = &curves[0];
     assert!(significant(c, &settings()), "{:?}", flatness(c));
     let fit = fit_correlation(c).unwrap();
-    let mu: Vec<f64> = c
-        .readings
-        .iter()
-        .map(|r| r.angle_deg.to_radians().cos())
-        .collect();
+    let (mu, _, _) = correlation_points(c);
     let naive_sd: Vec<f64> = c.readings.iter().map(|r| 0.02 * r.intensity).collect();
     let naive_y: Vec<f64> = c.readings.iter().map(|r| r.intensity).collect();
     let naive = fit_hg(&mu, &naive_y, &naive_sd, 1).unwrap();

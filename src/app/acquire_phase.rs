@@ -9,7 +9,7 @@ use crate::config::acquire::HandoffConfig;
 use crate::config::{LightConfig, ViewConfig};
 use crate::error::{Error, Result};
 use crate::inverse::phase_from_speckle::{
-    Curve, PairError, fit_correlation, fit_hg, fit_vmf, flatness, hg, read_curves, significant,
+    Curve, PairError, correlation_points, fit_hg, fit_vmf, flatness, hg, read_curves, significant,
 };
 use crate::io::ResultFile;
 use crate::io::images::{Image, read_image};
@@ -233,14 +233,8 @@ pub fn write(file: &PhaseAcquisitionFile, out: &Path) -> Result<Outcome> {
 fn record(c: &Curve, s: &crate::inverse::phase_from_speckle::Settings) -> AcquiredCurve {
     let (chi2, dof) = flatness(c);
     let sig = significant(c, s);
-    let mu: Vec<f64> = c
-        .readings
-        .iter()
-        .map(|r| r.angle_deg.to_radians().cos())
-        .collect();
-    let y: Vec<f64> = c.readings.iter().map(|r| r.correlation).collect();
-    let sd: Vec<f64> = c.readings.iter().map(|r| r.stderr).collect();
-    let hg_fit = if sig { fit_correlation(c) } else { None };
+    let (mu, y, sd) = correlation_points(c);
+    let hg_fit = if sig { fit_hg(&mu, &y, &sd, 2) } else { None };
     // the naive reading's error: ⟨I⟩ / √(pairs · N / grain) (speckle statistics)
     let n = (s.window * s.window) as f64;
     let naive_y: Vec<f64> = c.readings.iter().map(|r| r.intensity).collect();

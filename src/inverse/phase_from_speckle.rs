@@ -626,15 +626,17 @@ pub struct HgFit {
     pub chi2_dof: f64,
 }
 
+/// A curve's readings as `(cos θ, C, standard error)` columns.
+pub fn correlation_points(c: &Curve) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+    let mu = c.readings.iter().map(|r| r.angle_deg.to_radians().cos());
+    let y = c.readings.iter().map(|r| r.correlation);
+    let sd = c.readings.iter().map(|r| r.stderr);
+    (mu.collect(), y.collect(), sd.collect())
+}
+
 /// The HG fit of a curve's correlations (`C ∝ HG²`, Eq. 5's errors).
 pub fn fit_correlation(c: &Curve) -> Option<HgFit> {
-    let mu: Vec<f64> = c
-        .readings
-        .iter()
-        .map(|r| r.angle_deg.to_radians().cos())
-        .collect();
-    let y: Vec<f64> = c.readings.iter().map(|r| r.correlation).collect();
-    let sd: Vec<f64> = c.readings.iter().map(|r| r.stderr).collect();
+    let (mu, y, sd) = correlation_points(c);
     fit_hg(&mu, &y, &sd, 2)
 }
 
