@@ -130,9 +130,8 @@ fn slab_integral(half_thickness: f64, window: f64, q: DVec3, sigma_t: f64, legs:
     symmetric_exp_integral(a, half_thickness) * (-st * alpha).exp() * lateral
 }
 
-/// Why a scene has no single-scattering closed form here: point and focused endpoints need a box
-/// (a slab's lateral integral is unbounded for them).
-pub fn unsupported(scene: &Scene) -> Option<String> {
+/// The first light that is not a plane wave and the first view that is not a far-field view.
+fn not_far(scene: &Scene) -> (Option<usize>, Option<usize>) {
     let light = scene
         .lights
         .iter()
@@ -141,6 +140,13 @@ pub fn unsupported(scene: &Scene) -> Option<String> {
         .views
         .iter()
         .position(|v| !matches!(v, View::FarField { .. }));
+    (light, view)
+}
+
+/// Why a scene has no single-scattering closed form here: point and focused endpoints need a box
+/// (a slab's lateral integral is unbounded for them).
+pub fn unsupported(scene: &Scene) -> Option<String> {
+    let (light, view) = not_far(scene);
     if !matches!(scene.medium.geometry, Geometry::Slab { .. }) {
         return None;
     }
@@ -171,15 +177,7 @@ pub fn covariance(scene: &Scene) -> crate::Result<Vec<C64>> {
     if let Some(why) = unsupported(scene) {
         return Err(crate::Error::input(why));
     }
-    let far = scene
-        .lights
-        .iter()
-        .all(|l| matches!(l, Light::PlaneWave { .. }))
-        && scene
-            .views
-            .iter()
-            .all(|v| matches!(v, View::FarField { .. }));
-    if !far {
+    if not_far(scene) != (None, None) {
         return quadrature(scene, 1.0);
     }
     let dir = |l: &Light| match *l {
