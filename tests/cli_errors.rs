@@ -372,6 +372,17 @@ fn bad_tilt_shift_and_aperture_settings() {
         &GOOD.replace("chunk = 500", "chunk = 500\naperture = \"gauss\""),
         &["render.aperture", "gauss", "vmf", "quadrature"],
     );
+    let drawn = |n: &str| GOOD.replace("chunk = 500", &format!("chunk = 500\n{n}"));
+    expect_error(
+        "aperture-directions",
+        &drawn("aperture = \"monte_carlo\"\naperture_directions = 0"),
+        &["render.aperture_directions", "0", "1 to 100000"],
+    );
+    expect_error(
+        "aperture-directions-unused",
+        &drawn("aperture_directions = 8"),
+        &["render.aperture_directions", "8", "monte_carlo"],
+    );
 }
 
 /// Legal physics that no run could finish (a diffusive box 10⁵ λ wide, mfp 10⁻⁶, σ_s 10⁶, a 10¹¹ λ

@@ -1,6 +1,8 @@
 #!/usr/bin/env python3
-"""Paper 000 Table 2's equal-time rows on its small volume: the closed forms (N.F.) and the
+"""Paper 000 Table 2's equal-time rows on its small volume: the closed forms (N.F.), the
 far-field estimator integrated over a tabulated aperture (F.F. Tab., `aperture = "quadrature"`)
+and over directions drawn at random from each aperture (F.F. M.C., `aperture = "monte_carlo"`,
+with the number of directions per aperture and vertex that gives the lowest error per second)
 each given the same seconds, their C(Δ, τ) maps compared (RMSE over every entry, C divided by the
 peak intensity) with a converged run of the closed forms. That reference's own error is printed;
 its bias against the exact attenuation is what run.sh measures on the same paths (0.0002).
@@ -18,19 +20,20 @@ BIN = os.path.join(HERE, "..", "..", "target", "release", "lightpath")
 OUT = os.path.join(HERE, "out", "equal-time")
 
 
-def config(aperture, chunk):
+def config(aperture, chunk, directions):
     text = open(os.path.join(HERE, "small.toml")).read()
-    text = text.replace("chunk = 200", f"chunk = {chunk}\naperture = \"{aperture}\"")
-    path = os.path.join(OUT, f"{aperture}-{chunk}.toml")
+    extra = f"\naperture_directions = {directions}" if directions else ""
+    text = text.replace("chunk = 200", f"chunk = {chunk}\naperture = \"{aperture}\"{extra}")
+    path = os.path.join(OUT, f"{aperture}-{chunk}-{directions}.toml")
     with open(path, "w") as f:
         f.write(text)
     return path
 
 
-def run(aperture, samples, seed, name):
-    chunk = max(1, min(200, samples // 8))
+def run(aperture, samples, seed, name, directions=None, chunks=8):
+    chunk = max(1, min(200, samples // chunks))
     out = os.path.join(OUT, name)
-    subprocess.run([BIN, "correlation-map", config(aperture, chunk), "--samples", str(samples),
+    subprocess.run([BIN, "correlation-map", config(aperture, chunk, directions), "--samples", str(samples),
                     "--seed", str(seed), "--out", out, "--quiet"], check=True,
                    stdout=subprocess.DEVNULL)
     with open(os.path.join(out, "correlation_map.json")) as f:
@@ -63,14 +66,28 @@ def main():
     rate["quadrature"] = probe["samples"] / probe["seconds"]
     print(f"reference: closed forms, {ref['samples']} paths in {ref['seconds']:.1f} s, "
           f"own RMSE {own(ref, peak):.4f}")
-    print(f"paths/s: closed forms {rate['vmf']:.0f}, far-field tabulated {rate['quadrature']:.1f}")
+    # drawn directions: the count with the lowest error per second (own RMSE × √seconds), from
+    # runs of about 3 s each
+    print("F.F. M.C.: directions per aperture and vertex | paths/s | own RMSE × √s")
+    best = None
+    for d in (16, 64, 256, 512, 1024, 2048):
+        m = run("monte_carlo", max(160, 400_000 // d), 1002, f"monte-carlo-{d}", d, chunks=16)
+        cost = own(m, peak) * math.sqrt(m["seconds"])
+        print(f"  {d} | {m['samples'] / m['seconds']:.0f} | {cost:.4f}")
+        if best is None or cost < best[1]:
+            best = (d, cost, m["samples"] / m["seconds"])
+    directions, _, rate["monte_carlo"] = best
+    print(f"paths/s: closed forms {rate['vmf']:.0f}, far-field tabulated {rate['quadrature']:.1f}, "
+          f"far-field Monte Carlo ({directions} directions) {rate['monte_carlo']:.0f}")
     print()
     print("| estimator | budget | paths | seconds | RMSE vs reference | own RMSE (std. errors) |")
     print("| --- | --- | --- | --- | --- | --- |")
-    for aperture, label in (("vmf", "N.F. (closed forms)"), ("quadrature", "F.F. Tab. (quadrature)")):
+    rows = (("vmf", "N.F. (closed forms)", None), ("quadrature", "F.F. Tab. (quadrature)", None),
+            ("monte_carlo", f"F.F. M.C. ({directions} directions)", directions))
+    for aperture, label, d in rows:
         for k, t in enumerate(budgets):
             n = max(8, round(rate[aperture] * t))
-            m = run(aperture, n, 2000 + k, f"{aperture}-{t:g}s")
+            m = run(aperture, n, 2000 + k, f"{aperture}-{t:g}s", d)
             print(f"| {label} | {t:g} s | {n} | {m['seconds']:.2f} | {rmse(m, ref, peak):.4f} | "
                   f"{own(m, peak):.4f} |")
 

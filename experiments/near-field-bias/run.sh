@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The closed forms' attenuation bias on paper 000's Table 2 small volume (see README.md): the same
 # 4000 paths with the vMF closed forms and with the far-field estimator integrated over the aperture
-# (exact attenuation, and paper 000's Eq. 25), then the equal-time rows; about 9 minutes on 2 cores.
+# (exact attenuation, and paper 000's Eq. 25), then the equal-time rows; about 14 minutes on 2 cores.
 set -euo pipefail
 cd "$(dirname "$0")"
 bin=../../target/release/lightpath
@@ -12,5 +12,5 @@ for a in vmf quadrature quadrature_axis; do
     "$bin" correlation-map "out/$a.toml" --out "out/$a" --quiet
 done
 ./analyse.py out/vmf out/quadrature out/quadrature_axis
-# equal time: both estimators given 1 s and 60 s against a converged run (Table 2's rows)
+# equal time: the three estimators given 1 s and 60 s against a converged run (Table 2's rows)
 ./equal_time.py

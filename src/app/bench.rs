@@ -38,6 +38,9 @@ impl EventSink for Count {
     fn event(&mut self, _: bool, _: &[C64], _: &mut Rng) {
         self.0 += 1;
     }
+    fn event_pair(&mut self, _: bool, _: &[C64], _: &[C64], _: &mut Rng) {
+        self.0 += 1;
+    }
 }
 
 /// Mean number of events (rank-1 updates) per path.

@@ -326,9 +326,14 @@ pub struct RenderConfig {
     /// Focused apertures: `"vmf"` (closed forms, the default), `"quadrature"` (far-field
     /// connections summed over the aperture, each direction attenuated over its own length: the
     /// reference of paper 000, Eq. 11), `"quadrature_linearised"` (the same with the closed forms'
-    /// linearised attenuation) or `"quadrature_axis"` (with paper 000's Eq. 25).
+    /// linearised attenuation), `"quadrature_axis"` (with paper 000's Eq. 25) or `"monte_carlo"`
+    /// (`aperture_directions` directions drawn from the mask per aperture and vertex, each
+    /// attenuated over its own length: paper 000's "F.F. M.C.").
     #[serde(default)]
     pub aperture: ApertureConfig,
+    /// Directions per aperture and vertex with `aperture = "monte_carlo"` (default 16).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub aperture_directions: Option<usize>,
     /// `"monte_carlo"` (default) or `"single_scattering"`: `covariance` in closed form from paths
     /// that scatter once (paper 001 Eq. 41; plane-wave lights and far-field views).
     #[serde(default, skip_serializing_if = "EstimatorConfig::is_default")]
@@ -359,21 +364,11 @@ pub enum ApertureConfig {
     Quadrature,
     QuadratureLinearised,
     QuadratureAxis,
+    MonteCarlo,
 }
 
-impl ApertureConfig {
-    pub fn model(self) -> crate::speckle::aperture_quadrature::ApertureModel {
-        use crate::speckle::aperture_quadrature::{ApertureModel, Attenuation};
-        match self {
-            ApertureConfig::Vmf => ApertureModel::Vmf,
-            ApertureConfig::Quadrature => ApertureModel::Quadrature(Attenuation::Exact),
-            ApertureConfig::QuadratureLinearised => {
-                ApertureModel::Quadrature(Attenuation::Linearised)
-            }
-            ApertureConfig::QuadratureAxis => ApertureModel::Quadrature(Attenuation::Axis),
-        }
-    }
-}
+/// Directions per aperture and vertex when `aperture = "monte_carlo"` leaves them unsaid.
+const DEFAULT_APERTURE_DIRECTIONS: usize = 16;
 
 /// `[render] first_vertex`.
 #[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
@@ -394,6 +389,42 @@ pub enum FirstDirectionConfig {
 }
 
 impl RenderConfig {
+    /// The aperture model `aperture` and `aperture_directions` ask for.
+    pub fn aperture_model(
+        &self,
+    ) -> Result<crate::speckle::aperture_quadrature::ApertureModel, ConfigError> {
+        use crate::speckle::aperture_quadrature::{
+            ApertureModel, Attenuation, MAX_RANDOM_DIRECTIONS,
+        };
+        if let (Some(n), false) = (
+            self.aperture_directions,
+            self.aperture == ApertureConfig::MonteCarlo,
+        ) {
+            return err(format!(
+                "render.aperture_directions = {n}: only used with render.aperture = \"monte_carlo\"; remove it or set that aperture"
+            ));
+        }
+        Ok(match self.aperture {
+            ApertureConfig::Vmf => ApertureModel::Vmf,
+            ApertureConfig::Quadrature => ApertureModel::Quadrature(Attenuation::Exact),
+            ApertureConfig::QuadratureLinearised => {
+                ApertureModel::Quadrature(Attenuation::Linearised)
+            }
+            ApertureConfig::QuadratureAxis => ApertureModel::Quadrature(Attenuation::Axis),
+            ApertureConfig::MonteCarlo => {
+                let n = self
+                    .aperture_directions
+                    .unwrap_or(DEFAULT_APERTURE_DIRECTIONS);
+                if !(1..=MAX_RANDOM_DIRECTIONS).contains(&n) {
+                    return err(format!(
+                        "render.aperture_directions = {n}: must be 1 to {MAX_RANDOM_DIRECTIONS}"
+                    ));
+                }
+                ApertureModel::MonteCarlo(n)
+            }
+        })
+    }
+
     /// The importance sampling these settings ask for (paper 000, Sec. 6).
     pub fn sampling(&self) -> Result<Sampling, ConfigError> {
         Ok(match (self.first_vertex, self.first_direction) {
@@ -432,6 +463,7 @@ impl Default for RenderConfig {
             first_vertex: FirstVertexConfig::default(),
             first_direction: FirstDirectionConfig::default(),
             aperture: ApertureConfig::default(),
+            aperture_directions: None,
             estimator: EstimatorConfig::default(),
         }
     }
@@ -468,8 +500,9 @@ fn default_paths() -> u64 {
 }
 
 /// Keys that hold whole numbers; everything else numeric is read as a float.
-const INTEGER_KEYS: [&str; 16] = [
+const INTEGER_KEYS: [&str; 17] = [
     "samples",
+    "aperture_directions",
     "bins",
     "seed",
     "chunk",
@@ -710,7 +743,7 @@ impl Config {
         }
         let mut scene = Scene::new(self.wavelength, medium, lights, views);
         scene.sampling = self.render.sampling()?;
-        scene.aperture = self.render.aperture.model();
+        scene.aperture = self.render.aperture_model()?;
         Ok(scene)
     }
 }

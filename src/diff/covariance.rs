@@ -159,7 +159,7 @@ impl<'a> Reweighted<'a> {
         }
         if proposal.aperture != crate::speckle::aperture_quadrature::ApertureModel::Vmf {
             return Err(crate::Error::input(
-                "gradients use the vMF closed forms of focused apertures: render.aperture = \"quadrature\" is a reference for covariance, speckle and correlation-map runs; use aperture = \"vmf\"",
+                "gradients use the vMF closed forms of focused apertures: render.aperture = \"quadrature\" and \"monte_carlo\" are references for forward runs; use aperture = \"vmf\"",
             ));
         }
         let terminals = Terminals::new(proposal)?;

@@ -12,8 +12,16 @@
 //! The two-lens single-scattering term (Eq. 18) is a double integral; it is summed over the light's
 //! directions, each paired with the view's aperture integral of an amplitude lobe in closed form
 //! (Eq. 29), so there the view side keeps the axis attenuation and the amplitude's lobes.
+//!
+//! `ApertureModel::MonteCarlo` is paper 000's other far-field route (Sec. 8, "F.F. M.C."): the
+//! same sums over directions drawn at random from each aperture's mask, afresh at every vertex.
+//! Each `Υ` is then an unbiased estimate, but a product of an estimate with its own conjugate is
+//! not (`E|Υ̂|² = |Υ|² + Var Υ̂`), so the sampler draws two independent sets per event and the
+//! second moments take `(a bᴴ + b aᴴ)/2` (`EventSink::event_pair`). The two-lens term pairs the
+//! light's and the view's drawn directions one to one, each attenuated over its own length.
 
-use crate::math::{C64, cis, gauss_legendre, orthonormal_basis};
+use crate::math::vmf::sample_cosine;
+use crate::math::{C64, Rng, cis, gauss_legendre, orthonormal_basis, uniform};
 use crate::medium::lobes::Lobes;
 use crate::medium::{Medium, PhaseFunction};
 use crate::speckle::endpoint::{Lens, Seen};
@@ -38,13 +46,19 @@ pub enum ApertureModel {
     Vmf,
     /// Quadrature over the aperture's far-field directions: a slow reference.
     Quadrature(Attenuation),
+    /// This many far-field directions per aperture and vertex, drawn from its mask, each
+    /// attenuated over its own length (paper 000's "F.F. M.C.").
+    MonteCarlo(usize),
 }
+
+/// Most directions `aperture_directions` may ask for per aperture and vertex.
+pub const MAX_RANDOM_DIRECTIONS: usize = 100_000;
 
 /// Mask below which aperture directions are left out (`e^{−30}` of the axis).
 const MASK_FLOOR: f64 = 30.0;
 
 /// Quadrature nodes of one lens: propagation directions and weights `dω · m(ω)`.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Default)]
 pub struct ApertureGrid {
     dirs: Vec<DVec3>,
     weights: Vec<f64>,
@@ -83,6 +97,29 @@ impl ApertureGrid {
             }
         }
         ApertureGrid { dirs, weights }
+    }
+
+    /// Replaces the nodes with `n` directions drawn from the mask `m(ω) = e^{γ(ω·a − 1)}` (a vMF
+    /// law about the axis), each weighing `∫m dω / n = 2π(1 − e^{−2γ})/(γ n)`, so sums over them
+    /// are unbiased estimates of the aperture integrals.
+    pub fn draw(&mut self, lens: &Lens, n: usize, rng: &mut Rng) {
+        let g = lens.gamma;
+        let mass = if g < 1e-8 {
+            4.0 * std::f64::consts::PI
+        } else {
+            2.0 * std::f64::consts::PI * -(-2.0 * g).exp_m1() / g
+        };
+        let (e1, e2) = orthonormal_basis(lens.axis);
+        self.dirs.clear();
+        self.weights.clear();
+        for _ in 0..n {
+            let t = sample_cosine(g, uniform(rng));
+            let s = (1.0 - t * t).max(0.0).sqrt();
+            let phi = 2.0 * std::f64::consts::PI * uniform(rng);
+            self.dirs
+                .push(e1 * (s * phi.cos()) + e2 * (s * phi.sin()) + lens.axis * t);
+            self.weights.push(mass / n as f64);
+        }
     }
 }
 
@@ -184,6 +221,23 @@ pub fn lens_pair(grid: &ApertureGrid, light_weights: &[C64], view: &Seen, lobes:
         .sum()
 }
 
+/// Eq. 18 for a focused light and a focused view at one vertex from drawn directions (Monte Carlo
+/// apertures): the light's `k`-th direction paired with the view's `k`-th, both attenuated over
+/// their own lengths, `n Σ_k c_l(k) c_v(k) s(d_l·d_v)`, an unbiased estimate of the double
+/// integral.
+pub fn lens_pair_drawn(
+    light: (&ApertureGrid, &[C64]),
+    view: (&ApertureGrid, &[C64]),
+    phase: &PhaseFunction,
+) -> C64 {
+    let n = light.0.dirs.len() as f64;
+    let sum: C64 = (light.0.dirs.iter().zip(light.1))
+        .zip(view.0.dirs.iter().zip(view.1))
+        .map(|((dl, cl), (dv, cv))| cl * cv * phase.amplitude(dl.dot(*dv)))
+        .sum();
+    sum * n
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -248,6 +302,111 @@ mod tests {
                 (q - closed).norm() < 5e-2 * q.norm() + 1e-12,
                 "{x}: {q} vs {closed}"
             );
+        }
+    }
+
+    /// Drawn directions give unbiased aperture integrals: the mean of `Υ` over independent draws
+    /// equals the quadrature's (each direction attenuated over its own length) within 4 standard
+    /// errors, and so does the paired two-lens term with Eq. 18's double integral where the
+    /// amplitude is a vMF mixture and the medium barely attenuates (the light's aperture by
+    /// quadrature, the view's in closed form: exact there); the draws' weights sum to the mask's
+    /// integral `2π(1 − e^{−2γ})/γ`.
+    #[test]
+    fn drawn_directions_are_unbiased() {
+        let v = VmfMixture::new(&[1.0, 0.3], &[20.0, 2.0]).unwrap();
+        let phase = PhaseFunction::VmfMixture(v);
+        let lobes = Lobes::of(&phase);
+        let k = 2.0 * std::f64::consts::PI;
+        let lens = |f: DVec3, s: f64, sign: f64| Lens {
+            focus: f,
+            axis: DVec3::new(0.1, 0.0, 1.0).normalize(),
+            gamma: 1.0 / (s * s),
+            sign,
+        };
+        let light = lens(DVec3::new(0.0, 0.0, 2.0), 0.4, 1.0);
+        let view = lens(DVec3::new(0.5, 0.0, 2.0), 0.3, -1.0);
+        let mut rng = crate::math::stream_rng(3, 0);
+        let mut drawn = ApertureGrid::default();
+        drawn.draw(&light, 1000, &mut rng);
+        let mass: f64 = drawn.weights.iter().sum();
+        let g = light.gamma;
+        let exact = 2.0 * std::f64::consts::PI * (1.0 - (-2.0 * g).exp()) / g;
+        assert!((mass - exact).abs() < 1e-12 * exact, "{mass} vs {exact}");
+        let medium = |sigma_s: f64| Medium {
+            geometry: Geometry::boxed([6.0, 6.0, 4.0]),
+            sigma_s,
+            sigma_a: 0.05 * sigma_s / 0.3,
+            scattering: Scattering::single(phase.clone()),
+        };
+        let (attenuating, clear) = (medium(0.3), medium(1e-9));
+        let grid = ApertureGrid::new(&light, 7.0, k, 20.0);
+        let (mut c, mut cv) = (Vec::new(), Vec::new());
+        let mut drawn_v = ApertureGrid::default();
+        let draws = 4000;
+        for x in [DVec3::new(0.1, 0.2, -1.0), DVec3::new(0.3, -0.2, 1.7)] {
+            let u = DVec3::new(0.2, -0.1, -1.0).normalize();
+            weighted_aperture(
+                &light,
+                &grid,
+                Attenuation::Exact,
+                x,
+                &attenuating,
+                k,
+                &mut c,
+            );
+            let reference = upsilon(&light, &grid, &c, u, &phase);
+            // Eq. 18 with the light's aperture by quadrature and the view's in closed form (Eq.
+            // 29, exact for vMF lobes): exact where nothing attenuates
+            let seen_v = Terminal::Lens(view).seen_from(x, &clear, k);
+            let mut c_clear = Vec::new();
+            weighted_aperture(
+                &light,
+                &grid,
+                Attenuation::Exact,
+                x,
+                &clear,
+                k,
+                &mut c_clear,
+            );
+            let closed = lens_pair(&grid, &c_clear, &seen_v, &lobes);
+            let (mut sum, mut sum2) = (C64::default(), 0.0);
+            let (mut pair, mut pair2) = (C64::default(), 0.0);
+            for _ in 0..draws {
+                drawn.draw(&light, 8, &mut rng);
+                weighted_aperture(
+                    &light,
+                    &drawn,
+                    Attenuation::Exact,
+                    x,
+                    &attenuating,
+                    k,
+                    &mut c,
+                );
+                let y = upsilon(&light, &drawn, &c, u, &phase);
+                sum += y;
+                sum2 += y.norm_sqr();
+                drawn_v.draw(&view, 8, &mut rng);
+                weighted_aperture(&light, &drawn, Attenuation::Exact, x, &clear, k, &mut c);
+                weighted_aperture(&view, &drawn_v, Attenuation::Exact, x, &clear, k, &mut cv);
+                let p = lens_pair_drawn((&drawn, &c), (&drawn_v, &cv), &phase);
+                pair += p;
+                pair2 += p.norm_sqr();
+            }
+            let n = draws as f64;
+            for (name, s, s2, truth) in [
+                ("Υ", sum, sum2, reference),
+                ("two-lens", pair, pair2, closed),
+            ] {
+                let mean = s / n;
+                let se = ((s2 / n - mean.norm_sqr()) / n).sqrt();
+                eprintln!("{x} {name}: {mean:.4e} ± {se:.2e} vs {truth:.4e}");
+                assert!(
+                    (mean - truth).norm() < 4.0 * se,
+                    "{x} {name}: {mean} vs {truth}"
+                );
+                // the test resolves the quantity: its error is well below its size
+                assert!(se < 0.1 * truth.norm(), "{x} {name}: error {se} of {truth}");
+            }
         }
     }
 }

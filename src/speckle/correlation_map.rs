@@ -149,6 +149,19 @@ impl EventSink for Products<'_> {
             }
         }
     }
+
+    #[inline]
+    fn event_pair(&mut self, _multiple: bool, a: &[C64], b: &[C64], _: &mut Rng) {
+        let (k, t) = (self.deltas, self.taus);
+        let (c, i) = self.out.split_at_mut(k * t);
+        for d in 0..k {
+            for p in 0..t {
+                let (sa, sb) = (a[d * t + p], b[d * t + p]);
+                c[d * t + p] += 0.5 * (a[p] * sb.conj() + b[p] * sa.conj());
+                i[d * t + p] += (sa * sb.conj()).re;
+            }
+        }
+    }
 }
 
 impl Estimator for MapEstimator<'_> {

@@ -46,6 +46,16 @@ pub struct CovScratch {
 struct CovSink {
     single: Batch,
     multi: Batch,
+    /// Pairs of estimates (Monte Carlo apertures): `(a bᴴ + b aᴴ)/2 = p pᴴ − q qᴴ` with
+    /// `p = (a + b)/2`, `q = (a − b)/2`; the `q qᴴ` terms gather here, `p` and `q` in the buffers.
+    pairs: Option<PairBatches>,
+}
+
+struct PairBatches {
+    single: Batch,
+    multi: Batch,
+    p: Vec<C64>,
+    q: Vec<C64>,
 }
 
 impl EventSink for CovSink {
@@ -57,6 +67,25 @@ impl EventSink for CovSink {
             &mut self.single
         }
         .push(a);
+    }
+
+    #[inline]
+    fn event_pair(&mut self, multiple: bool, a: &[C64], b: &[C64], _: &mut Rng) {
+        let pairs = self
+            .pairs
+            .as_mut()
+            .expect("pair batches when the sampler draws apertures");
+        for ((p, q), (a, b)) in pairs.p.iter_mut().zip(&mut pairs.q).zip(a.iter().zip(b)) {
+            *p = 0.5 * (a + b);
+            *q = 0.5 * (a - b);
+        }
+        let (plus, minus) = if multiple {
+            (&mut self.multi, &mut pairs.multi)
+        } else {
+            (&mut self.single, &mut pairs.single)
+        };
+        plus.push(&pairs.p);
+        minus.push(&pairs.q);
     }
 }
 
@@ -140,6 +169,11 @@ impl Batch {
 
     /// Add the accumulated matrix (lower tiles filled by Hermitian symmetry) to `out`; clear it.
     pub fn drain_into(&mut self, out: &mut [C64]) {
+        self.drain_scaled(1.0, out);
+    }
+
+    /// Add `sign` times the accumulated matrix to `out`; clear it.
+    fn drain_scaled(&mut self, sign: f64, out: &mut [C64]) {
         self.flush();
         let j = self.j;
         let tile = j.div_ceil(TILES);
@@ -150,7 +184,7 @@ impl Batch {
                 } else {
                     C64::new(self.re[b * j + a], -self.im[b * j + a])
                 };
-                out[a * j + b] += z;
+                out[a * j + b] += z * sign;
             }
         }
         self.re.iter_mut().for_each(|v| *v = 0.0);
@@ -227,8 +261,9 @@ impl Estimator for Covariance<'_> {
     fn scratch_bytes(&self) -> usize {
         let j = self.fields();
         // two batches (single, multiple): X (j × 2·BATCH reals) and the accumulator (j × j, its
-        // real and imaginary parts)
-        2 * (2 * j * BATCH + 2 * j * j) * std::mem::size_of::<f64>()
+        // real and imaginary parts); twice that for pairs of estimates
+        let batches = if self.sampler.draws_apertures() { 4 } else { 2 };
+        batches * (2 * j * BATCH + 2 * j * j) * std::mem::size_of::<f64>()
     }
 
     fn scratch(&self) -> CovScratch {
@@ -238,6 +273,12 @@ impl Estimator for Covariance<'_> {
             sink: CovSink {
                 single: Batch::new(j),
                 multi: Batch::new(j),
+                pairs: self.sampler.draws_apertures().then(|| PairBatches {
+                    single: Batch::new(j),
+                    multi: Batch::new(j),
+                    p: vec![C64::default(); j],
+                    q: vec![C64::default(); j],
+                }),
             },
         }
     }
@@ -251,6 +292,10 @@ impl Estimator for Covariance<'_> {
         let (multi, total) = rest.split_at_mut(jj);
         sc.sink.single.drain_into(single);
         sc.sink.multi.drain_into(multi);
+        if let Some(pairs) = &mut sc.sink.pairs {
+            pairs.single.drain_scaled(-1.0, single);
+            pairs.multi.drain_scaled(-1.0, multi);
+        }
         for ((t, a), b) in total.iter_mut().zip(single.iter()).zip(multi.iter()) {
             *t = a + b;
         }

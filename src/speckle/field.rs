@@ -19,9 +19,13 @@ impl<'a> FieldSampler<'a> {
         pairs: Vec<(usize, usize)>,
         reversed: bool,
     ) -> crate::Result<Self> {
-        Ok(FieldSampler {
-            sampler: SubpathSampler::new(scene, pairs, reversed)?,
-        })
+        let sampler = SubpathSampler::new(scene, pairs, reversed)?;
+        if sampler.draws_apertures() {
+            return Err(crate::Error::input(
+                "render.aperture = \"monte_carlo\" estimates second moments (covariance, correlation-map, tilt-shift), not speckle fields: a field per path needs one aperture integral per vertex; use aperture = \"quadrature\" or \"vmf\"",
+            ));
+        }
+        Ok(FieldSampler { sampler })
     }
 }
 
@@ -37,6 +41,12 @@ impl EventSink for PhasedSum<'_> {
         for (u, x) in self.out.iter_mut().zip(a) {
             *u += z * x;
         }
+    }
+
+    /// Never called: [`FieldSampler::new`] refuses Monte Carlo apertures, whose two estimates
+    /// per event give second moments but no single field.
+    fn event_pair(&mut self, multiple: bool, a: &[C64], _: &[C64], rng: &mut Rng) {
+        self.event(multiple, a, rng);
     }
 }
 

@@ -14,7 +14,8 @@ use crate::medium::PhaseFunction;
 use crate::medium::lobes::Lobes;
 use crate::speckle::Scene;
 use crate::speckle::aperture_quadrature::{
-    ApertureGrid, ApertureModel, Attenuation, Quadrature, lens_pair, upsilon, weighted_aperture,
+    ApertureGrid, ApertureModel, Attenuation, Quadrature, lens_pair, lens_pair_drawn, upsilon,
+    weighted_aperture,
 };
 use crate::speckle::endpoint::{
     ConvolvedLobe, Lens, Seen, Terminal, convolve_lobe, lens_pair_term, log_aperture_mass,
@@ -54,6 +55,11 @@ pub fn expected_events(medium: &crate::medium::Medium) -> f64 {
 pub trait EventSink {
     /// `a` is the weighted event vector over pairs; `multiple` is false for the `B = 1` event.
     fn event(&mut self, multiple: bool, a: &[C64], rng: &mut Rng);
+
+    /// Two independent unbiased estimates `a`, `b` of the event vector (apertures by Monte Carlo
+    /// directions): second moments take `(a bᴴ + b aᴴ)/2`, whose mean is the event's where that of
+    /// `a aᴴ` is not. Sinks that need one vector per event (fields) are refused such scenes.
+    fn event_pair(&mut self, multiple: bool, a: &[C64], b: &[C64], rng: &mut Rng);
 }
 
 /// Samples subpaths of a scene for a list of (light, view) pairs.
@@ -81,6 +87,9 @@ pub struct Terminals {
     pub first: FirstVertex,
     /// Quadrature grids of the focused terminals when the scene asks for the quadrature reference.
     pub quadrature: Option<Quadrature>,
+    /// Directions drawn per focused terminal and vertex when the scene asks for Monte Carlo
+    /// apertures.
+    pub drawn: Option<usize>,
 }
 
 impl Terminals {
@@ -143,13 +152,31 @@ impl Terminals {
             }
             _ => None,
         };
+        let drawn = match scene.aperture {
+            ApertureModel::MonteCarlo(n) if focused => Some(n),
+            _ => None,
+        };
         Ok(Terminals {
             lights,
             views,
             lobes,
             first,
             quadrature,
+            drawn,
         })
+    }
+
+    /// How apertures integrated over nodes attenuate their directions.
+    fn attenuation(&self) -> Attenuation {
+        self.quadrature
+            .as_ref()
+            .map_or(Attenuation::Exact, |q| q.attenuation)
+    }
+
+    /// Whether focused terminals are integrated over nodes (quadrature or drawn directions)
+    /// rather than in closed form.
+    fn by_nodes(&self) -> bool {
+        self.quadrature.is_some() || self.drawn.is_some()
     }
 
     /// Whether any light or view is focused.
@@ -162,18 +189,32 @@ impl Terminals {
 pub struct PathScratch {
     first_l: Vec<Seen>,
     first_v: Vec<Seen>,
+    proposal: Vec<(f64, DVec3, f64)>,
+    convolved: Vec<ConvolvedLobe>,
+    view_bound: Vec<f64>,
+    /// Aperture weights at the current vertex (apertures by nodes).
+    here: Vec<C64>,
+    /// The event vector and what it is built of, per independent estimate: two with Monte Carlo
+    /// apertures, only the first otherwise.
+    sides: [Side; 2],
+}
+
+/// One estimate of a subpath's event vectors.
+#[derive(Clone, Default)]
+struct Side {
+    a: Vec<C64>,
     amp_first_l: Vec<C64>,
     amp_first_v: Vec<C64>,
     amp_last_l: Vec<C64>,
     amp_last_v: Vec<C64>,
-    a: Vec<C64>,
-    proposal: Vec<(f64, DVec3, f64)>,
-    convolved: Vec<ConvolvedLobe>,
-    view_bound: Vec<f64>,
-    /// Quadrature aperture weights at the first vertex (per light and view) and at the current one.
-    quad_first_l: Vec<Vec<C64>>,
-    quad_first_v: Vec<Vec<C64>>,
-    quad_here: Vec<C64>,
+    /// Aperture weights at the first vertex per light and view (apertures by nodes).
+    first_l: Vec<Vec<C64>>,
+    first_v: Vec<Vec<C64>>,
+    /// Directions drawn at the first vertex per light and view, and at the current vertex
+    /// (Monte Carlo apertures).
+    drawn_l: Vec<ApertureGrid>,
+    drawn_v: Vec<ApertureGrid>,
+    drawn_here: ApertureGrid,
 }
 
 impl<'a> SubpathSampler<'a> {
@@ -232,71 +273,119 @@ impl<'a> SubpathSampler<'a> {
 
     pub fn scratch(&self) -> PathScratch {
         let (nl, nv) = (self.terminals.lights.len(), self.terminals.views.len());
-        PathScratch {
-            first_l: vec![Seen::default(); nl],
-            first_v: vec![Seen::default(); nv],
+        let side = Side {
+            a: vec![C64::default(); self.pairs.len()],
             amp_first_l: vec![C64::default(); nl],
             amp_first_v: vec![C64::default(); nv],
             amp_last_l: vec![C64::default(); nl],
             amp_last_v: vec![C64::default(); nv],
-            a: vec![C64::default(); self.pairs.len()],
+            first_l: vec![Vec::new(); nl],
+            first_v: vec![Vec::new(); nv],
+            drawn_l: vec![ApertureGrid::default(); nl],
+            drawn_v: vec![ApertureGrid::default(); nv],
+            drawn_here: ApertureGrid::default(),
+        };
+        PathScratch {
+            first_l: vec![Seen::default(); nl],
+            first_v: vec![Seen::default(); nv],
             proposal: Vec::new(),
             convolved: vec![ConvolvedLobe::default(); nl * self.max_lobes],
             view_bound: vec![0.0; nv],
-            quad_first_l: vec![Vec::new(); nl],
-            quad_first_v: vec![Vec::new(); nv],
-            quad_here: Vec::new(),
+            here: Vec::new(),
+            sides: [side.clone(), side],
+        }
+    }
+
+    /// Whether focused apertures are estimated from drawn directions: events then come as two
+    /// independent estimates ([`EventSink::event_pair`]).
+    pub fn draws_apertures(&self) -> bool {
+        self.terminals.drawn.is_some()
+    }
+
+    /// Estimates per event: two independent ones with Monte Carlo apertures.
+    fn sides(&self) -> usize {
+        if self.terminals.drawn.is_some() { 2 } else { 1 }
+    }
+
+    /// Reports the event vectors of `sc` to `sink`.
+    fn emit<S: EventSink>(&self, multiple: bool, sc: &PathScratch, sink: &mut S, rng: &mut Rng) {
+        let [a, b] = &sc.sides;
+        if self.sides() == 2 {
+            sink.event_pair(multiple, &a.a, &b.a, rng);
+        } else {
+            sink.event(multiple, &a.a, rng);
         }
     }
 
     /// The single-scattering (`B = 1`) amplitudes of every pair at vertex `x1`, scattered by a
-    /// particle of type `kind`, into `sc.a`: `υ(i→x₁) υ(x₁→v)` (Eq. 5; `Υ` for lenses, Eq. 18),
-    /// before the first vertex's `√(σ_s / p(x₁))`. Leaves what each terminal looks like from `x1`
-    /// in `sc` for the rest of the path. The closed-form single scattering integrates these.
+    /// particle of type `kind`, into the event vector: `υ(i→x₁) υ(x₁→v)` (Eq. 5; `Υ` for lenses,
+    /// Eq. 18), before the first vertex's `√(σ_s / p(x₁))`. Leaves what each terminal looks like
+    /// from `x1` in `sc` for the rest of the path. The closed-form single scattering integrates
+    /// these; it needs apertures that draw nothing (it refuses Monte Carlo ones).
     pub fn single_at<'s>(&self, x1: DVec3, kind: usize, sc: &'s mut PathScratch) -> &'s [C64] {
-        let s = self.scene;
-        let m = &s.medium;
-        let t = &self.terminals;
-        let (phase1, lobes1) = (m.scattering.phase(kind), &t.lobes[kind]);
+        self.see_first(x1, sc);
+        self.single_side(x1, kind, 0, None, sc);
+        &sc.sides[0].a
+    }
+
+    /// What every terminal looks like from the first vertex `x1` (closed forms).
+    fn see_first(&self, x1: DVec3, sc: &mut PathScratch) {
+        let (s, t) = (self.scene, &self.terminals);
         for (e, c) in t.lights.iter().zip(sc.first_l.iter_mut()) {
-            *c = e.seen_from(x1, m, s.k);
+            *c = e.seen_from(x1, &s.medium, s.k);
         }
         for (e, c) in t.views.iter().zip(sc.first_v.iter_mut()) {
-            *c = e.seen_from(x1, m, s.k);
+            *c = e.seen_from(x1, &s.medium, s.k);
         }
-        if let Some(q) = &t.quadrature {
-            self.quadrature_first(q, x1, sc);
-            for (n, &(l, v)) in self.pairs.iter().enumerate() {
-                sc.a[n] = self.quadrature_single(q, l, v, sc, phase1, lobes1);
+    }
+
+    /// [`Self::single_at`] for one estimate (`side`), after [`Self::see_first`]; Monte Carlo
+    /// apertures draw their directions at `x1` from `rng`.
+    fn single_side(
+        &self,
+        x1: DVec3,
+        kind: usize,
+        side: usize,
+        rng: Option<&mut Rng>,
+        sc: &mut PathScratch,
+    ) {
+        let t = &self.terminals;
+        let (phase1, lobes1) = (self.scene.medium.scattering.phase(kind), &t.lobes[kind]);
+        if t.by_nodes() {
+            let sd = &mut sc.sides[side];
+            self.nodes_first(x1, sd, rng);
+            let mut a = std::mem::take(&mut sd.a);
+            for (a, &(l, v)) in a.iter_mut().zip(&self.pairs) {
+                *a = self.single_by_nodes(l, v, (&sc.first_l, &sc.first_v), sd, phase1, lobes1);
             }
-        } else {
-            let nlobes = lobes1.lobes.len();
-            if let Some(axis) = self.view_axis {
-                for (l, seen) in sc.first_l.iter().enumerate() {
-                    if let Seen::Aperture { vmf, .. } = seen {
-                        for (m, lobe) in lobes1.lobes.iter().enumerate() {
-                            sc.convolved[l * self.max_lobes + m] = convolve_lobe(vmf, lobe, axis);
-                        }
+            sd.a = a;
+            return;
+        }
+        let nlobes = lobes1.lobes.len();
+        if let Some(axis) = self.view_axis {
+            for (l, seen) in sc.first_l.iter().enumerate() {
+                if let Seen::Aperture { vmf, .. } = seen {
+                    for (m, lobe) in lobes1.lobes.iter().enumerate() {
+                        sc.convolved[l * self.max_lobes + m] = convolve_lobe(vmf, lobe, axis);
                     }
                 }
-                for (seen, b) in sc.first_v.iter().zip(sc.view_bound.iter_mut()) {
-                    if let Seen::Aperture { vmf, .. } = seen {
-                        *b = log_aperture_mass(vmf);
-                    }
+            }
+            for (seen, b) in sc.first_v.iter().zip(sc.view_bound.iter_mut()) {
+                if let Seen::Aperture { vmf, .. } = seen {
+                    *b = log_aperture_mass(vmf);
                 }
             }
-            for (a, &(l, v)) in sc.a.iter_mut().zip(&self.pairs) {
-                *a = match (&sc.first_l[l], &sc.first_v[v], self.view_axis) {
-                    (Seen::Aperture { .. }, Seen::Aperture { vmf: av, .. }, Some(_)) => sc
-                        .convolved[l * self.max_lobes..l * self.max_lobes + nlobes]
-                        .iter()
-                        .map(|c| lens_pair_term(c, av, sc.view_bound[v]))
-                        .sum(),
-                    (sl, sv, _) => sl.single(sv, phase1, lobes1),
-                };
-            }
         }
-        &sc.a
+        for (a, &(l, v)) in sc.sides[side].a.iter_mut().zip(&self.pairs) {
+            *a = match (&sc.first_l[l], &sc.first_v[v], self.view_axis) {
+                (Seen::Aperture { .. }, Seen::Aperture { vmf: av, .. }, Some(_)) => sc.convolved
+                    [l * self.max_lobes..l * self.max_lobes + nlobes]
+                    .iter()
+                    .map(|c| lens_pair_term(c, av, sc.view_bound[v]))
+                    .sum(),
+                (sl, sv, _) => sl.single(sv, phase1, lobes1),
+            };
+        }
     }
 
     /// Trace one subpath and report its events to `sink`.
@@ -317,12 +406,13 @@ impl<'a> SubpathSampler<'a> {
         let kind1 = m.scattering.pick(|| uniform(rng));
         let (phase1, lobes1) = (m.scattering.phase(kind1), &t.lobes[kind1]);
         // B = 1: a_j = sqrt(V) υ(i→x1) υ(i→x1→v).
-        self.single_at(x1, kind1, sc);
+        self.see_first(x1, sc);
         let root = volume.sqrt();
-        for a in sc.a.iter_mut() {
-            *a *= root;
+        for side in 0..self.sides() {
+            self.single_side(x1, kind1, side, Some(rng), sc);
+            sc.sides[side].a.iter_mut().for_each(|a| *a *= root);
         }
-        sink.event(false, &sc.a, rng);
+        self.emit(false, sc, sink, rng);
 
         // B ≥ 2: the first direction (uniform, or from |Υ|²), then volume path tracing with
         // next-event connections.
@@ -331,32 +421,20 @@ impl<'a> SubpathSampler<'a> {
         if d >= geo.exit_distance(x1, w1) {
             return;
         }
-        // at the first vertex the quadrature weights are already at hand (single scattering)
-        let first = |terminal: &Terminal,
-                     seen: &Seen,
-                     grid: Option<&Option<ApertureGrid>>,
-                     weights: &[C64]| {
-            match (terminal, grid) {
-                (Terminal::Lens(lens), Some(Some(g))) => upsilon(lens, g, weights, -w1, phase1),
-                _ => seen.amplitude(-w1, phase1, lobes1),
+        // at the first vertex the aperture weights are already at hand (single scattering)
+        for sd in &mut sc.sides[..self.sides()] {
+            for i in 0..t.lights.len() {
+                sd.amp_first_l[i] = match (&t.lights[i], self.first_nodes(sd, true, i)) {
+                    (Terminal::Lens(lens), Some((g, c))) => upsilon(lens, g, c, -w1, phase1),
+                    _ => sc.first_l[i].amplitude(-w1, phase1, lobes1),
+                };
             }
-        };
-        let q = t.quadrature.as_ref();
-        for i in 0..t.lights.len() {
-            sc.amp_first_l[i] = first(
-                &t.lights[i],
-                &sc.first_l[i],
-                q.map(|q| &q.lights[i]),
-                &sc.quad_first_l[i],
-            );
-        }
-        for i in 0..t.views.len() {
-            sc.amp_first_v[i] = first(
-                &t.views[i],
-                &sc.first_v[i],
-                q.map(|q| &q.views[i]),
-                &sc.quad_first_v[i],
-            );
+            for i in 0..t.views.len() {
+                sd.amp_first_v[i] = match (&t.views[i], self.first_nodes(sd, false, i)) {
+                    (Terminal::Lens(lens), Some((g, c))) => upsilon(lens, g, c, -w1, phase1),
+                    _ => sc.first_v[i].amplitude(-w1, phase1, lobes1),
+                };
+            }
         }
         let scale = volume * inv_pdf_w1 * if self.reversed { 0.5 } else { 1.0 };
         let mut x = x1 + w1 * d;
@@ -364,22 +442,18 @@ impl<'a> SubpathSampler<'a> {
         let mut throughput = albedo;
         loop {
             let kind = m.scattering.pick(|| uniform(rng));
-            self.connect_all(
-                x,
-                w_in,
-                kind,
-                (&mut sc.amp_last_l, &mut sc.amp_last_v),
-                &mut sc.quad_here,
-            );
             let root = (scale * throughput).sqrt();
-            for (a, &(l, v)) in sc.a.iter_mut().zip(&self.pairs) {
-                let mut z = sc.amp_first_l[l] * sc.amp_last_v[v];
-                if self.reversed {
-                    z += sc.amp_last_l[l] * sc.amp_first_v[v];
+            for sd in &mut sc.sides[..self.sides()] {
+                self.connect_all(x, w_in, kind, sd, &mut sc.here, rng);
+                for (a, &(l, v)) in sd.a.iter_mut().zip(&self.pairs) {
+                    let mut z = sd.amp_first_l[l] * sd.amp_last_v[v];
+                    if self.reversed {
+                        z += sd.amp_last_l[l] * sd.amp_first_v[v];
+                    }
+                    *a = z * root;
                 }
-                *a = z * root;
             }
-            sink.event(true, &sc.a, rng);
+            self.emit(true, sc, sink, rng);
 
             let w_out = m
                 .scattering
@@ -402,76 +476,134 @@ impl<'a> SubpathSampler<'a> {
         }
     }
 
-    /// The quadrature aperture weights of every focused terminal at the first vertex.
-    fn quadrature_first(&self, q: &Quadrature, x: DVec3, sc: &mut PathScratch) {
+    /// The nodes and first-vertex weights of focused light (`light`) or view `i` in `sd`: the
+    /// scene's quadrature grid or the directions drawn there (`None` for other terminals, or
+    /// apertures in closed form).
+    fn first_nodes<'g>(
+        &'g self,
+        sd: &'g Side,
+        light: bool,
+        i: usize,
+    ) -> Option<(&'g ApertureGrid, &'g [C64])> {
+        let t = &self.terminals;
+        let (grids, drawn, weights) = match (light, &t.quadrature) {
+            (true, q) => (q.as_ref().map(|q| &q.lights), &sd.drawn_l, &sd.first_l),
+            (false, q) => (q.as_ref().map(|q| &q.views), &sd.drawn_v, &sd.first_v),
+        };
+        let grid = match grids {
+            Some(g) => g[i].as_ref()?,
+            None if t.drawn.is_some() => &drawn[i],
+            None => return None,
+        };
+        Some((grid, &weights[i]))
+    }
+
+    /// The aperture weights of every focused terminal at the first vertex `x` (apertures by
+    /// nodes), drawing the directions first for Monte Carlo apertures.
+    fn nodes_first(&self, x: DVec3, sd: &mut Side, mut rng: Option<&mut Rng>) {
         let (s, t) = (self.scene, &self.terminals);
-        for ((grid, term), out) in q.lights.iter().zip(&t.lights).zip(&mut sc.quad_first_l) {
-            if let (Some(g), Terminal::Lens(lens)) = (grid, term) {
-                weighted_aperture(lens, g, q.attenuation, x, &s.medium, s.k, out);
-            }
-        }
-        for ((grid, term), out) in q.views.iter().zip(&t.views).zip(&mut sc.quad_first_v) {
-            if let (Some(g), Terminal::Lens(lens)) = (grid, term) {
-                weighted_aperture(lens, g, q.attenuation, x, &s.medium, s.k, out);
+        let attenuation = t.attenuation();
+        let q = t.quadrature.as_ref();
+        let sides = [
+            (
+                &t.lights,
+                q.map(|q| &q.lights),
+                &mut sd.drawn_l,
+                &mut sd.first_l,
+            ),
+            (
+                &t.views,
+                q.map(|q| &q.views),
+                &mut sd.drawn_v,
+                &mut sd.first_v,
+            ),
+        ];
+        for (terms, grids, drawn, out) in sides {
+            for (i, term) in terms.iter().enumerate() {
+                let Terminal::Lens(lens) = term else { continue };
+                let grid = match (grids, t.drawn, rng.as_deref_mut()) {
+                    (Some(g), _, _) => g[i].as_ref().expect("a grid per focused terminal"),
+                    (None, Some(n), Some(rng)) => {
+                        drawn[i].draw(lens, n, rng);
+                        &drawn[i]
+                    }
+                    _ => continue,
+                };
+                weighted_aperture(lens, grid, attenuation, x, &s.medium, s.k, &mut out[i]);
             }
         }
     }
 
-    /// Single scattering of pair `(l, v)` at the first vertex with quadrature apertures.
-    fn quadrature_single(
+    /// Single scattering of pair `(l, v)` at the first vertex with apertures by nodes (what the
+    /// terminals look like from there in `seen`, the weights in `sd`).
+    fn single_by_nodes(
         &self,
-        q: &Quadrature,
         l: usize,
         v: usize,
-        sc: &PathScratch,
+        seen: (&[Seen], &[Seen]),
+        sd: &Side,
         phase: &PhaseFunction,
         lobes: &Lobes,
     ) -> C64 {
         let t = &self.terminals;
-        match (&t.lights[l], &t.views[v], &sc.first_l[l], &sc.first_v[v]) {
-            (Terminal::Lens(_), Terminal::Lens(_), _, seen_v) => {
-                let grid = q.lights[l].as_ref().expect("a grid per focused light");
-                lens_pair(grid, &sc.quad_first_l[l], seen_v, lobes)
+        let (nl, nv) = (
+            self.first_nodes(sd, true, l),
+            self.first_nodes(sd, false, v),
+        );
+        match (&t.lights[l], &t.views[v], &seen.0[l], &seen.1[v], nl, nv) {
+            (Terminal::Lens(_), Terminal::Lens(_), _, _, Some(nl), Some(nv))
+                if t.drawn.is_some() =>
+            {
+                lens_pair_drawn(nl, nv, phase)
             }
-            (Terminal::Lens(lens), _, _, Seen::Ray(cv)) => {
-                let grid = q.lights[l].as_ref().expect("a grid per focused light");
-                upsilon(lens, grid, &sc.quad_first_l[l], -cv.dir, phase) * cv.prop
+            (Terminal::Lens(_), Terminal::Lens(_), _, seen_v, Some((g, c)), _) => {
+                lens_pair(g, c, seen_v, lobes)
             }
-            (_, Terminal::Lens(lens), Seen::Ray(cl), _) => {
-                let grid = q.views[v].as_ref().expect("a grid per focused view");
-                upsilon(lens, grid, &sc.quad_first_v[v], -cl.dir, phase) * cl.prop
+            (Terminal::Lens(lens), _, _, Seen::Ray(cv), Some((g, c)), _) => {
+                upsilon(lens, g, c, -cv.dir, phase) * cv.prop
             }
-            (_, _, sl, sv) => sl.single(sv, phase, lobes),
+            (_, Terminal::Lens(lens), Seen::Ray(cl), _, _, Some((g, c))) => {
+                upsilon(lens, g, c, -cl.dir, phase) * cl.prop
+            }
+            (_, _, sl, sv, _, _) => sl.single(sv, phase, lobes),
         }
     }
 
-    /// `B_l = τ ξ s(w_in · dir)` (or `Υ` for a focused terminal, by quadrature when the scene asks
-    /// for it; `weights` is its working memory) to every light and view from vertex `x` reached
-    /// along `w_in`, scattered by a particle of type `kind`.
+    /// `B_l = τ ξ s(w_in · dir)` (or `Υ` for a focused terminal, by nodes when the scene asks for
+    /// them; `weights` is their working memory) to every light and view from vertex `x` reached
+    /// along `w_in`, scattered by a particle of type `kind`, into `sd`'s last amplitudes.
     #[inline]
     fn connect_all(
         &self,
         x: DVec3,
         w_in: DVec3,
         kind: usize,
-        (al, av): (&mut [C64], &mut [C64]),
+        sd: &mut Side,
         weights: &mut Vec<C64>,
+        rng: &mut Rng,
     ) {
         let (s, t) = (self.scene, &self.terminals);
         let (phase, lobes) = (s.medium.scattering.phase(kind), &t.lobes[kind]);
         let q = t.quadrature.as_ref();
-        let mut connect = |e: &Terminal, grid: Option<&Option<ApertureGrid>>| match (e, grid) {
-            (Terminal::Lens(lens), Some(Some(g))) => {
-                let attenuation = q.map_or(Attenuation::Exact, |q| q.attenuation);
-                weighted_aperture(lens, g, attenuation, x, &s.medium, s.k, weights);
-                upsilon(lens, g, weights, w_in, phase)
-            }
-            _ => e.seen_from(x, &s.medium, s.k).amplitude(w_in, phase, lobes),
-        };
-        for (i, (e, a)) in t.lights.iter().zip(al.iter_mut()).enumerate() {
+        let attenuation = t.attenuation();
+        let drawn_here = &mut sd.drawn_here;
+        let mut connect =
+            |e: &Terminal, grid: Option<&Option<ApertureGrid>>| match (e, grid, t.drawn) {
+                (Terminal::Lens(lens), Some(Some(g)), _) => {
+                    weighted_aperture(lens, g, attenuation, x, &s.medium, s.k, weights);
+                    upsilon(lens, g, weights, w_in, phase)
+                }
+                (Terminal::Lens(lens), None, Some(n)) => {
+                    drawn_here.draw(lens, n, rng);
+                    weighted_aperture(lens, drawn_here, attenuation, x, &s.medium, s.k, weights);
+                    upsilon(lens, drawn_here, weights, w_in, phase)
+                }
+                _ => e.seen_from(x, &s.medium, s.k).amplitude(w_in, phase, lobes),
+            };
+        for (i, (e, a)) in t.lights.iter().zip(sd.amp_last_l.iter_mut()).enumerate() {
             *a = connect(e, q.map(|q| &q.lights[i]));
         }
-        for (i, (e, a)) in t.views.iter().zip(av.iter_mut()).enumerate() {
+        for (i, (e, a)) in t.views.iter().zip(sd.amp_last_v.iter_mut()).enumerate() {
             *a = connect(e, q.map(|q| &q.views[i]));
         }
     }

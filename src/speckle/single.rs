@@ -226,6 +226,11 @@ pub fn quadrature(scene: &Scene, refine: f64) -> crate::Result<Vec<C64>> {
         ));
     };
     let sampler = SubpathSampler::new(scene, SubpathSampler::all_pairs(scene), false)?;
+    if sampler.draws_apertures() {
+        return Err(crate::Error::input(
+            "render.estimator = \"single_scattering\" integrates the first event by quadrature: render.aperture = \"monte_carlo\" draws directions per path and needs the Monte Carlo estimator; use aperture = \"vmf\" or \"quadrature\"",
+        ));
+    }
     let k = scene.k;
     let lenses = scene
         .lights

@@ -237,6 +237,25 @@ impl EventSink for Products<'_> {
             i[2 * cell + 1] += i2;
         }
     }
+
+    #[inline]
+    fn event_pair(&mut self, _multiple: bool, a: &[C64], b: &[C64], _: &mut Rng) {
+        let (k, t) = (self.cells, self.taus);
+        let (c, i) = self.out.split_at_mut(k);
+        for cell in 0..k {
+            let (mut acc, mut i1, mut i2) = (C64::default(), 0.0, 0.0);
+            for p in 0..t {
+                let n = 2 * (cell * t + p);
+                let (a1, a2, b1, b2) = (a[n], a[n + 1], b[n], b[n + 1]);
+                acc += 0.5 * (a1 * b2.conj() + b1 * a2.conj()) * self.ramps[cell * t + p];
+                i1 += (a1 * b1.conj()).re;
+                i2 += (a2 * b2.conj()).re;
+            }
+            c[cell] += acc;
+            i[2 * cell] += i1;
+            i[2 * cell + 1] += i2;
+        }
+    }
 }
 
 impl Estimator for TiltShiftEstimator<'_> {
