@@ -99,7 +99,11 @@ def test_ctrl_c_stops_fits_designs_and_renders(repo, tmp_path):
     fibre = read_toml(repo / "experiments" / "grin-fibre" / "fibre.toml")
     fibre["trace"]["step"] = 1e-5  # a thousand times the steps: about a minute
     fibre["beam"][0]["count"] = 41
-    assert interrupted_after_half_a_second(lambda: lp.design(fibre, threads=1)) < 1.5
+    # the time budget's estimate for this long run (every ray at its step limit, every
+    # iteration) lies near the default max_minutes and moves with the pilot's timing: lifted,
+    # since what is tested is the interruption
+    long_design = lambda: lp.design(fibre, threads=1, max_minutes=10_000)  # noqa: E731
+    assert interrupted_after_half_a_second(long_design) < 1.5
     assert interrupted_after_half_a_second(
         lambda: lp.render(repo / "configs" / "render_camera.toml", samples=10**7)) < 1.5
     # and the library is usable again at once

@@ -1,6 +1,7 @@
 //! Small numerical helpers shared by the physics modules: complex numbers, frames, sphere sampling,
 //! rotations and the deterministic per-chunk random streams of the Monte Carlo engine.
 
+pub mod elementary;
 pub mod polytope;
 pub mod vmf;
 
@@ -76,7 +77,7 @@ pub fn rotate(v: DVec3, axis: DVec3, angle: f64) -> DVec3 {
 /// `exp(i φ)`.
 #[inline]
 pub fn cis(phi: f64) -> C64 {
-    let (s, c) = phi.sin_cos();
+    let (s, c) = elementary::sin_cos(phi);
     C64::new(c, s)
 }
 

@@ -18,7 +18,8 @@ use crate::speckle::aperture_quadrature::{
     weighted_aperture,
 };
 use crate::speckle::endpoint::{
-    ConvolvedLobe, Lens, Seen, Terminal, convolve_lobe, lens_pair_term, log_aperture_mass,
+    ConvolvedLobe, Lens, Seen, SphereBatch, Terminal, convolve_lobe, lens_pair_from,
+    lens_pair_queue, log_aperture_mass,
 };
 use crate::speckle::first_vertex::FirstVertex;
 use glam::DVec3;
@@ -192,11 +193,24 @@ pub struct PathScratch {
     proposal: Vec<(f64, DVec3, f64)>,
     convolved: Vec<ConvolvedLobe>,
     view_bound: Vec<f64>,
-    /// Aperture weights at the current vertex (apertures by nodes).
-    here: Vec<C64>,
+    /// Working memory of the connections at the current vertex.
+    here: Here,
     /// The event vector and what it is built of, per independent estimate: two with Monte Carlo
     /// apertures, only the first otherwise.
     sides: [Side; 2],
+}
+
+/// Working memory of the connections at one vertex.
+#[derive(Default)]
+struct Here {
+    /// Aperture weights (apertures by nodes).
+    weights: Vec<C64>,
+    /// Every focused terminal's lobes (closed forms), and where each terminal's start.
+    batch: SphereBatch,
+    starts: Vec<Option<usize>>,
+    /// Where each pair's two-lens terms start in the batch (single scattering), and their phases.
+    pair_starts: Vec<Option<usize>>,
+    turns: Vec<(usize, f64)>,
 }
 
 /// One estimate of a subpath's event vectors.
@@ -291,7 +305,11 @@ impl<'a> SubpathSampler<'a> {
             proposal: Vec::new(),
             convolved: vec![ConvolvedLobe::default(); nl * self.max_lobes],
             view_bound: vec![0.0; nv],
-            here: Vec::new(),
+            here: Here {
+                starts: vec![None; nl + nv],
+                pair_starts: vec![None; self.pairs.len()],
+                ..Here::default()
+            },
             sides: [side.clone(), side],
         }
     }
@@ -376,14 +394,31 @@ impl<'a> SubpathSampler<'a> {
                 }
             }
         }
-        for (a, &(l, v)) in sc.sides[side].a.iter_mut().zip(&self.pairs) {
-            *a = match (&sc.first_l[l], &sc.first_v[v], self.view_axis) {
-                (Seen::Aperture { .. }, Seen::Aperture { vmf: av, .. }, Some(_)) => sc.convolved
-                    [l * self.max_lobes..l * self.max_lobes + nlobes]
+        // two lenses about a shared view axis: every pair's lobes evaluated in one batch
+        let here = &mut sc.here;
+        here.batch.clear();
+        here.turns.clear();
+        for (n, &(l, v)) in self.pairs.iter().enumerate() {
+            here.pair_starts[n] = match (&sc.first_l[l], &sc.first_v[v], self.view_axis) {
+                (Seen::Aperture { .. }, Seen::Aperture { vmf: av, .. }, Some(_)) => {
+                    let first = here.turns.len();
+                    for c in &sc.convolved[l * self.max_lobes..l * self.max_lobes + nlobes] {
+                        here.turns.push(lens_pair_queue(c, av, &mut here.batch));
+                    }
+                    Some(first)
+                }
+                _ => None,
+            };
+        }
+        here.batch.evaluate();
+        for (n, (a, &(l, v))) in sc.sides[side].a.iter_mut().zip(&self.pairs).enumerate() {
+            *a = match here.pair_starts[n] {
+                Some(first) => sc.convolved[l * self.max_lobes..l * self.max_lobes + nlobes]
                     .iter()
-                    .map(|c| lens_pair_term(c, av, sc.view_bound[v]))
+                    .zip(&here.turns[first..first + nlobes])
+                    .map(|(c, &t)| lens_pair_from(c, t, &here.batch, sc.view_bound[v]))
                     .sum(),
-                (sl, sv, _) => sl.single(sv, phase1, lobes1),
+                None => sc.first_l[l].single(&sc.first_v[v], phase1, lobes1),
             };
         }
     }
@@ -570,8 +605,8 @@ impl<'a> SubpathSampler<'a> {
     }
 
     /// `B_l = τ ξ s(w_in · dir)` (or `Υ` for a focused terminal, by nodes when the scene asks for
-    /// them; `weights` is their working memory) to every light and view from vertex `x` reached
-    /// along `w_in`, scattered by a particle of type `kind`, into `sd`'s last amplitudes.
+    /// them) to every light and view from vertex `x` reached along `w_in`, scattered by a particle
+    /// of type `kind`, into `sd`'s last amplitudes.
     #[inline]
     fn connect_all(
         &self,
@@ -579,11 +614,38 @@ impl<'a> SubpathSampler<'a> {
         w_in: DVec3,
         kind: usize,
         sd: &mut Side,
-        weights: &mut Vec<C64>,
+        here: &mut Here,
         rng: &mut Rng,
     ) {
         let (s, t) = (self.scene, &self.terminals);
         let (phase, lobes) = (s.medium.scattering.phase(kind), &t.lobes[kind]);
+        if !t.by_nodes() {
+            // closed forms: every focused terminal's lobes evaluated in one batch
+            let nl = t.lights.len();
+            let mut put = |i: usize, a: C64| {
+                if i < nl {
+                    sd.amp_last_l[i] = a;
+                } else {
+                    sd.amp_last_v[i - nl] = a;
+                }
+            };
+            here.batch.clear();
+            for (i, e) in t.lights.iter().chain(&t.views).enumerate() {
+                let seen = e.seen_from(x, &s.medium, s.k);
+                here.starts[i] = seen.queue_lobes(w_in, lobes, &mut here.batch);
+                if here.starts[i].is_none() {
+                    put(i, seen.amplitude(w_in, phase, lobes));
+                }
+            }
+            here.batch.evaluate();
+            for (i, first) in here.starts.iter().enumerate() {
+                if let Some(first) = first {
+                    put(i, Seen::amplitude_from(&here.batch, *first, lobes));
+                }
+            }
+            return;
+        }
+        let weights = &mut here.weights;
         let q = t.quadrature.as_ref();
         let attenuation = t.attenuation();
         let drawn_here = &mut sd.drawn_here;
