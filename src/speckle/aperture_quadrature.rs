@@ -245,13 +245,29 @@ mod tests {
     use crate::medium::{Geometry, Scattering};
     use crate::speckle::endpoint::Terminal;
 
+    /// A forward-peaked amplitude that is exactly a vMF mixture (so Eq. 29 is exact for it), and a
+    /// light and a view focused near each other on a tilted axis.
+    fn lens_pair_setup() -> (PhaseFunction, Lens, Lens) {
+        let v = VmfMixture::new(&[1.0, 0.3], &[20.0, 2.0]).unwrap();
+        let lens = |f: DVec3, s: f64, sign: f64| Lens {
+            focus: f,
+            axis: DVec3::new(0.1, 0.0, 1.0).normalize(),
+            gamma: 1.0 / (s * s),
+            sign,
+        };
+        (
+            PhaseFunction::VmfMixture(v),
+            lens(DVec3::new(0.0, 0.0, 2.0), 0.4, 1.0),
+            lens(DVec3::new(0.5, 0.0, 2.0), 0.3, -1.0),
+        )
+    }
+
     /// With the linearised attenuation and an amplitude that is exactly a vMF mixture, the quadrature
     /// `Υ` equals the closed form of Eq. 29 to 1e-8 (so the grid resolves the phase and the lobes),
     /// and the two-lens term is within the Eqs. 31–32 approximation's error of it (< 5 %).
     #[test]
     fn quadrature_matches_the_closed_forms() {
-        let v = VmfMixture::new(&[1.0, 0.3], &[20.0, 2.0]).unwrap();
-        let phase = PhaseFunction::VmfMixture(v);
+        let (phase, light, view) = lens_pair_setup();
         let medium = Medium {
             geometry: Geometry::boxed([6.0, 6.0, 4.0]),
             sigma_s: 0.3,
@@ -260,14 +276,6 @@ mod tests {
         };
         let lobes = Lobes::of(&phase);
         let k = 2.0 * std::f64::consts::PI;
-        let lens = |f: DVec3, s: f64, sign: f64| Lens {
-            focus: f,
-            axis: DVec3::new(0.1, 0.0, 1.0).normalize(),
-            gamma: 1.0 / (s * s),
-            sign,
-        };
-        let light = lens(DVec3::new(0.0, 0.0, 2.0), 0.4, 1.0);
-        let view = lens(DVec3::new(0.5, 0.0, 2.0), 0.3, -1.0);
         let grid = ApertureGrid::new(&light, 7.0, k, 20.0);
         let mut c = Vec::new();
         for x in [
@@ -313,18 +321,9 @@ mod tests {
     /// integral `2π(1 − e^{−2γ})/γ`.
     #[test]
     fn drawn_directions_are_unbiased() {
-        let v = VmfMixture::new(&[1.0, 0.3], &[20.0, 2.0]).unwrap();
-        let phase = PhaseFunction::VmfMixture(v);
+        let (phase, light, view) = lens_pair_setup();
         let lobes = Lobes::of(&phase);
         let k = 2.0 * std::f64::consts::PI;
-        let lens = |f: DVec3, s: f64, sign: f64| Lens {
-            focus: f,
-            axis: DVec3::new(0.1, 0.0, 1.0).normalize(),
-            gamma: 1.0 / (s * s),
-            sign,
-        };
-        let light = lens(DVec3::new(0.0, 0.0, 2.0), 0.4, 1.0);
-        let view = lens(DVec3::new(0.5, 0.0, 2.0), 0.3, -1.0);
         let mut rng = crate::math::stream_rng(3, 0);
         let mut drawn = ApertureGrid::default();
         drawn.draw(&light, 1000, &mut rng);

@@ -200,12 +200,46 @@ pub struct PathScratch {
     sides: [Side; 2],
 }
 
+/// The amplitudes in closed form of every light (into `al`) and view (`av`), seen from a vertex
+/// as `seen(i)` (lights first, then views), where the path's direction is `u`: every focused
+/// terminal's lobes evaluated in one batch.
+fn closed_amplitudes(
+    seen: impl Fn(usize) -> Seen,
+    u: DVec3,
+    (phase, lobes): (&PhaseFunction, &Lobes),
+    here: &mut Here,
+    (al, av): (&mut [C64], &mut [C64]),
+) {
+    let nl = al.len();
+    let mut put = |i: usize, a: C64| {
+        if i < nl {
+            al[i] = a;
+        } else {
+            av[i - nl] = a;
+        }
+    };
+    here.batch.clear();
+    for i in 0..here.starts.len() {
+        let seen = seen(i);
+        here.starts[i] = seen.queue_lobes(u, lobes, &mut here.batch);
+        if here.starts[i].is_none() {
+            put(i, seen.amplitude(u, phase, lobes));
+        }
+    }
+    here.batch.evaluate();
+    for (i, first) in here.starts.iter().enumerate() {
+        if let Some(first) = first {
+            put(i, Seen::amplitude_from(&here.batch, *first, lobes));
+        }
+    }
+}
+
 /// Working memory of the connections at one vertex.
 #[derive(Default)]
 struct Here {
     /// Aperture weights (apertures by nodes).
     weights: Vec<C64>,
-    /// Every focused terminal's lobes (closed forms), and where each terminal's start.
+    /// Every focused terminal's lobes (closed forms), and where each terminal's terms start.
     batch: SphereBatch,
     starts: Vec<Option<usize>>,
     /// Where each pair's two-lens terms start in the batch (single scattering), and their phases.
@@ -388,9 +422,17 @@ impl<'a> SubpathSampler<'a> {
                     }
                 }
             }
+            // the bound depends on the scale and |Re μ| alone, which views sharing an axis and
+            // aperture share: computed once per run of equal ones
+            let mut last: Option<((f64, f64), f64)> = None;
             for (seen, b) in sc.first_v.iter().zip(sc.view_bound.iter_mut()) {
                 if let Seen::Aperture { vmf, .. } = seen {
-                    *b = log_aperture_mass(vmf);
+                    let key = (vmf.log_scale.re, vmf.mu.re.length_squared());
+                    *b = match last {
+                        Some((k, bound)) if k == key => bound,
+                        _ => log_aperture_mass(vmf),
+                    };
+                    last = Some((key, *b));
                 }
             }
         }
@@ -457,18 +499,27 @@ impl<'a> SubpathSampler<'a> {
             return;
         }
         // at the first vertex the aperture weights are already at hand (single scattering)
-        for sd in &mut sc.sides[..self.sides()] {
-            for i in 0..t.lights.len() {
-                sd.amp_first_l[i] = match (&t.lights[i], self.first_nodes(sd, true, i)) {
-                    (Terminal::Lens(lens), Some((g, c))) => upsilon(lens, g, c, -w1, phase1),
-                    _ => sc.first_l[i].amplitude(-w1, phase1, lobes1),
-                };
-            }
-            for i in 0..t.views.len() {
-                sd.amp_first_v[i] = match (&t.views[i], self.first_nodes(sd, false, i)) {
-                    (Terminal::Lens(lens), Some((g, c))) => upsilon(lens, g, c, -w1, phase1),
-                    _ => sc.first_v[i].amplitude(-w1, phase1, lobes1),
-                };
+        if !t.by_nodes() {
+            let (first_l, first_v) = (&sc.first_l, &sc.first_v);
+            let nl = first_l.len();
+            let seen = |i: usize| if i < nl { first_l[i] } else { first_v[i - nl] };
+            let sd = &mut sc.sides[0];
+            let out = (&mut sd.amp_first_l[..], &mut sd.amp_first_v[..]);
+            closed_amplitudes(seen, -w1, (phase1, lobes1), &mut sc.here, out);
+        } else {
+            for sd in &mut sc.sides[..self.sides()] {
+                for i in 0..t.lights.len() {
+                    sd.amp_first_l[i] = match (&t.lights[i], self.first_nodes(sd, true, i)) {
+                        (Terminal::Lens(lens), Some((g, c))) => upsilon(lens, g, c, -w1, phase1),
+                        _ => sc.first_l[i].amplitude(-w1, phase1, lobes1),
+                    };
+                }
+                for i in 0..t.views.len() {
+                    sd.amp_first_v[i] = match (&t.views[i], self.first_nodes(sd, false, i)) {
+                        (Terminal::Lens(lens), Some((g, c))) => upsilon(lens, g, c, -w1, phase1),
+                        _ => sc.first_v[i].amplitude(-w1, phase1, lobes1),
+                    };
+                }
             }
         }
         let scale = volume * inv_pdf_w1 * if self.reversed { 0.5 } else { 1.0 };
@@ -620,29 +671,17 @@ impl<'a> SubpathSampler<'a> {
         let (s, t) = (self.scene, &self.terminals);
         let (phase, lobes) = (s.medium.scattering.phase(kind), &t.lobes[kind]);
         if !t.by_nodes() {
-            // closed forms: every focused terminal's lobes evaluated in one batch
             let nl = t.lights.len();
-            let mut put = |i: usize, a: C64| {
-                if i < nl {
-                    sd.amp_last_l[i] = a;
+            let seen = |i: usize| {
+                let e = if i < nl {
+                    &t.lights[i]
                 } else {
-                    sd.amp_last_v[i - nl] = a;
-                }
+                    &t.views[i - nl]
+                };
+                e.seen_from(x, &s.medium, s.k)
             };
-            here.batch.clear();
-            for (i, e) in t.lights.iter().chain(&t.views).enumerate() {
-                let seen = e.seen_from(x, &s.medium, s.k);
-                here.starts[i] = seen.queue_lobes(w_in, lobes, &mut here.batch);
-                if here.starts[i].is_none() {
-                    put(i, seen.amplitude(w_in, phase, lobes));
-                }
-            }
-            here.batch.evaluate();
-            for (i, first) in here.starts.iter().enumerate() {
-                if let Some(first) = first {
-                    put(i, Seen::amplitude_from(&here.batch, *first, lobes));
-                }
-            }
+            let out = (&mut sd.amp_last_l[..], &mut sd.amp_last_v[..]);
+            closed_amplitudes(seen, w_in, (phase, lobes), here, out);
             return;
         }
         let weights = &mut here.weights;
