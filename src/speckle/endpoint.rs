@@ -226,10 +226,17 @@ fn sphere_integral_scaled(c: C64, q2: C64) -> C64 {
     } else {
         sphere_integral_special(c.re, q2)
     };
-    if c.im == 0.0 {
+    turned(value, c.im)
+}
+
+/// `value e^{i angle}`, untouched (bit for bit) at angle 0: the imaginary part of a lobe's scale
+/// applied after the real-scale lane.
+#[inline]
+fn turned(value: C64, angle: f64) -> C64 {
+    if angle == 0.0 {
         value
     } else {
-        value * cis(c.im)
+        value * cis(angle)
     }
 }
 
@@ -613,12 +620,7 @@ pub fn lens_pair_from(
     batch: &SphereBatch,
     view_bound: f64,
 ) -> C64 {
-    let value = batch.value(i);
-    let value = if turn == 0.0 {
-        value
-    } else {
-        value * cis(turn)
-    };
+    let value = turned(batch.value(i), turn);
     lens_pair_kept(c, value, view_bound)
 }
 

@@ -405,7 +405,7 @@ impl<'a> SubpathSampler<'a> {
         let (phase1, lobes1) = (self.scene.medium.scattering.phase(kind), &t.lobes[kind]);
         if t.by_nodes() {
             let sd = &mut sc.sides[side];
-            self.nodes_first(x1, sd, rng);
+            self.weigh_first_nodes(x1, sd, rng);
             let mut a = std::mem::take(&mut sd.a);
             for (a, &(l, v)) in a.iter_mut().zip(&self.pairs) {
                 *a = self.single_by_nodes(l, v, (&sc.first_l, &sc.first_v), sd, phase1, lobes1);
@@ -586,7 +586,7 @@ impl<'a> SubpathSampler<'a> {
 
     /// The aperture weights of every focused terminal at the first vertex `x` (apertures by
     /// nodes), drawing the directions first for Monte Carlo apertures.
-    fn nodes_first(&self, x: DVec3, sd: &mut Side, mut rng: Option<&mut Rng>) {
+    fn weigh_first_nodes(&self, x: DVec3, sd: &mut Side, mut rng: Option<&mut Rng>) {
         let (s, t) = (self.scene, &self.terminals);
         let attenuation = t.attenuation();
         let q = t.quadrature.as_ref();
