@@ -379,7 +379,7 @@ fn path_tracing_is_checked_and_runs() {
         ("kind = \"pinhole\"", "kind = \"fluence\"", "sensor[0].kind"),
         (
             "estimator = \"path\"",
-            "estimator = \"bidirectional\"",
+            "estimator = \"photon_mapping\"",
             "render.estimator",
         ),
     ];
@@ -410,6 +410,63 @@ fn path_tracing_is_checked_and_runs() {
     assert_eq!(r["estimator"], "path_tracing");
     assert!(r.get("absorbed").is_none() && r.get("surfaces").is_none());
     assert!(r["cameras"][0]["irradiance"]["mean"].as_f64().unwrap() > 0.0);
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// Bidirectional path tracing renders cameras of scenes without surfaces, from any light (a beam
+/// included), and reports its images' noise.
+#[test]
+fn bidirectional_tracing_is_checked_and_runs() {
+    let dir = tmp("bidirectional");
+    std::fs::create_dir_all(&dir).unwrap();
+    let base = std::fs::read_to_string(config("render_glass.toml")).unwrap();
+    let cases: &[(&str, &str, &str)] = &[
+        (
+            "[render]",
+            "[[sensor]]\nkind = \"flux\"\nname = \"below\"\ncenter = [0.0, 0.0, -3.0]\nnormal = [0.0, 0.0, -1.0]\n\n[render]",
+            "sensor[1].kind",
+        ),
+        (
+            "[render]",
+            "[[surface]]\nname = \"floor\"\ncenter = [0.0, 0.0, -1.5]\nnormal = [0.0, 0.0, 1.0]\nalbedo = 0.5\n\n[render]",
+            "surface[0].name",
+        ),
+    ];
+    for (i, (from, to, key)) in cases.iter().enumerate() {
+        assert!(base.contains(from), "{from}");
+        refused(
+            &dir.join(format!("bad{i}.toml")),
+            &base.replacen(from, to, 1),
+            key,
+        );
+    }
+    let beam = base.replacen(
+        "kind = \"point\"\nposition = [0.3, -0.2, -0.4]",
+        "kind = \"beam\"\ncenter = [0.0, 0.0, -2.0]\ndirection = [0.0, 0.0, 1.0]\nradius = 0.3",
+        1,
+    );
+    assert_ne!(beam, base);
+    for (name, text) in [("lamp", base.as_str()), ("beam", beam.as_str())] {
+        let path = dir.join(format!("{name}.toml"));
+        std::fs::write(&path, text).unwrap();
+        let out = dir.join(name);
+        let o = lightpath(&[
+            "render",
+            &path.display().to_string(),
+            "--out",
+            &out.display().to_string(),
+            "--samples",
+            "1000",
+            "--quiet",
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let r = results(&out);
+        assert_eq!(r["estimator"], "bidirectional");
+        let camera = &r["cameras"][0];
+        assert!(camera["irradiance"]["mean"].as_f64().unwrap() > 0.0);
+        let noise = camera["pixel_noise"].as_f64().unwrap();
+        assert!(noise > 0.0 && noise <= 1.0, "pixel noise {noise}");
+    }
     let _ = std::fs::remove_dir_all(dir);
 }
 

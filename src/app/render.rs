@@ -77,16 +77,31 @@ pub fn evaluate(
     rendered(&task, &plan, blocks, t0.elapsed().as_secs_f64())
 }
 
+/// The median of `stderr/mean` over the pixels of `image`'s time-integrated first channel that
+/// received light (`None` if none did).
+fn pixel_noise(e: &Estimate, image: ImageLayout) -> Option<f64> {
+    let first = image.plane(None, 0);
+    let mut noise: Vec<f64> = (first..first + image.pixels)
+        .filter(|&k| e.mean[k].re > 0.0)
+        .map(|k| e.stderr[k] / e.mean[k].re)
+        .collect();
+    if noise.is_empty() {
+        return None;
+    }
+    noise.sort_by(f64::total_cmp);
+    Some(noise[noise.len() / 2])
+}
+
 /// What `check` says of a render config.
 pub fn describe(task: &RenderTask) -> String {
     let s = &task.scene;
     let v = &s.volume;
     format!(
         "render config{}: {} index profile(s) ({}) in {}, σ_s = {}, σ_a = {}, {} sensor plane(s), {} probe(s), {} camera(s), {} surface(s), {} output(s){}{}; ~{:.3} scattering events per photon",
-        if s.tracing == crate::rrte::Tracing::FromCameras {
-            " (path tracing from the cameras)"
-        } else {
-            ""
+        match s.tracing {
+            crate::rrte::Tracing::FromLight => "",
+            crate::rrte::Tracing::FromCameras => " (path tracing from the cameras)",
+            crate::rrte::Tracing::Bidirectional => " (bidirectional path tracing)",
         },
         v.field.profiles.len(),
         if v.homogeneous() {
@@ -336,6 +351,7 @@ pub fn rendered(
             irradiance: None,
             pixels: c.pixels,
             pixel_area: c.pixel_area(),
+            pixel_noise: pixel_noise(&e, image),
             files: names,
         });
     }
@@ -356,6 +372,7 @@ pub fn rendered(
             irradiance: Some(irradiance),
             pixels: c.pixels,
             pixel_area: c.pixel_area(),
+            pixel_noise: pixel_noise(&e, image),
             files: names,
         });
     }
@@ -410,10 +427,10 @@ pub fn rendered(
     let power = |t: Total| particles.then(|| measured(est.total(t)));
     let file = RenderFile {
         format_version: crate::io::results::FORMAT_VERSION,
-        estimator: if particles {
-            "particle_tracing"
-        } else {
-            "path_tracing"
+        estimator: match scene.tracing {
+            crate::rrte::Tracing::FromLight => "particle_tracing",
+            crate::rrte::Tracing::FromCameras => "path_tracing",
+            crate::rrte::Tracing::Bidirectional => "bidirectional",
         }
         .into(),
         samples: plan.samples(),
@@ -459,7 +476,12 @@ pub fn rendered(
     let summary = format!(
         "rendered {} {} ({:.2} events, {:.0} steps each): {}{}{}",
         plan.samples(),
-        if particles { "photons" } else { "camera paths" },
+        match scene.tracing {
+            crate::rrte::Tracing::FromLight => "photons",
+            crate::rrte::Tracing::FromCameras => "camera paths",
+            crate::rrte::Tracing::Bidirectional =>
+                "bidirectional samples (light and camera subpaths)",
+        },
         events,
         steps,
         if summary.is_empty() {

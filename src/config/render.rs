@@ -415,8 +415,9 @@ pub struct RenderSettings {
     /// inverse probability, Alg. 3) or `"first"` (the path found, unweighted).
     #[serde(default, skip_serializing_if = "ConnectionsConfig::is_default")]
     pub connections: ConnectionsConfig,
-    /// `"particle"` (photons from the light; every sensor kind) or `"path"` (paths from the
-    /// cameras, connected to the light).
+    /// `"particle"` (photons from the light; every sensor kind), `"path"` (paths from the
+    /// cameras, connected to the light) or `"bidirectional"` (both, joined every way and weighted
+    /// by multiple importance sampling; cameras only, no surfaces).
     #[serde(default, skip_serializing_if = "EstimatorConfig::is_default")]
     pub estimator: EstimatorConfig,
 }
@@ -428,6 +429,7 @@ pub enum EstimatorConfig {
     #[default]
     Particle,
     Path,
+    Bidirectional,
 }
 
 impl EstimatorConfig {
@@ -725,6 +727,7 @@ impl RenderConfig {
             tracing: match r.estimator {
                 EstimatorConfig::Particle => Tracing::FromLight,
                 EstimatorConfig::Path => Tracing::FromCameras,
+                EstimatorConfig::Bidirectional => Tracing::Bidirectional,
             },
             transient,
             spectrum: self.spectrum.as_ref().map(|s| s.build()).transpose()?,
@@ -732,14 +735,19 @@ impl RenderConfig {
             max_steps: r.max_steps as usize,
         };
         check_step(&scene)?;
-        if scene.tracing == Tracing::FromCameras {
+        if scene.tracing != Tracing::FromLight {
             self.check_path_tracing(&scene)?;
         }
         Ok(scene)
     }
 
-    /// Path tracing renders cameras lit by a light it can connect to.
+    /// Path tracing renders cameras lit by a light it can connect to; bidirectional path
+    /// tracing renders cameras of a scene without surfaces.
     fn check_path_tracing(&self, scene: &RenderScene) -> Result<(), ConfigError> {
+        let name = match scene.tracing {
+            Tracing::Bidirectional => "bidirectional",
+            _ => "path",
+        };
         for (i, s) in self.sensor.iter().enumerate() {
             let kind = match s {
                 SensorConfig::Pinhole { .. } | SensorConfig::Camera { .. } => continue,
@@ -748,13 +756,22 @@ impl RenderConfig {
                 SensorConfig::Fluence { .. } => "fluence",
             };
             return err(format!(
-                "sensor[{i}].kind = \"{kind}\": render.estimator = \"path\" renders cameras only (kind = \"pinhole\" or \"camera\"); use the particle estimator for {kind} sensors"
+                "sensor[{i}].kind = \"{kind}\": render.estimator = \"{name}\" renders cameras only (kind = \"pinhole\" or \"camera\"); use the particle estimator for {kind} sensors"
             ));
         }
         if scene.pinholes.is_empty() && scene.cameras.is_empty() {
-            return err(
-                "render.estimator = \"path\": no camera to trace paths from ([[sensor]] kind = \"pinhole\" or \"camera\")",
-            );
+            return err(format!(
+                "render.estimator = \"{name}\": no camera to trace paths from ([[sensor]] kind = \"pinhole\" or \"camera\")",
+            ));
+        }
+        if scene.tracing == Tracing::Bidirectional {
+            if let Some(surface) = scene.surfaces.first() {
+                return err(format!(
+                    "surface[0].name = \"{}\": render.estimator = \"bidirectional\" joins subpaths inside the volume only; render scenes with surfaces with the \"particle\" or \"path\" estimator",
+                    surface.name
+                ));
+            }
+            return Ok(());
         }
         if matches!(scene.light, Light::Beam { .. }) {
             return err(

@@ -810,6 +810,10 @@ pub struct CameraRecord {
     pub pixels: [usize; 2],
     /// Orthographic: a pixel's area; pinhole: its area in the image plane at unit distance.
     pub pixel_area: f64,
+    /// The median relative standard error of the lit pixels of the time-integrated image (its
+    /// first channel): how noisy the image is, to compare estimators and sample counts.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pixel_noise: Option<f64>,
     /// `camera_<name>.exr` (channels `Y`, radiance per unit emitted power, and `stderr`), then one
     /// per time bin.
     pub files: Vec<String>,

@@ -11,8 +11,11 @@
 //!   with next-event connections to fluence probes and cameras, and ultrasonic fields met at a
 //!   random phase per photon;
 //! - [`path`]: path tracing from pinhole cameras, connected to the light at every event;
+//! - [`bidirectional`]: bidirectional path tracing, subpaths from the light and the cameras
+//!   joined every way and weighted by multiple importance sampling;
 //! - [`spectrum`]: dispersive indices (Cauchy, Sellmeier, mixtures), wavelengths and colour.
 
+pub mod bidirectional;
 pub mod connect;
 pub mod flight;
 pub mod particle;

@@ -15,6 +15,7 @@
 //! probes and cameras carry the tube's exact cross-section (see [`super::connect`]), which is what
 //! the conservation of basic radiance `L/n²` of the RRTE expresses.
 
+use super::bidirectional::Subpaths;
 use super::connect::{Connector, Sampled};
 use super::flight::{Flight, Flyer, fresnel, reflect};
 use super::scene::{Connections, Modulation, RenderScene, SensorKind, Tracing, Volume};
@@ -109,6 +110,28 @@ impl Tools<'_> {
             v: w * self.flyer.n(x),
         }
     }
+}
+
+/// A connection from an event inside the volume to a camera (see
+/// [`ParticleTracer::camera_link`]): what it carries per unit intensity leaving the event, and
+/// what multiple importance sampling needs of it.
+pub(super) struct CameraLink {
+    /// The camera (orthographic ones first, then pinholes) and the pixel it lands in.
+    pub(super) camera: usize,
+    pub(super) pixel: usize,
+    /// Unit direction leaving the event.
+    pub(super) direction: DVec3,
+    /// The pixel's radiance, and the camera total's share (the irradiance at a pinhole).
+    pub(super) radiance: f64,
+    pub(super) total: f64,
+    /// Group delay from the event to the camera.
+    pub(super) delay: f64,
+    /// Geometric length inside the volume and straight outside it.
+    pub(super) inside: f64,
+    pub(super) outside: f64,
+    /// The density of the camera's own sampling of this path's start: per unit area of an
+    /// orthographic camera's rectangle, per solid angle at a pinhole.
+    pub(super) pdf: f64,
 }
 
 /// Where an image lies among the outputs: after its total (`first − 1`), frame after frame (with
@@ -298,75 +321,106 @@ impl<'s> ParticleTracer<'s> {
             out[o + bin].re += value;
             out[o - 1].re += value;
         }
+        for i in 0..self.scene.cameras.len() + self.scene.pinholes.len() {
+            let Some(link) = self.camera_link(t, x, i, rng, out) else {
+                continue;
+            };
+            let scale = weight * emit(link.direction);
+            self.record_link(t, &link, scale, opl, out);
+        }
+    }
+
+    /// Add the connection `link` to its camera's image, carrying `scale` times its unit
+    /// intensity, reached after the optical path `opl`.
+    pub(super) fn record_link(
+        &self,
+        t: &Tools,
+        link: &CameraLink,
+        scale: f64,
+        opl: f64,
+        out: &mut [C64],
+    ) {
+        let radiance = scale * link.radiance;
+        if !(radiance > 0.0 && radiance.is_finite()) {
+            return;
+        }
+        let Some(bin) = self.bin(opl + link.delay) else {
+            return;
+        };
+        let image = self.images[self.scene.sensors.len() + link.camera];
+        image.add(out, bin, link.pixel, radiance, &t.colour);
+        out[image.total()].re += scale * link.total;
+    }
+
+    /// The connection from `x` (inside) to camera `i` (the orthographic cameras first, then the
+    /// pinholes), what it carries per unit intensity leaving `x`: a pixel's radiance `T (1 − R)
+    /// / (dω_out/dω) / pixel area` for an orthographic camera, `T (1 − R) / (dA⊥/dω) / (cos³θ
+    /// pixel area)` for a pinhole (its irradiance over the pixel's image-plane area at unit
+    /// distance, `dω = cos³θ dA`).
+    pub(super) fn camera_link(
+        &self,
+        t: &Tools,
+        x: DVec3,
+        i: usize,
+        rng: &mut Rng,
+        out: &mut [C64],
+    ) -> Option<CameraLink> {
         let first_only = self.scene.connections == Connections::First;
         let n_out = t.flyer.volume.field.n_out;
-        for (i, cam) in self.scene.cameras.iter().enumerate() {
+        let orthographic = self.scene.cameras.len();
+        if let Some(cam) = self.scene.cameras.get(i) {
             let s = t.connector.sample_exit(x, cam.direction, first_only, rng);
-            let Some((e, inverse_p)) = self.tally(s, out) else {
-                continue;
-            };
-            let Some(pixel) = cam.pixel(e.surface) else {
-                continue;
-            };
+            let (e, inverse_p) = self.tally(s, out)?;
+            let pixel = cam.pixel(e.surface)?;
             let to_plane = (cam.center - e.surface).dot(cam.direction).max(0.0);
             if self
                 .scene
                 .blocked_after_exit(e.surface, cam.direction, to_plane)
             {
-                continue;
+                return None;
             }
             let transmittance = self.transmittance(t, x, e.direction, e.length, rng);
-            let value = weight * emit(e.direction) * transmittance * e.transmission
-                / e.jacobian
-                / cam.pixel_area()
-                * inverse_p;
-            if !(value > 0.0 && value.is_finite()) {
-                continue;
-            }
-            let inside = t.delay.inside(e.optical_path, e.length);
-            let Some(bin) = self.bin(opl + inside + t.delay.outside(n_out * to_plane)) else {
-                continue;
-            };
-            let image = self.camera_image(i);
-            image.add(out, bin, pixel, value, &t.colour);
-            out[image.total()].re += value;
+            let radiance =
+                transmittance * e.transmission / e.jacobian / cam.pixel_area() * inverse_p;
+            return Some(CameraLink {
+                camera: i,
+                pixel,
+                direction: e.direction,
+                radiance,
+                total: radiance,
+                delay: t.delay.inside(e.optical_path, e.length) + t.delay.outside(n_out * to_plane),
+                inside: e.length,
+                outside: to_plane,
+                pdf: 1.0 / (cam.size[0] * cam.size[1]),
+            });
         }
-        for (i, cam) in self.scene.pinholes.iter().enumerate() {
-            let s = t.connector.sample_through(x, cam.position, first_only, rng);
-            let Some((e, inverse_p)) = self.tally(s, out) else {
-                continue;
-            };
-            let Some((pixel, cos)) = cam.pixel(e.outgoing) else {
-                continue;
-            };
-            let to_pinhole = (cam.position - e.surface).dot(e.outgoing);
-            if self
-                .scene
-                .blocked_after_exit(e.surface, e.outgoing, to_pinhole)
-            {
-                continue;
-            }
-            // irradiance at the pinhole, and radiance over the pixel's image-plane area
-            // (dω = cos³θ dA at unit distance)
-            let transmittance = self.transmittance(t, x, e.direction, e.length, rng);
-            let irradiance = weight * emit(e.direction) * transmittance * e.transmission
-                / e.jacobian
-                * inverse_p;
-            if !(irradiance > 0.0 && irradiance.is_finite()) {
-                continue;
-            }
-            // the path's optical length holds the straight stretch to the pinhole
-            let outside = n_out * to_pinhole;
-            let delay =
-                t.delay.inside(e.optical_path - outside, e.length) + t.delay.outside(outside);
-            let Some(bin) = self.bin(opl + delay) else {
-                continue;
-            };
-            let image = self.pinhole_image(i);
-            let radiance = irradiance / (cos * cos * cos * cam.pixel_area());
-            image.add(out, bin, pixel, radiance, &t.colour);
-            out[image.total()].re += irradiance;
+        let cam = &self.scene.pinholes[i - orthographic];
+        let s = t.connector.sample_through(x, cam.position, first_only, rng);
+        let (e, inverse_p) = self.tally(s, out)?;
+        let (pixel, cos) = cam.pixel(e.outgoing)?;
+        let to_pinhole = (cam.position - e.surface).dot(e.outgoing);
+        if self
+            .scene
+            .blocked_after_exit(e.surface, e.outgoing, to_pinhole)
+        {
+            return None;
         }
+        let transmittance = self.transmittance(t, x, e.direction, e.length, rng);
+        let irradiance = transmittance * e.transmission / e.jacobian * inverse_p;
+        // the path's optical length holds the straight stretch to the pinhole
+        let outside = n_out * to_pinhole;
+        let image_area = cos * cos * cos * 4.0 * cam.tan_half[0] * cam.tan_half[1];
+        Some(CameraLink {
+            camera: i,
+            pixel,
+            direction: e.direction,
+            radiance: irradiance / (cos * cos * cos * cam.pixel_area()),
+            total: irradiance,
+            delay: t.delay.inside(e.optical_path - outside, e.length) + t.delay.outside(outside),
+            inside: e.length,
+            outside: to_pinhole,
+            pdf: 1.0 / image_area,
+        })
     }
 
     /// The transmittance along the connection leaving `x` along unit `w` for geometric length
@@ -514,11 +568,12 @@ impl<'s> ParticleTracer<'s> {
         }
     }
 
-    /// One sample: a photon from the light, or a path from each camera.
-    fn sample(&self, t: &Tools, rng: &mut Rng, out: &mut [C64]) {
+    /// One sample: a photon from the light, a path from each camera, or both joined.
+    fn sample(&self, t: &Tools, subpaths: &mut Subpaths, rng: &mut Rng, out: &mut [C64]) {
         match self.scene.tracing {
             Tracing::FromLight => self.photon(t, rng, out),
             Tracing::FromCameras => self.camera_paths(t, rng, out),
+            Tracing::Bidirectional => self.bidirectional(t, subpaths, rng, out),
         }
     }
 
@@ -873,22 +928,24 @@ pub(super) fn roulette(weight: &mut f64, rng: &mut Rng) -> bool {
 
 impl Estimator for ParticleTracer<'_> {
     /// With a time-modulated or dispersive field, each thread's copy of the volume, set to each
-    /// photon's phase and wavelength.
-    type Scratch = Option<Volume>;
+    /// photon's phase and wavelength; the subpaths of bidirectional samples.
+    type Scratch = (Option<Volume>, Subpaths);
 
     fn outputs(&self) -> usize {
         self.totals + TOTALS
     }
 
-    fn scratch(&self) -> Option<Volume> {
-        (self.scene.modulation.is_some() || self.scene.spectrum.is_some())
-            .then(|| self.scene.volume.clone())
+    fn scratch(&self) -> Self::Scratch {
+        let volume = (self.scene.modulation.is_some() || self.scene.spectrum.is_some())
+            .then(|| self.scene.volume.clone());
+        (volume, Subpaths::default())
     }
 
-    fn run_chunk(&self, rng: &mut Rng, paths: u64, scratch: &mut Option<Volume>, out: &mut [C64]) {
+    fn run_chunk(&self, rng: &mut Rng, paths: u64, scratch: &mut Self::Scratch, out: &mut [C64]) {
+        let (volume, subpaths) = scratch;
         for _ in 0..paths {
-            let Some(volume) = scratch.as_mut() else {
-                self.sample(&self.tools, rng, out);
+            let Some(volume) = volume.as_mut() else {
+                self.sample(&self.tools, subpaths, rng, out);
                 continue;
             };
             let base = &self.scene.volume.field;
@@ -913,7 +970,7 @@ impl Estimator for ParticleTracer<'_> {
                 delay = spectrum.delay(lambda);
             }
             let tools = Tools::new(volume, self.scene, colour, delay);
-            self.sample(&tools, rng, out);
+            self.sample(&tools, subpaths, rng, out);
         }
     }
 
@@ -940,8 +997,13 @@ impl Estimator for ParticleTracer<'_> {
         // each step evaluates the field (an ultrasonic profile sums many plane waves)
         let steps = steps * v.field.evaluation_cost();
         // a connection: a few Newton solves of a few iterations, each a flight's worth of steps
-        let connections = self.scene.probes.len() as f64 * if v.homogeneous() { 1.0 } else { 30.0 }
+        let mut connections = self.scene.probes.len() as f64
+            * if v.homogeneous() { 1.0 } else { 30.0 }
             + (self.scene.cameras.len() + self.scene.pinholes.len()) as f64 * 30.0;
+        if self.scene.tracing == Tracing::Bidirectional {
+            // an event is joined to the other subpath's events too (a few in a typical scene)
+            connections *= 3.0;
+        }
         STEP_COST * steps * (1.0 + connections) + self.scene.sensors.len() as f64
     }
 }

@@ -48,7 +48,7 @@ impl Walk {
 }
 
 /// What a camera path adds to its pixel: radiance samples in their time bins.
-struct Pixel {
+pub(super) struct Pixel {
     image: super::ImageLayout,
     pixel: usize,
     /// Pixels of the camera: a uniformly drawn pixel's sample counts this many times.
@@ -57,6 +57,25 @@ struct Pixel {
     /// pinhole (the irradiance from its field of view), the pixel count for an orthographic
     /// camera (the sum of its pixels).
     to_total: f64,
+    /// The density the ray was drawn with: per solid angle at a pinhole, per unit area of an
+    /// orthographic camera's rectangle.
+    pub(super) pdf: f64,
+}
+
+/// A connection from the light to an event inside the volume (see
+/// [`ParticleTracer::light_link`]).
+pub(super) struct LightLink {
+    /// Unit direction leaving the event towards the light.
+    pub(super) direction: DVec3,
+    /// The radiance it brings to the camera per unit throughput and phase function.
+    pub(super) radiance: f64,
+    /// Group delay from the light to the event.
+    pub(super) delay: f64,
+    /// Geometric length inside the volume and straight outside it.
+    pub(super) inside: f64,
+    pub(super) outside: f64,
+    /// The light's own density of emitting along the path (per solid angle).
+    pub(super) pdf: f64,
 }
 
 impl ParticleTracer<'_> {
@@ -71,41 +90,63 @@ impl ParticleTracer<'_> {
             let light = &scene.light;
             self.connect(t, q, 1.0, 0.0, |d| light.intensity(d), rng, out);
         }
-        for (i, cam) in scene.pinholes.iter().enumerate() {
-            // a uniform point of a uniform pixel on the image plane at unit distance
-            let (a, b) = (uniform(rng), uniform(rng));
-            let v = cam.forward
-                + cam.right * ((2.0 * a - 1.0) * cam.tan_half[0])
-                + cam.up * ((2.0 * b - 1.0) * cam.tan_half[1]);
-            let d = v.normalize();
-            let cos = d.dot(cam.forward);
-            let pixel = Pixel {
-                image: self.pinhole_image(i),
-                pixel: grid_pixel(a, b, cam.pixels),
-                count: cam.pixel_count() as f64,
-                to_total: cos * cos * cos * 4.0 * cam.tan_half[0] * cam.tan_half[1],
-            };
-            self.camera_path(t, cam.position, d, &pixel, rng, out);
+        // the pinholes first, then the orthographic cameras
+        let orthographic = scene.cameras.len();
+        let order = (orthographic..orthographic + scene.pinholes.len()).chain(0..orthographic);
+        for camera in order {
+            let (x, d, pixel) = self.camera_ray(camera, rng);
+            self.camera_path(t, x, d, &pixel, rng, out);
         }
-        for (i, cam) in scene.cameras.iter().enumerate() {
-            // a uniform point of a uniform pixel of the rectangle, looking back along the light
-            let (a, b) = (uniform(rng), uniform(rng));
+    }
+
+    /// The start of a path from camera `camera` (the orthographic cameras first, then the
+    /// pinholes, as in [`super::particle::CameraLink`]): a uniform point of a uniform pixel of a
+    /// pinhole's image plane at unit distance, the ray through it; or of an orthographic camera's
+    /// rectangle, looking back along the light.
+    pub(super) fn camera_ray(&self, camera: usize, rng: &mut Rng) -> (DVec3, DVec3, Pixel) {
+        let scene = self.scene;
+        let (a, b) = (uniform(rng), uniform(rng));
+        if let Some(cam) = scene.cameras.get(camera) {
             let y = cam.center
                 + cam.right * ((a - 0.5) * cam.size[0])
                 + cam.up * ((b - 0.5) * cam.size[1]);
             let count = cam.pixel_count() as f64;
             let pixel = Pixel {
-                image: self.camera_image(i),
+                image: self.camera_image(camera),
                 pixel: grid_pixel(a, b, cam.pixels),
                 count,
                 to_total: count,
+                pdf: 1.0 / (cam.size[0] * cam.size[1]),
             };
-            self.camera_path(t, y, -cam.direction, &pixel, rng, out);
+            return (y, -cam.direction, pixel);
         }
+        let i = camera - scene.cameras.len();
+        let cam = &scene.pinholes[i];
+        let v = cam.forward
+            + cam.right * ((2.0 * a - 1.0) * cam.tan_half[0])
+            + cam.up * ((2.0 * b - 1.0) * cam.tan_half[1]);
+        let d = v.normalize();
+        let cos = d.dot(cam.forward);
+        let image_area = cos * cos * cos * 4.0 * cam.tan_half[0] * cam.tan_half[1];
+        let pixel = Pixel {
+            image: self.pinhole_image(i),
+            pixel: grid_pixel(a, b, cam.pixels),
+            count: cam.pixel_count() as f64,
+            to_total: image_area,
+            pdf: 1.0 / image_area,
+        };
+        (cam.position, d, pixel)
     }
 
     /// Record the radiance sample `radiance` (at the camera) arriving with optical path `opl`.
-    fn record_sample(&self, t: &Tools, p: &Pixel, radiance: f64, opl: f64, out: &mut [C64]) {
+    pub(super) fn record_sample(
+        &self,
+        t: &Tools,
+        p: &Pixel,
+        radiance: f64,
+        opl: f64,
+        out: &mut [C64],
+    ) {
         if !(radiance > 0.0 && radiance.is_finite()) {
             return;
         }
@@ -249,7 +290,7 @@ impl ParticleTracer<'_> {
     }
 
     /// A point of the light to connect to (`None` for a beam).
-    fn light_point(&self, rng: &mut Rng) -> Option<DVec3> {
+    pub(super) fn light_point(&self, rng: &mut Rng) -> Option<DVec3> {
         match self.scene.light {
             Light::Beam { .. } => None,
             Light::Point { position } | Light::Spot { position, .. } => Some(position),
@@ -276,54 +317,74 @@ impl ParticleTracer<'_> {
         rng: &mut Rng,
         out: &mut [C64],
     ) {
-        let volume = t.flyer.volume;
-        let Some(q) = self.light_point(rng) else {
+        let Some(link) = self.light_link(t, x, rng, out) else {
             return;
         };
+        let phase = t.flyer.volume.scattering.eval(link.direction.dot(u));
+        self.record_sample(
+            t,
+            pixel,
+            w.beta * phase * link.radiance,
+            w.opl + link.delay,
+            out,
+        );
+    }
+
+    /// The connection from the light to `x` inside the volume: the basic radiance it brings to
+    /// `x` per unit phase function, times the camera's `n_out²` (see the module's notes).
+    pub(super) fn light_link(
+        &self,
+        t: &Tools,
+        x: DVec3,
+        rng: &mut Rng,
+        out: &mut [C64],
+    ) -> Option<LightLink> {
+        let volume = t.flyer.volume;
+        let q = self.light_point(rng)?;
         let first_only = self.scene.connections == super::Connections::First;
         let n_out = volume.field.n_out;
-        let phase = |dir: DVec3| volume.scattering.eval(dir.dot(u));
+        let light = &self.scene.light;
         if volume.field.bounds.contains(q) {
             // a curved connection inside: dA_q/dω_x is its spread
             let s: Sampled = match self.scene.connections {
                 super::Connections::Unbiased => t.connector.sample(x, q, rng),
                 super::Connections::First => t.connector.sample_first(x, q, rng),
             };
-            let Some((c, inverse_p)) = self.tally(s, out) else {
-                return;
-            };
+            let (c, inverse_p) = self.tally(s, out)?;
             let leaving_q = -c.arrival.v.normalize();
             let n_q = t.flyer.n(q);
             let transmittance = self.transmittance(t, x, c.direction, c.length, rng);
-            let b =
-                w.beta * phase(c.direction) * self.scene.light.intensity(leaving_q) * transmittance
-                    / (n_q * n_q * c.spread)
-                    * inverse_p;
-            let delay = t.delay.inside(c.optical_path, c.length);
-            self.record_sample(t, pixel, n_out * n_out * b, w.opl + delay, out);
+            let intensity = light.intensity(leaving_q);
+            Some(LightLink {
+                direction: c.direction,
+                radiance: n_out * n_out * intensity * transmittance / (n_q * n_q * c.spread)
+                    * inverse_p,
+                delay: t.delay.inside(c.optical_path, c.length),
+                inside: c.length,
+                outside: 0.0,
+                pdf: intensity,
+            })
         } else {
             let s = t.connector.sample_through(x, q, first_only, rng);
-            let Some((e, inverse_p)) = self.tally(s, out) else {
-                return;
-            };
+            let (e, inverse_p) = self.tally(s, out)?;
             let to_q = (q - e.surface).dot(e.outgoing);
             if self.scene.blocked_after_exit(e.surface, e.outgoing, to_q) {
-                return;
+                return None;
             }
             let transmittance = self.transmittance(t, x, e.direction, e.length, rng);
             // n_q = n_out: the camera's n_out² cancels it
-            let radiance = w.beta
-                * phase(e.direction)
-                * self.scene.light.intensity(-e.outgoing)
-                * transmittance
-                * e.transmission
-                / e.jacobian
-                * inverse_p;
+            let intensity = light.intensity(-e.outgoing);
             // the path's optical length holds the straight stretch to the light
             let outside = n_out * to_q;
-            let delay =
-                t.delay.inside(e.optical_path - outside, e.length) + t.delay.outside(outside);
-            self.record_sample(t, pixel, radiance, w.opl + delay, out);
+            Some(LightLink {
+                direction: e.direction,
+                radiance: intensity * transmittance * e.transmission / e.jacobian * inverse_p,
+                delay: t.delay.inside(e.optical_path - outside, e.length)
+                    + t.delay.outside(outside),
+                inside: e.length,
+                outside: to_q,
+                pdf: intensity,
+            })
         }
     }
 

@@ -374,6 +374,9 @@ pub enum Tracing {
     FromLight,
     /// Path tracing: paths from the pinhole cameras, connected to the light.
     FromCameras,
+    /// Bidirectional path tracing: a subpath from the light and one from each camera, joined
+    /// every way, weighted by multiple importance sampling (cameras only; no surfaces).
+    Bidirectional,
 }
 
 /// What a sensor reports.
