@@ -27,6 +27,7 @@ const CONFIGS: &[(&str, &str)] = &[
     ("configs/render_camera.toml", "render"),
     ("configs/render_density.toml", "render"),
     ("configs/render_fluence.toml", "render"),
+    ("configs/render_glass.toml", "render"),
     ("configs/render_luneburg.toml", "render"),
     ("configs/render_path.toml", "render"),
     ("configs/render_sdf.toml", "render"),

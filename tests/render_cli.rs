@@ -470,6 +470,83 @@ fn bidirectional_tracing_is_checked_and_runs() {
     let _ = std::fs::remove_dir_all(dir);
 }
 
+/// Meshes as signed-distance bounds: read relative to the config, placed by scale and offset,
+/// checked by key, and rendered.
+#[test]
+fn meshes_are_read_and_checked_by_key() {
+    let dir = tmp("mesh");
+    std::fs::create_dir_all(dir.join("meshes")).unwrap();
+    std::fs::copy(
+        config("meshes/trefoil.obj"),
+        dir.join("meshes").join("trefoil.obj"),
+    )
+    .unwrap();
+    std::fs::write(dir.join("meshes").join("junk.obj"), "v 0 0 0\nf 1 2 3\n").unwrap();
+    let base = std::fs::read_to_string(config("render_mesh.toml")).unwrap();
+    let cases: &[(&str, &str, &str)] = &[
+        (
+            "mesh = \"meshes/trefoil.obj\"",
+            "mesh = \"meshes/missing.obj\"",
+            "field.bounds.mesh = ",
+        ),
+        (
+            "mesh = \"meshes/trefoil.obj\"",
+            "mesh = \"meshes/junk.obj\"",
+            "line 2",
+        ),
+        ("scale = 1.0", "scale = 0.0", "field.bounds.scale"),
+        (
+            "offset = [0.0, 0.0, 0.0]",
+            "offset = [0.0, 1e400, 0.0]",
+            "offset",
+        ),
+        ("spacing = 0.02", "", "field.bounds.spacing: missing"),
+        (
+            "spacing = 0.02",
+            "spacing = 0.0005",
+            "field.bounds.spacing = 0.0005",
+        ),
+        (
+            "spacing = 0.02",
+            "spacing = 0.02\nshapes = [{ kind = \"sphere\", center = [0.0, 0.0, 0.0], radius = 1.0 }]",
+            "give the shape once",
+        ),
+        (
+            "mesh = \"meshes/trefoil.obj\"",
+            "shapes = [{ kind = \"sphere\", center = [0.0, 0.0, 0.0], radius = 1.0 }]",
+            "scale and offset place a mesh",
+        ),
+    ];
+    refused_all(&dir, &base, cases);
+    let path = dir.join("knot.toml");
+    std::fs::write(&path, &base).unwrap();
+    let o = lightpath(&["check", &path.display().to_string()]);
+    let said = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success() && said.contains("in a signed-distance shape within"),
+        "{said}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let out = dir.join("run");
+    let o = lightpath(&[
+        "render",
+        &path.display().to_string(),
+        "--out",
+        &out.display().to_string(),
+        "--samples",
+        "1000",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        results(&out)["cameras"][0]["irradiance"]["mean"]
+            .as_f64()
+            .unwrap()
+            > 0.0
+    );
+    let _ = std::fs::remove_dir_all(dir);
+}
+
 /// Signed-distance bounds: each way of giving the shape is checked by key, the depth-graded
 /// profile needs them, and a shape read from a JSON file renders as the same shape sampled from
 /// its closed form.

@@ -1,14 +1,15 @@
 //! Volumes bounded by signed-distance grids in the refractive renderer: a ring (not convex) that a
 //! beam crosses twice, against its closed-form attenuation; a sampled sphere with the depth-graded
-//! Luneburg profile against the analytic Luneburg sphere (flux and camera totals); and free flights
-//! with the inside–outside tests skipped by the clearance equal, bit for bit, to flights testing
-//! after every step.
+//! Luneburg profile against the analytic Luneburg sphere (flux and camera totals); a glass ball
+//! given as a triangle mesh against the analytic ball; and free flights with the inside–outside
+//! tests skipped by the clearance equal, bit for bit, to flights testing after every step.
 
 mod common;
 
 use common::bare_scene;
 use glam::DVec3;
 use lightpath::eikonal::grid::Interp;
+use lightpath::eikonal::mesh::Mesh;
 use lightpath::eikonal::sdf::{SdfGrid, Shape, sample_shapes};
 use lightpath::eikonal::{BoundedField, Bounds, Profile, Ray};
 use lightpath::math::{stream_rng, uniform};
@@ -209,5 +210,147 @@ fn skipped_tests_change_no_flight() {
             boundaries += matches!(a.0, lightpath::rrte::flight::Flight::Boundary { .. }) as usize;
         }
         assert!(boundaries > 100, "{boundaries} flights reached the surface");
+    }
+}
+
+/// A unit icosphere: an icosahedron whose triangles are split in four `levels` times, every
+/// vertex pushed onto the sphere; faces outwards.
+fn icosphere(levels: usize) -> Mesh {
+    let p = (1.0 + 5f64.sqrt()) / 2.0;
+    let mut vertices: Vec<DVec3> = [
+        [-1.0, p, 0.0],
+        [1.0, p, 0.0],
+        [-1.0, -p, 0.0],
+        [1.0, -p, 0.0],
+        [0.0, -1.0, p],
+        [0.0, 1.0, p],
+        [0.0, -1.0, -p],
+        [0.0, 1.0, -p],
+        [p, 0.0, -1.0],
+        [p, 0.0, 1.0],
+        [-p, 0.0, -1.0],
+        [-p, 0.0, 1.0],
+    ]
+    .iter()
+    .map(|v| DVec3::from_array(*v).normalize())
+    .collect();
+    let mut triangles = vec![
+        [0, 11, 5],
+        [0, 5, 1],
+        [0, 1, 7],
+        [0, 7, 10],
+        [0, 10, 11],
+        [1, 5, 9],
+        [5, 11, 4],
+        [11, 10, 2],
+        [10, 7, 6],
+        [7, 1, 8],
+        [3, 9, 4],
+        [3, 4, 2],
+        [3, 2, 6],
+        [3, 6, 8],
+        [3, 8, 9],
+        [4, 9, 5],
+        [2, 4, 11],
+        [6, 2, 10],
+        [8, 6, 7],
+        [9, 8, 1],
+    ];
+    for _ in 0..levels {
+        let mut midpoints = std::collections::HashMap::new();
+        let mut split = Vec::new();
+        for [a, b, c] in triangles {
+            let mut mid = |i: usize, j: usize| {
+                *midpoints.entry((i.min(j), i.max(j))).or_insert_with(|| {
+                    vertices.push(((vertices[i] + vertices[j]) * 0.5).normalize());
+                    vertices.len() - 1
+                })
+            };
+            let (ab, bc, ca) = (mid(a, b), mid(b, c), mid(c, a));
+            split.extend([[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
+        }
+        triangles = split;
+    }
+    Mesh::new(vertices, triangles).unwrap()
+}
+
+/// A scattering glass ball (n = 1.3 in air, Fresnel at its surface) given as an icosphere mesh of
+/// 5 120 triangles: its distance is the sphere's within the facets' sagitta, and it transmits,
+/// reflects and shows a camera what the analytic ball does.
+#[test]
+fn a_mesh_ball_renders_as_the_analytic_one() {
+    let mesh = icosphere(4);
+    assert_eq!(mesh.triangles.len(), 5120);
+    let spacing = 0.05;
+    let (origin, dims, samples) = mesh.signed_distance_grid(spacing);
+    let mut worst: f64 = 0.0;
+    for k in 0..dims[2] {
+        for j in 0..dims[1] {
+            for i in 0..dims[0] {
+                let x = origin + DVec3::new(i as f64, j as f64, k as f64) * spacing;
+                let d = samples[i + dims[0] * (j + dims[1] * k)];
+                worst = worst.max((d - (x.length() - 1.0)).abs());
+            }
+        }
+    }
+    // the polyhedron lies between the sphere and its facets' planes: the distances differ by at
+    // most the largest gap between a plane and the sphere
+    let gap = mesh
+        .triangles
+        .iter()
+        .map(|t| {
+            let [a, b, c] = t.map(|k| mesh.vertices[k]);
+            1.0 - a.dot((b - a).cross(c - a).normalize())
+        })
+        .fold(0.0, f64::max);
+    assert!(gap < 2e-3, "facets up to {gap} inside the sphere");
+    assert!(
+        worst <= gap + 1e-12,
+        "largest distance error {worst}, facets' gap {gap}"
+    );
+    let grid = SdfGrid::from_samples(origin, spacing, dims, samples, Interp::Tricubic).unwrap();
+    let scene = |bounds: Bounds| RenderScene {
+        volume: Volume {
+            field: BoundedField::single(Profile::Constant { n: 1.3 }, bounds, 1.0),
+            sigma_s: 1.0,
+            sigma_a: 0.1,
+            scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g: 0.5 }),
+            density: None,
+        },
+        light: Light::Beam {
+            center: DVec3::new(0.0, 0.0, -2.0),
+            direction: DVec3::Z,
+            radius: 0.8,
+        },
+        sensors: vec![
+            flux("T", DVec3::new(0.0, 0.0, 1.5), DVec3::Z),
+            flux("R", DVec3::new(0.0, 0.0, -1.5), -DVec3::Z),
+        ],
+        cameras: vec![Camera::new(
+            "side".into(),
+            DVec3::X,
+            DVec3::new(3.0, 0.0, 0.0),
+            [2.4, 2.4],
+            [4, 4],
+        )],
+        ..bare_scene(0.01)
+    };
+    let analytic = scene(Bounds::Sphere { radius: 1.0 });
+    let meshed = scene(Bounds::Sdf(Arc::new(grid)));
+    let photons = 20_000;
+    let (a, est) = common::render(&analytic, photons, 21);
+    let (b, _) = common::render(&meshed, photons, 22);
+    for (what, i) in [
+        ("transmitted", est.power(0)),
+        ("reflected", est.power(1)),
+        ("camera total", est.camera_image(0).total()),
+    ] {
+        let (x, y) = (a.mean[i].re, b.mean[i].re);
+        let se = a.stderr[i].hypot(b.stderr[i]);
+        assert!(x > 0.0 && y > 0.0, "{what}: {x} {y}");
+        assert!(
+            (x - y).abs() < 4.0 * se,
+            "{what}: analytic {x}, mesh {y} (± {se})"
+        );
     }
 }

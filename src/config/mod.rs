@@ -18,6 +18,7 @@
 pub mod acquire;
 pub mod design;
 mod medium;
+mod mesh;
 pub mod render;
 mod scene;
 pub mod trace;

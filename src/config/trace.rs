@@ -99,6 +99,8 @@ fn tricubic() -> String {
 
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq, Default)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+// read once per config: the signed-distance variant's size costs nothing
+#[allow(clippy::large_enum_variant)]
 pub enum BoundsConfig {
     #[default]
     Everywhere,
@@ -113,8 +115,9 @@ pub enum BoundsConfig {
         size: [f64; 3],
     },
     /// Any closed shape by its signed distance (negative inside) on a grid: sampled from `shapes`
-    /// (their smooth union over `blend`) every `spacing`, or given as `values` at `dims` nodes from
-    /// `origin` every `spacing` (x fastest), or read from `path` (a JSON file with those keys).
+    /// (their smooth union over `blend`) or from a triangle `mesh` every `spacing`, or given as
+    /// `values` at `dims` nodes from `origin` every `spacing` (x fastest), or read from `path` (a
+    /// JSON file with those keys).
     Sdf {
         #[serde(default, skip_serializing_if = "Vec::is_empty")]
         shapes: Vec<ShapeConfig>,
@@ -130,9 +133,24 @@ pub enum BoundsConfig {
         values: Option<Vec<f64>>,
         #[serde(default, skip_serializing_if = "Option::is_none")]
         path: Option<String>,
+        /// A triangle mesh (OBJ, STL or PLY), scaled by `scale` about the origin and moved by
+        /// `offset`, sampled every `spacing`.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        mesh: Option<String>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        scale: Option<f64>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        offset: Option<[f64; 3]>,
         #[serde(default = "tricubic")]
         interp: String,
     },
+}
+
+/// The keys of a signed-distance shape read from a mesh file.
+struct MeshKeys<'a> {
+    path: Option<&'a String>,
+    scale: Option<f64>,
+    offset: Option<[f64; 3]>,
 }
 
 /// A shape in closed form for a signed-distance `field.bounds`.
@@ -193,18 +211,62 @@ fn sdf_bounds(
     origin: Option<[f64; 3]>,
     values: Option<&Vec<f64>>,
     path: Option<&String>,
+    mesh: MeshKeys,
     interp: &str,
 ) -> Result<Bounds, ConfigError> {
     use crate::eikonal::sdf::{SdfGrid, Shape, sample_shapes};
     const K: &str = "field.bounds";
     let interp = interpolation(K, interp)?;
-    let sources = [!shapes.is_empty(), values.is_some(), path.is_some()];
+    let sources = [
+        !shapes.is_empty(),
+        values.is_some(),
+        path.is_some(),
+        mesh.path.is_some(),
+    ];
     if sources.iter().filter(|s| **s).count() != 1 {
         return err(format!(
-            "{K}: give the shape once: as shapes = [...] (with spacing), as values (with dims, origin and spacing), or as path = a JSON file of dims, origin, spacing and values"
+            "{K}: give the shape once: as shapes = [...] (with spacing), as mesh = an OBJ, STL or PLY file (with spacing), as values (with dims, origin and spacing), or as path = a JSON file of dims, origin, spacing and values"
         ));
     }
-    let (origin, spacing, dims, samples) = if !shapes.is_empty() {
+    if mesh.path.is_none() && (mesh.scale.is_some() || mesh.offset.is_some()) {
+        return err(format!(
+            "{K}: scale and offset place a mesh; give mesh = an OBJ, STL or PLY file, or drop them"
+        ));
+    }
+    let (origin, spacing, dims, samples) = if let Some(file) = mesh.path {
+        let spacing = pos(
+            &format!("{K}.spacing"),
+            spacing.ok_or_else(|| {
+                ConfigError(format!(
+                    "{K}.spacing: missing (the grid step the mesh's distance is sampled at)"
+                ))
+            })?,
+        )?;
+        if blend != 0.0 {
+            return err(format!("{K}.blend = {blend}: only for shapes"));
+        }
+        if dims.is_some() || origin.is_some() {
+            return err(format!(
+                "{K}: dims and origin are set from the mesh's extent; give only spacing"
+            ));
+        }
+        let scale = pos(&format!("{K}.scale"), mesh.scale.unwrap_or(1.0))?;
+        let offset = finite(&format!("{K}.offset"), mesh.offset.unwrap_or([0.0; 3]))?;
+        let m = super::mesh::read_mesh(file)
+            .map_err(|e| ConfigError(format!("{K}.mesh = \"{file}\": {e}")))?
+            .transformed(scale, offset);
+        let (lo, hi) = m.extent();
+        let nodes = ((hi - lo) / spacing + DVec3::splat(7.0)).element_product();
+        if nodes.is_nan() || nodes > MAX_SDF_NODES {
+            return err(format!(
+                "{K}.spacing = {spacing}: the mesh spans {:?} to {:?}, about {nodes:.3e} grid nodes; at most {MAX_SDF_NODES:e} (256³): use a coarser spacing",
+                lo.to_array(),
+                hi.to_array()
+            ));
+        }
+        let (origin, dims, samples) = m.signed_distance_grid(spacing);
+        (origin, spacing, dims, samples)
+    } else if !shapes.is_empty() {
         let spacing = pos(
             &format!("{K}.spacing"),
             spacing.ok_or_else(|| {
@@ -439,11 +501,10 @@ impl FieldConfig {
                 *path = dir.join(&*path).to_string_lossy().into_owned();
             }
         }
-        if let BoundsConfig::Sdf {
-            path: Some(path), ..
-        } = &mut self.bounds
-        {
-            *path = dir.join(&*path).to_string_lossy().into_owned();
+        if let BoundsConfig::Sdf { path, mesh, .. } = &mut self.bounds {
+            for file in [path, mesh].into_iter().flatten() {
+                *file = dir.join(&*file).to_string_lossy().into_owned();
+            }
         }
     }
 
@@ -485,6 +546,9 @@ impl FieldConfig {
                 origin,
                 ref values,
                 ref path,
+                ref mesh,
+                scale,
+                offset,
                 ref interp,
             } => sdf_bounds(
                 shapes,
@@ -494,6 +558,11 @@ impl FieldConfig {
                 origin,
                 values.as_ref(),
                 path.as_ref(),
+                MeshKeys {
+                    path: mesh.as_ref(),
+                    scale,
+                    offset,
+                },
                 interp,
             )?,
         };

@@ -6,6 +6,7 @@ pub mod adjoint;
 pub mod bessel;
 pub mod field;
 pub mod grid;
+pub mod mesh;
 pub mod sdf;
 pub mod trace;
 
