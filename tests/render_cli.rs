@@ -678,6 +678,9 @@ fn signed_distance_shapes_are_checked_and_read_from_files() {
     // the same grid (the file's samples are the sphere's distance at the same nodes), so the
     // same photons
     assert_eq!(totals[0], totals[1]);
+    // the floor screen says how noisy its image is
+    let noise = totals[0][0]["pixel_noise"].as_f64().unwrap();
+    assert!(noise > 0.0 && noise <= 1.0, "screen pixel noise {noise}");
     let mut touching = values.clone();
     touching[0] = -0.1;
     std::fs::write(dir.join("ball.json"), file(&touching)).unwrap();

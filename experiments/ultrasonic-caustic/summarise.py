@@ -25,3 +25,13 @@ for case, r in runs.items():
     st = r["statistics"]
     print(f"{case}: {r['samples']} photons, {st['events_per_photon']:.2f} events and "
           f"{st['steps_per_photon']:.0f} steps per photon, {r['seconds']:.1f} s")
+# noise per second: the screen's median relative pixel error, and the time it implies for 5 %
+# (noise ∝ 1/√time) on this 32² screen and on a 512² image of the same face (16² times the pixels:
+# at a fixed photon count each pixel's error grows 16×, so 256× the time)
+for case, r in runs.items():
+    screen = next(s for s in r["sensors"] if s["name"] == "depth_30mm")
+    noise = screen.get("pixel_noise")
+    if noise:
+        t5 = r["seconds"] * (noise / 0.05) ** 2
+        print(f"{case}: screen pixel noise {noise:.3f}; 5 % needs {t5:.0f} s on this machine at "
+              f"32², {t5 * 256 / 3600:.1f} h at 512²")

@@ -278,10 +278,12 @@ pub fn rendered(
             per_bin_stderr: None,
             pixels: None,
             pixel_area: None,
+            pixel_noise: None,
             files: vec![],
         };
         match (s.kind, s.pixel_area()) {
             (SensorKind::Screen, Some(area)) => {
+                record.pixel_noise = pixel_noise(&e, image);
                 let frames = Frames {
                     e: &e,
                     image,

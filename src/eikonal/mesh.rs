@@ -98,19 +98,30 @@ impl Mesh {
         let span = (hi + pad - origin) / spacing;
         let dims = [span.x, span.y, span.z].map(|s| s.ceil() as usize + 1);
         let bvh = Bvh::new(self);
-        let samples = (0..dims[0] * dims[1] * dims[2])
+        // row by row along x: the ball of radius d(x) about a node holds no triangle, so the next
+        // node, `spacing` away, has the same winding number when d > spacing; it is computed
+        // afresh only near the surface
+        let rows: Vec<Vec<f64>> = (0..dims[1] * dims[2])
             .into_par_iter()
-            .map(|n| {
-                let (i, j, k) = (
-                    n % dims[0],
-                    (n / dims[0]) % dims[1],
-                    n / (dims[0] * dims[1]),
-                );
-                let x = origin + DVec3::new(i as f64, j as f64, k as f64) * spacing;
-                bvh.signed_distance(self, x)
+            .map(|row| {
+                let (j, k) = (row % dims[1], row / dims[1]);
+                let mut inside = false;
+                let mut previous = f64::INFINITY;
+                (0..dims[0])
+                    .map(|i| {
+                        let x = origin + DVec3::new(i as f64, j as f64, k as f64) * spacing;
+                        // no farther than the previous node's nearest point
+                        let d = bvh.distance(self, x, previous + spacing);
+                        if i == 0 || previous <= spacing {
+                            inside = bvh.winding_number(self, x) > 0.5;
+                        }
+                        previous = d;
+                        if inside { -d } else { d }
+                    })
+                    .collect()
             })
             .collect();
-        (origin, dims, samples)
+        (origin, dims, rows.concat())
     }
 
     /// The signed distance at `x` (negative inside).
@@ -272,7 +283,7 @@ impl Bvh {
 
     /// The distance from `x` to the nearest triangle, signed by the winding number.
     fn signed_distance(&self, mesh: &Mesh, x: DVec3) -> f64 {
-        let d = self.distance(mesh, x);
+        let d = self.distance(mesh, x, f64::INFINITY);
         if self.winding_number(mesh, x) > 0.5 {
             -d
         } else {
@@ -280,9 +291,12 @@ impl Bvh {
         }
     }
 
-    fn distance(&self, mesh: &Mesh, x: DVec3) -> f64 {
+    /// The distance from `x` to the nearest triangle, known to be at most `bound` (which prunes
+    /// the search).
+    fn distance(&self, mesh: &Mesh, x: DVec3, bound: f64) -> f64 {
         let box_distance = |n: &Node| (n.lo - x).max(x - n.hi).max(DVec3::ZERO).length_squared();
-        let mut best = f64::INFINITY;
+        // a hair above the bound, so that a triangle exactly at it is still found
+        let mut best = (bound * (1.0 + 1e-9)).powi(2);
         let mut stack = vec![0usize];
         while let Some(i) = stack.pop() {
             let n = &self.nodes[i];

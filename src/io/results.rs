@@ -764,6 +764,9 @@ pub struct SensorRecord {
     pub pixels: Option<[usize; 2]>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pixel_area: Option<f64>,
+    /// Screens: the median relative standard error of the image's lit pixels.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pixel_noise: Option<f64>,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub files: Vec<String>,
 }

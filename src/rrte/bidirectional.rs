@@ -29,8 +29,7 @@
 //! What no strategy makes: paths on which every segment reflects inside the surface (with an
 //! index-matched surface there are none).
 
-use super::flight::Flight;
-use super::particle::{Leg, MAX_EVENTS, ParticleTracer, Tools, roulette};
+use super::particle::{Leg, MAX_EVENTS, ParticleTracer, Stop, Tools, roulette};
 use super::scene::{Connections, Light, Volume};
 use crate::eikonal::Ray;
 use crate::math::{C64, Rng, uniform};
@@ -365,20 +364,12 @@ impl ParticleTracer<'_> {
                 }
                 Leg::Inside(ray) => ray,
             };
-            let (flight, k) = t.flyer.fly(ray, t.free_path(rng));
-            steps += k;
-            match flight {
-                Flight::Collision {
-                    ray: hit,
-                    optical_path,
-                    length,
-                } => {
-                    opl += t.delay.inside(optical_path, length);
-                    inside += length;
-                    if !t.real_collision(hit.x, rng) {
-                        leg = Leg::Inside(hit);
-                        continue;
-                    }
+            let (stop, travelled) = t.next_event(ray, rng);
+            steps += travelled.steps;
+            opl += travelled.opl;
+            inside += travelled.length;
+            match stop {
+                Stop::Collision(hit) => {
                     beta *= albedo;
                     let first = vertices.is_empty();
                     // the first segment from outside refracts once on the way in; others never
@@ -405,17 +396,11 @@ impl ParticleTracer<'_> {
                     }
                     leg = Leg::Inside(next);
                 }
-                Flight::Boundary {
-                    ray: end,
-                    optical_path,
-                    length,
-                } => {
-                    opl += t.delay.inside(optical_path, length);
-                    inside += length;
+                Stop::Boundary(end) => {
                     crossings += 1;
                     leg = Leg::leave(t, end, rng);
                 }
-                Flight::Stuck { .. } => break,
+                Stop::Stuck => break,
             }
         }
         out[self.total(super::Total::Events)].re += vertices.len() as f64;

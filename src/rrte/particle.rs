@@ -99,6 +99,38 @@ impl Tools<'_> {
         }
     }
 
+    /// Fly from `ray` to the next real collision (flying on through delta tracking's null
+    /// ones) or to the surface, and how far that took.
+    pub(super) fn next_event(&self, mut ray: Ray, rng: &mut Rng) -> (Stop, Travelled) {
+        let mut travelled = Travelled::default();
+        loop {
+            let (flight, k) = self.flyer.fly(ray, self.free_path(rng));
+            travelled.steps += k;
+            match flight {
+                Flight::Collision {
+                    ray: hit,
+                    optical_path,
+                    length,
+                } => {
+                    travelled.add(self, optical_path, length);
+                    if self.real_collision(hit.x, rng) {
+                        return (Stop::Collision(hit), travelled);
+                    }
+                    ray = hit;
+                }
+                Flight::Boundary {
+                    ray: end,
+                    optical_path,
+                    length,
+                } => {
+                    travelled.add(self, optical_path, length);
+                    return (Stop::Boundary(end), travelled);
+                }
+                Flight::Stuck { .. } => return (Stop::Stuck, travelled),
+            }
+        }
+    }
+
     /// The ray leaving a scattering event at `x` where the light arrived along unit `u`, its
     /// direction drawn from the phase function.
     pub(super) fn scatter(&self, x: DVec3, u: DVec3, rng: &mut Rng) -> Ray {
@@ -109,6 +141,31 @@ impl Tools<'_> {
             x,
             v: w * self.flyer.n(x),
         }
+    }
+}
+
+/// Where [`Tools::next_event`] stopped.
+pub(super) enum Stop {
+    /// A real collision.
+    Collision(Ray),
+    /// The volume's surface, reached from inside.
+    Boundary(Ray),
+    /// A flight ran out of leapfrog steps.
+    Stuck,
+}
+
+/// What the flights to the next event covered: group delay, geometric length, leapfrog steps.
+#[derive(Clone, Copy, Debug, Default)]
+pub(super) struct Travelled {
+    pub(super) opl: f64,
+    pub(super) length: f64,
+    pub(super) steps: usize,
+}
+
+impl Travelled {
+    fn add(&mut self, t: &Tools, optical_path: f64, length: f64) {
+        self.opl += t.delay.inside(optical_path, length);
+        self.length += length;
     }
 }
 
@@ -785,19 +842,11 @@ impl<'s> ParticleTracer<'s> {
         let volume = t.flyer.volume;
         let albedo = volume.albedo();
         loop {
-            let (flight, k) = t.flyer.fly(ray, t.free_path(rng));
-            p.steps += k;
-            match flight {
-                Flight::Collision {
-                    ray: hit,
-                    optical_path,
-                    length,
-                } => {
-                    p.opl += t.delay.inside(optical_path, length);
-                    if !t.real_collision(hit.x, rng) {
-                        ray = hit;
-                        continue;
-                    }
+            let (stop, travelled) = t.next_event(ray, rng);
+            p.steps += travelled.steps;
+            p.opl += travelled.opl;
+            match stop {
+                Stop::Collision(hit) => {
                     p.events += 1;
                     out[self.total(Total::Absorbed)].re += p.weight * (1.0 - albedo);
                     p.weight *= albedo;
@@ -815,18 +864,11 @@ impl<'s> ParticleTracer<'s> {
                     }
                     ray = t.scatter(hit.x, w_in, rng);
                 }
-                Flight::Boundary {
-                    ray: end,
-                    optical_path,
-                    length,
-                } => {
-                    p.opl += t.delay.inside(optical_path, length);
-                    match Leg::leave(t, end, rng) {
-                        Leg::Inside(reflected) => ray = reflected,
-                        out => return Some(out),
-                    }
-                }
-                Flight::Stuck { .. } => {
+                Stop::Boundary(end) => match Leg::leave(t, end, rng) {
+                    Leg::Inside(reflected) => ray = reflected,
+                    out => return Some(out),
+                },
+                Stop::Stuck => {
                     out[self.total(Total::Unfinished)].re += p.weight;
                     return None;
                 }

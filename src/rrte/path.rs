@@ -24,8 +24,7 @@
 //! surfaces the two estimate the same images.
 
 use super::connect::Sampled;
-use super::flight::Flight;
-use super::particle::{Leg, ParticleTracer, Tools};
+use super::particle::{Leg, ParticleTracer, Stop, Tools};
 use super::scene::{Light, grid_pixel};
 use crate::eikonal::Ray;
 use crate::math::{C64, Rng, uniform};
@@ -399,22 +398,13 @@ impl ParticleTracer<'_> {
         rng: &mut Rng,
         out: &mut [C64],
     ) -> Option<Leg> {
-        let volume = t.flyer.volume;
-        let albedo = volume.albedo();
+        let albedo = t.flyer.volume.albedo();
         loop {
-            let (flight, k) = t.flyer.fly(ray, t.free_path(rng));
-            w.steps += k;
-            match flight {
-                Flight::Collision {
-                    ray: hit,
-                    optical_path,
-                    length,
-                } => {
-                    w.opl += t.delay.inside(optical_path, length);
-                    if !t.real_collision(hit.x, rng) {
-                        ray = hit;
-                        continue;
-                    }
+            let (stop, travelled) = t.next_event(ray, rng);
+            w.steps += travelled.steps;
+            w.opl += travelled.opl;
+            match stop {
+                Stop::Collision(hit) => {
                     w.events += 1;
                     w.beta *= albedo;
                     let u = hit.v.normalize();
@@ -424,18 +414,11 @@ impl ParticleTracer<'_> {
                     }
                     ray = t.scatter(hit.x, u, rng);
                 }
-                Flight::Boundary {
-                    ray: end,
-                    optical_path,
-                    length,
-                } => {
-                    w.opl += t.delay.inside(optical_path, length);
-                    match Leg::leave(t, end, rng) {
-                        Leg::Inside(reflected) => ray = reflected,
-                        out => return Some(out),
-                    }
-                }
-                Flight::Stuck { .. } => return None,
+                Stop::Boundary(end) => match Leg::leave(t, end, rng) {
+                    Leg::Inside(reflected) => ray = reflected,
+                    out => return Some(out),
+                },
+                Stop::Stuck => return None,
             }
         }
     }
