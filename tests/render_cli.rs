@@ -413,25 +413,18 @@ fn path_tracing_is_checked_and_runs() {
     let _ = std::fs::remove_dir_all(dir);
 }
 
-/// Bidirectional path tracing renders cameras of scenes without surfaces, from any light (a beam
-/// included), and reports its images' noise.
+/// Bidirectional path tracing renders scenes without surfaces, from any light (a beam included),
+/// cameras and flux sensors alike, and reports its images' noise.
 #[test]
 fn bidirectional_tracing_is_checked_and_runs() {
     let dir = tmp("bidirectional");
     std::fs::create_dir_all(&dir).unwrap();
     let base = std::fs::read_to_string(config("render_glass.toml")).unwrap();
-    let cases: &[(&str, &str, &str)] = &[
-        (
-            "[render]",
-            "[[sensor]]\nkind = \"flux\"\nname = \"below\"\ncenter = [0.0, 0.0, -3.0]\nnormal = [0.0, 0.0, -1.0]\n\n[render]",
-            "sensor[1].kind",
-        ),
-        (
-            "[render]",
-            "[[surface]]\nname = \"floor\"\ncenter = [0.0, 0.0, -1.5]\nnormal = [0.0, 0.0, 1.0]\nalbedo = 0.5\n\n[render]",
-            "surface[0].name",
-        ),
-    ];
+    let cases: &[(&str, &str, &str)] = &[(
+        "[render]",
+        "[[surface]]\nname = \"floor\"\ncenter = [0.0, 0.0, -1.5]\nnormal = [0.0, 0.0, 1.0]\nalbedo = 0.5\n\n[render]",
+        "surface[0].name",
+    )];
     for (i, (from, to, key)) in cases.iter().enumerate() {
         assert!(base.contains(from), "{from}");
         refused(
@@ -440,6 +433,12 @@ fn bidirectional_tracing_is_checked_and_runs() {
             key,
         );
     }
+    // a flux sensor below the ball, recorded by the light subpaths
+    let base = base.replacen(
+        "[render]",
+        "[[sensor]]\nkind = \"flux\"\nname = \"below\"\ncenter = [0.0, 0.0, -3.0]\nnormal = [0.0, 0.0, -1.0]\n\n[render]",
+        1,
+    );
     let beam = base.replacen(
         "kind = \"point\"\nposition = [0.3, -0.2, -0.4]",
         "kind = \"beam\"\ncenter = [0.0, 0.0, -2.0]\ndirection = [0.0, 0.0, 1.0]\nradius = 0.3",
@@ -466,6 +465,8 @@ fn bidirectional_tracing_is_checked_and_runs() {
         assert!(camera["irradiance"]["mean"].as_f64().unwrap() > 0.0);
         let noise = camera["pixel_noise"].as_f64().unwrap();
         assert!(noise > 0.0 && noise <= 1.0, "pixel noise {noise}");
+        assert_eq!(r["sensors"][0]["name"], "below");
+        assert!(r["sensors"][0]["power"]["mean"].as_f64().unwrap() > 0.0);
     }
     let _ = std::fs::remove_dir_all(dir);
 }

@@ -11,7 +11,10 @@ use glam::DVec3;
 use lightpath::eikonal::{BoundedField, Bounds, Profile};
 use lightpath::mc::Estimate;
 use lightpath::medium::{PhaseFunction, Scattering};
-use lightpath::rrte::{Camera, ImageLayout, Light, Pinhole, RenderScene, Surface, Tracing, Volume};
+use lightpath::rrte::{
+    Camera, ImageLayout, Light, Pinhole, Probe, RenderScene, Sensor, SensorKind, Surface, Tracing,
+    Volume,
+};
 
 fn scene(profile: Profile, light: Light, camera: Pinhole) -> RenderScene {
     RenderScene {
@@ -184,7 +187,8 @@ fn a_floor_agrees() {
 /// reflects, so no path reaching these cameras reflects inside a face on its last segment
 /// (only rays along the normal leave along it): particle tracing makes every path, and so does
 /// bidirectional path tracing, whose strategies skip the segments that reflect inside (the
-/// light's own strategy is a beam's delta). Path tracing cannot connect to a beam.
+/// light's own strategy is a beam's delta). Path tracing cannot connect to a beam. Flux sensors
+/// on both sides and a fluence probe inside agree too.
 #[test]
 fn fresnel_faces_agree() {
     let volume = Volume {
@@ -217,6 +221,30 @@ fn fresnel_faces_agree() {
             radius: 0.4,
         },
         cameras: vec![side(DVec3::Z), side(-DVec3::Z)],
+        // and flux sensors and a fluence probe, which the light subpaths of bidirectional
+        // tracing record as photons do
+        probes: vec![Probe {
+            name: "middle".into(),
+            position: DVec3::new(0.1, 0.0, 0.0),
+        }],
+        sensors: vec![
+            Sensor::new(
+                "T".into(),
+                SensorKind::Flux,
+                DVec3::new(0.0, 0.0, 0.8),
+                DVec3::Z,
+                None,
+                [1, 1],
+            ),
+            Sensor::new(
+                "R".into(),
+                SensorKind::Flux,
+                DVec3::new(0.0, 0.0, -0.8),
+                -DVec3::Z,
+                None,
+                [1, 1],
+            ),
+        ],
         ..bare_scene(0.01)
     };
     s.tracing = Tracing::FromLight;
@@ -226,5 +254,19 @@ fn fresnel_faces_agree() {
     let (b, _) = render(&p, 20_000, 5);
     for i in 0..2 {
         compare_images(&a, &b, est.camera_image(i), false);
+        let k = est.power(i);
+        let (x, y) = (a.mean[k].re, b.mean[k].re);
+        let se = a.stderr[k].hypot(b.stderr[k]);
+        assert!(
+            x > 0.0 && (x - y).abs() < 4.0 * se,
+            "flux {i}: particles {x}, bidirectional {y} (± {se})"
+        );
     }
+    let k = est.probe_total(0);
+    let (x, y) = (a.mean[k].re, b.mean[k].re);
+    let se = a.stderr[k].hypot(b.stderr[k]);
+    assert!(
+        x > 0.0 && (x - y).abs() < 4.0 * se,
+        "probe: particles {x}, bidirectional {y} (± {se})"
+    );
 }

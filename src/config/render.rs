@@ -417,7 +417,7 @@ pub struct RenderSettings {
     pub connections: ConnectionsConfig,
     /// `"particle"` (photons from the light; every sensor kind), `"path"` (paths from the
     /// cameras, connected to the light) or `"bidirectional"` (both, joined every way and weighted
-    /// by multiple importance sampling; cameras only, no surfaces).
+    /// by multiple importance sampling; no surfaces).
     #[serde(default, skip_serializing_if = "EstimatorConfig::is_default")]
     pub estimator: EstimatorConfig,
 }
@@ -742,7 +742,7 @@ impl RenderConfig {
     }
 
     /// Path tracing renders cameras lit by a light it can connect to; bidirectional path
-    /// tracing renders cameras of a scene without surfaces.
+    /// tracing renders scenes without surfaces, with a camera.
     fn check_path_tracing(&self, scene: &RenderScene) -> Result<(), ConfigError> {
         let name = match scene.tracing {
             Tracing::Bidirectional => "bidirectional",
@@ -751,6 +751,8 @@ impl RenderConfig {
         for (i, s) in self.sensor.iter().enumerate() {
             let kind = match s {
                 SensorConfig::Pinhole { .. } | SensorConfig::Camera { .. } => continue,
+                // the light subpaths record them, as particle tracing does
+                _ if scene.tracing == Tracing::Bidirectional => continue,
                 SensorConfig::Flux { .. } => "flux",
                 SensorConfig::Screen { .. } => "screen",
                 SensorConfig::Fluence { .. } => "fluence",

@@ -11,7 +11,9 @@
 //! event to the camera (`t = 0`, particle tracing's), or a light event to a camera event (a
 //! two-point connection, the light event seen as a point source of intensity `w ρ` and the camera
 //! event as a point sensor). Unscattered light from a light inside the volume is connected to
-//! the cameras directly (the one way to make it).
+//! the cameras directly (the one way to make it). Flux sensors, screens and fluence probes are
+//! estimated by the light subpaths alone, as in particle tracing: the sensor planes they cross,
+//! and their events connected to the probes.
 //!
 //! The estimates are weighted by the balance heuristic over the strategies that can make the
 //! path: `w_s = p_s / Σ_j p_j`, with `p_j` the density strategy `j` gives the path's vertices. A
@@ -189,6 +191,9 @@ struct Start {
     /// Its rays are parallel (a beam, an orthographic camera): the first segment's tube does not
     /// spread.
     parallel: bool,
+    /// A subpath from the light: it records the sensor planes it crosses and connects its events
+    /// to the probes, as particle tracing does (the one way to make those paths).
+    photon: bool,
 }
 
 impl ParticleTracer<'_> {
@@ -205,6 +210,7 @@ impl ParticleTracer<'_> {
         let light = &scene.light;
         let (x, d) = light.sample([uniform(rng), uniform(rng), uniform(rng), uniform(rng)]);
         if t.flyer.volume.field.bounds.contains(x) {
+            // cameras and probes: unscattered light is made one way
             self.connect(t, x, 1.0, 0.0, |d| light.intensity(d), rng, out);
         }
         let light_pdf = light.intensity(d);
@@ -212,6 +218,7 @@ impl ParticleTracer<'_> {
             x,
             d,
             parallel: matches!(light, Light::Beam { .. }),
+            photon: true,
         };
         self.subpath(t, &start, &mut subpaths.light, rng, out);
         for camera in 0..scene.cameras.len() + scene.pinholes.len() {
@@ -221,6 +228,7 @@ impl ParticleTracer<'_> {
                 x,
                 d,
                 parallel: orthographic,
+                photon: false,
             };
             self.subpath(t, &start, &mut subpaths.camera, rng, out);
             let (ys, zs) = (&subpaths.light, &subpaths.camera);
@@ -353,7 +361,12 @@ impl ParticleTracer<'_> {
         loop {
             let ray = match leg {
                 Leg::Outside { x, d, left_volume } => {
-                    let Some(t0) = self.ahead(t, x, d, left_volume).0 else {
+                    let entry = self.ahead(t, x, d, left_volume).0;
+                    if start.photon {
+                        let end = entry.unwrap_or(f64::INFINITY);
+                        self.cross_sensors(t, x, d, end, beta, opl, out);
+                    }
+                    let Some(t0) = entry else {
                         break;
                     };
                     opl += t.delay.outside(n_out * t0);
@@ -386,6 +399,10 @@ impl ParticleTracer<'_> {
                         segment: Segment::new(volume, inside, outside, parallel, connectible),
                     });
                     (inside, outside, crossings) = (0.0, 0.0, 0);
+                    if start.photon {
+                        let phase = |d: DVec3| volume.scattering.eval(u.dot(d));
+                        self.connect_probes(t, hit.x, beta, opl, phase, rng, out);
+                    }
                     if !roulette(&mut beta, rng) || vertices.len() >= MAX_EVENTS {
                         break;
                     }

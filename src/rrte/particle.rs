@@ -358,6 +358,28 @@ impl<'s> ParticleTracer<'s> {
         rng: &mut Rng,
         out: &mut [C64],
     ) {
+        self.connect_probes(t, x, weight, opl, &emit, rng, out);
+        for i in 0..self.scene.cameras.len() + self.scene.pinholes.len() {
+            let Some(link) = self.camera_link(t, x, i, rng, out) else {
+                continue;
+            };
+            let scale = weight * emit(link.direction);
+            self.record_link(t, &link, scale, opl, out);
+        }
+    }
+
+    /// Next-event connections from `x` (inside) to every probe (see [`ParticleTracer::connect`]).
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn connect_probes(
+        &self,
+        t: &Tools,
+        x: DVec3,
+        weight: f64,
+        opl: f64,
+        emit: impl Fn(DVec3) -> f64,
+        rng: &mut Rng,
+        out: &mut [C64],
+    ) {
         for (i, probe) in self.scene.probes.iter().enumerate() {
             let s = match self.scene.connections {
                 Connections::Unbiased => t.connector.sample(x, probe.position, rng),
@@ -377,13 +399,6 @@ impl<'s> ParticleTracer<'s> {
             let o = self.probe_offset(i);
             out[o + bin].re += value;
             out[o - 1].re += value;
-        }
-        for i in 0..self.scene.cameras.len() + self.scene.pinholes.len() {
-            let Some(link) = self.camera_link(t, x, i, rng, out) else {
-                continue;
-            };
-            let scale = weight * emit(link.direction);
-            self.record_link(t, &link, scale, opl, out);
         }
     }
 
@@ -599,7 +614,7 @@ impl<'s> ParticleTracer<'s> {
     /// Record the sensors the straight segment from `x` along unit `d` crosses within `length`
     /// (outside the volume), at the optical path `opl` of its start.
     #[allow(clippy::too_many_arguments)]
-    fn cross_sensors(
+    pub(super) fn cross_sensors(
         &self,
         t: &Tools,
         x: DVec3,
