@@ -107,13 +107,14 @@ impl Mesh {
                 let (j, k) = (row % dims[1], row / dims[1]);
                 let mut inside = false;
                 let mut previous = f64::INFINITY;
+                let mut stack = Vec::new();
                 (0..dims[0])
                     .map(|i| {
                         let x = origin + DVec3::new(i as f64, j as f64, k as f64) * spacing;
                         // no farther than the previous node's nearest point
-                        let d = bvh.distance(self, x, previous + spacing);
+                        let d = bvh.distance(self, x, previous + spacing, &mut stack);
                         if i == 0 || previous <= spacing {
-                            inside = bvh.winding_number(self, x) > 0.5;
+                            inside = bvh.winding_number(self, x, &mut stack) > 0.5;
                         }
                         previous = d;
                         if inside { -d } else { d }
@@ -124,7 +125,8 @@ impl Mesh {
         (origin, dims, rows.concat())
     }
 
-    /// The signed distance at `x` (negative inside).
+    /// The signed distance at `x` (negative inside). Builds the hierarchy on every call: for a
+    /// few points; [`Mesh::signed_distance_grid`] builds it once for many.
     pub fn signed_distance(&self, x: DVec3) -> f64 {
         Bvh::new(self).signed_distance(self, x)
     }
@@ -283,8 +285,9 @@ impl Bvh {
 
     /// The distance from `x` to the nearest triangle, signed by the winding number.
     fn signed_distance(&self, mesh: &Mesh, x: DVec3) -> f64 {
-        let d = self.distance(mesh, x, f64::INFINITY);
-        if self.winding_number(mesh, x) > 0.5 {
+        let mut stack = Vec::new();
+        let d = self.distance(mesh, x, f64::INFINITY, &mut stack);
+        if self.winding_number(mesh, x, &mut stack) > 0.5 {
             -d
         } else {
             d
@@ -293,11 +296,13 @@ impl Bvh {
 
     /// The distance from `x` to the nearest triangle, known to be at most `bound` (which prunes
     /// the search).
-    fn distance(&self, mesh: &Mesh, x: DVec3, bound: f64) -> f64 {
+    /// `stack` is scratch (reused between queries: nothing is allocated once it has grown).
+    fn distance(&self, mesh: &Mesh, x: DVec3, bound: f64, stack: &mut Vec<usize>) -> f64 {
         let box_distance = |n: &Node| (n.lo - x).max(x - n.hi).max(DVec3::ZERO).length_squared();
         // a hair above the bound, so that a triangle exactly at it is still found
         let mut best = (bound * (1.0 + 1e-9)).powi(2);
-        let mut stack = vec![0usize];
+        stack.clear();
+        stack.push(0);
         while let Some(i) = stack.pop() {
             let n = &self.nodes[i];
             if box_distance(n) >= best {
@@ -322,9 +327,11 @@ impl Bvh {
         best.sqrt()
     }
 
-    fn winding_number(&self, mesh: &Mesh, x: DVec3) -> f64 {
+    /// The generalised winding number at `x`; `stack` as for [`Bvh::distance`].
+    fn winding_number(&self, mesh: &Mesh, x: DVec3, stack: &mut Vec<usize>) -> f64 {
         let mut omega = 0.0;
-        let mut stack = vec![0usize];
+        stack.clear();
+        stack.push(0);
         while let Some(i) = stack.pop() {
             let n = &self.nodes[i];
             let r = n.centre - x;
@@ -417,7 +424,7 @@ mod tests {
                 "{x}: w = {w}"
             );
             // the hierarchy's, with its far-field terms, to a few parts in a thousand
-            assert!((bvh.winding_number(&mesh, x) - w).abs() < 5e-3);
+            assert!((bvh.winding_number(&mesh, x, &mut Vec::new()) - w).abs() < 5e-3);
         }
         // one face (two triangles) missing: the centre is still inside (w = 5/6), a point
         // outside the open face still outside

@@ -463,7 +463,7 @@ impl<'s> ParticleTracer<'s> {
                 delay: t.delay.inside(e.optical_path, e.length) + t.delay.outside(n_out * to_plane),
                 inside: e.length,
                 outside: to_plane,
-                pdf: 1.0 / (cam.size[0] * cam.size[1]),
+                pdf: 1.0 / cam.area(),
             });
         }
         let cam = &self.scene.pinholes[i - orthographic];
@@ -481,7 +481,7 @@ impl<'s> ParticleTracer<'s> {
         let irradiance = transmittance * e.transmission / e.jacobian * inverse_p;
         // the path's optical length holds the straight stretch to the pinhole
         let outside = n_out * to_pinhole;
-        let image_area = cos * cos * cos * 4.0 * cam.tan_half[0] * cam.tan_half[1];
+        let image_area = cam.image_area(cos);
         Some(CameraLink {
             camera: i,
             pixel,

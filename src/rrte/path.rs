@@ -115,7 +115,7 @@ impl ParticleTracer<'_> {
                 pixel: grid_pixel(a, b, cam.pixels),
                 count,
                 to_total: count,
-                pdf: 1.0 / (cam.size[0] * cam.size[1]),
+                pdf: 1.0 / cam.area(),
             };
             return (y, -cam.direction, pixel);
         }
@@ -126,7 +126,7 @@ impl ParticleTracer<'_> {
             + cam.up * ((2.0 * b - 1.0) * cam.tan_half[1]);
         let d = v.normalize();
         let cos = d.dot(cam.forward);
-        let image_area = cos * cos * cos * 4.0 * cam.tan_half[0] * cam.tan_half[1];
+        let image_area = cam.image_area(cos);
         let pixel = Pixel {
             image: self.pinhole_image(i),
             pixel: grid_pixel(a, b, cam.pixels),

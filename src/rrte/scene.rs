@@ -261,7 +261,12 @@ impl Camera {
     }
 
     pub fn pixel_area(&self) -> f64 {
-        self.size[0] * self.size[1] / self.pixel_count() as f64
+        self.area() / self.pixel_count() as f64
+    }
+
+    /// The area of the camera's rectangle.
+    pub fn area(&self) -> f64 {
+        self.size[0] * self.size[1]
     }
 
     /// The pixel (row-major from the lower left, `right` fastest) that light leaving the volume
@@ -321,6 +326,12 @@ impl Pinhole {
 
     pub fn pixel_count(&self) -> usize {
         self.pixels[0] * self.pixels[1]
+    }
+
+    /// The image plane's area at unit distance, seen per solid angle along a direction at
+    /// cosine `cos` to the axis (`dω = cos³θ dA`): `cos³θ · 4 tan tan`.
+    pub fn image_area(&self, cos: f64) -> f64 {
+        cos * cos * cos * 4.0 * self.tan_half[0] * self.tan_half[1]
     }
 
     /// The area of one pixel in the image plane at unit distance.
