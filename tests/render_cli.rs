@@ -471,6 +471,51 @@ fn bidirectional_tracing_is_checked_and_runs() {
     let _ = std::fs::remove_dir_all(dir);
 }
 
+/// Volumes where the index is tiny: a constant index traces its connections as straight lines in
+/// closed form (a glass ball at n = 1e-12 once stepped a million times per connection and hung),
+/// and a graded one whose steps cannot cross where `n` is smallest is refused by `render.step`
+/// (the check once used the largest index alone).
+#[test]
+fn tiny_indices_render_or_are_refused() {
+    let dir = tmp("tiny-index");
+    std::fs::create_dir_all(&dir).unwrap();
+    let base = std::fs::read_to_string(config("render_glass.toml")).unwrap();
+    let constant = "profiles = [{ kind = \"constant\", n = 1.5 }]";
+    assert!(base.contains(constant));
+    let graded = base.replacen(
+        constant,
+        "profiles = [{ kind = \"linear\", n0 = 1.001, gradient = [1.0, 0.0, 0.0] }]",
+        1,
+    );
+    let graded = graded.replacen("[render]", "[render]\nmax_steps = 1000", 1);
+    refused(&dir.join("graded.toml"), &graded, "render.step");
+    let path = dir.join("tiny.toml");
+    std::fs::write(
+        &path,
+        base.replacen(
+            constant,
+            "profiles = [{ kind = \"constant\", n = 1e-12 }]",
+            1,
+        ),
+    )
+    .unwrap();
+    let out = dir.join("tiny");
+    let o = lightpath(&[
+        "render",
+        &path.display().to_string(),
+        "--out",
+        &out.display().to_string(),
+        "--samples",
+        "500",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r = results(&out);
+    let mean = r["cameras"][0]["irradiance"]["mean"].as_f64().unwrap();
+    assert!(mean.is_finite() && mean >= 0.0, "{mean}");
+    let _ = std::fs::remove_dir_all(dir);
+}
+
 /// Meshes as signed-distance bounds: read relative to the config, placed by scale and offset,
 /// checked by key, and rendered.
 #[test]

@@ -228,7 +228,7 @@ impl ParamFitConfig {
             return err("field.profiles = []: give at least one profile");
         }
         let field = self.field.build()?;
-        let n_max = crate::config::trace::check_positive(&field)?;
+        let n = crate::config::trace::check_positive(&field)?;
         if matches!(field.bounds, crate::eikonal::Bounds::Everywhere) {
             return err(
                 "field.bounds: a fit traces rays to where they leave the field; give bounds (sphere, cylinder or box)",
@@ -270,7 +270,7 @@ impl ParamFitConfig {
             names.push(format!("profiles[{}].{}", p.profile, p.name));
         }
         let (step, max_steps) = self.trace.to_exit("a parameter fit")?;
-        crate::config::trace::check_stepping(&field, n_max, step, max_steps)?;
+        crate::config::trace::check_stepping(&field, n, step, max_steps)?;
         if !(1..=10_000).contains(&self.parameters.iterations) {
             return err(format!(
                 "parameters.iterations = {}: must be within [1, 10000]",

@@ -1007,21 +1007,23 @@ fn check_step(scene: &RenderScene) -> Result<(), ConfigError> {
         return Ok(());
     };
     let size = 2.0 * half.min_element();
-    // geometric length per step is n · step (σ-form), n up to the largest index in the volume
-    let n_max = check_positive(&v.field)?;
-    let length = scene.step * n_max;
+    // geometric length per step is n · step (σ-form): a ray must cross where n is smallest, and
+    // the step resolve the volume where it is largest
+    let n = check_positive(&v.field)?;
+    let length = scene.step * n.max;
+    let slowest = scene.step * n.min;
     let widest = 2.0 * half.max_element();
-    if length * scene.max_steps as f64 <= widest {
+    if slowest * scene.max_steps as f64 <= widest {
         return err(format!(
-            "render.step = {}: {} steps of about {length:.3e} cannot cross the volume ({widest:.3e} across); raise render.step or render.max_steps",
-            scene.step, scene.max_steps
+            "render.step = {}: {} steps of about {slowest:.3e} (where n = {:.4}) cannot cross the volume ({widest:.3e} across); raise render.step or render.max_steps",
+            scene.step, scene.max_steps, n.min
         ));
     }
     if length > size / 20.0 {
         return err(format!(
             "render.step = {}: about {length:.3e} per step against a volume {size:.3e} across; use a step of at most {:.3e} (20 steps across)",
             scene.step,
-            size / 20.0 / n_max
+            size / 20.0 / n.max
         ));
     }
     Ok(())

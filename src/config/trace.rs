@@ -768,9 +768,9 @@ impl TraceConfig {
             return err("field.profiles = []: give at least one profile");
         }
         let field = self.field.build()?;
-        let n_max = check_positive(&field)?;
+        let n = check_positive(&field)?;
         if let Ok((step, max_steps)) = self.trace.to_exit("trace") {
-            check_stepping(&field, n_max, step, max_steps)?;
+            check_stepping(&field, n, step, max_steps)?;
         }
         Ok(field)
     }
@@ -848,13 +848,25 @@ impl TraceConfig {
     }
 }
 
+/// The smallest and largest index inside a field's bounds, sampled on a 17³ grid (the largest
+/// includes `n_out`).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct IndexRange {
+    pub min: f64,
+    pub max: f64,
+}
+
 /// `n > 0` and finite at every node of a 17³ grid over the field's bounds (rays are checked again
-/// along their paths).
-pub(crate) fn check_positive(field: &BoundedField) -> Result<f64, ConfigError> {
+/// along their paths); the range of `n` found.
+pub(crate) fn check_positive(field: &BoundedField) -> Result<IndexRange, ConfigError> {
     use crate::eikonal::IndexField;
     let mut largest = field.n_out;
+    let mut smallest = f64::INFINITY;
     let Some(half) = field.bounds.half_extent() else {
-        return Ok(largest);
+        return Ok(IndexRange {
+            min: largest,
+            max: largest,
+        });
     };
     let m = 16;
     for i in 0..=m {
@@ -872,28 +884,33 @@ pub(crate) fn check_positive(field: &BoundedField) -> Result<f64, ConfigError> {
                     ));
                 }
                 largest = largest.max(n);
+                smallest = smallest.min(n);
             }
         }
     }
-    Ok(largest)
+    Ok(IndexRange {
+        min: smallest.min(largest),
+        max: largest,
+    })
 }
 
 /// The fewest leapfrog steps a ray may take across the field's largest extent.
 pub(crate) const MIN_STEPS_ACROSS: f64 = 20.0;
 
 /// The step rule of the commands that trace rays to where they leave the field: in the σ-form a
-/// step runs `n · step` of geometric length, so with `n` up to `n_max` the step must resolve the
+/// step runs `n · step` of geometric length, so with `n` up to `n.max` the step must resolve the
 /// field (at least [`MIN_STEPS_ACROSS`] steps across its largest extent) and `max_steps` steps
-/// must be able to cross it.
+/// must be able to cross it where `n` is smallest.
 pub(crate) fn check_stepping(
     field: &BoundedField,
-    n_max: f64,
+    n: IndexRange,
     step: f64,
     max_steps: usize,
 ) -> Result<(), ConfigError> {
     let Some(size) = field.bounds.half_extent().map(|h| 2.0 * h.max_element()) else {
         return Ok(());
     };
+    let n_max = n.max;
     let length = step * n_max;
     if length > size / MIN_STEPS_ACROSS {
         return err(format!(
@@ -901,10 +918,11 @@ pub(crate) fn check_stepping(
             size / MIN_STEPS_ACROSS / n_max
         ));
     }
-    if length * (max_steps as f64) < size {
+    let slowest = step * n.min * max_steps as f64;
+    if slowest < size {
         return err(format!(
-            "trace.step = {step} × max_steps = {max_steps} covers a path of about {:.3e} (n up to {n_max:.4}), shorter than the field ({size:.3e} across): no ray could cross it; raise trace.max_steps or the step",
-            length * max_steps as f64
+            "trace.step = {step} × max_steps = {max_steps} covers a path of about {slowest:.3e} where n = {:.4}, shorter than the field ({size:.3e} across): a ray there could not cross it; raise trace.max_steps or the step",
+            n.min
         ));
     }
     Ok(())

@@ -406,6 +406,20 @@ impl<'v> Connector<'v> {
     /// `∂v/∂v0`; `None` if it runs out of steps or is trapped.
     fn shoot_out(&self, x: DVec3, w: DVec3) -> Option<(Ray, DMat3, DMat3, f64, f64)> {
         let field = &self.volume.field;
+        if self.straight {
+            // constant n: x(σ) = x + n w σ in closed form, so ∂x/∂v0 = σ I and ∂v/∂v0 = I
+            let n = field.n(x);
+            let exit = field.bounds.exit(x, w)?.max(0.0);
+            if exit > self.max_length {
+                return None;
+            }
+            let end = Ray {
+                x: x + w * exit,
+                v: w * n,
+            };
+            let xv = DMat3::from_diagonal(DVec3::splat(exit / n));
+            return Some((end, xv, DMat3::IDENTITY, exit, n * exit));
+        }
         let t = &self.tracer;
         let h = t.step;
         let mut s = Tangent::start(field, x, w);
@@ -444,7 +458,14 @@ impl<'v> Connector<'v> {
         if nv <= 0.0 {
             return None;
         }
-        let (n_in, n_out) = (field.n(end.x), field.n_out);
+        // the index just inside the exit: a straight ray's closed-form end lies on the surface,
+        // where `n` may read as the outside's
+        let n_in = if self.straight {
+            field.n(x)
+        } else {
+            field.n(end.x)
+        };
+        let n_out = field.n_out;
         let eta = n_in / n_out;
         let force = {
             let (n, g) = field.value_grad(end.x);
