@@ -420,25 +420,14 @@ fn bidirectional_tracing_is_checked_and_runs() {
     let dir = tmp("bidirectional");
     std::fs::create_dir_all(&dir).unwrap();
     let base = std::fs::read_to_string(config("render_glass.toml")).unwrap();
-    let cases: &[(&str, &str, &str)] = &[(
-        "[render]",
-        "[[surface]]\nname = \"floor\"\ncenter = [0.0, 0.0, -1.5]\nnormal = [0.0, 0.0, 1.0]\nalbedo = 0.5\n\n[render]",
-        "surface[0].name",
-    )];
-    for (i, (from, to, key)) in cases.iter().enumerate() {
-        assert!(base.contains(from), "{from}");
-        refused(
-            &dir.join(format!("bad{i}.toml")),
-            &base.replacen(from, to, 1),
-            key,
-        );
-    }
-    // a flux sensor below the ball, recorded by the light subpaths
+    // a flux sensor below the ball, recorded by the light subpaths, and a grey wall behind it
     let base = base.replacen(
         "[render]",
-        "[[sensor]]\nkind = \"flux\"\nname = \"below\"\ncenter = [0.0, 0.0, -3.0]\nnormal = [0.0, 0.0, -1.0]\n\n[render]",
+        "[[sensor]]\nkind = \"flux\"\nname = \"below\"\ncenter = [0.0, 0.0, -3.0]\nnormal = [0.0, 0.0, -1.0]\n\n[[surface]]\nname = \"wall\"\ncenter = [-1.5, 0.0, 0.0]\nnormal = [1.0, 0.0, 0.0]\nsize = [3.0, 3.0]\nalbedo = 0.5\n\n[render]",
         1,
     );
+    let cases: &[(&str, &str, &str)] = &[("albedo = 0.5", "albedo = 1.5", "surface[0].albedo")];
+    refused_all(&dir, &base, cases);
     let beam = base.replacen(
         "kind = \"point\"\nposition = [0.3, -0.2, -0.4]",
         "kind = \"beam\"\ncenter = [0.0, 0.0, -2.0]\ndirection = [0.0, 0.0, 1.0]\nradius = 0.3",
@@ -467,6 +456,8 @@ fn bidirectional_tracing_is_checked_and_runs() {
         assert!(noise > 0.0 && noise <= 1.0, "pixel noise {noise}");
         assert_eq!(r["sensors"][0]["name"], "below");
         assert!(r["sensors"][0]["power"]["mean"].as_f64().unwrap() > 0.0);
+        assert_eq!(r["surfaces"][0]["name"], "wall");
+        assert!(r["surfaces"][0]["incident"]["mean"].as_f64().unwrap() > 0.0);
     }
     let _ = std::fs::remove_dir_all(dir);
 }

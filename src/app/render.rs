@@ -378,12 +378,14 @@ pub fn rendered(
             files: names,
         });
     }
-    // path tracing from the cameras follows no light to the surfaces
+    // path tracing from the cameras follows no light to the surfaces; bidirectional tracing's
+    // light subpaths do
     let particles = scene.tracing == crate::rrte::Tracing::FromLight;
+    let lit = scene.tracing != crate::rrte::Tracing::FromCameras;
     let surfaces: Vec<SurfaceRecord> = scene
         .surfaces
         .iter()
-        .filter(|_| particles)
+        .filter(|_| lit)
         .enumerate()
         .map(|(i, s)| {
             let incident = measured(est.surface_power(i));

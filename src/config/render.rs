@@ -742,7 +742,7 @@ impl RenderConfig {
     }
 
     /// Path tracing renders cameras lit by a light it can connect to; bidirectional path
-    /// tracing renders scenes without surfaces, with a camera.
+    /// tracing renders scenes with a camera.
     fn check_path_tracing(&self, scene: &RenderScene) -> Result<(), ConfigError> {
         let name = match scene.tracing {
             Tracing::Bidirectional => "bidirectional",
@@ -767,12 +767,6 @@ impl RenderConfig {
             ));
         }
         if scene.tracing == Tracing::Bidirectional {
-            if let Some(surface) = scene.surfaces.first() {
-                return err(format!(
-                    "surface[0].name = \"{}\": render.estimator = \"bidirectional\" joins subpaths inside the volume only; render scenes with surfaces with the \"particle\" or \"path\" estimator",
-                    surface.name
-                ));
-            }
             return Ok(());
         }
         if matches!(scene.light, Light::Beam { .. }) {

@@ -4,32 +4,38 @@
 //!
 //! Each sample traces one subpath from the light (a photon: power after the albedo at each
 //! event) and, per camera, one from the camera (throughput in basic radiance), both with the free
-//! flights, Fresnel splits and phase-function sampling of the other two tracers. A path of `k`
-//! scattering events `v_1 … v_k` can then be made `k + 1` ways: `s` events from the light and
-//! `t = k − s` from the camera, joined by a connection along curved rays (see
-//! [`super::connect`]): the light to a camera event (`s = 0`, path tracing's next event), a light
-//! event to the camera (`t = 0`, particle tracing's), or a light event to a camera event (a
-//! two-point connection, the light event seen as a point source of intensity `w ρ` and the camera
-//! event as a point sensor). Unscattered light from a light inside the volume is connected to
-//! the cameras directly (the one way to make it). Flux sensors, screens and fluence probes are
-//! estimated by the light subpaths alone, as in particle tracing: the sensor planes they cross,
-//! and their events connected to the probes.
+//! flights, Fresnel splits, phase-function sampling and diffuse surfaces of the other two
+//! tracers. A path of `k` scattering events `v_1 … v_k` (inside the volume or on a surface) can
+//! then be made `k + 1` ways: `s` events from the light and `t = k − s` from the camera, joined
+//! by a connection: the light to a camera event (`s = 0`, path tracing's next event), a light
+//! event to the camera (`t = 0`, particle tracing's), or a light event to a camera event (the
+//! light event seen as a point source of intensity `w ρ`, or `w cos θ / π` on a surface, the
+//! camera event as a point sensor). Between two events inside the volume the connection runs
+//! along curved rays (see [`super::connect`]); between an event inside and one on a surface it
+//! leaves the volume through its surface, refracted once; between two surfaces it is straight,
+//! past the volume only where it is index-matched. Unscattered light from a light inside the
+//! volume is connected to the cameras directly (the one way to make it). Flux sensors, screens,
+//! fluence probes and the light reaching each surface are estimated by the light subpaths
+//! alone, as in particle tracing: the sensor planes they cross, their events connected to the
+//! probes, the surfaces they meet.
 //!
 //! The estimates are weighted by the balance heuristic over the strategies that can make the
 //! path: `w_s = p_s / Σ_j p_j`, with `p_j` the density strategy `j` gives the path's vertices. A
-//! connection cannot reflect inside the surface, so a segment with such a reflection on it (or,
-//! to or from a point outside, with more than its one refraction) is made only by tracing: the
-//! strategies that would connect across it are left out of the sum, as is the light's own
-//! (`s = 0`) for a beam, whose directions are a delta. The weights use the straight-ray density
-//! of each segment — `ρ σ_t e^{−σ_t ℓ}/ℓ²` over its geometric length `ℓ` (the tube of parallel
-//! rays from a beam or an orthographic camera: no `1/ℓ²`), the phase functions at both ends and
-//! the sources' own densities — so in a graded index they are an approximation of the true
-//! densities; any weights that sum to one over the strategies that can make each path keep the
-//! estimate unbiased, and these are the same function of the path whichever strategy made it.
-//! The contributions themselves carry the exact connections (ray tubes, transmittance, Fresnel).
+//! connection cannot reflect inside the surface, so a segment with such a reflection on it (or
+//! with more than one refraction between a point inside and one outside, or any between two
+//! points outside a volume that is not index-matched) is made only by tracing: the strategies
+//! that would connect across it are left out of the sum, as is the light's own (`s = 0`) for a
+//! beam, whose directions are a delta. The weights use the straight-ray density of each segment
+//! — `ρ σ_t e^{−σ_t ℓ}/ℓ²` over its geometric length `ℓ` (the tube of parallel rays from a beam
+//! or an orthographic camera: no `1/ℓ²`; per unit area at a surface, times `|cos θ|` there), the
+//! phase functions or the surfaces' `cos θ / π` at both ends, and the sources' own densities — so
+//! in a graded index they are an approximation of the true densities; any weights that sum to
+//! one over the strategies that can make each path keep the estimate unbiased, and these are the
+//! same function of the path whichever strategy made it. The contributions themselves carry the
+//! exact connections (ray tubes, transmittance, Fresnel).
 //!
-//! What no strategy makes: paths on which every segment reflects inside the surface (with an
-//! index-matched surface there are none).
+//! What no strategy makes: paths on which every segment reflects inside the surface or passes
+//! through it twice (with an index-matched surface there are none).
 
 use super::particle::{Leg, MAX_EVENTS, ParticleTracer, Stop, Tools, roulette};
 use super::scene::{Connections, Light, Volume};
@@ -37,14 +43,14 @@ use crate::eikonal::Ray;
 use crate::math::{C64, Rng, uniform};
 use glam::DVec3;
 
-/// A scattering event of a subpath.
+/// A scattering event of a subpath: inside the volume, or on a diffuse surface.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Vertex {
     x: DVec3,
     /// Unit direction of travel arriving at `x` (the subpath's own).
     arrive: DVec3,
-    /// The phase function between `arrive` and the direction the subpath left along (unset at
-    /// its last event).
+    /// The density of the direction the subpath left along, per solid angle: the phase function
+    /// between `arrive` and it, or on a surface `cos θ / π` (unset at its last event).
     rho: f64,
     /// The weight after the albedo at `x`: a photon's power, or a camera path's throughput.
     beta: f64,
@@ -52,6 +58,34 @@ pub(super) struct Vertex {
     opl: f64,
     /// The segment that reached `x`.
     segment: Segment,
+    /// On a surface: its unit normal on the lit side.
+    facing: Option<DVec3>,
+}
+
+impl Vertex {
+    /// The density of leaving back along the arriving direction (towards the vertex before, in
+    /// the subpath's own order), per solid angle.
+    fn rho_back(&self, phase: f64) -> f64 {
+        match self.facing {
+            Some(n) => lambert(n, -self.arrive),
+            None => phase,
+        }
+    }
+
+    /// The density of leaving `x` along unit `d` given the arrival, per solid angle: the phase
+    /// function, or a surface's `cos θ / π`.
+    fn rho_towards(&self, volume: &Volume, d: DVec3) -> f64 {
+        match self.facing {
+            Some(n) => lambert(n, d),
+            None => volume.scattering.eval(self.arrive.dot(d)),
+        }
+    }
+}
+
+/// A Lambertian surface's density of leaving along unit `d` (its unit normal `n` on the lit
+/// side): `cos θ / π`, zero below it.
+fn lambert(n: DVec3, d: DVec3) -> f64 {
+    n.dot(d).max(0.0) / std::f64::consts::PI
 }
 
 /// A segment of a path as the weights see it.
@@ -60,6 +94,10 @@ struct Segment {
     /// `e^{−σ_t ℓ}/ℓ²` over its geometric length (inside; `ℓ` counts the straight stretch
     /// outside too), without the `1/ℓ²` from a beam or an orthographic camera.
     g: f64,
+    /// `|cos θ|` at its start and at its end where they lie on a surface (1 elsewhere): the
+    /// density per unit area there is the solid angle's times `g` times it.
+    cos_start: f64,
+    cos_end: f64,
     /// Whether a connection can make it.
     connectible: bool,
 }
@@ -70,7 +108,27 @@ impl Segment {
         let spread = if parallel { 1.0 } else { length * length };
         Segment {
             g: (-volume.sigma_t() * inside).exp() / spread,
+            cos_start: 1.0,
+            cos_end: 1.0,
             connectible,
+        }
+    }
+
+    /// The segment with the cosines at its ends.
+    fn with_cos(self, cos_start: f64, cos_end: f64) -> Self {
+        Segment {
+            cos_start,
+            cos_end,
+            ..self
+        }
+    }
+
+    /// The same segment run the other way.
+    fn reversed(self) -> Self {
+        Segment {
+            cos_start: self.cos_end,
+            cos_end: self.cos_start,
+            ..self
         }
     }
 }
@@ -92,8 +150,9 @@ struct Joined<'a> {
     /// the last.
     light_pdf: f64,
     camera_pdf: f64,
+    /// The connecting segment, from `y_s` (or the light) to `z_t` (or the camera).
     link: Segment,
-    /// The phase functions at the link's ends, `y_s` and `z_t`.
+    /// The densities of leaving along the link at its ends, `y_s` and `z_t`.
     rho_light: f64,
     rho_camera: f64,
 }
@@ -115,34 +174,37 @@ impl Joined<'_> {
         } else if j == s {
             self.link
         } else {
-            self.camera[self.k() - j].segment
+            // traced from the camera: from v_{j+1} to v_j
+            self.camera[self.k() - j].segment.reversed()
         }
     }
 
-    /// The phase function at `v_i` (the same from either side: reversing both directions keeps
-    /// their angle).
-    fn rho(&self, i: usize) -> f64 {
+    /// The density at `v_i` of leaving towards `v_{i+1}` (`ahead`) or towards `v_{i−1}`, per
+    /// solid angle (the phase function is the same both ways: reversing both directions keeps
+    /// their angle; a surface's `cos θ / π` is not).
+    fn rho(&self, i: usize, ahead: bool) -> f64 {
         let s = self.s();
-        if i < s {
-            self.light[i - 1].rho
-        } else if i == s {
-            self.rho_light
-        } else if i == s + 1 {
-            self.rho_camera
+        if i <= s {
+            let y = &self.light[i - 1];
+            let traced = if i == s { self.rho_light } else { y.rho };
+            if ahead { traced } else { y.rho_back(traced) }
         } else {
-            self.camera[self.k() - i].rho
+            let z = &self.camera[self.k() - i];
+            let traced = if i == s + 1 { self.rho_camera } else { z.rho };
+            if ahead { z.rho_back(traced) } else { traced }
         }
     }
 
     /// The density of `v_i` traced from the light (per unit volume, without `σ_t(v_i)`, which
-    /// the density from the camera has too).
+    /// the density from the camera has too; per unit area on a surface).
     fn forward(&self, i: usize) -> f64 {
         let start = if i == 1 {
             self.light_pdf
         } else {
-            self.rho(i - 1)
+            self.rho(i - 1, true)
         };
-        start * self.segment(i - 1).g
+        let segment = self.segment(i - 1);
+        start * segment.g * segment.cos_end
     }
 
     /// The density of `v_i` traced from the camera.
@@ -150,9 +212,10 @@ impl Joined<'_> {
         let start = if i == self.k() {
             self.camera_pdf
         } else {
-            self.rho(i + 1)
+            self.rho(i + 1, false)
         };
-        start * self.segment(i).g
+        let segment = self.segment(i);
+        start * segment.g * segment.cos_start
     }
 
     /// Whether strategy `j` (connecting segment `j`) can make the path.
@@ -223,56 +286,19 @@ impl ParticleTracer<'_> {
         self.subpath(t, &start, &mut subpaths.light, rng, out);
         for camera in 0..scene.cameras.len() + scene.pinholes.len() {
             let (x, d, pixel) = self.camera_ray(camera, rng);
-            let orthographic = camera < scene.cameras.len();
             let start = Start {
                 x,
                 d,
-                parallel: orthographic,
+                parallel: camera < scene.cameras.len(),
                 photon: false,
             };
             self.subpath(t, &start, &mut subpaths.camera, rng, out);
             let (ys, zs) = (&subpaths.light, &subpaths.camera);
-            // the light to each camera event
-            for (j, z) in zs.iter().enumerate() {
-                let Some(link) = self.light_link(t, z.x, rng, out) else {
-                    continue;
-                };
-                let rho_camera = t.flyer.volume.scattering.eval(link.direction.dot(z.arrive));
-                let joined = Joined {
-                    light: &[],
-                    camera: &zs[..=j],
-                    light_pdf: link.pdf,
-                    camera_pdf: pixel.pdf,
-                    link: Segment::new(t.flyer.volume, link.inside, link.outside, false, true),
-                    rho_light: f64::NAN,
-                    rho_camera,
-                };
-                let radiance = joined.weight() * z.beta * rho_camera * link.radiance;
-                self.record_sample(t, &pixel, radiance, z.opl + link.delay, out);
+            for j in 0..zs.len() {
+                self.light_to_camera_event(t, &zs[..=j], &pixel, rng, out);
             }
-            for (i, y) in ys.iter().enumerate() {
-                // each light event to the camera
-                if let Some(link) = self.camera_link(t, y.x, camera, rng, out) {
-                    let rho_light = t.flyer.volume.scattering.eval(y.arrive.dot(link.direction));
-                    let joined = Joined {
-                        light: &ys[..=i],
-                        camera: &[],
-                        light_pdf,
-                        camera_pdf: link.pdf,
-                        link: Segment::new(
-                            t.flyer.volume,
-                            link.inside,
-                            link.outside,
-                            orthographic,
-                            true,
-                        ),
-                        rho_light,
-                        rho_camera: f64::NAN,
-                    };
-                    let scale = joined.weight() * y.beta * rho_light;
-                    self.record_link(t, &link, scale, y.opl, out);
-                }
-                // and to each camera event
+            for i in 0..ys.len() {
+                self.light_event_to_camera(t, (&ys[..=i], light_pdf), camera, rng, out);
                 for j in 0..zs.len() {
                     self.join(t, (&ys[..=i], light_pdf), (&zs[..=j], &pixel), rng, out);
                 }
@@ -280,9 +306,84 @@ impl ParticleTracer<'_> {
         }
     }
 
-    /// Join the light subpath's last event `y_s` to the camera subpath's last `z_t` by a
-    /// connection from `z_t` (the light event a point source of intensity `w ρ`, the camera
-    /// event a point sensor; see [`super::path`] for the basic radiance a point source brings).
+    /// The light connected to the camera subpath's last event `z_t` (`s = 0`, path tracing's
+    /// next event): its phase function, or a surface's Lambertian `1/π` times the irradiance.
+    fn light_to_camera_event(
+        &self,
+        t: &Tools,
+        zs: &[Vertex],
+        pixel: &super::path::Pixel,
+        rng: &mut Rng,
+        out: &mut [C64],
+    ) {
+        let z = zs[zs.len() - 1];
+        let link = match z.facing {
+            None => self.light_link(t, z.x, rng, out),
+            Some(n) => self.surface_light_link(t, z.x, n, rng, out),
+        };
+        let Some(link) = link else {
+            return;
+        };
+        let volume = t.flyer.volume;
+        let rho_camera = z.rho_towards(volume, link.direction);
+        let cos_z = z.facing.map_or(1.0, |n| n.dot(link.direction));
+        let joined = Joined {
+            light: &[],
+            camera: zs,
+            light_pdf: link.pdf,
+            camera_pdf: pixel.pdf,
+            link: Segment::new(volume, link.inside, link.outside, false, true).with_cos(1.0, cos_z),
+            rho_light: f64::NAN,
+            rho_camera,
+        };
+        let scatters = if z.facing.is_some() {
+            std::f64::consts::FRAC_1_PI
+        } else {
+            rho_camera
+        };
+        let radiance = joined.weight() * z.beta * scatters * link.radiance;
+        self.record_sample(t, pixel, radiance, z.opl + link.delay, out);
+    }
+
+    /// The light subpath's last event `y_s` connected to camera `camera` (`t = 0`, particle
+    /// tracing's connection), as a point source of intensity `w ρ` (on a surface `w cos θ / π`).
+    fn light_event_to_camera(
+        &self,
+        t: &Tools,
+        (ys, light_pdf): (&[Vertex], f64),
+        camera: usize,
+        rng: &mut Rng,
+        out: &mut [C64],
+    ) {
+        let y = ys[ys.len() - 1];
+        let link = match y.facing {
+            None => self.camera_link(t, y.x, camera, rng, out),
+            Some(n) => self.surface_camera_link(t, y.x, n, camera, rng),
+        };
+        let Some(link) = link else {
+            return;
+        };
+        let volume = t.flyer.volume;
+        let rho_light = y.rho_towards(volume, link.direction);
+        let orthographic = camera < self.scene.cameras.len();
+        let cos_y = y.facing.map_or(1.0, |n| n.dot(link.direction));
+        let joined = Joined {
+            light: ys,
+            camera: &[],
+            light_pdf,
+            camera_pdf: link.pdf,
+            link: Segment::new(volume, link.inside, link.outside, orthographic, true)
+                .with_cos(cos_y, 1.0),
+            rho_light,
+            rho_camera: f64::NAN,
+        };
+        let scale = joined.weight() * y.beta * rho_light;
+        self.record_link(t, &link, scale, y.opl, out);
+    }
+
+    /// Join the light subpath's last event `y_s` to the camera subpath's last `z_t` (the light
+    /// event a point source of intensity `w ρ`, the camera event a point sensor; see
+    /// [`super::path`] for the basic radiance a point source brings).
     fn join(
         &self,
         t: &Tools,
@@ -292,44 +393,140 @@ impl ParticleTracer<'_> {
         out: &mut [C64],
     ) {
         let (y, z) = (ys[ys.len() - 1], zs[zs.len() - 1]);
-        let sampled = match self.scene.connections {
-            Connections::Unbiased => t.connector.sample(z.x, y.x, rng),
-            Connections::First => t.connector.sample_first(z.x, y.x, rng),
-        };
-        let Some((c, inverse_p)) = self.tally(sampled, out) else {
+        let Some(j) = self.joint(t, &y, &z, rng, out) else {
             return;
         };
         let volume = t.flyer.volume;
-        let leaving = -c.arrival.v.normalize();
-        let rho_camera = volume.scattering.eval(c.direction.dot(z.arrive));
-        let rho_light = volume.scattering.eval(y.arrive.dot(leaving));
-        let transmittance = self.transmittance(t, z.x, c.direction, c.length, rng);
-        let (n_y, n_out) = (t.flyer.n(y.x), volume.field.n_out);
+        let rho_light = y.rho_towards(volume, j.leave_y);
+        let rho_camera = z.rho_towards(volume, j.leave_z);
         let joined = Joined {
             light: ys,
             camera: zs,
             light_pdf,
             camera_pdf: pixel.pdf,
-            link: Segment::new(volume, c.length, 0.0, false, true),
+            link: j.segment,
             rho_light,
             rho_camera,
         };
-        let radiance = joined.weight()
-            * n_out
-            * n_out
-            * z.beta
-            * rho_camera
-            * y.beta
-            * rho_light
-            * transmittance
-            / (n_y * n_y * c.spread)
-            * inverse_p;
-        let delay = t.delay.inside(c.optical_path, c.length);
-        self.record_sample(t, pixel, radiance, y.opl + delay + z.opl, out);
+        let scatters = if z.facing.is_some() {
+            std::f64::consts::FRAC_1_PI
+        } else {
+            rho_camera
+        };
+        let radiance = joined.weight() * z.beta * scatters * y.beta * rho_light * j.carried;
+        self.record_sample(t, pixel, radiance, y.opl + j.delay + z.opl, out);
+    }
+
+    /// The connection between a light event `y` and a camera event `z`: two-point inside the
+    /// volume, through its surface between a point inside and one on a surface (see
+    /// [`super::connect`]), or a straight line between two surfaces (past the volume only where
+    /// it is index-matched).
+    fn joint(
+        &self,
+        t: &Tools,
+        y: &Vertex,
+        z: &Vertex,
+        rng: &mut Rng,
+        out: &mut [C64],
+    ) -> Option<Joint> {
+        let volume = t.flyer.volume;
+        let n_out = volume.field.n_out;
+        let first_only = self.scene.connections == Connections::First;
+        // the far end of a straight stretch lies on a surface: stop short of it
+        const SHORT: f64 = 1.0 - 1e-9;
+        match (y.facing, z.facing) {
+            (None, None) => {
+                let sampled = match self.scene.connections {
+                    Connections::Unbiased => t.connector.sample(z.x, y.x, rng),
+                    Connections::First => t.connector.sample_first(z.x, y.x, rng),
+                };
+                let (c, inverse_p) = self.tally(sampled, out)?;
+                let transmittance = self.transmittance(t, z.x, c.direction, c.length, rng);
+                let n_y = t.flyer.n(y.x);
+                Some(Joint {
+                    leave_y: -c.arrival.v.normalize(),
+                    leave_z: c.direction,
+                    carried: n_out * n_out * transmittance / (n_y * n_y * c.spread) * inverse_p,
+                    delay: t.delay.inside(c.optical_path, c.length),
+                    segment: Segment::new(volume, c.length, 0.0, false, true),
+                })
+            }
+            (None, Some(facing)) => {
+                // from y inside through z: z's irradiance, `T (1 − R) cos θ / (dA⊥/dω)`
+                let s = t.connector.sample_through(y.x, z.x, first_only, rng);
+                let (e, inverse_p) = self.tally(s, out)?;
+                let to_z = (z.x - e.surface).dot(e.outgoing);
+                let cos = -facing.dot(e.outgoing);
+                if cos <= 0.0
+                    || self
+                        .scene
+                        .blocked_after_exit(e.surface, e.outgoing, to_z * SHORT)
+                {
+                    return None;
+                }
+                let transmittance = self.transmittance(t, y.x, e.direction, e.length, rng);
+                let outside = n_out * to_z;
+                Some(Joint {
+                    leave_y: e.direction,
+                    leave_z: -e.outgoing,
+                    carried: transmittance * e.transmission * cos / e.jacobian * inverse_p,
+                    delay: t.delay.inside(e.optical_path - outside, e.length)
+                        + t.delay.outside(outside),
+                    segment: Segment::new(volume, e.length, to_z, false, true).with_cos(1.0, cos),
+                })
+            }
+            (Some(facing), None) => {
+                // from z inside through y: y a point source outside, as a light in path tracing
+                let s = t.connector.sample_through(z.x, y.x, first_only, rng);
+                let (e, inverse_p) = self.tally(s, out)?;
+                let to_y = (y.x - e.surface).dot(e.outgoing);
+                let cos = -facing.dot(e.outgoing);
+                if cos <= 0.0
+                    || self
+                        .scene
+                        .blocked_after_exit(e.surface, e.outgoing, to_y * SHORT)
+                {
+                    return None;
+                }
+                let transmittance = self.transmittance(t, z.x, e.direction, e.length, rng);
+                let outside = n_out * to_y;
+                Some(Joint {
+                    leave_y: -e.outgoing,
+                    leave_z: e.direction,
+                    carried: transmittance * e.transmission / e.jacobian * inverse_p,
+                    delay: t.delay.inside(e.optical_path - outside, e.length)
+                        + t.delay.outside(outside),
+                    segment: Segment::new(volume, e.length, to_y, false, true).with_cos(cos, 1.0),
+                })
+            }
+            (Some(facing_y), Some(facing_z)) => {
+                let v = y.x - z.x;
+                let distance = v.length();
+                let w = v / distance;
+                let (cos_y, cos_z) = (-facing_y.dot(w), facing_z.dot(w));
+                if distance <= 0.0
+                    || cos_y <= 0.0
+                    || cos_z <= 0.0
+                    || self.scene.blocked(z.x, w, distance * SHORT)
+                {
+                    return None;
+                }
+                let (transmittance, inside) = self.past_volume(t, z.x, w, distance, rng)?;
+                Some(Joint {
+                    leave_y: -w,
+                    leave_z: w,
+                    carried: transmittance * cos_z / (distance * distance),
+                    delay: t.delay.outside(n_out * distance),
+                    segment: Segment::new(volume, inside, distance - inside, false, true)
+                        .with_cos(cos_y, cos_z),
+                })
+            }
+        }
     }
 
     /// Trace a subpath from `start` into `vertices` (cleared first): its scattering events
-    /// inside the volume, until it leaves the scene, is given up, or loses the roulette.
+    /// inside the volume and on surfaces, until it leaves the scene, is given up, or loses the
+    /// roulette.
     fn subpath(
         &self,
         t: &Tools,
@@ -342,38 +539,113 @@ impl ParticleTracer<'_> {
         let volume = t.flyer.volume;
         let albedo = volume.albedo();
         let n_out = volume.field.n_out;
+        let matched = t.connector.matched();
         let (mut beta, mut opl, mut steps) = (1.0, 0.0, 0);
-        // the segment so far: geometric length inside and outside, surface crossings
+        // the segment so far: geometric length inside and outside, surface crossings, whether
+        // it began inside the volume, the cosine where it left a surface
         let (mut inside, mut outside, mut crossings) = (0.0, 0.0, 0);
-        let from_outside = !volume.field.bounds.contains(start.x);
-        let mut leg = if from_outside {
+        let mut began_inside = volume.field.bounds.contains(start.x);
+        let mut cos_start = 1.0;
+        // a connection refracts once between a point inside and one outside, never between two
+        // points on one side (outside: straight, also across an index-matched volume)
+        let connectible = |began_inside: bool, ends_inside: bool, crossings: usize| {
+            if began_inside != ends_inside {
+                crossings == 1
+            } else {
+                crossings == 0 || (!ends_inside && matched)
+            }
+        };
+        let mut leg = if began_inside {
+            Leg::Inside(Ray {
+                x: start.x,
+                v: start.d * t.flyer.n(start.x),
+            })
+        } else {
             Leg::Outside {
                 x: start.x,
                 d: start.d,
                 left_volume: false,
             }
-        } else {
-            Leg::Inside(Ray {
-                x: start.x,
-                v: start.d * t.flyer.n(start.x),
-            })
         };
         loop {
             let ray = match leg {
                 Leg::Outside { x, d, left_volume } => {
-                    let entry = self.ahead(t, x, d, left_volume).0;
+                    let (entry, surface) = self.ahead(t, x, d, left_volume);
+                    let end = match (entry, surface) {
+                        (Some(a), Some((_, b))) => a.min(b),
+                        (Some(a), None) => a,
+                        (None, Some((_, b))) => b,
+                        (None, None) => f64::INFINITY,
+                    };
                     if start.photon {
-                        let end = entry.unwrap_or(f64::INFINITY);
                         self.cross_sensors(t, x, d, end, beta, opl, out);
                     }
-                    let Some(t0) = entry else {
-                        break;
-                    };
-                    opl += t.delay.outside(n_out * t0);
-                    outside += t0;
-                    crossings += 1;
-                    leg = Leg::enter(t, x, d, t0, rng);
-                    continue;
+                    match (entry, surface) {
+                        (Some(t0), _) if t0 == end => {
+                            opl += t.delay.outside(n_out * t0);
+                            outside += t0;
+                            crossings += 1;
+                            leg = Leg::enter(t, x, d, t0, rng);
+                            continue;
+                        }
+                        (_, Some((i, distance))) => {
+                            let s = &self.scene.surfaces[i];
+                            opl += t.delay.outside(n_out * distance);
+                            outside += distance;
+                            if start.photon {
+                                out[self.surface_power(i)].re += beta;
+                            }
+                            beta *= s.albedo;
+                            if beta <= 0.0 {
+                                break;
+                            }
+                            let facing = if d.dot(s.normal) < 0.0 {
+                                s.normal
+                            } else {
+                                -s.normal
+                            };
+                            let first = vertices.is_empty();
+                            let segment = Segment::new(
+                                volume,
+                                inside,
+                                outside,
+                                first && start.parallel,
+                                connectible(began_inside, false, crossings),
+                            );
+                            vertices.push(Vertex {
+                                x: x + d * distance,
+                                arrive: d,
+                                rho: f64::NAN,
+                                beta,
+                                opl,
+                                segment: segment.with_cos(cos_start, -facing.dot(d)),
+                                facing: Some(facing),
+                            });
+                            (inside, outside, crossings) = (0.0, 0.0, 0);
+                            began_inside = false;
+                            if !roulette(&mut beta, rng) || vertices.len() >= MAX_EVENTS {
+                                break;
+                            }
+                            // Lambertian: leave cosine-distributed
+                            let mu = uniform(rng).sqrt();
+                            let next = crate::math::direction_about(
+                                facing,
+                                mu,
+                                2.0 * std::f64::consts::PI * uniform(rng),
+                            );
+                            cos_start = mu;
+                            if let Some(last) = vertices.last_mut() {
+                                last.rho = lambert(facing, next);
+                                leg = Leg::Outside {
+                                    x: last.x,
+                                    d: next,
+                                    left_volume: false,
+                                };
+                            }
+                            continue;
+                        }
+                        _ => break,
+                    }
                 }
                 Leg::Inside(ray) => ray,
             };
@@ -385,20 +657,25 @@ impl ParticleTracer<'_> {
                 Stop::Collision(hit) => {
                     beta *= albedo;
                     let first = vertices.is_empty();
-                    // the first segment from outside refracts once on the way in; others never
-                    // meet the surface
-                    let connectible = crossings == usize::from(first && from_outside);
-                    let parallel = first && start.parallel;
                     let u = hit.v.normalize();
+                    let segment = Segment::new(
+                        volume,
+                        inside,
+                        outside,
+                        first && start.parallel,
+                        connectible(began_inside, true, crossings),
+                    );
                     vertices.push(Vertex {
                         x: hit.x,
                         arrive: u,
                         rho: f64::NAN,
                         beta,
                         opl,
-                        segment: Segment::new(volume, inside, outside, parallel, connectible),
+                        segment: segment.with_cos(cos_start, 1.0),
+                        facing: None,
                     });
                     (inside, outside, crossings) = (0.0, 0.0, 0);
+                    (began_inside, cos_start) = (true, 1.0);
                     if start.photon {
                         let phase = |d: DVec3| volume.scattering.eval(u.dot(d));
                         self.connect_probes(t, hit.x, beta, opl, phase, rng, out);
@@ -425,6 +702,20 @@ impl ParticleTracer<'_> {
     }
 }
 
+/// A connection between a light event and a camera event, as [`ParticleTracer::join`] uses it.
+struct Joint {
+    /// Unit directions leaving each end along the connection.
+    leave_y: DVec3,
+    leave_z: DVec3,
+    /// What reaches `z` per unit intensity leaving `y`: for an event inside, per unit phase
+    /// function in the camera's radiance; on a surface, its irradiance.
+    carried: f64,
+    /// Group delay along it.
+    delay: f64,
+    /// As the weights see it, from `y` to `z`.
+    segment: Segment,
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -446,6 +737,7 @@ mod tests {
             beta: 1.0,
             opl: 0.0,
             segment,
+            facing: None,
         };
         let light = (1..=s)
             .map(|i| vertex(segments[i - 1], rho[i - 1]))
@@ -470,6 +762,8 @@ mod tests {
             let segments: Vec<Segment> = (0..=k)
                 .map(|_| Segment {
                     g: (-4.0 * uniform(&mut rng)).exp() / (0.05 + uniform(&mut rng)).powi(2),
+                    cos_start: 1.0,
+                    cos_end: 1.0,
                     connectible: uniform(&mut rng) < 0.7,
                 })
                 .collect();
@@ -496,6 +790,115 @@ mod tests {
                     rho_camera,
                 };
                 assert!(joined.available(s));
+                let w = joined.weight();
+                assert!(
+                    w > 0.0 && w <= 1.0,
+                    "case {case}: weight {w} of strategy {s}"
+                );
+                sum += w;
+                strategies += 1;
+            }
+            if strategies > 0 {
+                assert!(
+                    (sum - 1.0).abs() < 1e-12,
+                    "case {case}: weights sum to {sum} over {strategies} strategies"
+                );
+            }
+        }
+    }
+
+    /// The same on paths laid out in space with events on surfaces (lit on the side facing both
+    /// neighbours), whose densities of leaving differ by direction (`cos θ / π`) and which take
+    /// `|cos θ|` per unit area: every split of the path must see the same densities, the
+    /// camera's subpath reversed.
+    #[test]
+    fn weights_sum_to_one_with_surface_events() {
+        let mut rng = stream_rng(11, 0);
+        let hg = |c: f64| {
+            let g: f64 = 0.5;
+            (1.0 - g * g) / (4.0 * std::f64::consts::PI * (1.0 + g * g - 2.0 * g * c).powf(1.5))
+        };
+        for case in 0..300 {
+            let k = 1 + case % 6;
+            // v_0 the light, v_{k+1} the camera
+            let v: Vec<DVec3> = (0..k + 2)
+                .map(|_| {
+                    DVec3::new(uniform(&mut rng), uniform(&mut rng), uniform(&mut rng)) * 4.0 - 2.0
+                })
+                .collect();
+            let dir = |i: usize, j: usize| (v[j] - v[i]).normalize();
+            let facing: Vec<Option<DVec3>> = (0..k + 2)
+                .map(|i| {
+                    if i == 0 || i > k || uniform(&mut rng) < 0.5 {
+                        return None;
+                    }
+                    // tilted off the bisector, so the two ways leave at different angles
+                    let (a, b) = (dir(i, i - 1), dir(i, i + 1));
+                    let tilt = crate::math::uniform_sphere(uniform(&mut rng), uniform(&mut rng));
+                    let n = (a + b + tilt * 0.8).normalize();
+                    Some(if n.dot(a) > 0.05 && n.dot(b) > 0.05 {
+                        n
+                    } else {
+                        (a + b).normalize()
+                    })
+                })
+                .collect();
+            let connectible: Vec<bool> = (0..=k).map(|_| uniform(&mut rng) < 0.8).collect();
+            // the density of leaving v_i towards v_j having arrived from v_h
+            let pdf = |h: usize, i: usize, j: usize| match facing[i] {
+                Some(n) => lambert(n, dir(i, j)),
+                None => hg(dir(h, i).dot(dir(i, j))),
+            };
+            // the segment traced from v_i to v_j, path segment `c`
+            let segment = |i: usize, j: usize, c: usize| {
+                let l = (v[j] - v[i]).length();
+                let cos = |f: Option<DVec3>| f.map_or(1.0, |n| n.dot(dir(i, j)).abs());
+                Segment {
+                    g: (-0.7 * l).exp() / (l * l),
+                    cos_start: cos(facing[i]),
+                    cos_end: cos(facing[j]),
+                    connectible: connectible[c],
+                }
+            };
+            let vertex = |i: usize, from: usize, to: usize, last: bool, c: usize| Vertex {
+                x: v[i],
+                arrive: dir(from, i),
+                rho: if last { f64::NAN } else { pdf(from, i, to) },
+                beta: 1.0,
+                opl: 0.0,
+                segment: segment(from, i, c),
+                facing: facing[i],
+            };
+            let mut sum = 0.0;
+            let mut strategies = 0;
+            for (s, _) in connectible.iter().enumerate().filter(|(_, c)| **c) {
+                let light: Vec<Vertex> = (1..=s)
+                    .map(|i| vertex(i, i - 1, i + 1, i == s, i - 1))
+                    .collect();
+                // z_m = v_{k+1−m}, reached from v_{k+2−m}
+                let camera: Vec<Vertex> = (1..=k - s)
+                    .map(|m| {
+                        let i = k + 1 - m;
+                        vertex(i, i + 1, i - 1, m == k - s, i)
+                    })
+                    .collect();
+                let joined = Joined {
+                    light: &light,
+                    camera: &camera,
+                    light_pdf: 0.3,
+                    camera_pdf: 2.0,
+                    link: segment(s, s + 1, s),
+                    rho_light: if s > 0 {
+                        pdf(s - 1, s, s + 1)
+                    } else {
+                        f64::NAN
+                    },
+                    rho_camera: if s < k {
+                        pdf(s + 2, s + 1, s)
+                    } else {
+                        f64::NAN
+                    },
+                };
                 let w = joined.weight();
                 assert!(
                     w > 0.0 && w <= 1.0,

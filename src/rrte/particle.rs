@@ -538,9 +538,9 @@ impl<'s> ParticleTracer<'s> {
     }
 
     /// The transmittance of the straight segment from `y` outside the volume along unit `w` for
-    /// `length`: 1 if it misses the volume, its attenuation through an index-matched volume of
-    /// constant `n` (the line runs straight through it), `None` through a refracting one (the
-    /// path would bend: not connected).
+    /// `length`, and its geometric length inside the volume: 1 if it misses the volume, its
+    /// attenuation through an index-matched volume of constant `n` (the line runs straight
+    /// through it), `None` through a refracting one (the path would bend: not connected).
     pub(super) fn past_volume(
         &self,
         t: &Tools,
@@ -548,10 +548,10 @@ impl<'s> ParticleTracer<'s> {
         w: DVec3,
         length: f64,
         rng: &mut Rng,
-    ) -> Option<f64> {
+    ) -> Option<(f64, f64)> {
         // every stretch of the line inside the volume (one if it is convex)
         let bounds = &t.flyer.volume.field.bounds;
-        let (mut from, mut transmittance) = (0.0, 1.0);
+        let (mut from, mut transmittance, mut inside) = (0.0, 1.0, 0.0);
         while let Some((t0, t1)) = bounds.interval(y + w * from, w) {
             let (t0, t1) = (from + t0, from + t1);
             if t1 <= from || t0 >= length {
@@ -564,13 +564,14 @@ impl<'s> ParticleTracer<'s> {
             let b = t1.min(length);
             if b > a {
                 transmittance *= self.transmittance(t, y + w * a, w, b - a, rng);
+                inside += b - a;
             }
             if bounds.is_convex() || b >= length {
                 break;
             }
             from = t1 + 1e-9 * (1.0 + t1.abs());
         }
-        Some(transmittance)
+        Some((transmittance, inside))
     }
 
     /// Count a connection's work in the statistics, and return its path and inverse probability.
@@ -797,51 +798,71 @@ impl<'s> ParticleTracer<'s> {
         rng: &mut Rng,
         out: &mut [C64],
     ) {
+        for i in 0..self.scene.cameras.len() + self.scene.pinholes.len() {
+            if let Some(link) = self.surface_camera_link(t, y, facing, i, rng) {
+                // Lambertian: intensity cos θ / π per unit power
+                let lambert = facing.dot(link.direction) / std::f64::consts::PI;
+                self.record_link(t, &link, p.weight * lambert, p.opl, out);
+            }
+        }
+    }
+
+    /// The straight connection from the lit point `y` of a surface (unit `facing` normal on the
+    /// lit side) to camera `i` (the orthographic cameras first, then the pinholes), past no other
+    /// surface and through the volume only where it is index-matched; what it carries per unit
+    /// intensity leaving `y`, as [`Self::camera_link`].
+    pub(super) fn surface_camera_link(
+        &self,
+        t: &Tools,
+        y: DVec3,
+        facing: DVec3,
+        i: usize,
+        rng: &mut Rng,
+    ) -> Option<CameraLink> {
         let n_out = t.flyer.volume.field.n_out;
-        let intensity = |w: DVec3| p.weight * w.dot(facing).max(0.0) / std::f64::consts::PI;
-        for (i, cam) in self.scene.cameras.iter().enumerate() {
+        let orthographic = self.scene.cameras.len();
+        if let Some(cam) = self.scene.cameras.get(i) {
             let w = cam.direction;
-            let Some(pixel) = cam.pixel(y) else {
-                continue;
-            };
+            let pixel = cam.pixel(y)?;
             let to_plane = (cam.center - y).dot(w).max(0.0);
-            let value = intensity(w) / cam.pixel_area();
-            if value <= 0.0 || self.scene.blocked(y, w, to_plane) {
-                continue;
+            if w.dot(facing) <= 0.0 || self.scene.blocked(y, w, to_plane) {
+                return None;
             }
-            let Some(transmittance) = self.past_volume(t, y, w, f64::INFINITY, rng) else {
-                continue;
-            };
-            let Some(bin) = self.bin(p.opl + t.delay.outside(n_out * to_plane)) else {
-                continue;
-            };
-            let image = self.camera_image(i);
-            image.add(out, bin, pixel, value * transmittance, &t.colour);
-            out[image.total()].re += value * transmittance;
+            let (transmittance, inside) = self.past_volume(t, y, w, f64::INFINITY, rng)?;
+            let radiance = transmittance / cam.pixel_area();
+            return Some(CameraLink {
+                camera: i,
+                pixel,
+                direction: w,
+                radiance,
+                total: radiance,
+                delay: t.delay.outside(n_out * to_plane),
+                inside,
+                outside: to_plane - inside,
+                pdf: 1.0 / cam.area(),
+            });
         }
-        for (i, cam) in self.scene.pinholes.iter().enumerate() {
-            let v = cam.position - y;
-            let distance = v.length();
-            let w = v / distance;
-            let irradiance = intensity(w) / (distance * distance);
-            let Some((pixel, cos)) = cam.pixel(w) else {
-                continue;
-            };
-            if !(irradiance > 0.0 && irradiance.is_finite()) || self.scene.blocked(y, w, distance) {
-                continue;
-            }
-            let Some(transmittance) = self.past_volume(t, y, w, distance, rng) else {
-                continue;
-            };
-            let Some(bin) = self.bin(p.opl + t.delay.outside(n_out * distance)) else {
-                continue;
-            };
-            let image = self.pinhole_image(i);
-            let irradiance = irradiance * transmittance;
-            let radiance = irradiance / (cos * cos * cos * cam.pixel_area());
-            image.add(out, bin, pixel, radiance, &t.colour);
-            out[image.total()].re += irradiance;
+        let cam = &self.scene.pinholes[i - orthographic];
+        let v = cam.position - y;
+        let distance = v.length();
+        let w = v / distance;
+        let (pixel, cos) = cam.pixel(w)?;
+        if distance <= 0.0 || w.dot(facing) <= 0.0 || self.scene.blocked(y, w, distance) {
+            return None;
         }
+        let (transmittance, inside) = self.past_volume(t, y, w, distance, rng)?;
+        let irradiance = transmittance / (distance * distance);
+        Some(CameraLink {
+            camera: i,
+            pixel,
+            direction: w,
+            radiance: irradiance / (cos * cos * cos * cam.pixel_area()),
+            total: irradiance,
+            delay: t.delay.outside(n_out * distance),
+            inside,
+            outside: distance - inside,
+            pdf: 1.0 / cam.image_area(cos),
+        })
     }
 
     /// Free flights and scattering inside the volume from `ray` until the photon leaves (the next

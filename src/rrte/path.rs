@@ -7,7 +7,8 @@
 //! density), and scatters by the phase function (or diffusely off a surface) carrying the albedo.
 //! At every scattering event the light is connected to it: through the volume by a boundary-value
 //! connection (a curved ray to a light inside, or a ray leaving the volume and running straight to
-//! a light outside, solved as in [`super::connect`]), or in a straight line from a surface.
+//! a light outside, solved as in [`super::connect`]); to a surface in a straight line from a
+//! light outside, or from a light inside through the volume's surface.
 //!
 //! The estimate is carried in basic radiance `B = L/n²`, which the RRTE conserves along rays and
 //! transmits across an interface as `(1 − R) B` (paper 002, Table 1): no `n²` appears along the
@@ -244,9 +245,7 @@ impl ParticleTracer<'_> {
         }
     }
 
-    /// Connect the light outside the volume to the lit point `y` of a surface in a straight line
-    /// (past no other surface, and through the volume only where it is index-matched): Lambertian
-    /// radiance `albedo E / π`.
+    /// Connect the light to the lit point `y` of a surface: Lambertian radiance `albedo E / π`.
     #[allow(clippy::too_many_arguments)]
     fn light_to_surface(
         &self,
@@ -258,34 +257,79 @@ impl ParticleTracer<'_> {
         rng: &mut Rng,
         out: &mut [C64],
     ) {
-        let bounds = &t.flyer.volume.field.bounds;
-        let n_out = t.flyer.volume.field.n_out;
-        let Some(q) = self.light_point(rng) else {
+        let Some(link) = self.surface_light_link(t, y, facing, rng, out) else {
             return;
         };
-        if bounds.contains(q) {
-            return;
+        // the surface's albedo is already in β: the Lambertian BRDF's 1/π remains
+        self.record_sample(
+            t,
+            pixel,
+            w.beta * link.radiance / PI,
+            w.opl + link.delay,
+            out,
+        );
+    }
+
+    /// The connection from the light to the lit point `y` of a surface (unit `facing` normal on
+    /// the lit side); its `radiance` is the irradiance it brings to `y`. From a light outside, a
+    /// straight line past no other surface (through the volume only where it is index-matched):
+    /// `I T cos θ / d²`; from a light inside, a connection through the volume's surface (see
+    /// [`super::connect`]): `I T (1 − R) cos θ / (dA⊥/dω)`.
+    pub(super) fn surface_light_link(
+        &self,
+        t: &Tools,
+        y: DVec3,
+        facing: DVec3,
+        rng: &mut Rng,
+        out: &mut [C64],
+    ) -> Option<LightLink> {
+        let n_out = t.flyer.volume.field.n_out;
+        let light = &self.scene.light;
+        let q = self.light_point(rng)?;
+        if t.flyer.volume.field.bounds.contains(q) {
+            let first_only = self.scene.connections == super::Connections::First;
+            let s = t.connector.sample_through(q, y, first_only, rng);
+            let (e, inverse_p) = self.tally(s, out)?;
+            let to_y = (y - e.surface).dot(e.outgoing);
+            let cos = -facing.dot(e.outgoing);
+            // y lies on a surface: stop the check short of it
+            if cos <= 0.0
+                || self
+                    .scene
+                    .blocked_after_exit(e.surface, e.outgoing, to_y * (1.0 - 1e-9))
+            {
+                return None;
+            }
+            let transmittance = self.transmittance(t, q, e.direction, e.length, rng);
+            let intensity = light.intensity(e.direction);
+            let outside = n_out * to_y;
+            return Some(LightLink {
+                direction: -e.outgoing,
+                radiance: intensity * transmittance * e.transmission * cos / e.jacobian * inverse_p,
+                delay: t.delay.inside(e.optical_path - outside, e.length)
+                    + t.delay.outside(outside),
+                inside: e.length,
+                outside: to_y,
+                pdf: intensity,
+            });
         }
         let v = q - y;
         let distance = v.length();
         let dir = v / distance;
         let cos = dir.dot(facing);
         if cos <= 0.0 || self.scene.blocked(y, dir, distance) {
-            return;
+            return None;
         }
-        let Some(transmittance) = self.past_volume(t, y, dir, distance, rng) else {
-            return;
-        };
-        // the surface's albedo is already in β: the Lambertian BRDF's 1/π remains
-        let irradiance =
-            self.scene.light.intensity(-dir) * cos * transmittance / (distance * distance);
-        self.record_sample(
-            t,
-            pixel,
-            w.beta * irradiance / PI,
-            w.opl + t.delay.outside(n_out * distance),
-            out,
-        );
+        let (transmittance, inside) = self.past_volume(t, y, dir, distance, rng)?;
+        let intensity = light.intensity(-dir);
+        Some(LightLink {
+            direction: dir,
+            radiance: intensity * cos * transmittance / (distance * distance),
+            delay: t.delay.outside(n_out * distance),
+            inside,
+            outside: distance - inside,
+            pdf: intensity,
+        })
     }
 
     /// A point of the light to connect to (`None` for a beam).
