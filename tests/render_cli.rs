@@ -420,17 +420,17 @@ fn bidirectional_tracing_is_checked_and_runs() {
     let dir = tmp("bidirectional");
     std::fs::create_dir_all(&dir).unwrap();
     let base = std::fs::read_to_string(config("render_glass.toml")).unwrap();
-    // a flux sensor below the ball, recorded by the light subpaths, and a grey wall behind it
+    // a flux sensor beside the ball, recorded by the light subpaths (the example has a floor)
     let base = base.replacen(
         "[render]",
-        "[[sensor]]\nkind = \"flux\"\nname = \"below\"\ncenter = [0.0, 0.0, -3.0]\nnormal = [0.0, 0.0, -1.0]\n\n[[surface]]\nname = \"wall\"\ncenter = [-1.5, 0.0, 0.0]\nnormal = [1.0, 0.0, 0.0]\nsize = [3.0, 3.0]\nalbedo = 0.5\n\n[render]",
+        "[[sensor]]\nkind = \"flux\"\nname = \"beside\"\ncenter = [-3.0, 0.0, 0.0]\nnormal = [-1.0, 0.0, 0.0]\n\n[render]",
         1,
     );
-    let cases: &[(&str, &str, &str)] = &[("albedo = 0.5", "albedo = 1.5", "surface[0].albedo")];
+    let cases: &[(&str, &str, &str)] = &[("albedo = 0.8", "albedo = 1.5", "surface[0].albedo")];
     refused_all(&dir, &base, cases);
     let beam = base.replacen(
         "kind = \"point\"\nposition = [0.3, -0.2, -0.4]",
-        "kind = \"beam\"\ncenter = [0.0, 0.0, -2.0]\ndirection = [0.0, 0.0, 1.0]\nradius = 0.3",
+        "kind = \"beam\"\ncenter = [0.0, -2.0, 0.0]\ndirection = [0.0, 1.0, 0.0]\nradius = 0.3",
         1,
     );
     assert_ne!(beam, base);
@@ -454,9 +454,9 @@ fn bidirectional_tracing_is_checked_and_runs() {
         assert!(camera["irradiance"]["mean"].as_f64().unwrap() > 0.0);
         let noise = camera["pixel_noise"].as_f64().unwrap();
         assert!(noise > 0.0 && noise <= 1.0, "pixel noise {noise}");
-        assert_eq!(r["sensors"][0]["name"], "below");
+        assert_eq!(r["sensors"][0]["name"], "beside");
         assert!(r["sensors"][0]["power"]["mean"].as_f64().unwrap() > 0.0);
-        assert_eq!(r["surfaces"][0]["name"], "wall");
+        assert_eq!(r["surfaces"][0]["name"], "floor");
         assert!(r["surfaces"][0]["incident"]["mean"].as_f64().unwrap() > 0.0);
     }
     let _ = std::fs::remove_dir_all(dir);
