@@ -68,14 +68,19 @@ fn agree(mut s: RenderScene, photons: u64, paths: u64, blocks: bool) {
     }
     for i in 0..s.surfaces.len() {
         // the light reaching each surface, which the light subpaths record
-        let k = est.surface_power(i);
-        let (x, y) = (a.mean[k].re, c.mean[k].re);
-        let se = a.stderr[k].hypot(c.stderr[k]);
-        assert!(
-            x > 0.0 && (x - y).abs() < 4.0 * se,
-            "surface {i}: particles {x}, bidirectional {y} (± {se})"
-        );
+        totals_agree(&a, &c, est.surface_power(i), &format!("surface {i}"));
     }
+}
+
+/// Assert that output `k` of two renders is positive and agrees within 4 combined standard
+/// errors.
+fn totals_agree(a: &Estimate, b: &Estimate, k: usize, what: &str) {
+    let (x, y) = (a.mean[k].re, b.mean[k].re);
+    let se = a.stderr[k].hypot(b.stderr[k]);
+    assert!(
+        x > 0.0 && (x - y).abs() < 4.0 * se,
+        "{what}: particles {x}, bidirectional {y} (± {se})"
+    );
 }
 
 fn compare_images(a: &Estimate, b: &Estimate, image: ImageLayout, blocks: bool) {
@@ -262,21 +267,9 @@ fn fresnel_faces_agree() {
     let (b, _) = render(&p, 20_000, 5);
     for i in 0..2 {
         compare_images(&a, &b, est.camera_image(i), false);
-        let k = est.power(i);
-        let (x, y) = (a.mean[k].re, b.mean[k].re);
-        let se = a.stderr[k].hypot(b.stderr[k]);
-        assert!(
-            x > 0.0 && (x - y).abs() < 4.0 * se,
-            "flux {i}: particles {x}, bidirectional {y} (± {se})"
-        );
+        totals_agree(&a, &b, est.power(i), &format!("flux {i}"));
     }
-    let k = est.probe_total(0);
-    let (x, y) = (a.mean[k].re, b.mean[k].re);
-    let se = a.stderr[k].hypot(b.stderr[k]);
-    assert!(
-        x > 0.0 && (x - y).abs() < 4.0 * se,
-        "probe: particles {x}, bidirectional {y} (± {se})"
-    );
+    totals_agree(&a, &b, est.probe_total(0), "probe");
 }
 
 /// A white floor under a scattering glass ball (n = 1.5 in air) with a lamp inside, seen only
@@ -316,11 +309,5 @@ fn a_floor_under_glass_agrees() {
     let (b, _) = render(&p, 60_000, 7);
     compare_images(&a, &b, est.pinhole_image(0), false);
     compare_images(&a, &b, est.camera_image(0), false);
-    let k = est.surface_power(0);
-    let (x, y) = (a.mean[k].re, b.mean[k].re);
-    let se = a.stderr[k].hypot(b.stderr[k]);
-    assert!(
-        x > 0.0 && (x - y).abs() < 4.0 * se,
-        "floor: particles {x}, bidirectional {y} (± {se})"
-    );
+    totals_agree(&a, &b, est.surface_power(0), "floor");
 }

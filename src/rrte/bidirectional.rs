@@ -431,7 +431,6 @@ impl ParticleTracer<'_> {
     ) -> Option<Joint> {
         let volume = t.flyer.volume;
         let n_out = volume.field.n_out;
-        let first_only = self.scene.connections == Connections::First;
         // the far end of a straight stretch lies on a surface: stop short of it
         const SHORT: f64 = 1.0 - 1e-9;
         match (y.facing, z.facing) {
@@ -453,50 +452,24 @@ impl ParticleTracer<'_> {
             }
             (None, Some(facing)) => {
                 // from y inside through z: z's irradiance, `T (1 − R) cos θ / (dA⊥/dω)`
-                let s = t.connector.sample_through(y.x, z.x, first_only, rng);
-                let (e, inverse_p) = self.tally(s, out)?;
-                let to_z = (z.x - e.surface).dot(e.outgoing);
-                let cos = -facing.dot(e.outgoing);
-                if cos <= 0.0
-                    || self
-                        .scene
-                        .blocked_after_exit(e.surface, e.outgoing, to_z * SHORT)
-                {
-                    return None;
-                }
-                let transmittance = self.transmittance(t, y.x, e.direction, e.length, rng);
-                let outside = n_out * to_z;
+                let o = self.out_to_surface(t, y.x, z.x, facing, rng, out)?;
                 Some(Joint {
-                    leave_y: e.direction,
-                    leave_z: -e.outgoing,
-                    carried: transmittance * e.transmission * cos / e.jacobian * inverse_p,
-                    delay: t.delay.inside(e.optical_path - outside, e.length)
-                        + t.delay.outside(outside),
-                    segment: Segment::new(volume, e.length, to_z, false, true).with_cos(1.0, cos),
+                    leave_y: o.exit.direction,
+                    leave_z: -o.exit.outgoing,
+                    carried: o.carried * o.cos,
+                    delay: o.delay,
+                    segment: o.segment.with_cos(1.0, o.cos),
                 })
             }
             (Some(facing), None) => {
                 // from z inside through y: y a point source outside, as a light in path tracing
-                let s = t.connector.sample_through(z.x, y.x, first_only, rng);
-                let (e, inverse_p) = self.tally(s, out)?;
-                let to_y = (y.x - e.surface).dot(e.outgoing);
-                let cos = -facing.dot(e.outgoing);
-                if cos <= 0.0
-                    || self
-                        .scene
-                        .blocked_after_exit(e.surface, e.outgoing, to_y * SHORT)
-                {
-                    return None;
-                }
-                let transmittance = self.transmittance(t, z.x, e.direction, e.length, rng);
-                let outside = n_out * to_y;
+                let o = self.out_to_surface(t, z.x, y.x, facing, rng, out)?;
                 Some(Joint {
-                    leave_y: -e.outgoing,
-                    leave_z: e.direction,
-                    carried: transmittance * e.transmission / e.jacobian * inverse_p,
-                    delay: t.delay.inside(e.optical_path - outside, e.length)
-                        + t.delay.outside(outside),
-                    segment: Segment::new(volume, e.length, to_y, false, true).with_cos(cos, 1.0),
+                    leave_y: -o.exit.outgoing,
+                    leave_z: o.exit.direction,
+                    carried: o.carried,
+                    delay: o.delay,
+                    segment: o.segment.with_cos(o.cos, 1.0),
                 })
             }
             (Some(facing_y), Some(facing_z)) => {
@@ -522,6 +495,44 @@ impl ParticleTracer<'_> {
                 })
             }
         }
+    }
+
+    /// The connection from `x` inside the volume out through its surface to the point `p` of a
+    /// surface (unit `facing` normal on the lit side), past no other surface: what it carries
+    /// either way per unit intensity, `T (1 − R) / (dA⊥/dω)` (without the cosine at `p`).
+    fn out_to_surface(
+        &self,
+        t: &Tools,
+        x: DVec3,
+        p: DVec3,
+        facing: DVec3,
+        rng: &mut Rng,
+        out: &mut [C64],
+    ) -> Option<OutToSurface> {
+        let volume = t.flyer.volume;
+        let first_only = self.scene.connections == Connections::First;
+        let s = t.connector.sample_through(x, p, first_only, rng);
+        let (exit, inverse_p) = self.tally(s, out)?;
+        let to_p = (p - exit.surface).dot(exit.outgoing);
+        let cos = -facing.dot(exit.outgoing);
+        // p lies on a surface: stop the check short of it
+        if cos <= 0.0
+            || self
+                .scene
+                .blocked_after_exit(exit.surface, exit.outgoing, to_p * (1.0 - 1e-9))
+        {
+            return None;
+        }
+        let transmittance = self.transmittance(t, x, exit.direction, exit.length, rng);
+        let outside = volume.field.n_out * to_p;
+        Some(OutToSurface {
+            carried: transmittance * exit.transmission / exit.jacobian * inverse_p,
+            delay: t.delay.inside(exit.optical_path - outside, exit.length)
+                + t.delay.outside(outside),
+            segment: Segment::new(volume, exit.length, to_p, false, true),
+            cos,
+            exit,
+        })
     }
 
     /// Trace a subpath from `start` into `vertices` (cleared first): its scattering events
@@ -700,6 +711,19 @@ impl ParticleTracer<'_> {
         out[self.total(super::Total::Events)].re += vertices.len() as f64;
         out[self.total(super::Total::Steps)].re += steps as f64;
     }
+}
+
+/// A connection from a point inside the volume to a point on a surface, as
+/// [`ParticleTracer::out_to_surface`] finds it.
+struct OutToSurface {
+    exit: super::connect::Exit,
+    /// `T (1 − R) / (dA⊥/dω)` over the inverse probability of drawing the path.
+    carried: f64,
+    delay: f64,
+    /// As the weights see it, from the point inside (without the cosine at the surface).
+    segment: Segment,
+    /// The cosine at the surface point.
+    cos: f64,
 }
 
 /// A connection between a light event and a camera event, as [`ParticleTracer::join`] uses it.
