@@ -500,7 +500,7 @@ impl ParticleTracer<'_> {
     /// The connection from `x` inside the volume out through its surface to the point `p` of a
     /// surface (unit `facing` normal on the lit side), past no other surface: what it carries
     /// either way per unit intensity, `T (1 − R) / (dA⊥/dω)` (without the cosine at `p`).
-    fn out_to_surface(
+    pub(super) fn out_to_surface(
         &self,
         t: &Tools,
         x: DVec3,
@@ -530,6 +530,7 @@ impl ParticleTracer<'_> {
             delay: t.delay.inside(exit.optical_path - outside, exit.length)
                 + t.delay.outside(outside),
             segment: Segment::new(volume, exit.length, to_p, false, true),
+            outside: to_p,
             cos,
             exit,
         })
@@ -715,15 +716,17 @@ impl ParticleTracer<'_> {
 
 /// A connection from a point inside the volume to a point on a surface, as
 /// [`ParticleTracer::out_to_surface`] finds it.
-struct OutToSurface {
-    exit: super::connect::Exit,
+pub(super) struct OutToSurface {
+    pub(super) exit: super::connect::Exit,
     /// `T (1 − R) / (dA⊥/dω)` over the inverse probability of drawing the path.
-    carried: f64,
-    delay: f64,
+    pub(super) carried: f64,
+    /// Group delay along it, and its straight length outside the volume.
+    pub(super) delay: f64,
+    pub(super) outside: f64,
     /// As the weights see it, from the point inside (without the cosine at the surface).
     segment: Segment,
     /// The cosine at the surface point.
-    cos: f64,
+    pub(super) cos: f64,
 }
 
 /// A connection between a light event and a camera event, as [`ParticleTracer::join`] uses it.

@@ -287,29 +287,14 @@ impl ParticleTracer<'_> {
         let light = &self.scene.light;
         let q = self.light_point(rng)?;
         if t.flyer.volume.field.bounds.contains(q) {
-            let first_only = self.scene.connections == super::Connections::First;
-            let s = t.connector.sample_through(q, y, first_only, rng);
-            let (e, inverse_p) = self.tally(s, out)?;
-            let to_y = (y - e.surface).dot(e.outgoing);
-            let cos = -facing.dot(e.outgoing);
-            // y lies on a surface: stop the check short of it
-            if cos <= 0.0
-                || self
-                    .scene
-                    .blocked_after_exit(e.surface, e.outgoing, to_y * (1.0 - 1e-9))
-            {
-                return None;
-            }
-            let transmittance = self.transmittance(t, q, e.direction, e.length, rng);
-            let intensity = light.intensity(e.direction);
-            let outside = n_out * to_y;
+            let o = self.out_to_surface(t, q, y, facing, rng, out)?;
+            let intensity = light.intensity(o.exit.direction);
             return Some(LightLink {
-                direction: -e.outgoing,
-                radiance: intensity * transmittance * e.transmission * cos / e.jacobian * inverse_p,
-                delay: t.delay.inside(e.optical_path - outside, e.length)
-                    + t.delay.outside(outside),
-                inside: e.length,
-                outside: to_y,
+                direction: -o.exit.outgoing,
+                radiance: intensity * o.carried * o.cos,
+                delay: o.delay,
+                inside: o.exit.length,
+                outside: o.outside,
                 pdf: intensity,
             });
         }
