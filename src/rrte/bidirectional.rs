@@ -583,12 +583,7 @@ impl ParticleTracer<'_> {
             let ray = match leg {
                 Leg::Outside { x, d, left_volume } => {
                     let (entry, surface) = self.ahead(t, x, d, left_volume);
-                    let end = match (entry, surface) {
-                        (Some(a), Some((_, b))) => a.min(b),
-                        (Some(a), None) => a,
-                        (None, Some((_, b))) => b,
-                        (None, None) => f64::INFINITY,
-                    };
+                    let end = super::particle::nearest(entry, surface);
                     if start.photon {
                         self.cross_sensors(t, x, d, end, beta, opl, out);
                     }

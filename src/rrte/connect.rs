@@ -403,8 +403,9 @@ impl<'v> Connector<'v> {
     }
 
     /// Trace from `x` along unit `w` to where the ray leaves the volume, carrying `∂x/∂v0` and
-    /// `∂v/∂v0`; `None` if it runs out of steps or is trapped.
-    fn shoot_out(&self, x: DVec3, w: DVec3) -> Option<(Ray, DMat3, DMat3, f64, f64)> {
+    /// `∂v/∂v0`, with its length, optical path and the index just inside the exit; `None` if it
+    /// runs out of steps or is trapped.
+    fn shoot_out(&self, x: DVec3, w: DVec3) -> Option<(Ray, DMat3, DMat3, f64, f64, f64)> {
         let field = &self.volume.field;
         if self.straight {
             // constant n: x(σ) = x + n w σ in closed form, so ∂x/∂v0 = σ I and ∂v/∂v0 = I
@@ -418,7 +419,7 @@ impl<'v> Connector<'v> {
                 v: w * n,
             };
             let xv = DMat3::from_diagonal(DVec3::splat(exit / n));
-            return Some((end, xv, DMat3::IDENTITY, exit, n * exit));
+            return Some((end, xv, DMat3::IDENTITY, exit, n * exit, n));
         }
         let t = &self.tracer;
         let h = t.step;
@@ -435,7 +436,7 @@ impl<'v> Connector<'v> {
             opl += 0.5 * (s.n + next.n) * chord;
             s = next;
             if leaves {
-                return Some((s.r, s.xv, s.vv, length, opl));
+                return Some((s.r, s.xv, s.vv, length, opl, s.n));
             }
             if length > self.max_length {
                 return None;
@@ -451,20 +452,15 @@ impl<'v> Connector<'v> {
     #[allow(clippy::type_complexity)]
     fn exit_map(&self, x: DVec3, w: DVec3) -> Option<(Exit, [DVec3; 2], [DVec3; 2])> {
         let field = &self.volume.field;
-        let (end, xv, vv, length, optical_path) = self.shoot_out(x, w)?;
+        // `n_in`: the index just inside the exit (a straight ray's closed-form end lies on the
+        // surface, where `n` may read as the outside's)
+        let (end, xv, vv, length, optical_path, n_in) = self.shoot_out(x, w)?;
         let normal = field.bounds.normal(end.x)?;
         let v = end.v;
         let nv = normal.dot(v);
         if nv <= 0.0 {
             return None;
         }
-        // the index just inside the exit: a straight ray's closed-form end lies on the surface,
-        // where `n` may read as the outside's
-        let n_in = if self.straight {
-            field.n(x)
-        } else {
-            field.n(end.x)
-        };
         let n_out = field.n_out;
         let eta = n_in / n_out;
         let force = {

@@ -734,12 +734,7 @@ impl<'s> ParticleTracer<'s> {
     ) -> Option<Leg> {
         let n_out = t.flyer.volume.field.n_out;
         let (entry, surface) = self.ahead(t, x, d, left_volume);
-        let end = match (entry, surface) {
-            (Some(a), Some((_, b))) => a.min(b),
-            (Some(a), None) => a,
-            (None, Some((_, b))) => b,
-            (None, None) => f64::INFINITY,
-        };
+        let end = nearest(entry, surface);
         self.cross_sensors(t, x, d, end, p.weight, p.opl, out);
         match (entry, surface) {
             (Some(t0), _) if t0 == end => {
@@ -911,6 +906,13 @@ impl<'s> ParticleTracer<'s> {
             }
         }
     }
+}
+
+/// The distance to what a straight leg meets first, of the volume's surface `entry` and a
+/// surface `(index, distance)` ([`ParticleTracer::ahead`]); infinite if neither.
+pub(super) fn nearest(entry: Option<f64>, surface: Option<(usize, f64)>) -> f64 {
+    let surface = surface.map_or(f64::INFINITY, |(_, b)| b);
+    entry.map_or(surface, |a| a.min(surface))
 }
 
 /// Where a photon or a camera path is: inside the volume with its ray, or on a straight leg
