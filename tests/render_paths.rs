@@ -2,7 +2,9 @@
 //! estimators of the same images (camera paths connected to the light, photons connected to the
 //! camera), on index-matched volumes where both estimate every path: a scattering sphere with
 //! straight rays and a point light outside, a scattering Luneburg lens with curved rays and a point
-//! light inside, and a white floor beside a scattering sphere.
+//! light inside, and a white floor beside a scattering sphere; then bidirectional tracing too,
+//! with Fresnel faces and surfaces, and light crossing a volume between two points outside it (a
+//! floor seen and lit through a lens, a wall lit through a glass ball).
 
 mod common;
 
@@ -310,4 +312,66 @@ fn a_floor_under_glass_agrees() {
     compare_images(&a, &b, est.pinhole_image(0), false);
     compare_images(&a, &b, est.camera_image(0), false);
     totals_agree(&a, &b, est.surface_power(0), "floor");
+}
+
+/// A white floor under a weakly scattering Luneburg lens, lit from above through the lens (a
+/// caustic on the floor) and seen through it by a pinhole looking down past its centre: light
+/// reaches the floor and the camera across the lens, refracted in and out along curved rays.
+/// `n` = 1 at its surface, so nothing reflects there and all three estimators make every
+/// path: particle tracing joins the floor to the camera across the lens, path tracing the light
+/// to the floor, bidirectional tracing both and floor to floor.
+#[test]
+fn a_floor_seen_and_lit_through_a_lens_agrees() {
+    let mut s = scene(
+        Profile::Luneburg { radius: 1.0 },
+        Light::Point {
+            position: DVec3::new(0.3, 0.0, 3.0),
+        },
+        camera(
+            DVec3::new(2.5, -1.0, 1.0),
+            DVec3::new(-0.5, 0.2, -0.8),
+            60.0,
+        ),
+    );
+    s.volume.sigma_s = 0.3;
+    s.volume.sigma_a = 0.05;
+    s.step = 0.01;
+    s.surfaces.push(Surface::new(
+        "floor".into(),
+        DVec3::new(0.0, 0.0, -1.5),
+        DVec3::Z,
+        Some([8.0, 8.0]),
+        0.7,
+    ));
+    agree(s, 200_000, 20_000, false);
+}
+
+/// A clear, absorbing ball (n = 1.2 in air) between a point light and a white wall: the wall
+/// lies in the ball's shadow, lit only by the light the ball focuses through itself. A pinhole
+/// beside the ball sees the middle of that spot directly (not the ball, nor the spot's bright
+/// rim, where the focused rays fold and a camera path's estimate has unbounded variance).
+/// Particle tracing makes every path it sees (the last segment runs straight from the wall);
+/// path tracing joins the light to the wall across the ball (two refractions, both Fresnel
+/// transmissions, the attenuation inside), and without that connection sees nothing;
+/// bidirectional tracing does both. What path tracing does not join, light reflected inside the
+/// ball on its way, is under 1 % of the spot.
+#[test]
+fn a_wall_lit_through_glass_agrees() {
+    let mut s = scene(
+        Profile::Constant { n: 1.2 },
+        Light::Point {
+            position: DVec3::new(-3.0, 0.0, 0.1),
+        },
+        camera(DVec3::new(0.2, -2.5, 0.3), DVec3::new(1.2, 0.0, -0.05), 6.0),
+    );
+    s.volume.sigma_s = 0.0;
+    s.volume.sigma_a = 0.3;
+    s.surfaces.push(Surface::new(
+        "wall".into(),
+        DVec3::new(1.2, 0.0, 0.0),
+        -DVec3::X,
+        Some([4.0, 4.0]),
+        0.7,
+    ));
+    agree(s, 4_000_000, 40_000, false);
 }

@@ -13,30 +13,32 @@
 //! camera event as a point sensor). Between two events inside the volume the connection runs
 //! along curved rays (see [`super::connect`]); between an event inside and one on a surface it
 //! leaves the volume through its surface, refracted once; between two surfaces it is straight,
-//! past the volume only where it is index-matched. Unscattered light from a light inside the
+//! past the volume only where it is index-matched, or runs across the volume, refracted in and
+//! out. Unscattered light from a light inside the
 //! volume is connected to the cameras directly (the one way to make it). Flux sensors, screens,
 //! fluence probes and the light reaching each surface are estimated by the light subpaths
 //! alone, as in particle tracing: the sensor planes they cross, their events connected to the
 //! probes, the surfaces they meet.
 //!
-//! The estimates are weighted by the balance heuristic over the strategies that can make the
-//! path: `w_s = p_s / Σ_j p_j`, with `p_j` the density strategy `j` gives the path's vertices. A
-//! connection cannot reflect inside the surface, so a segment with such a reflection on it (or
-//! with more than one refraction between a point inside and one outside, or any between two
-//! points outside a volume that is not index-matched) is made only by tracing: the strategies
-//! that would connect across it are left out of the sum, as is the light's own (`s = 0`) for a
-//! beam, whose directions are a delta. The weights use the straight-ray density of each segment
-//! — `ρ σ_t e^{−σ_t ℓ}/ℓ²` over its geometric length `ℓ` (the tube of parallel rays from a beam
-//! or an orthographic camera: no `1/ℓ²`; per unit area at a surface, times `|cos θ|` there), the
-//! phase functions or the surfaces' `cos θ / π` at both ends, and the sources' own densities — so
-//! in a graded index they are an approximation of the true densities; any weights that sum to
+//! The estimates are weighted by the balance heuristic over the strategies that can make the path:
+//! `w_s = p_s / Σ_j p_j`, with `p_j` the density strategy `j` gives the path's vertices. A
+//! connection cannot reflect at the surface, so a segment with such a reflection on it (or with
+//! more than one refraction between a point inside and one outside, or other than none or two
+//! between two points outside a volume that is not index-matched) is made only by tracing: the
+//! strategies that would connect across it are left out of the sum, as is the light's own (`s = 0`)
+//! for a beam, whose directions are a delta. The weights use the straight-ray density of each
+//! segment — `ρ σ_t e^{−σ_t ℓ}/ℓ²` over its geometric length `ℓ` (the tube of parallel rays from a
+//! beam or an orthographic camera: no `1/ℓ²`; per unit area at a surface, times `|cos θ|` there),
+//! the phase functions or the surfaces' `cos θ / π` at both ends, and the sources' own densities —
+//! so in a graded index they are an approximation of the true densities; any weights that sum to
 //! one over the strategies that can make each path keep the estimate unbiased, and these are the
 //! same function of the path whichever strategy made it. The contributions themselves carry the
 //! exact connections (ray tubes, transmittance, Fresnel).
 //!
-//! What no strategy makes: paths on which every segment reflects inside the surface or passes
-//! through it twice (with an index-matched surface there are none).
+//! What no strategy makes: paths on which every segment reflects at the surface or refracts
+//! there more often than that (with an index-matched surface there are none).
 
+use super::connect::Aim;
 use super::particle::{Leg, MAX_EVENTS, ParticleTracer, Stop, Tools, roulette};
 use super::scene::{Connections, Light, Volume};
 use crate::eikonal::Ray;
@@ -317,32 +319,35 @@ impl ParticleTracer<'_> {
         out: &mut [C64],
     ) {
         let z = zs[zs.len() - 1];
-        let link = match z.facing {
-            None => self.light_link(t, z.x, rng, out),
-            Some(n) => self.surface_light_link(t, z.x, n, rng, out),
-        };
-        let Some(link) = link else {
-            return;
-        };
-        let volume = t.flyer.volume;
-        let rho_camera = z.rho_towards(volume, link.direction);
-        let cos_z = z.facing.map_or(1.0, |n| n.dot(link.direction));
-        let joined = Joined {
-            light: &[],
-            camera: zs,
-            light_pdf: link.pdf,
-            camera_pdf: pixel.pdf,
-            link: Segment::new(volume, link.inside, link.outside, false, true).with_cos(1.0, cos_z),
-            rho_light: f64::NAN,
-            rho_camera,
-        };
-        let scatters = if z.facing.is_some() {
-            std::f64::consts::FRAC_1_PI
-        } else {
-            rho_camera
-        };
-        let radiance = joined.weight() * z.beta * scatters * link.radiance;
-        self.record_sample(t, pixel, radiance, z.opl + link.delay, out);
+        for &across in self.ways(t, z.facing.is_some()) {
+            let link = match z.facing {
+                None => self.light_link(t, z.x, rng, out),
+                Some(n) => self.surface_light_link(t, z.x, n, across, rng, out),
+            };
+            let Some(link) = link else {
+                continue;
+            };
+            let volume = t.flyer.volume;
+            let rho_camera = z.rho_towards(volume, link.direction);
+            let cos_z = z.facing.map_or(1.0, |n| n.dot(link.direction));
+            let joined = Joined {
+                light: &[],
+                camera: zs,
+                light_pdf: link.pdf,
+                camera_pdf: pixel.pdf,
+                link: Segment::new(volume, link.inside, link.outside, false, true)
+                    .with_cos(1.0, cos_z),
+                rho_light: f64::NAN,
+                rho_camera,
+            };
+            let scatters = if z.facing.is_some() {
+                std::f64::consts::FRAC_1_PI
+            } else {
+                rho_camera
+            };
+            let radiance = joined.weight() * z.beta * scatters * link.radiance;
+            self.record_sample(t, pixel, radiance, z.opl + link.delay, out);
+        }
     }
 
     /// The light subpath's last event `y_s` connected to camera `camera` (`t = 0`, particle
@@ -356,29 +361,31 @@ impl ParticleTracer<'_> {
         out: &mut [C64],
     ) {
         let y = ys[ys.len() - 1];
-        let link = match y.facing {
-            None => self.camera_link(t, y.x, camera, rng, out),
-            Some(n) => self.surface_camera_link(t, y.x, n, camera, rng),
-        };
-        let Some(link) = link else {
-            return;
-        };
-        let volume = t.flyer.volume;
-        let rho_light = y.rho_towards(volume, link.direction);
-        let orthographic = camera < self.scene.cameras.len();
-        let cos_y = y.facing.map_or(1.0, |n| n.dot(link.direction));
-        let joined = Joined {
-            light: ys,
-            camera: &[],
-            light_pdf,
-            camera_pdf: link.pdf,
-            link: Segment::new(volume, link.inside, link.outside, orthographic, true)
-                .with_cos(cos_y, 1.0),
-            rho_light,
-            rho_camera: f64::NAN,
-        };
-        let scale = joined.weight() * y.beta * rho_light;
-        self.record_link(t, &link, scale, y.opl, out);
+        for &across in self.ways(t, y.facing.is_some()) {
+            let link = match y.facing {
+                None => self.camera_link(t, y.x, camera, rng, out),
+                Some(n) => self.surface_camera_link(t, y.x, n, camera, across, rng, out),
+            };
+            let Some(link) = link else {
+                continue;
+            };
+            let volume = t.flyer.volume;
+            let rho_light = y.rho_towards(volume, link.direction);
+            let orthographic = camera < self.scene.cameras.len();
+            let cos_y = y.facing.map_or(1.0, |n| n.dot(link.direction));
+            let joined = Joined {
+                light: ys,
+                camera: &[],
+                light_pdf,
+                camera_pdf: link.pdf,
+                link: Segment::new(volume, link.inside, link.outside, orthographic, true)
+                    .with_cos(cos_y, 1.0),
+                rho_light,
+                rho_camera: f64::NAN,
+            };
+            let scale = joined.weight() * y.beta * rho_light;
+            self.record_link(t, &link, scale, y.opl, out);
+        }
     }
 
     /// Join the light subpath's last event `y_s` to the camera subpath's last `z_t` (the light
@@ -393,39 +400,42 @@ impl ParticleTracer<'_> {
         out: &mut [C64],
     ) {
         let (y, z) = (ys[ys.len() - 1], zs[zs.len() - 1]);
-        let Some(j) = self.joint(t, &y, &z, rng, out) else {
-            return;
-        };
-        let volume = t.flyer.volume;
-        let rho_light = y.rho_towards(volume, j.leave_y);
-        let rho_camera = z.rho_towards(volume, j.leave_z);
-        let joined = Joined {
-            light: ys,
-            camera: zs,
-            light_pdf,
-            camera_pdf: pixel.pdf,
-            link: j.segment,
-            rho_light,
-            rho_camera,
-        };
-        let scatters = if z.facing.is_some() {
-            std::f64::consts::FRAC_1_PI
-        } else {
-            rho_camera
-        };
-        let radiance = joined.weight() * z.beta * scatters * y.beta * rho_light * j.carried;
-        self.record_sample(t, pixel, radiance, y.opl + j.delay + z.opl, out);
+        for &across in self.ways(t, y.facing.is_some() && z.facing.is_some()) {
+            let Some(j) = self.joint(t, &y, &z, across, rng, out) else {
+                continue;
+            };
+            let volume = t.flyer.volume;
+            let rho_light = y.rho_towards(volume, j.leave_y);
+            let rho_camera = z.rho_towards(volume, j.leave_z);
+            let joined = Joined {
+                light: ys,
+                camera: zs,
+                light_pdf,
+                camera_pdf: pixel.pdf,
+                link: j.segment,
+                rho_light,
+                rho_camera,
+            };
+            let scatters = if z.facing.is_some() {
+                std::f64::consts::FRAC_1_PI
+            } else {
+                rho_camera
+            };
+            let radiance = joined.weight() * z.beta * scatters * y.beta * rho_light * j.carried;
+            self.record_sample(t, pixel, radiance, y.opl + j.delay + z.opl, out);
+        }
     }
 
     /// The connection between a light event `y` and a camera event `z`: two-point inside the
     /// volume, through its surface between a point inside and one on a surface (see
-    /// [`super::connect`]), or a straight line between two surfaces (past the volume only where
-    /// it is index-matched).
+    /// [`super::connect`]), or between two surfaces a straight line (past the volume only where
+    /// it is index-matched) or a path `across` the volume (refracted in and out).
     fn joint(
         &self,
         t: &Tools,
         y: &Vertex,
         z: &Vertex,
+        across: bool,
         rng: &mut Rng,
         out: &mut [C64],
     ) -> Option<Joint> {
@@ -434,6 +444,32 @@ impl ParticleTracer<'_> {
         // the far end of a straight stretch lies on a surface: stop short of it
         const SHORT: f64 = 1.0 - 1e-9;
         match (y.facing, z.facing) {
+            (Some(facing_y), Some(facing_z)) if across => {
+                // from z across the volume to y: y's intensity brings z the irradiance
+                // `T (1 − R_in)(1 − R_out) cos θ_z / (dA⊥/dω)` (reciprocity: both ends in n_out)
+                let (e, carried) = self.across(t, z.x, Aim::Point(y.x), rng, out)?;
+                let to_y = (y.x - e.surface).dot(e.outgoing);
+                let (cos_y, cos_z) = (-facing_y.dot(e.outgoing), facing_z.dot(e.direction));
+                if cos_y <= 0.0
+                    || cos_z <= 0.0
+                    || self
+                        .scene
+                        .blocked_after_exit(e.surface, e.outgoing, to_y * SHORT)
+                {
+                    return None;
+                }
+                let outside = n_out * (e.before + to_y);
+                Some(Joint {
+                    leave_y: -e.outgoing,
+                    leave_z: e.direction,
+                    carried: carried * cos_z,
+                    delay: t.delay.inside(e.optical_path - outside, e.length)
+                        + t.delay.outside(outside),
+                    segment: Segment::new(volume, e.length, e.before + to_y, false, true)
+                        .with_cos(cos_y, cos_z),
+                })
+            }
+            _ if across => None,
             (None, None) => {
                 let sampled = match self.scene.connections {
                     Connections::Unbiased => t.connector.sample(z.x, y.x, rng),
@@ -555,16 +591,19 @@ impl ParticleTracer<'_> {
         let (mut beta, mut opl, mut steps) = (1.0, 0.0, 0);
         // the segment so far: geometric length inside and outside, surface crossings, whether
         // it began inside the volume, the cosine where it left a surface
-        let (mut inside, mut outside, mut crossings) = (0.0, 0.0, 0);
+        let (mut inside, mut outside, mut crossings, mut reflections) = (0.0, 0.0, 0, 0);
         let mut began_inside = volume.field.bounds.contains(start.x);
         let mut cos_start = 1.0;
         // a connection refracts once between a point inside and one outside, never between two
-        // points on one side (outside: straight, also across an index-matched volume)
-        let connectible = |began_inside: bool, ends_inside: bool, crossings: usize| {
+        // points inside, and between two points outside either never (straight, also across an
+        // index-matched volume) or twice, in and out again; it never reflects at the surface
+        let connectible = |began_inside: bool, ends_inside: bool, crossings: usize, reflections| {
             if began_inside != ends_inside {
                 crossings == 1
+            } else if ends_inside {
+                crossings == 0
             } else {
-                crossings == 0 || (!ends_inside && matched)
+                crossings == 0 || matched || (crossings == 2 && reflections == 0)
             }
         };
         let mut leg = if began_inside {
@@ -593,6 +632,7 @@ impl ParticleTracer<'_> {
                             outside += t0;
                             crossings += 1;
                             leg = Leg::enter(t, x, d, t0, rng);
+                            reflections += usize::from(matches!(leg, Leg::Outside { .. }));
                             continue;
                         }
                         (_, Some((i, distance))) => {
@@ -617,7 +657,7 @@ impl ParticleTracer<'_> {
                                 inside,
                                 outside,
                                 first && start.parallel,
-                                connectible(began_inside, false, crossings),
+                                connectible(began_inside, false, crossings, reflections),
                             );
                             vertices.push(Vertex {
                                 x: x + d * distance,
@@ -628,7 +668,7 @@ impl ParticleTracer<'_> {
                                 segment: segment.with_cos(cos_start, -facing.dot(d)),
                                 facing: Some(facing),
                             });
-                            (inside, outside, crossings) = (0.0, 0.0, 0);
+                            (inside, outside, crossings, reflections) = (0.0, 0.0, 0, 0);
                             began_inside = false;
                             if !roulette(&mut beta, rng) || vertices.len() >= MAX_EVENTS {
                                 break;
@@ -670,7 +710,7 @@ impl ParticleTracer<'_> {
                         inside,
                         outside,
                         first && start.parallel,
-                        connectible(began_inside, true, crossings),
+                        connectible(began_inside, true, crossings, reflections),
                     );
                     vertices.push(Vertex {
                         x: hit.x,
@@ -681,7 +721,7 @@ impl ParticleTracer<'_> {
                         segment: segment.with_cos(cos_start, 1.0),
                         facing: None,
                     });
-                    (inside, outside, crossings) = (0.0, 0.0, 0);
+                    (inside, outside, crossings, reflections) = (0.0, 0.0, 0, 0);
                     (began_inside, cos_start) = (true, 1.0);
                     if start.photon {
                         let phase = |d: DVec3| volume.scattering.eval(u.dot(d));
@@ -700,6 +740,7 @@ impl ParticleTracer<'_> {
                 Stop::Boundary(end) => {
                     crossings += 1;
                     leg = Leg::leave(t, end, rng);
+                    reflections += usize::from(matches!(leg, Leg::Inside(_)));
                 }
                 Stop::Stuck => break,
             }

@@ -1,6 +1,9 @@
 //! Point-to-point connections through an index field (paper 002, Sec. 4): the curved rays from a
 //! point `x` inside the volume that pass through a point `y` inside it — boundary-value problems
-//! solved as initial-value problems.
+//! solved as initial-value problems. The same solver joins a point inside to a point outside or
+//! to a direction (refracted once at the surface, [`Connector::sample_through`],
+//! [`Connector::sample_exit`]), and two points outside across the volume (refracted in and out,
+//! [`Connector::sample_across`]): a surface seen or lit through it.
 //!
 //! A ray from `x` with unit direction `w` (velocity `v0 = n(x) w` in the σ-form) is traced to its
 //! closest approach to `y`, where `(x_s − y)·v_s = 0` (the type-2 condition of Sec. 4 and App. B).
@@ -16,8 +19,9 @@
 //! it by restarting until the same path is found again (Alg. 3, after Booth 2007 and Zeltner et
 //! al. 2020): `Σ_k f(C_k)` is then estimated without bias by `f(C)/p(C)`.
 
+use super::flight::fresnel;
 use super::scene::Volume;
-use crate::eikonal::trace::jacobian_of;
+use crate::eikonal::trace::{entry_parameter, jacobian_of, refract};
 use crate::eikonal::{BoundedField, IndexField, Ray, Tracer};
 use crate::math::{Rng, orthonormal_basis, uniform, uniform_sphere};
 use glam::{DMat3, DVec3};
@@ -48,10 +52,16 @@ pub struct Exit {
     /// Where the path leaves the volume, and its direction after refraction there.
     pub surface: DVec3,
     pub outgoing: DVec3,
+    /// Where the path inside the volume begins and its unit direction there: `x` and
+    /// `direction` for a path from inside; the entry point and the refracted direction for one
+    /// from outside ([`Connector::solve_across`]), which first runs `before` in a straight line.
+    pub inside_from: DVec3,
+    pub inside_along: DVec3,
+    pub before: f64,
     /// Geometric length inside, and the optical path (to the point, for a path through one).
     pub length: f64,
     pub optical_path: f64,
-    /// `1 − R` of the Fresnel reflectance at the exit.
+    /// `1 − R` of the Fresnel reflectance at the exit (times that at the entry, from outside).
     pub transmission: f64,
     /// For [`Connector::solve_exit`], `dω_out/dω_x`: how the solid angle of directions leaving
     /// `x` maps onto outgoing directions (1 for straight rays through a matched surface); a source
@@ -121,6 +131,16 @@ impl Tangent {
             n,
             force: g * n,
             jacobian: jacobian_of(n, g, h),
+        }
+    }
+
+    /// The ray leaving `x` along unit `w` with the sensitivities `xv`, `vv` to some perturbation
+    /// of its start (columns), carried like `∂x/∂v0`, `∂v/∂v0`: the tangent equations are linear.
+    fn with(field: &BoundedField, x: DVec3, w: DVec3, xv: DMat3, vv: DMat3) -> Self {
+        Tangent {
+            xv,
+            vv,
+            ..Tangent::start(field, x, w)
         }
     }
 
@@ -354,6 +374,9 @@ impl<'v> Connector<'v> {
                     direction: w,
                     surface: x + w * exit,
                     outgoing: w,
+                    inside_from: x,
+                    inside_along: w,
+                    before: 0.0,
                     length: exit,
                     optical_path,
                     transmission: 1.0,
@@ -402,13 +425,21 @@ impl<'v> Connector<'v> {
         }
     }
 
-    /// Trace from `x` along unit `w` to where the ray leaves the volume, carrying `∂x/∂v0` and
-    /// `∂v/∂v0`, with its length, optical path and the index just inside the exit; `None` if it
+    /// Trace from `x` along unit `w` to where the ray leaves the volume, carrying the
+    /// sensitivities `(xv, vv)` from their values at the start (`∂x/∂v0`, `∂v/∂v0` from `0` and
+    /// `I`), with its length, optical path and the index just inside the exit; `None` if it
     /// runs out of steps or is trapped.
-    fn shoot_out(&self, x: DVec3, w: DVec3) -> Option<(Ray, DMat3, DMat3, f64, f64, f64)> {
+    #[allow(clippy::type_complexity)]
+    fn shoot_out(
+        &self,
+        x: DVec3,
+        w: DVec3,
+        (xv, vv): (DMat3, DMat3),
+    ) -> Option<(Ray, DMat3, DMat3, f64, f64, f64)> {
         let field = &self.volume.field;
         if self.straight {
-            // constant n: x(σ) = x + n w σ in closed form, so ∂x/∂v0 = σ I and ∂v/∂v0 = I
+            // constant n: x(σ) = x + n w σ in closed form, so the sensitivities move as
+            // ∂x += ∂v σ and ∂v stays
             let n = field.n(x);
             let exit = field.bounds.exit(x, w)?.max(0.0);
             if exit > self.max_length {
@@ -418,12 +449,11 @@ impl<'v> Connector<'v> {
                 x: x + w * exit,
                 v: w * n,
             };
-            let xv = DMat3::from_diagonal(DVec3::splat(exit / n));
-            return Some((end, xv, DMat3::IDENTITY, exit, n * exit, n));
+            return Some((end, xv + vv * (exit / n), vv, exit, n * exit, n));
         }
         let t = &self.tracer;
         let h = t.step;
-        let mut s = Tangent::start(field, x, w);
+        let mut s = Tangent::with(field, x, w, xv, vv);
         let (mut length, mut opl) = (0.0, 0.0);
         for _ in 0..t.max_steps {
             let mut next = s.step(field, h);
@@ -445,40 +475,40 @@ impl<'v> Connector<'v> {
         None
     }
 
-    /// The outgoing direction of the ray leaving `x` along `w`, where it leaves, and the
-    /// derivatives of the outgoing direction along the two angles of `w` (`e1`, `e2` of its
-    /// frame): the sensitivities carried to the exit, with the exit time's shift (paper 002,
-    /// Eqs. 11–12) and the refraction at the surface.
+    /// The ray inside reaching the surface at `end` (index `n_in` just inside), with
+    /// sensitivities `xv`, `vv` to the perturbations `dv0` of its start, leaves: its outgoing
+    /// direction, `1 − R`, and the derivatives of the outgoing direction and of the exit point
+    /// along the perturbations — the sensitivities carried to the exit, with the exit time's
+    /// shift (paper 002, Eqs. 11–12) and the refraction at the surface.
     #[allow(clippy::type_complexity)]
-    fn exit_map(&self, x: DVec3, w: DVec3) -> Option<(Exit, [DVec3; 2], [DVec3; 2])> {
+    fn refract_out(
+        &self,
+        end: Ray,
+        (xv, vv): (DMat3, DMat3),
+        dv0: [DVec3; 2],
+        n_in: f64,
+    ) -> Option<(DVec3, f64, [DVec3; 2], [DVec3; 2])> {
         let field = &self.volume.field;
-        // `n_in`: the index just inside the exit (a straight ray's closed-form end lies on the
-        // surface, where `n` may read as the outside's)
-        let (end, xv, vv, length, optical_path, n_in) = self.shoot_out(x, w)?;
         let normal = field.bounds.normal(end.x)?;
         let v = end.v;
         let nv = normal.dot(v);
         if nv <= 0.0 {
             return None;
         }
-        let n_out = field.n_out;
-        let eta = n_in / n_out;
+        let eta = n_in / field.n_out;
         let force = {
             let (n, g) = field.value_grad(end.x);
             g * n
         };
         let outgoing = |d: DVec3, at: DVec3| -> Option<DVec3> {
             let nrm = field.bounds.normal(at)?;
-            crate::eikonal::trace::refract(d, -nrm, eta).ok()
+            refract(d, -nrm, eta).ok()
         };
         let d_in = v.normalize();
         let out = outgoing(d_in, end.x)?;
-        let n_x = field.n(x);
-        let (e1, e2) = orthonormal_basis(w);
         let mut deriv = [DVec3::ZERO; 2];
         let mut moved = [DVec3::ZERO; 2];
-        for (k, e) in [e1, e2].into_iter().enumerate() {
-            let dv0 = e * n_x;
+        for (k, dv0) in dv0.into_iter().enumerate() {
             let (dxs, dvs) = (xv * dv0, vv * dv0);
             // the exit moves along the ray as v0 changes: g(x) = 0 fixes σ* (Eq. 11)
             let dsigma = -normal.dot(dxs) / nv;
@@ -487,20 +517,98 @@ impl<'v> Connector<'v> {
             let dv = dvs + force * dsigma;
             let dd = (dv - d_in * d_in.dot(dv)) / v.length();
             // the refraction's derivative by central differences of the closed form
-            let hstep = 1e-6;
-            let plus = outgoing((d_in + dd * hstep).normalize(), end.x + dx * hstep)?;
-            let minus = outgoing((d_in - dd * hstep).normalize(), end.x - dx * hstep)?;
-            deriv[k] = (plus - minus) / (2.0 * hstep);
+            let plus = outgoing((d_in + dd * DIFF_STEP).normalize(), end.x + dx * DIFF_STEP)?;
+            let minus = outgoing((d_in - dd * DIFF_STEP).normalize(), end.x - dx * DIFF_STEP)?;
+            deriv[k] = (plus - minus) / (2.0 * DIFF_STEP);
         }
-        let transmission = 1.0 - super::flight::fresnel(d_in.dot(normal), eta);
+        let transmission = 1.0 - fresnel(d_in.dot(normal), eta);
+        Some((out, transmission, deriv, moved))
+    }
+
+    /// The outgoing direction of the ray leaving `x` along `w`, where it leaves, and the
+    /// derivatives of the outgoing direction and of the exit point along the two angles of `w`
+    /// (`e1`, `e2` of its frame).
+    #[allow(clippy::type_complexity)]
+    fn exit_map(&self, x: DVec3, w: DVec3) -> Option<(Exit, [DVec3; 2], [DVec3; 2])> {
+        let identity = (DMat3::ZERO, DMat3::IDENTITY);
+        let (end, xv, vv, length, optical_path, n_in) = self.shoot_out(x, w, identity)?;
+        let n_x = self.volume.field.n(x);
+        let (e1, e2) = orthonormal_basis(w);
+        let (outgoing, transmission, deriv, moved) =
+            self.refract_out(end, (xv, vv), [e1 * n_x, e2 * n_x], n_in)?;
         Some((
             Exit {
                 direction: w,
                 surface: end.x,
-                outgoing: out,
+                outgoing,
+                inside_from: x,
+                inside_along: w,
+                before: 0.0,
                 length,
                 optical_path,
                 transmission,
+                jacobian: 0.0,
+                iterations: 0,
+            },
+            deriv,
+            moved,
+        ))
+    }
+
+    /// As [`Self::exit_map`] for the ray from `y` outside the volume: straight to the volume,
+    /// refracted in (the entry point sliding along the surface as `w` turns, the refraction's
+    /// derivative by central differences of its closed form), across, refracted out. `None` if
+    /// it misses the volume or is reflected totally.
+    #[allow(clippy::type_complexity)]
+    fn across_map(&self, y: DVec3, w: DVec3) -> Option<(Exit, [DVec3; 2], [DVec3; 2])> {
+        let field = &self.volume.field;
+        let bounds = &field.bounds;
+        let (t0, _) = bounds.interval(y, w)?;
+        if t0 <= 0.0 {
+            return None;
+        }
+        let at = y + w * t0;
+        let normal = bounds.normal(at)?;
+        let nw = normal.dot(w);
+        if nw >= 0.0 {
+            return None;
+        }
+        let inside = y + w * entry_parameter(t0);
+        let (n_in, grad) = field.value_grad(inside);
+        let eta = field.n_out / n_in;
+        let inward = |d: DVec3, at: DVec3| -> Option<DVec3> {
+            let nrm = bounds.normal(at)?;
+            refract(d, nrm, eta).ok()
+        };
+        let d_in = inward(w, at)?;
+        let (e1, e2) = orthonormal_basis(w);
+        let mut dx = [DVec3::ZERO; 2];
+        let mut dv = [DVec3::ZERO; 2];
+        for (k, e) in [e1, e2].into_iter().enumerate() {
+            dx[k] = (e - w * (normal.dot(e) / nw)) * t0;
+            let plus = inward((w + e * DIFF_STEP).normalize(), at + dx[k] * DIFF_STEP)?;
+            let minus = inward((w - e * DIFF_STEP).normalize(), at - dx[k] * DIFF_STEP)?;
+            // v = n d: the direction turns, and |v| follows n along the move
+            dv[k] = (plus - minus) * (n_in / (2.0 * DIFF_STEP)) + d_in * grad.dot(dx[k]);
+        }
+        let sensitivities = (
+            DMat3::from_cols(dx[0], dx[1], DVec3::ZERO),
+            DMat3::from_cols(dv[0], dv[1], DVec3::ZERO),
+        );
+        let (end, xv, vv, length, opl, n_end) = self.shoot_out(inside, d_in, sensitivities)?;
+        let (outgoing, transmission, deriv, moved) =
+            self.refract_out(end, (xv, vv), [DVec3::X, DVec3::Y], n_end)?;
+        Some((
+            Exit {
+                direction: w,
+                surface: end.x,
+                outgoing,
+                inside_from: inside,
+                inside_along: d_in,
+                before: t0,
+                length,
+                optical_path: field.n_out * t0 + opl,
+                transmission: transmission * (1.0 - fresnel(nw, eta)),
                 jacobian: 0.0,
                 iterations: 0,
             },
@@ -514,9 +622,27 @@ impl<'v> Connector<'v> {
     /// ray tube's cross-section at `p` per unit solid angle at `x` (`dA⊥/dω`): the irradiance at
     /// `p` of a source of intensity `I` at `x` is `I · transmission / jacobian`.
     pub fn solve_through(&self, x: DVec3, p: DVec3, w0: DVec3) -> Option<Exit> {
+        self.aim_at(p, w0, |w| self.exit_map(x, w))
+    }
+
+    /// As [`Self::solve_through`] for a path from `y` outside the volume that crosses it
+    /// (refracted in and out, unscattered) on its way to `p`: a surface seen, or lit, through
+    /// the volume.
+    pub fn solve_across(&self, y: DVec3, p: DVec3, w0: DVec3) -> Option<Exit> {
+        self.aim_at(p, w0, |w| self.across_map(y, w))
+    }
+
+    /// Newton's method on the direction `w` given to `map` (from `w0`) for the path that passes
+    /// through `p` after leaving the volume.
+    fn aim_at(
+        &self,
+        p: DVec3,
+        w0: DVec3,
+        map: impl Fn(DVec3) -> Option<(Exit, [DVec3; 2], [DVec3; 2])>,
+    ) -> Option<Exit> {
         let mut w = w0.normalize();
         for iteration in 0..self.max_iterations {
-            let (mut exit, dout, dsurf) = self.exit_map(x, w)?;
+            let (mut exit, dout, dsurf) = map(w)?;
             let o = exit.outgoing;
             let to_p = p - exit.surface;
             let distance = to_p.length();
@@ -573,12 +699,74 @@ impl<'v> Connector<'v> {
         }
     }
 
+    /// A path from `y` outside the volume across it (refracted in and out, unscattered) to the
+    /// point `p` outside, or leaving it along the unit direction `c`, drawn like
+    /// [`Connector::sample`]: Newton starts half the time near the straight line (or `c`), half
+    /// the time towards a uniform point of the volume's bounding box. None through an
+    /// index-matched volume, which a straight line crosses.
+    pub fn sample_across(
+        &self,
+        y: DVec3,
+        target: Aim,
+        first_only: bool,
+        rng: &mut Rng,
+    ) -> Sampled<Exit> {
+        let none = Sampled {
+            path: None,
+            solves: 0,
+            iterations: 0,
+            distinct: 0,
+        };
+        let Some(half) = self.volume.field.bounds.half_extent() else {
+            return none;
+        };
+        if self.matched {
+            return none;
+        }
+        let toward = match target {
+            Aim::Point(p) => (p - y).normalize(),
+            Aim::Along(c) => c,
+        };
+        let start = |rng: &mut Rng| {
+            if uniform(rng) < 0.5 {
+                let u = uniform_sphere(uniform(rng), uniform(rng));
+                (toward + u * 0.5).normalize()
+            } else {
+                let corner = DVec3::new(uniform(rng), uniform(rng), uniform(rng));
+                (half * (corner * 2.0 - 1.0) - y).normalize()
+            }
+        };
+        let solve = |w| {
+            match target {
+                Aim::Point(p) => self.solve_across(y, p, w),
+                Aim::Along(c) => self.aim_along(c, w, |w| self.across_map(y, w)),
+            }
+            .map(|e| (e, e.direction, e.iterations))
+        };
+        if first_only {
+            first(start, solve, rng)
+        } else {
+            restarts(self.max_restarts, start, solve, rng)
+        }
+    }
+
     /// The path Newton's method reaches from `w0` that leaves the volume along unit `c`.
     pub fn solve_exit(&self, x: DVec3, c: DVec3, w0: DVec3) -> Option<Exit> {
+        self.aim_along(c, w0, |w| self.exit_map(x, w))
+    }
+
+    /// Newton's method on the direction `w` given to `map` (from `w0`) for the path that leaves
+    /// the volume along unit `c`.
+    fn aim_along(
+        &self,
+        c: DVec3,
+        w0: DVec3,
+        map: impl Fn(DVec3) -> Option<(Exit, [DVec3; 2], [DVec3; 2])>,
+    ) -> Option<Exit> {
         let (f1, f2) = orthonormal_basis(c);
         let mut w = w0.normalize();
         for iteration in 0..self.max_iterations {
-            let (mut exit, [d1, d2], _) = self.exit_map(x, w)?;
+            let (mut exit, [d1, d2], _) = map(w)?;
             let out = exit.outgoing;
             if out.dot(c) < STEER {
                 // leaving far from the camera's direction (even against it): turn towards it
@@ -598,6 +786,18 @@ impl<'v> Connector<'v> {
         None
     }
 }
+
+/// Where a path across the volume goes once it has left it.
+#[derive(Clone, Copy, Debug)]
+pub enum Aim {
+    /// Through a point (a pinhole, a point light, a point of a surface).
+    Point(DVec3),
+    /// Along a unit direction (an orthographic camera's).
+    Along(DVec3),
+}
+
+/// Step of the central differences of the refractions' closed forms.
+const DIFF_STEP: f64 = 1e-6;
 
 /// Below this cosine between the outgoing direction and the one wanted, exit and through
 /// connections steer by the angle instead of the miss (which is undefined or points the wrong way
@@ -795,6 +995,82 @@ mod tests {
         );
         assert!((found.length - s).abs() < 1e-9);
         assert!((found.optical_path - 1.4 * s).abs() < 1e-9);
+    }
+
+    /// Snell's law by hand: `d` refracted at a surface with unit normal `n` facing it, `eta`
+    /// the ratio of the indices before and after.
+    fn snell(d: DVec3, n: DVec3, eta: f64) -> DVec3 {
+        let cos_i = -n.dot(d);
+        let k = 1.0 - eta * eta * (1.0 - cos_i * cos_i);
+        d * eta + n * (eta * cos_i - k.sqrt())
+    }
+
+    /// The unpolarised Fresnel reflectance by hand, for the cosines of incidence and refraction.
+    fn reflectance(cos_i: f64, cos_t: f64, eta: f64) -> f64 {
+        let rs = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
+        let rp = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
+        0.5 * (rs * rs + rp * rp)
+    }
+
+    /// Across a glass ball (n = 1.5 in air), in closed form and stepped: the path found from a
+    /// point on one side to a point on the other, from a poor start, refracts by Snell's law
+    /// where it enters and leaves and passes through the point; its transmission is the two
+    /// Fresnel transmissions, and its ray tube's cross-section at the point per solid angle at
+    /// the start equals that of neighbouring rays traced by hand (sphere intersections and
+    /// Snell's law, the spread by central differences).
+    #[test]
+    fn a_path_across_a_glass_ball_refracts_twice_and_spreads_as_traced_by_hand() {
+        let (y, p) = (DVec3::new(0.3, -0.2, -2.5), DVec3::new(-0.4, 0.5, 3.0));
+        let hand = |w: DVec3| {
+            let b = y.dot(w);
+            let t0 = -b - (b * b - (y.length_squared() - 1.0)).sqrt();
+            let a = y + w * t0;
+            let d = snell(w, a, 1.0 / 1.5);
+            let t1 = -2.0 * a.dot(d);
+            let e = a + d * t1;
+            let o = snell(d, -e, 1.5);
+            let transmission = (1.0 - reflectance(-a.dot(w), -a.dot(d), 1.0 / 1.5))
+                * (1.0 - reflectance(e.dot(d), e.dot(o), 1.5));
+            (e, o, t1, transmission)
+        };
+        for profile in [
+            Profile::Constant { n: 1.5 },
+            Profile::Linear {
+                n0: 1.5,
+                gradient: DVec3::ZERO,
+            },
+        ] {
+            let v = volume(profile, Bounds::Sphere { radius: 1.0 }, 1.0);
+            let c = Connector::new(&v, 1e-3, 100_000);
+            let start = ((p - y).normalize() + DVec3::X * 0.3).normalize();
+            let found = c.solve_across(y, p, start).expect("converges");
+            let (e, o, length, transmission) = hand(found.direction);
+            assert!((found.surface - e).length() < 1e-9, "{found:?}");
+            assert!((found.outgoing - o.normalize()).length() < 1e-9);
+            assert!((found.length - length).abs() < 1e-9);
+            assert!((found.transmission - transmission).abs() < 1e-12);
+            let miss = (p - e) - o * (p - e).dot(o);
+            assert!(miss.length() < 1e-8, "{miss}");
+            // the spread of neighbouring rays on the plane through p across the outgoing ray
+            let (e1, e2) = orthonormal_basis(found.direction);
+            let (f1, f2) = orthonormal_basis(o);
+            let h = 1e-6;
+            let at_plane = |w: DVec3| {
+                let (e, o, _, _) = hand(w.normalize());
+                e + o * (p - e).dot(found.outgoing) / o.dot(found.outgoing)
+            };
+            let d1 = (at_plane(found.direction + e1 * h) - at_plane(found.direction - e1 * h))
+                / (2.0 * h);
+            let d2 = (at_plane(found.direction + e2 * h) - at_plane(found.direction - e2 * h))
+                / (2.0 * h);
+            let det = f1.dot(d1) * f2.dot(d2) - f1.dot(d2) * f2.dot(d1);
+            assert!(
+                (found.jacobian - det.abs()).abs() < 1e-6 * det.abs(),
+                "{} vs {}",
+                found.jacobian,
+                det.abs()
+            );
+        }
     }
 
     #[test]

@@ -16,7 +16,7 @@
 //! the conservation of basic radiance `L/n²` of the RRTE expresses.
 
 use super::bidirectional::Subpaths;
-use super::connect::{Connector, Sampled};
+use super::connect::{Aim, Connector, Exit, Sampled};
 use super::flight::{Flight, Flyer, fresnel, reflect};
 use super::scene::{Connections, Modulation, RenderScene, SensorKind, Tracing, Volume};
 use super::spectrum::Delay;
@@ -782,8 +782,8 @@ impl<'s> ParticleTracer<'s> {
     }
 
     /// Connect a lit point `y` of a surface (unit `facing` normal on the lit side) to every camera
-    /// it sees in a straight line, past neither the volume nor another surface. Light reaching
-    /// a camera from a surface through the volume, and probes, are not connected.
+    /// it sees: in a straight line, past neither the volume (unless it is index-matched) nor
+    /// another surface, and across the volume (refracted in and out). Probes are not connected.
     fn connect_from_surface(
         &self,
         t: &Tools,
@@ -794,28 +794,71 @@ impl<'s> ParticleTracer<'s> {
         out: &mut [C64],
     ) {
         for i in 0..self.scene.cameras.len() + self.scene.pinholes.len() {
-            if let Some(link) = self.surface_camera_link(t, y, facing, i, rng) {
-                // Lambertian: intensity cos θ / π per unit power
-                let lambert = facing.dot(link.direction) / std::f64::consts::PI;
-                self.record_link(t, &link, p.weight * lambert, p.opl, out);
+            for &across in self.ways(t, true) {
+                if let Some(link) = self.surface_camera_link(t, y, facing, i, across, rng, out) {
+                    // Lambertian: intensity cos θ / π per unit power
+                    let lambert = facing.dot(link.direction) / std::f64::consts::PI;
+                    self.record_link(t, &link, p.weight * lambert, p.opl, out);
+                }
             }
         }
     }
 
-    /// The straight connection from the lit point `y` of a surface (unit `facing` normal on the
-    /// lit side) to camera `i` (the orthographic cameras first, then the pinholes), past no other
-    /// surface and through the volume only where it is index-matched; what it carries per unit
-    /// intensity leaving `y`, as [`Self::camera_link`].
+    /// The ways to join two points: a straight line or a connection (`false`), and, when both
+    /// lie outside the volume, across it (`true`) unless it is index-matched (then the straight
+    /// line crosses it).
+    pub(super) fn ways(&self, t: &Tools, both_outside: bool) -> &'static [bool] {
+        if !both_outside || t.connector.matched() {
+            &[false]
+        } else {
+            &[false, true]
+        }
+    }
+
+    /// A path from `y` outside the volume across it (refracted in and out, unscattered) to
+    /// `aim`, its stretch before the volume past every surface (the caller checks the one
+    /// after), and what it carries per unit intensity leaving `y`: `T (1 − R_in)(1 − R_out) /
+    /// jacobian` over the inverse probability of drawing it, the `jacobian` of
+    /// [`Connector::solve_across`] for a point, of [`Connector::solve_exit`] for a direction.
+    pub(super) fn across(
+        &self,
+        t: &Tools,
+        y: DVec3,
+        aim: Aim,
+        rng: &mut Rng,
+        out: &mut [C64],
+    ) -> Option<(Exit, f64)> {
+        let first_only = self.scene.connections == Connections::First;
+        let s = t.connector.sample_across(y, aim, first_only, rng);
+        let (e, inverse_p) = self.tally(s, out)?;
+        if self.scene.blocked(y, e.direction, e.before) {
+            return None;
+        }
+        let transmittance = self.transmittance(t, e.inside_from, e.inside_along, e.length, rng);
+        Some((e, transmittance * e.transmission / e.jacobian * inverse_p))
+    }
+
+    /// The connection from the lit point `y` of a surface (unit `facing` normal on the lit side)
+    /// to camera `i` (the orthographic cameras first, then the pinholes): straight, past no other
+    /// surface and through the volume only where it is index-matched, or `across` the volume
+    /// (refracted in and out: a surface seen through it); what it carries per unit intensity
+    /// leaving `y`, as [`Self::camera_link`].
+    #[allow(clippy::too_many_arguments)]
     pub(super) fn surface_camera_link(
         &self,
         t: &Tools,
         y: DVec3,
         facing: DVec3,
         i: usize,
+        across: bool,
         rng: &mut Rng,
+        out: &mut [C64],
     ) -> Option<CameraLink> {
         let n_out = t.flyer.volume.field.n_out;
         let orthographic = self.scene.cameras.len();
+        if across {
+            return self.surface_camera_across(t, y, facing, i, rng, out);
+        }
         if let Some(cam) = self.scene.cameras.get(i) {
             let w = cam.direction;
             let pixel = cam.pixel(y)?;
@@ -856,6 +899,71 @@ impl<'s> ParticleTracer<'s> {
             delay: t.delay.outside(n_out * distance),
             inside,
             outside: distance - inside,
+            pdf: 1.0 / cam.image_area(cos),
+        })
+    }
+
+    /// [`Self::surface_camera_link`] across the volume.
+    fn surface_camera_across(
+        &self,
+        t: &Tools,
+        y: DVec3,
+        facing: DVec3,
+        i: usize,
+        rng: &mut Rng,
+        out: &mut [C64],
+    ) -> Option<CameraLink> {
+        let n_out = t.flyer.volume.field.n_out;
+        let orthographic = self.scene.cameras.len();
+        if let Some(cam) = self.scene.cameras.get(i) {
+            let (e, carried) = self.across(t, y, Aim::Along(cam.direction), rng, out)?;
+            let pixel = cam.pixel(e.surface)?;
+            let to_plane = (cam.center - e.surface).dot(cam.direction).max(0.0);
+            if e.direction.dot(facing) <= 0.0
+                || self
+                    .scene
+                    .blocked_after_exit(e.surface, cam.direction, to_plane)
+            {
+                return None;
+            }
+            let radiance = carried / cam.pixel_area();
+            let before = n_out * e.before;
+            return Some(CameraLink {
+                camera: i,
+                pixel,
+                direction: e.direction,
+                radiance,
+                total: radiance,
+                delay: t.delay.outside(before)
+                    + t.delay.inside(e.optical_path - before, e.length)
+                    + t.delay.outside(n_out * to_plane),
+                inside: e.length,
+                outside: e.before + to_plane,
+                pdf: 1.0 / cam.area(),
+            });
+        }
+        let cam = &self.scene.pinholes[i - orthographic];
+        let (e, irradiance) = self.across(t, y, Aim::Point(cam.position), rng, out)?;
+        let (pixel, cos) = cam.pixel(e.outgoing)?;
+        let to_pinhole = (cam.position - e.surface).dot(e.outgoing);
+        if e.direction.dot(facing) <= 0.0
+            || self
+                .scene
+                .blocked_after_exit(e.surface, e.outgoing, to_pinhole)
+        {
+            return None;
+        }
+        // the path's optical length holds both straight stretches
+        let outside = n_out * (e.before + to_pinhole);
+        Some(CameraLink {
+            camera: i,
+            pixel,
+            direction: e.direction,
+            radiance: irradiance / (cos * cos * cos * cam.pixel_area()),
+            total: irradiance,
+            delay: t.delay.inside(e.optical_path - outside, e.length) + t.delay.outside(outside),
+            inside: e.length,
+            outside: e.before + to_pinhole,
             pdf: 1.0 / cam.image_area(cos),
         })
     }

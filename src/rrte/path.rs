@@ -7,8 +7,9 @@
 //! density), and scatters by the phase function (or diffusely off a surface) carrying the albedo.
 //! At every scattering event the light is connected to it: through the volume by a boundary-value
 //! connection (a curved ray to a light inside, or a ray leaving the volume and running straight to
-//! a light outside, solved as in [`super::connect`]); to a surface in a straight line from a
-//! light outside, or from a light inside through the volume's surface.
+//! a light outside, solved as in [`super::connect`]); to a surface from a light outside in a
+//! straight line and across the volume (refracted in and out: the caustics it throws), or from a
+//! light inside through the volume's surface.
 //!
 //! The estimate is carried in basic radiance `B = L/n²`, which the RRTE conserves along rays and
 //! transmits across an interface as `(1 − R) B` (paper 002, Table 1): no `n²` appears along the
@@ -19,12 +20,13 @@
 //! `L = n_out² B`.
 //!
 //! A beam cannot be connected to (its directions are a delta); a light inside the volume is
-//! connected to the cameras directly, as in particle tracing, and one outside is not imaged itself. The connections do not reflect inside the surface, so light that reaches its first
-//! scattering event only after a reflection inside the surface is missed (particle tracing misses
-//! the mirror case, light leaving its last event by such a reflection): with index-matched
-//! surfaces the two estimate the same images.
+//! connected to the cameras directly, as in particle tracing, and one outside is not imaged
+//! itself. The connections do not reflect at the surface, so light that reaches its first
+//! scattering event only after such a reflection is missed (particle tracing misses the mirror
+//! case, light leaving its last event by such a reflection): with index-matched surfaces the two
+//! estimate the same images.
 
-use super::connect::Sampled;
+use super::connect::{Aim, Sampled};
 use super::particle::{Leg, ParticleTracer, Stop, Tools};
 use super::scene::{Light, grid_pixel};
 use crate::eikonal::Ray;
@@ -257,36 +259,65 @@ impl ParticleTracer<'_> {
         rng: &mut Rng,
         out: &mut [C64],
     ) {
-        let Some(link) = self.surface_light_link(t, y, facing, rng, out) else {
-            return;
-        };
-        // the surface's albedo is already in β: the Lambertian BRDF's 1/π remains
-        self.record_sample(
-            t,
-            pixel,
-            w.beta * link.radiance / PI,
-            w.opl + link.delay,
-            out,
-        );
+        for &across in self.ways(t, true) {
+            let Some(link) = self.surface_light_link(t, y, facing, across, rng, out) else {
+                continue;
+            };
+            // the surface's albedo is already in β: the Lambertian BRDF's 1/π remains
+            self.record_sample(
+                t,
+                pixel,
+                w.beta * link.radiance / PI,
+                w.opl + link.delay,
+                out,
+            );
+        }
     }
 
     /// The connection from the light to the lit point `y` of a surface (unit `facing` normal on
     /// the lit side); its `radiance` is the irradiance it brings to `y`. From a light outside, a
     /// straight line past no other surface (through the volume only where it is index-matched):
-    /// `I T cos θ / d²`; from a light inside, a connection through the volume's surface (see
-    /// [`super::connect`]): `I T (1 − R) cos θ / (dA⊥/dω)`.
+    /// `I T cos θ / d²`, or `across` the volume (refracted in and out, unscattered: a caustic)
+    /// `I T (1 − R_in)(1 − R_out) cos θ / (dA⊥/dω)`, the ray tube's cross-section at the light
+    /// per solid angle at `y` turned round by reciprocity (both ends in `n_out`); from a light
+    /// inside, a connection through the volume's surface (see [`super::connect`]):
+    /// `I T (1 − R) cos θ / (dA⊥/dω)`.
     pub(super) fn surface_light_link(
         &self,
         t: &Tools,
         y: DVec3,
         facing: DVec3,
+        across: bool,
         rng: &mut Rng,
         out: &mut [C64],
     ) -> Option<LightLink> {
         let n_out = t.flyer.volume.field.n_out;
         let light = &self.scene.light;
         let q = self.light_point(rng)?;
-        if t.flyer.volume.field.bounds.contains(q) {
+        let inside = t.flyer.volume.field.bounds.contains(q);
+        if across {
+            if inside {
+                return None;
+            }
+            let (e, carried) = self.across(t, y, Aim::Point(q), rng, out)?;
+            let cos = e.direction.dot(facing);
+            let to_q = (q - e.surface).dot(e.outgoing);
+            if cos <= 0.0 || self.scene.blocked_after_exit(e.surface, e.outgoing, to_q) {
+                return None;
+            }
+            let intensity = light.intensity(-e.outgoing);
+            let outside = n_out * (e.before + to_q);
+            return Some(LightLink {
+                direction: e.direction,
+                radiance: intensity * cos * carried,
+                delay: t.delay.inside(e.optical_path - outside, e.length)
+                    + t.delay.outside(outside),
+                inside: e.length,
+                outside: e.before + to_q,
+                pdf: intensity,
+            });
+        }
+        if inside {
             let o = self.out_to_surface(t, q, y, facing, rng, out)?;
             let intensity = light.intensity(o.exit.direction);
             return Some(LightLink {
