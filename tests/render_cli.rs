@@ -141,6 +141,11 @@ fn bad_render_scenes_are_refused_by_key() {
             "direction = [0.0, 0.0, 0.0]",
             "light.direction",
         ),
+        (
+            "[render]",
+            "[render]\nreflections = 9",
+            "render.reflections",
+        ),
     ];
     let dir = tmp("bad");
     std::fs::create_dir_all(&dir).unwrap();

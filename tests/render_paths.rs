@@ -375,3 +375,37 @@ fn a_wall_lit_through_glass_agrees() {
     ));
     agree(s, 4_000_000, 40_000, false);
 }
+
+/// Light leaving a scattering glass cube (n = 1.5 in air) after reflecting inside it, with a
+/// lamp inside and a pinhole looking at a corner. A cube keeps the size of each component of a
+/// direction it reflects, so light that meets one face beyond the critical angle leaves through
+/// another: much of what the camera sees has reflected inside before leaving. Particle tracing
+/// with `reflections = 3` joins every event to the camera after up to three reflections inside,
+/// and agrees with bidirectional tracing (which joins them so too, and makes the rest by
+/// tracing; paths reflecting more often on their last segment carry less than the noise here);
+/// with none it reads 11 % less (9 standard errors).
+#[test]
+fn light_reflected_inside_a_glass_cube_agrees() {
+    let mut s = scene(
+        Profile::Constant { n: 1.5 },
+        Light::Point {
+            position: DVec3::new(0.1, -0.05, 0.15),
+        },
+        camera(DVec3::new(2.0, 1.2, 1.5), DVec3::ZERO, 40.0),
+    );
+    s.volume.field = BoundedField::single(
+        Profile::Constant { n: 1.5 },
+        Bounds::Box {
+            half: DVec3::splat(0.5),
+        },
+        1.0,
+    );
+    s.volume.sigma_s = 1.0;
+    s.reflections = 3;
+    s.tracing = Tracing::FromLight;
+    let (a, est) = render(&s, 200_000, 11);
+    let mut p = s.clone();
+    p.tracing = Tracing::Bidirectional;
+    let (b, _) = render(&p, 40_000, 12);
+    compare_images(&a, &b, est.pinhole_image(0), false);
+}

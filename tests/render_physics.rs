@@ -412,6 +412,7 @@ fn probe_scene(profile: Profile, sigma_s: f64, g: f64, light: Light, probe: DVec
         surfaces: vec![],
         modulation: None,
         connections: Default::default(),
+        reflections: 0,
         tracing: Default::default(),
         transient: None,
         spectrum: None,

@@ -415,6 +415,10 @@ pub struct RenderSettings {
     /// inverse probability, Alg. 3) or `"first"` (the path found, unweighted).
     #[serde(default, skip_serializing_if = "ConnectionsConfig::is_default")]
     pub connections: ConnectionsConfig,
+    /// Reflections inside the volume's surface a connection through it follows at most, each
+    /// tried as a path of its own (0: connections leave the volume directly).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub reflections: u64,
     /// `"particle"` (photons from the light; every sensor kind), `"path"` (paths from the
     /// cameras, connected to the light) or `"bidirectional"` (both, joined every way and weighted
     /// by multiple importance sampling; no surfaces).
@@ -453,6 +457,9 @@ fn default_step() -> f64 {
 fn default_max_steps() -> u64 {
     1_000_000
 }
+fn is_zero(n: &u64) -> bool {
+    *n == 0
+}
 
 impl Default for RenderSettings {
     fn default() -> Self {
@@ -463,10 +470,14 @@ impl Default for RenderSettings {
             step: default_step(),
             max_steps: default_max_steps(),
             connections: ConnectionsConfig::Unbiased,
+            reflections: 0,
             estimator: EstimatorConfig::Particle,
         }
     }
 }
+
+/// The most reflections inside the surface a connection follows (each costs a connection).
+const MAX_REFLECTIONS: u64 = 8;
 
 /// The most sensors, pixels per sensor side and time bins a render takes.
 const MAX_SENSORS: usize = 64;
@@ -711,6 +722,12 @@ impl RenderConfig {
                 r.max_steps
             ));
         }
+        if r.reflections > MAX_REFLECTIONS {
+            return err(format!(
+                "render.reflections = {}: must be within [0, {MAX_REFLECTIONS}]",
+                r.reflections
+            ));
+        }
         let scene = RenderScene {
             volume,
             light,
@@ -724,6 +741,7 @@ impl RenderConfig {
                 ConnectionsConfig::Unbiased => Connections::Unbiased,
                 ConnectionsConfig::First => Connections::First,
             },
+            reflections: r.reflections as usize,
             tracing: match r.estimator {
                 EstimatorConfig::Particle => Tracing::FromLight,
                 EstimatorConfig::Path => Tracing::FromCameras,

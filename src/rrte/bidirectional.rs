@@ -22,24 +22,25 @@
 //!
 //! The estimates are weighted by the balance heuristic over the strategies that can make the path:
 //! `w_s = p_s / Σ_j p_j`, with `p_j` the density strategy `j` gives the path's vertices. A
-//! connection cannot reflect at the surface, so a segment with such a reflection on it (or with
-//! more than one refraction between a point inside and one outside, or other than none or two
-//! between two points outside a volume that is not index-matched) is made only by tracing: the
-//! strategies that would connect across it are left out of the sum, as is the light's own (`s = 0`)
-//! for a beam, whose directions are a delta. The weights use the straight-ray density of each
-//! segment — `ρ σ_t e^{−σ_t ℓ}/ℓ²` over its geometric length `ℓ` (the tube of parallel rays from a
-//! beam or an orthographic camera: no `1/ℓ²`; per unit area at a surface, times `|cos θ|` there),
-//! the phase functions or the surfaces' `cos θ / π` at both ends, and the sources' own densities —
-//! so in a graded index they are an approximation of the true densities; any weights that sum to
-//! one over the strategies that can make each path keep the estimate unbiased, and these are the
-//! same function of the path whichever strategy made it. The contributions themselves carry the
-//! exact connections (ray tubes, transmittance, Fresnel).
+//! connection reflects inside the surface at most `render.reflections` times, and only on its way
+//! between a point inside and one outside (refracted once there), never off the surface's outside;
+//! between two points outside a volume that is not index-matched it refracts never or twice. A
+//! segment that no connection makes is made only by tracing: the strategies that would connect
+//! across it are left out of the sum, as is the light's own (`s = 0`) for a beam, whose directions
+//! are a delta. The weights use the straight-ray density of each segment — `ρ σ_t e^{−σ_t ℓ}/ℓ²`
+//! over its geometric length `ℓ` (the tube of parallel rays from a beam or an orthographic camera:
+//! no `1/ℓ²`; per unit area at a surface, times `|cos θ|` there), the phase functions or the
+//! surfaces' `cos θ / π` at both ends, and the sources' own densities — so in a graded index they
+//! are an approximation of the true densities; any weights that sum to one over the strategies that
+//! can make each path keep the estimate unbiased, and these are the same function of the path
+//! whichever strategy made it. The contributions themselves carry the exact connections (ray tubes,
+//! transmittance, Fresnel).
 //!
-//! What no strategy makes: paths on which every segment reflects at the surface or refracts
-//! there more often than that (with an index-matched surface there are none).
+//! What no strategy makes: paths on which every segment reflects at the surface, or refracts
+//! there, more often than a connection does (with an index-matched surface there are none).
 
 use super::connect::Aim;
-use super::particle::{Leg, MAX_EVENTS, ParticleTracer, Stop, Tools, roulette};
+use super::particle::{Leg, MAX_EVENTS, ParticleTracer, Stop, Tools, Way, roulette};
 use super::scene::{Connections, Light, Volume};
 use crate::eikonal::Ray;
 use crate::math::{C64, Rng, uniform};
@@ -319,10 +320,10 @@ impl ParticleTracer<'_> {
         out: &mut [C64],
     ) {
         let z = zs[zs.len() - 1];
-        for &across in self.ways(t, z.facing.is_some()) {
+        for way in self.ways(t, z.facing.is_some()) {
             let link = match z.facing {
-                None => self.light_link(t, z.x, rng, out),
-                Some(n) => self.surface_light_link(t, z.x, n, across, rng, out),
+                None => self.light_link(t, z.x, way, rng, out),
+                Some(n) => self.surface_light_link(t, z.x, n, way, rng, out),
             };
             let Some(link) = link else {
                 continue;
@@ -361,10 +362,10 @@ impl ParticleTracer<'_> {
         out: &mut [C64],
     ) {
         let y = ys[ys.len() - 1];
-        for &across in self.ways(t, y.facing.is_some()) {
+        for way in self.ways(t, y.facing.is_some()) {
             let link = match y.facing {
-                None => self.camera_link(t, y.x, camera, rng, out),
-                Some(n) => self.surface_camera_link(t, y.x, n, camera, across, rng, out),
+                None => self.camera_link(t, y.x, camera, way, rng, out),
+                Some(n) => self.surface_camera_link(t, y.x, n, camera, way, rng, out),
             };
             let Some(link) = link else {
                 continue;
@@ -400,8 +401,8 @@ impl ParticleTracer<'_> {
         out: &mut [C64],
     ) {
         let (y, z) = (ys[ys.len() - 1], zs[zs.len() - 1]);
-        for &across in self.ways(t, y.facing.is_some() && z.facing.is_some()) {
-            let Some(j) = self.joint(t, &y, &z, across, rng, out) else {
+        for way in self.ways(t, y.facing.is_some() || z.facing.is_some()) {
+            let Some(j) = self.joint(t, &y, &z, way, rng, out) else {
                 continue;
             };
             let volume = t.flyer.volume;
@@ -435,7 +436,7 @@ impl ParticleTracer<'_> {
         t: &Tools,
         y: &Vertex,
         z: &Vertex,
-        across: bool,
+        way: Way,
         rng: &mut Rng,
         out: &mut [C64],
     ) -> Option<Joint> {
@@ -443,8 +444,8 @@ impl ParticleTracer<'_> {
         let n_out = volume.field.n_out;
         // the far end of a straight stretch lies on a surface: stop short of it
         const SHORT: f64 = 1.0 - 1e-9;
-        match (y.facing, z.facing) {
-            (Some(facing_y), Some(facing_z)) if across => {
+        match (y.facing, z.facing, way) {
+            (Some(facing_y), Some(facing_z), Way::Across) => {
                 // from z across the volume to y: y's intensity brings z the irradiance
                 // `T (1 − R_in)(1 − R_out) cos θ_z / (dA⊥/dω)` (reciprocity: both ends in n_out)
                 let (e, carried) = self.across(t, z.x, Aim::Point(y.x), rng, out)?;
@@ -469,14 +470,13 @@ impl ParticleTracer<'_> {
                         .with_cos(cos_y, cos_z),
                 })
             }
-            _ if across => None,
-            (None, None) => {
+            (None, None, Way::Bounces(0)) => {
                 let sampled = match self.scene.connections {
                     Connections::Unbiased => t.connector.sample(z.x, y.x, rng),
                     Connections::First => t.connector.sample_first(z.x, y.x, rng),
                 };
                 let (c, inverse_p) = self.tally(sampled, out)?;
-                let transmittance = self.transmittance(t, z.x, c.direction, c.length, rng);
+                let transmittance = self.transmittance(t, z.x, c.direction, c.length, 0, rng);
                 let n_y = t.flyer.n(y.x);
                 Some(Joint {
                     leave_y: -c.arrival.v.normalize(),
@@ -486,9 +486,9 @@ impl ParticleTracer<'_> {
                     segment: Segment::new(volume, c.length, 0.0, false, true),
                 })
             }
-            (None, Some(facing)) => {
+            (None, Some(facing), Way::Bounces(bounces)) => {
                 // from y inside through z: z's irradiance, `T (1 − R) cos θ / (dA⊥/dω)`
-                let o = self.out_to_surface(t, y.x, z.x, facing, rng, out)?;
+                let o = self.out_to_surface(t, y.x, z.x, facing, bounces, rng, out)?;
                 Some(Joint {
                     leave_y: o.exit.direction,
                     leave_z: -o.exit.outgoing,
@@ -497,9 +497,9 @@ impl ParticleTracer<'_> {
                     segment: o.segment.with_cos(1.0, o.cos),
                 })
             }
-            (Some(facing), None) => {
+            (Some(facing), None, Way::Bounces(bounces)) => {
                 // from z inside through y: y a point source outside, as a light in path tracing
-                let o = self.out_to_surface(t, z.x, y.x, facing, rng, out)?;
+                let o = self.out_to_surface(t, z.x, y.x, facing, bounces, rng, out)?;
                 Some(Joint {
                     leave_y: -o.exit.outgoing,
                     leave_z: o.exit.direction,
@@ -508,7 +508,7 @@ impl ParticleTracer<'_> {
                     segment: o.segment.with_cos(o.cos, 1.0),
                 })
             }
-            (Some(facing_y), Some(facing_z)) => {
+            (Some(facing_y), Some(facing_z), Way::Bounces(0)) => {
                 let v = y.x - z.x;
                 let distance = v.length();
                 let w = v / distance;
@@ -530,24 +530,28 @@ impl ParticleTracer<'_> {
                         .with_cos(cos_y, cos_z),
                 })
             }
+            _ => None,
         }
     }
 
-    /// The connection from `x` inside the volume out through its surface to the point `p` of a
-    /// surface (unit `facing` normal on the lit side), past no other surface: what it carries
-    /// either way per unit intensity, `T (1 − R) / (dA⊥/dω)` (without the cosine at `p`).
+    /// The connection from `x` inside the volume out through its surface, after `bounces`
+    /// reflections inside it, to the point `p` of a surface (unit `facing` normal on the lit
+    /// side), past no other surface: what it carries either way per unit intensity, `T (1 − R) /
+    /// (dA⊥/dω)` (without the cosine at `p`; `R` with the reflectances of the reflections).
+    #[allow(clippy::too_many_arguments)]
     pub(super) fn out_to_surface(
         &self,
         t: &Tools,
         x: DVec3,
         p: DVec3,
         facing: DVec3,
+        bounces: usize,
         rng: &mut Rng,
         out: &mut [C64],
     ) -> Option<OutToSurface> {
         let volume = t.flyer.volume;
         let first_only = self.scene.connections == Connections::First;
-        let s = t.connector.sample_through(x, p, first_only, rng);
+        let s = t.connector.sample_through(x, p, bounces, first_only, rng);
         let (exit, inverse_p) = self.tally(s, out)?;
         let to_p = (p - exit.surface).dot(exit.outgoing);
         let cos = -facing.dot(exit.outgoing);
@@ -559,7 +563,7 @@ impl ParticleTracer<'_> {
         {
             return None;
         }
-        let transmittance = self.transmittance(t, x, exit.direction, exit.length, rng);
+        let transmittance = self.transmittance(t, x, exit.direction, exit.length, bounces, rng);
         let outside = volume.field.n_out * to_p;
         Some(OutToSurface {
             carried: transmittance * exit.transmission / exit.jacobian * inverse_p,
@@ -591,19 +595,23 @@ impl ParticleTracer<'_> {
         let (mut beta, mut opl, mut steps) = (1.0, 0.0, 0);
         // the segment so far: geometric length inside and outside, surface crossings, whether
         // it began inside the volume, the cosine where it left a surface
-        let (mut inside, mut outside, mut crossings, mut reflections) = (0.0, 0.0, 0, 0);
+        // reflections at the surface inside (bounces) and outside (glances)
+        let (mut inside, mut outside, mut crossings) = (0.0, 0.0, 0);
+        let (mut bounces, mut glances) = (0, 0);
+        let most_bounces = if matched { 0 } else { self.scene.reflections };
         let mut began_inside = volume.field.bounds.contains(start.x);
         let mut cos_start = 1.0;
-        // a connection refracts once between a point inside and one outside, never between two
-        // points inside, and between two points outside either never (straight, also across an
-        // index-matched volume) or twice, in and out again; it never reflects at the surface
-        let connectible = |began_inside: bool, ends_inside: bool, crossings: usize, reflections| {
+        // a connection refracts once between a point inside and one outside, after up to
+        // `render.reflections` reflections inside the surface; never meets the surface between
+        // two points inside; and between two points outside either never (straight, also across
+        // an index-matched volume) or twice, in and out again
+        let connectible = |began_inside: bool, ends_inside: bool, crossings, (bounces, glances)| {
             if began_inside != ends_inside {
-                crossings == 1
+                crossings == 1 + bounces && glances == 0 && bounces <= most_bounces
             } else if ends_inside {
                 crossings == 0
             } else {
-                crossings == 0 || matched || (crossings == 2 && reflections == 0)
+                crossings == 0 || matched || (crossings == 2 && bounces + glances == 0)
             }
         };
         let mut leg = if began_inside {
@@ -632,7 +640,7 @@ impl ParticleTracer<'_> {
                             outside += t0;
                             crossings += 1;
                             leg = Leg::enter(t, x, d, t0, rng);
-                            reflections += usize::from(matches!(leg, Leg::Outside { .. }));
+                            glances += usize::from(matches!(leg, Leg::Outside { .. }));
                             continue;
                         }
                         (_, Some((i, distance))) => {
@@ -657,7 +665,7 @@ impl ParticleTracer<'_> {
                                 inside,
                                 outside,
                                 first && start.parallel,
-                                connectible(began_inside, false, crossings, reflections),
+                                connectible(began_inside, false, crossings, (bounces, glances)),
                             );
                             vertices.push(Vertex {
                                 x: x + d * distance,
@@ -668,7 +676,8 @@ impl ParticleTracer<'_> {
                                 segment: segment.with_cos(cos_start, -facing.dot(d)),
                                 facing: Some(facing),
                             });
-                            (inside, outside, crossings, reflections) = (0.0, 0.0, 0, 0);
+                            (inside, outside, crossings) = (0.0, 0.0, 0);
+                            (bounces, glances) = (0, 0);
                             began_inside = false;
                             if !roulette(&mut beta, rng) || vertices.len() >= MAX_EVENTS {
                                 break;
@@ -710,7 +719,7 @@ impl ParticleTracer<'_> {
                         inside,
                         outside,
                         first && start.parallel,
-                        connectible(began_inside, true, crossings, reflections),
+                        connectible(began_inside, true, crossings, (bounces, glances)),
                     );
                     vertices.push(Vertex {
                         x: hit.x,
@@ -721,7 +730,8 @@ impl ParticleTracer<'_> {
                         segment: segment.with_cos(cos_start, 1.0),
                         facing: None,
                     });
-                    (inside, outside, crossings, reflections) = (0.0, 0.0, 0, 0);
+                    (inside, outside, crossings) = (0.0, 0.0, 0);
+                    (bounces, glances) = (0, 0);
                     (began_inside, cos_start) = (true, 1.0);
                     if start.photon {
                         let phase = |d: DVec3| volume.scattering.eval(u.dot(d));
@@ -740,7 +750,7 @@ impl ParticleTracer<'_> {
                 Stop::Boundary(end) => {
                     crossings += 1;
                     leg = Leg::leave(t, end, rng);
-                    reflections += usize::from(matches!(leg, Leg::Inside(_)));
+                    bounces += usize::from(matches!(leg, Leg::Inside(_)));
                 }
                 Stop::Stuck => break,
             }

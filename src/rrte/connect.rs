@@ -84,6 +84,18 @@ pub struct Sampled<T = Connection> {
     pub distinct: usize,
 }
 
+impl<T> Sampled<T> {
+    /// No path, and no work done.
+    pub fn none() -> Self {
+        Sampled {
+            path: None,
+            solves: 0,
+            iterations: 0,
+            distinct: 0,
+        }
+    }
+}
+
 /// Solves connections in one volume.
 pub struct Connector<'v> {
     volume: &'v Volume,
@@ -394,17 +406,22 @@ impl<'v> Connector<'v> {
         }
     }
 
-    /// A path from `x` leaving the volume along unit `c`, drawn like [`Connector::sample`]
-    /// (`first`: the biased variant).
+    /// A path from `x` leaving the volume along unit `c` after `bounces` reflections inside the
+    /// surface, drawn like [`Connector::sample`] (`first`: the biased variant).
     pub fn sample_exit(
         &self,
         x: DVec3,
         c: DVec3,
+        bounces: usize,
         first_only: bool,
         rng: &mut Rng,
     ) -> Sampled<Exit> {
         if self.matched {
-            return self.straight_exit(x, c, None);
+            // nothing reflects at an index-matched surface
+            return match bounces {
+                0 => self.straight_exit(x, c, None),
+                _ => Sampled::none(),
+            };
         }
         let start = |rng: &mut Rng| {
             let u = uniform_sphere(uniform(rng), uniform(rng));
@@ -415,7 +432,7 @@ impl<'v> Connector<'v> {
             }
         };
         let solve = |w| {
-            self.solve_exit(x, c, w)
+            self.solve_exit(x, c, w, bounces)
                 .map(|e| (e, e.direction, e.iterations))
         };
         if first_only {
@@ -525,17 +542,38 @@ impl<'v> Connector<'v> {
         Some((out, transmission, deriv, moved))
     }
 
-    /// The outgoing direction of the ray leaving `x` along `w`, where it leaves, and the
-    /// derivatives of the outgoing direction and of the exit point along the two angles of `w`
-    /// (`e1`, `e2` of its frame).
+    /// The outgoing direction of the ray leaving `x` along `w` after `bounces` reflections inside
+    /// the surface, where it leaves, and the derivatives of the outgoing direction and of the
+    /// exit point along the two angles of `w` (`e1`, `e2` of its frame). Its `transmission` is
+    /// `1 − R` of the exit times `R` of each reflection.
     #[allow(clippy::type_complexity)]
-    fn exit_map(&self, x: DVec3, w: DVec3) -> Option<(Exit, [DVec3; 2], [DVec3; 2])> {
-        let identity = (DMat3::ZERO, DMat3::IDENTITY);
-        let (end, xv, vv, length, optical_path, n_in) = self.shoot_out(x, w, identity)?;
+    fn exit_map(
+        &self,
+        x: DVec3,
+        w: DVec3,
+        bounces: usize,
+    ) -> Option<(Exit, [DVec3; 2], [DVec3; 2])> {
         let n_x = self.volume.field.n(x);
         let (e1, e2) = orthonormal_basis(w);
-        let (outgoing, transmission, deriv, moved) =
-            self.refract_out(end, (xv, vv), [e1 * n_x, e2 * n_x], n_in)?;
+        let mut sensitivities = (DMat3::ZERO, DMat3::IDENTITY);
+        let mut dv0 = [e1 * n_x, e2 * n_x];
+        let (mut from, mut along) = (x, w);
+        let (mut length, mut optical_path, mut reflected) = (0.0, 0.0, 1.0);
+        for _ in 0..bounces {
+            let (end, xv, vv, l, o, n_in) = self.shoot_out(from, along, sensitivities)?;
+            let (bounce, r, dx, dv) = self.reflect_in(end, (xv, vv), dv0, n_in)?;
+            (length, optical_path, reflected) = (length + l, optical_path + o, reflected * r);
+            sensitivities = (
+                DMat3::from_cols(dx[0], dx[1], DVec3::ZERO),
+                DMat3::from_cols(dv[0], dv[1], DVec3::ZERO),
+            );
+            dv0 = [DVec3::X, DVec3::Y];
+            // a start just inside, so that the index there reads as the inside's
+            from = end.x + bounce * (1e-12 * (1.0 + end.x.length()));
+            along = bounce;
+        }
+        let (end, xv, vv, l, o, n_in) = self.shoot_out(from, along, sensitivities)?;
+        let (outgoing, transmission, deriv, moved) = self.refract_out(end, (xv, vv), dv0, n_in)?;
         Some((
             Exit {
                 direction: w,
@@ -544,15 +582,59 @@ impl<'v> Connector<'v> {
                 inside_from: x,
                 inside_along: w,
                 before: 0.0,
-                length,
-                optical_path,
-                transmission,
+                length: length + l,
+                optical_path: optical_path + o,
+                transmission: transmission * reflected,
                 jacobian: 0.0,
                 iterations: 0,
             },
             deriv,
             moved,
         ))
+    }
+
+    /// The ray inside reaching the surface at `end` (index `n_in` just inside), with
+    /// sensitivities `xv`, `vv` to the perturbations `dv0` of its start, reflects: its unit
+    /// direction after, the Fresnel reflectance `R` (1 beyond the critical angle), and the
+    /// derivatives of the reflection point and of the velocity after it along the perturbations
+    /// (the exit time's shift as in [`Self::refract_out`], the mirror's turn by central
+    /// differences of the surface normal). `None` where it would not reach the surface.
+    #[allow(clippy::type_complexity)]
+    fn reflect_in(
+        &self,
+        end: Ray,
+        (xv, vv): (DMat3, DMat3),
+        dv0: [DVec3; 2],
+        n_in: f64,
+    ) -> Option<(DVec3, f64, [DVec3; 2], [DVec3; 2])> {
+        let field = &self.volume.field;
+        let normal = field.bounds.normal(end.x)?;
+        let v = end.v;
+        let nv = normal.dot(v);
+        if nv <= 0.0 {
+            return None;
+        }
+        let force = {
+            let (n, g) = field.value_grad(end.x);
+            g * n
+        };
+        let mirror = |v: DVec3, at: DVec3| -> Option<DVec3> {
+            let nrm = field.bounds.normal(at)?;
+            Some(v - nrm * (2.0 * v.dot(nrm)))
+        };
+        let mut dx = [DVec3::ZERO; 2];
+        let mut dv = [DVec3::ZERO; 2];
+        for (k, dv0) in dv0.into_iter().enumerate() {
+            let (dxs, dvs) = (xv * dv0, vv * dv0);
+            let dsigma = -normal.dot(dxs) / nv;
+            dx[k] = dxs + v * dsigma;
+            let dvk = dvs + force * dsigma;
+            let plus = mirror(v + dvk * DIFF_STEP, end.x + dx[k] * DIFF_STEP)?;
+            let minus = mirror(v - dvk * DIFF_STEP, end.x - dx[k] * DIFF_STEP)?;
+            dv[k] = (plus - minus) / (2.0 * DIFF_STEP);
+        }
+        let r = fresnel(nv / v.length(), n_in / field.n_out);
+        Some((mirror(v, end.x)?.normalize(), r, dx, dv))
     }
 
     /// As [`Self::exit_map`] for the ray from `y` outside the volume: straight to the volume,
@@ -621,8 +703,9 @@ impl<'v> Connector<'v> {
     /// point `p` outside it (a pinhole), in a straight line from the surface. Its `jacobian` is the
     /// ray tube's cross-section at `p` per unit solid angle at `x` (`dA⊥/dω`): the irradiance at
     /// `p` of a source of intensity `I` at `x` is `I · transmission / jacobian`.
-    pub fn solve_through(&self, x: DVec3, p: DVec3, w0: DVec3) -> Option<Exit> {
-        self.aim_at(p, w0, |w| self.exit_map(x, w))
+    /// With `bounces`, the path reflects that many times inside the surface before it leaves.
+    pub fn solve_through(&self, x: DVec3, p: DVec3, w0: DVec3, bounces: usize) -> Option<Exit> {
+        self.aim_at(p, w0, |w| self.exit_map(x, w, bounces))
     }
 
     /// As [`Self::solve_through`] for a path from `y` outside the volume that crosses it
@@ -674,22 +757,27 @@ impl<'v> Connector<'v> {
         None
     }
 
-    /// A path from `x` through the point `p` outside, drawn like [`Connector::sample`].
+    /// A path from `x` through the point `p` outside after `bounces` reflections inside the
+    /// surface, drawn like [`Connector::sample`].
     pub fn sample_through(
         &self,
         x: DVec3,
         p: DVec3,
+        bounces: usize,
         first_only: bool,
         rng: &mut Rng,
     ) -> Sampled<Exit> {
         if self.matched {
+            if bounces > 0 {
+                return Sampled::none();
+            }
             let d = p - x;
             let s = d.length();
             return self.straight_exit(x, d / s, Some(s));
         }
         let start = |rng: &mut Rng| self.initial(x, p, rng);
         let solve = |w| {
-            self.solve_through(x, p, w)
+            self.solve_through(x, p, w, bounces)
                 .map(|e| (e, e.direction, e.iterations))
         };
         if first_only {
@@ -711,12 +799,7 @@ impl<'v> Connector<'v> {
         first_only: bool,
         rng: &mut Rng,
     ) -> Sampled<Exit> {
-        let none = Sampled {
-            path: None,
-            solves: 0,
-            iterations: 0,
-            distinct: 0,
-        };
+        let none = Sampled::none();
         let Some(half) = self.volume.field.bounds.half_extent() else {
             return none;
         };
@@ -751,8 +834,9 @@ impl<'v> Connector<'v> {
     }
 
     /// The path Newton's method reaches from `w0` that leaves the volume along unit `c`.
-    pub fn solve_exit(&self, x: DVec3, c: DVec3, w0: DVec3) -> Option<Exit> {
-        self.aim_along(c, w0, |w| self.exit_map(x, w))
+    /// With `bounces`, the path reflects that many times inside the surface before it leaves.
+    pub fn solve_exit(&self, x: DVec3, c: DVec3, w0: DVec3, bounces: usize) -> Option<Exit> {
+        self.aim_along(c, w0, |w| self.exit_map(x, w, bounces))
     }
 
     /// Newton's method on the direction `w` given to `map` (from `w0`) for the path that leaves
@@ -1012,6 +1096,38 @@ mod tests {
         0.5 * (rs * rs + rp * rp)
     }
 
+    /// Assert that the path `found` to the point `p` is the one `hand` traces from its direction
+    /// (exit point, outgoing direction, length inside, transmission), that it passes through
+    /// `p`, and that its ray tube's cross-section at `p` equals that of neighbouring rays traced
+    /// by hand (central differences on the plane through `p` across the outgoing ray).
+    fn traced_by_hand(found: &Exit, p: DVec3, hand: impl Fn(DVec3) -> (DVec3, DVec3, f64, f64)) {
+        let (e, o, length, transmission) = hand(found.direction);
+        assert!((found.surface - e).length() < 1e-9, "{found:?}");
+        assert!((found.outgoing - o.normalize()).length() < 1e-9);
+        assert!((found.length - length).abs() < 1e-9);
+        assert!((found.transmission - transmission).abs() < 1e-12);
+        let miss = (p - e) - o * (p - e).dot(o);
+        assert!(miss.length() < 1e-8, "{miss}");
+        let (e1, e2) = orthonormal_basis(found.direction);
+        let (f1, f2) = orthonormal_basis(o);
+        let h = 1e-6;
+        let at_plane = |w: DVec3| {
+            let (e, o, _, _) = hand(w.normalize());
+            e + o * (p - e).dot(found.outgoing) / o.dot(found.outgoing)
+        };
+        let d1 =
+            (at_plane(found.direction + e1 * h) - at_plane(found.direction - e1 * h)) / (2.0 * h);
+        let d2 =
+            (at_plane(found.direction + e2 * h) - at_plane(found.direction - e2 * h)) / (2.0 * h);
+        let det = f1.dot(d1) * f2.dot(d2) - f1.dot(d2) * f2.dot(d1);
+        assert!(
+            (found.jacobian - det.abs()).abs() < 1e-6 * det.abs(),
+            "{} vs {}",
+            found.jacobian,
+            det.abs()
+        );
+    }
+
     /// Across a glass ball (n = 1.5 in air), in closed form and stepped: the path found from a
     /// point on one side to a point on the other, from a poor start, refracts by Snell's law
     /// where it enters and leaves and passes through the point; its transmission is the two
@@ -1044,32 +1160,52 @@ mod tests {
             let c = Connector::new(&v, 1e-3, 100_000);
             let start = ((p - y).normalize() + DVec3::X * 0.3).normalize();
             let found = c.solve_across(y, p, start).expect("converges");
-            let (e, o, length, transmission) = hand(found.direction);
-            assert!((found.surface - e).length() < 1e-9, "{found:?}");
-            assert!((found.outgoing - o.normalize()).length() < 1e-9);
-            assert!((found.length - length).abs() < 1e-9);
-            assert!((found.transmission - transmission).abs() < 1e-12);
-            let miss = (p - e) - o * (p - e).dot(o);
-            assert!(miss.length() < 1e-8, "{miss}");
-            // the spread of neighbouring rays on the plane through p across the outgoing ray
-            let (e1, e2) = orthonormal_basis(found.direction);
-            let (f1, f2) = orthonormal_basis(o);
-            let h = 1e-6;
-            let at_plane = |w: DVec3| {
-                let (e, o, _, _) = hand(w.normalize());
-                e + o * (p - e).dot(found.outgoing) / o.dot(found.outgoing)
+            traced_by_hand(&found, p, hand);
+        }
+    }
+
+    /// From inside a glass ball (n = 1.5 in air), in closed form and stepped: the path to a
+    /// point outside that first reflects once inside the surface obeys the law of reflection
+    /// there and Snell's law where it leaves, passes through the point, carries `R (1 − R)` of
+    /// the two Fresnel formulas, and spreads as neighbouring rays traced by hand do.
+    #[test]
+    fn a_path_reflected_inside_a_glass_ball_spreads_as_traced_by_hand() {
+        let (x, p) = (DVec3::new(0.2, -0.3, 0.1), DVec3::new(2.0, 2.5, -1.0));
+        let hand = |w: DVec3| {
+            let b = x.dot(w);
+            let t0 = -b + (b * b - (x.length_squared() - 1.0)).sqrt();
+            let a = x + w * t0;
+            let d = w - a * (2.0 * w.dot(a));
+            let t1 = -2.0 * a.dot(d);
+            let e = a + d * t1;
+            let o = snell(d, -e, 1.5);
+            let cos_t = |cos_i: f64| (1.0 - 1.5 * 1.5 * (1.0 - cos_i * cos_i)).sqrt();
+            let r = if 1.5 * 1.5 * (1.0 - a.dot(w).powi(2)) >= 1.0 {
+                1.0
+            } else {
+                reflectance(a.dot(w), cos_t(a.dot(w)), 1.5)
             };
-            let d1 = (at_plane(found.direction + e1 * h) - at_plane(found.direction - e1 * h))
-                / (2.0 * h);
-            let d2 = (at_plane(found.direction + e2 * h) - at_plane(found.direction - e2 * h))
-                / (2.0 * h);
-            let det = f1.dot(d1) * f2.dot(d2) - f1.dot(d2) * f2.dot(d1);
-            assert!(
-                (found.jacobian - det.abs()).abs() < 1e-6 * det.abs(),
-                "{} vs {}",
-                found.jacobian,
-                det.abs()
-            );
+            (
+                e,
+                o,
+                t0 + t1,
+                r * (1.0 - reflectance(e.dot(d), e.dot(o), 1.5)),
+            )
+        };
+        for profile in [
+            Profile::Constant { n: 1.5 },
+            Profile::Linear {
+                n0: 1.5,
+                gradient: DVec3::ZERO,
+            },
+        ] {
+            let v = volume(profile, Bounds::Sphere { radius: 1.0 }, 1.0);
+            let c = Connector::new(&v, 1e-3, 100_000);
+            let mut rng = crate::math::stream_rng(3, 0);
+            let found = (0..200)
+                .find_map(|_| c.solve_through(x, p, c.initial(x, p, &mut rng), 1))
+                .expect("some start converges");
+            traced_by_hand(&found, p, hand);
         }
     }
 
@@ -1144,17 +1280,19 @@ mod tests {
         let x = DVec3::new(0.3, -0.2, 0.1);
         let p = DVec3::new(2.0, 1.0, 1.5);
         let near = c
-            .solve_through(x, p, p - x)
+            .solve_through(x, p, p - x, 0)
             .expect("the near start converges");
         let away = c
-            .solve_through(x, p, x - p)
+            .solve_through(x, p, x - p, 0)
             .expect("the opposite start is steered round");
         assert!((near.direction - away.direction).length() < 1e-6);
         assert!((near.jacobian - away.jacobian).abs() < 1e-6 * near.jacobian);
         let dir = DVec3::new(1.0, 0.0, 0.0);
-        let near = c.solve_exit(x, dir, dir).expect("the near start converges");
+        let near = c
+            .solve_exit(x, dir, dir, 0)
+            .expect("the near start converges");
         let away = c
-            .solve_exit(x, dir, -dir)
+            .solve_exit(x, dir, -dir, 0)
             .expect("the opposite start is steered round");
         assert!((near.direction - away.direction).length() < 1e-6);
         assert!(near.outgoing.dot(dir) > 1.0 - 1e-9);

@@ -360,11 +360,13 @@ impl<'s> ParticleTracer<'s> {
     ) {
         self.connect_probes(t, x, weight, opl, &emit, rng, out);
         for i in 0..self.scene.cameras.len() + self.scene.pinholes.len() {
-            let Some(link) = self.camera_link(t, x, i, rng, out) else {
-                continue;
-            };
-            let scale = weight * emit(link.direction);
-            self.record_link(t, &link, scale, opl, out);
+            for way in self.ways(t, false) {
+                let Some(link) = self.camera_link(t, x, i, way, rng, out) else {
+                    continue;
+                };
+                let scale = weight * emit(link.direction);
+                self.record_link(t, &link, scale, opl, out);
+            }
         }
     }
 
@@ -388,7 +390,7 @@ impl<'s> ParticleTracer<'s> {
             let Some((c, inverse_p)) = self.tally(s, out) else {
                 continue;
             };
-            let transmittance = self.transmittance(t, x, c.direction, c.length, rng);
+            let transmittance = self.transmittance(t, x, c.direction, c.length, 0, rng);
             let value = weight * emit(c.direction) * transmittance / c.spread * inverse_p;
             if !(value > 0.0 && value.is_finite()) {
                 continue;
@@ -428,21 +430,52 @@ impl<'s> ParticleTracer<'s> {
     /// pinholes), what it carries per unit intensity leaving `x`: a pixel's radiance `T (1 − R)
     /// / (dω_out/dω) / pixel area` for an orthographic camera, `T (1 − R) / (dA⊥/dω) / (cos³θ
     /// pixel area)` for a pinhole (its irradiance over the pixel's image-plane area at unit
-    /// distance, `dω = cos³θ dA`).
+    /// distance, `dω = cos³θ dA`). `R` holds the Fresnel reflectances of the `way`'s reflections
+    /// inside the surface.
     pub(super) fn camera_link(
         &self,
         t: &Tools,
         x: DVec3,
         i: usize,
+        way: Way,
         rng: &mut Rng,
         out: &mut [C64],
     ) -> Option<CameraLink> {
+        let Way::Bounces(bounces) = way else {
+            return None;
+        };
         let first_only = self.scene.connections == Connections::First;
+        let s = match self.scene.cameras.get(i) {
+            Some(cam) => t
+                .connector
+                .sample_exit(x, cam.direction, bounces, first_only, rng),
+            None => {
+                let cam = &self.scene.pinholes[i - self.scene.cameras.len()];
+                t.connector
+                    .sample_through(x, cam.position, bounces, first_only, rng)
+            }
+        };
+        let (e, inverse_p) = self.tally(s, out)?;
+        self.link_to_camera(t, i, &e, || {
+            let transmittance = self.transmittance(t, x, e.direction, e.length, bounces, rng);
+            transmittance * e.transmission / e.jacobian * inverse_p
+        })
+    }
+
+    /// The link to camera `i` of the path `e` that has left the volume towards it, if it meets
+    /// no surface (nor the volume again) on its way there and lands in a pixel: `carried()` is
+    /// what the path carries per unit intensity at its start (`dω_out/dω` or `dA⊥/dω` with the
+    /// rest), asked for only then.
+    fn link_to_camera(
+        &self,
+        t: &Tools,
+        i: usize,
+        e: &Exit,
+        carried: impl FnOnce() -> f64,
+    ) -> Option<CameraLink> {
         let n_out = t.flyer.volume.field.n_out;
-        let orthographic = self.scene.cameras.len();
+        let before = n_out * e.before;
         if let Some(cam) = self.scene.cameras.get(i) {
-            let s = t.connector.sample_exit(x, cam.direction, first_only, rng);
-            let (e, inverse_p) = self.tally(s, out)?;
             let pixel = cam.pixel(e.surface)?;
             let to_plane = (cam.center - e.surface).dot(cam.direction).max(0.0);
             if self
@@ -451,24 +484,22 @@ impl<'s> ParticleTracer<'s> {
             {
                 return None;
             }
-            let transmittance = self.transmittance(t, x, e.direction, e.length, rng);
-            let radiance =
-                transmittance * e.transmission / e.jacobian / cam.pixel_area() * inverse_p;
+            let radiance = carried() / cam.pixel_area();
             return Some(CameraLink {
                 camera: i,
                 pixel,
                 direction: e.direction,
                 radiance,
                 total: radiance,
-                delay: t.delay.inside(e.optical_path, e.length) + t.delay.outside(n_out * to_plane),
+                delay: t.delay.outside(before)
+                    + t.delay.inside(e.optical_path - before, e.length)
+                    + t.delay.outside(n_out * to_plane),
                 inside: e.length,
-                outside: to_plane,
+                outside: e.before + to_plane,
                 pdf: 1.0 / cam.area(),
             });
         }
-        let cam = &self.scene.pinholes[i - orthographic];
-        let s = t.connector.sample_through(x, cam.position, first_only, rng);
-        let (e, inverse_p) = self.tally(s, out)?;
+        let cam = &self.scene.pinholes[i - self.scene.cameras.len()];
         let (pixel, cos) = cam.pixel(e.outgoing)?;
         let to_pinhole = (cam.position - e.surface).dot(e.outgoing);
         if self
@@ -477,11 +508,9 @@ impl<'s> ParticleTracer<'s> {
         {
             return None;
         }
-        let transmittance = self.transmittance(t, x, e.direction, e.length, rng);
-        let irradiance = transmittance * e.transmission / e.jacobian * inverse_p;
-        // the path's optical length holds the straight stretch to the pinhole
-        let outside = n_out * to_pinhole;
-        let image_area = cam.image_area(cos);
+        let irradiance = carried();
+        // the path's optical length holds its straight stretches outside
+        let outside = n_out * (e.before + to_pinhole);
         Some(CameraLink {
             camera: i,
             pixel,
@@ -490,21 +519,23 @@ impl<'s> ParticleTracer<'s> {
             total: irradiance,
             delay: t.delay.inside(e.optical_path - outside, e.length) + t.delay.outside(outside),
             inside: e.length,
-            outside: to_pinhole,
-            pdf: 1.0 / image_area,
+            outside: e.before + to_pinhole,
+            pdf: 1.0 / cam.image_area(cos),
         })
     }
 
     /// The transmittance along the connection leaving `x` along unit `w` for geometric length
-    /// `length` inside the volume: `exp(−σ_t length)` in a homogeneous medium; with a density, an
-    /// unbiased ratio-tracking estimate (Novák et al. 2014): tentative collisions against the
-    /// majorant along the same curved ray, each keeping `1 − ρ/max ρ` of the light.
+    /// `length` inside the volume, reflected `bounces` times by its surface on the way:
+    /// `exp(−σ_t length)` in a homogeneous medium; with a density, an unbiased ratio-tracking
+    /// estimate (Novák et al. 2014): tentative collisions against the majorant along the same
+    /// curved ray, each keeping `1 − ρ/max ρ` of the light.
     pub(super) fn transmittance(
         &self,
         t: &Tools,
         x: DVec3,
         w: DVec3,
         length: f64,
+        mut bounces: usize,
         rng: &mut Rng,
     ) -> f64 {
         let volume = t.flyer.volume;
@@ -530,6 +561,21 @@ impl<'s> ParticleTracer<'s> {
                     travelled += d;
                     kept *= 1.0 - density.at(at.x) / density.max;
                     ray = at;
+                }
+                // a reflection on the way: on along the mirrored ray (the flight to come is
+                // drawn afresh, as exponential flights may be)
+                Flight::Boundary {
+                    ray: at,
+                    length: run,
+                    ..
+                } if bounces > 0 => {
+                    bounces -= 1;
+                    travelled += run;
+                    let normal = t.flyer.volume.field.bounds.normal(at.x).unwrap_or(at.v);
+                    ray = Ray {
+                        x: at.x,
+                        v: reflect(at.v, normal),
+                    };
                 }
                 // the path leaves the volume (round-off at an exit connection's end)
                 _ => return kept,
@@ -563,7 +609,7 @@ impl<'s> ParticleTracer<'s> {
             let a = crate::eikonal::trace::entry_parameter(t0.max(from));
             let b = t1.min(length);
             if b > a {
-                transmittance *= self.transmittance(t, y + w * a, w, b - a, rng);
+                transmittance *= self.transmittance(t, y + w * a, w, b - a, 0, rng);
                 inside += b - a;
             }
             if bounds.is_convex() || b >= length {
@@ -794,8 +840,8 @@ impl<'s> ParticleTracer<'s> {
         out: &mut [C64],
     ) {
         for i in 0..self.scene.cameras.len() + self.scene.pinholes.len() {
-            for &across in self.ways(t, true) {
-                if let Some(link) = self.surface_camera_link(t, y, facing, i, across, rng, out) {
+            for way in self.ways(t, true) {
+                if let Some(link) = self.surface_camera_link(t, y, facing, i, way, rng, out) {
                     // Lambertian: intensity cos θ / π per unit power
                     let lambert = facing.dot(link.direction) / std::f64::consts::PI;
                     self.record_link(t, &link, p.weight * lambert, p.opl, out);
@@ -804,15 +850,17 @@ impl<'s> ParticleTracer<'s> {
         }
     }
 
-    /// The ways to join two points: a straight line or a connection (`false`), and, when both
-    /// lie outside the volume, across it (`true`) unless it is index-matched (then the straight
-    /// line crosses it).
-    pub(super) fn ways(&self, t: &Tools, both_outside: bool) -> &'static [bool] {
-        if !both_outside || t.connector.matched() {
-            &[false]
-        } else {
-            &[false, true]
-        }
+    /// The ways a connection from a point inside the volume, or on a surface (`from_surface`),
+    /// may run: reflected up to `render.reflections` times inside the surface before it leaves,
+    /// and from a surface across the volume. Through an index-matched volume nothing reflects
+    /// and a straight line crosses it: one way. Each connection declines the ways that do not
+    /// fit its ends.
+    pub(super) fn ways(&self, t: &Tools, from_surface: bool) -> impl Iterator<Item = Way> {
+        let matched = t.connector.matched();
+        let bounces = if matched { 0 } else { self.scene.reflections };
+        (0..=bounces)
+            .map(Way::Bounces)
+            .chain((from_surface && !matched).then_some(Way::Across))
     }
 
     /// A path from `y` outside the volume across it (refracted in and out, unscattered) to
@@ -834,13 +882,13 @@ impl<'s> ParticleTracer<'s> {
         if self.scene.blocked(y, e.direction, e.before) {
             return None;
         }
-        let transmittance = self.transmittance(t, e.inside_from, e.inside_along, e.length, rng);
+        let transmittance = self.transmittance(t, e.inside_from, e.inside_along, e.length, 0, rng);
         Some((e, transmittance * e.transmission / e.jacobian * inverse_p))
     }
 
     /// The connection from the lit point `y` of a surface (unit `facing` normal on the lit side)
     /// to camera `i` (the orthographic cameras first, then the pinholes): straight, past no other
-    /// surface and through the volume only where it is index-matched, or `across` the volume
+    /// surface and through the volume only where it is index-matched, or across the volume
     /// (refracted in and out: a surface seen through it); what it carries per unit intensity
     /// leaving `y`, as [`Self::camera_link`].
     #[allow(clippy::too_many_arguments)]
@@ -850,14 +898,16 @@ impl<'s> ParticleTracer<'s> {
         y: DVec3,
         facing: DVec3,
         i: usize,
-        across: bool,
+        way: Way,
         rng: &mut Rng,
         out: &mut [C64],
     ) -> Option<CameraLink> {
         let n_out = t.flyer.volume.field.n_out;
         let orthographic = self.scene.cameras.len();
-        if across {
-            return self.surface_camera_across(t, y, facing, i, rng, out);
+        match way {
+            Way::Across => return self.surface_camera_across(t, y, facing, i, rng, out),
+            Way::Bounces(0) => {}
+            Way::Bounces(_) => return None,
         }
         if let Some(cam) = self.scene.cameras.get(i) {
             let w = cam.direction;
@@ -913,59 +963,15 @@ impl<'s> ParticleTracer<'s> {
         rng: &mut Rng,
         out: &mut [C64],
     ) -> Option<CameraLink> {
-        let n_out = t.flyer.volume.field.n_out;
-        let orthographic = self.scene.cameras.len();
-        if let Some(cam) = self.scene.cameras.get(i) {
-            let (e, carried) = self.across(t, y, Aim::Along(cam.direction), rng, out)?;
-            let pixel = cam.pixel(e.surface)?;
-            let to_plane = (cam.center - e.surface).dot(cam.direction).max(0.0);
-            if e.direction.dot(facing) <= 0.0
-                || self
-                    .scene
-                    .blocked_after_exit(e.surface, cam.direction, to_plane)
-            {
-                return None;
-            }
-            let radiance = carried / cam.pixel_area();
-            let before = n_out * e.before;
-            return Some(CameraLink {
-                camera: i,
-                pixel,
-                direction: e.direction,
-                radiance,
-                total: radiance,
-                delay: t.delay.outside(before)
-                    + t.delay.inside(e.optical_path - before, e.length)
-                    + t.delay.outside(n_out * to_plane),
-                inside: e.length,
-                outside: e.before + to_plane,
-                pdf: 1.0 / cam.area(),
-            });
-        }
-        let cam = &self.scene.pinholes[i - orthographic];
-        let (e, irradiance) = self.across(t, y, Aim::Point(cam.position), rng, out)?;
-        let (pixel, cos) = cam.pixel(e.outgoing)?;
-        let to_pinhole = (cam.position - e.surface).dot(e.outgoing);
-        if e.direction.dot(facing) <= 0.0
-            || self
-                .scene
-                .blocked_after_exit(e.surface, e.outgoing, to_pinhole)
-        {
+        let aim = match self.scene.cameras.get(i) {
+            Some(cam) => Aim::Along(cam.direction),
+            None => Aim::Point(self.scene.pinholes[i - self.scene.cameras.len()].position),
+        };
+        let (e, carried) = self.across(t, y, aim, rng, out)?;
+        if e.direction.dot(facing) <= 0.0 {
             return None;
         }
-        // the path's optical length holds both straight stretches
-        let outside = n_out * (e.before + to_pinhole);
-        Some(CameraLink {
-            camera: i,
-            pixel,
-            direction: e.direction,
-            radiance: irradiance / (cos * cos * cos * cam.pixel_area()),
-            total: irradiance,
-            delay: t.delay.inside(e.optical_path - outside, e.length) + t.delay.outside(outside),
-            inside: e.length,
-            outside: e.before + to_pinhole,
-            pdf: 1.0 / cam.image_area(cos),
-        })
+        self.link_to_camera(t, i, &e, || carried)
     }
 
     /// Free flights and scattering inside the volume from `ray` until the photon leaves (the next
@@ -1034,6 +1040,17 @@ pub(super) enum Leg {
         d: DVec3,
         left_volume: bool,
     },
+}
+
+/// How a connection runs between its two ends.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Way {
+    /// Along curved rays between two points inside, straight between two points outside, or
+    /// through the surface between a point inside and one outside after this many reflections
+    /// inside it.
+    Bounces(usize),
+    /// Across the volume between two points outside it, refracted in and out.
+    Across,
 }
 
 impl Leg {

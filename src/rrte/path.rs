@@ -21,13 +21,13 @@
 //!
 //! A beam cannot be connected to (its directions are a delta); a light inside the volume is
 //! connected to the cameras directly, as in particle tracing, and one outside is not imaged
-//! itself. The connections do not reflect at the surface, so light that reaches its first
-//! scattering event only after such a reflection is missed (particle tracing misses the mirror
-//! case, light leaving its last event by such a reflection): with index-matched surfaces the two
-//! estimate the same images.
+//! itself. The connections reflect inside the surface at most `render.reflections` times and
+//! never off it, so light that reaches its first scattering event only after more reflections is
+//! missed (particle tracing misses the mirror case, light leaving its last event so): with
+//! index-matched surfaces the two estimate the same images.
 
 use super::connect::{Aim, Sampled};
-use super::particle::{Leg, ParticleTracer, Stop, Tools};
+use super::particle::{Leg, ParticleTracer, Stop, Tools, Way};
 use super::scene::{Light, grid_pixel};
 use crate::eikonal::Ray;
 use crate::math::{C64, Rng, uniform};
@@ -259,8 +259,8 @@ impl ParticleTracer<'_> {
         rng: &mut Rng,
         out: &mut [C64],
     ) {
-        for &across in self.ways(t, true) {
-            let Some(link) = self.surface_light_link(t, y, facing, across, rng, out) else {
+        for way in self.ways(t, true) {
+            let Some(link) = self.surface_light_link(t, y, facing, way, rng, out) else {
                 continue;
             };
             // the surface's albedo is already in β: the Lambertian BRDF's 1/π remains
@@ -277,17 +277,17 @@ impl ParticleTracer<'_> {
     /// The connection from the light to the lit point `y` of a surface (unit `facing` normal on
     /// the lit side); its `radiance` is the irradiance it brings to `y`. From a light outside, a
     /// straight line past no other surface (through the volume only where it is index-matched):
-    /// `I T cos θ / d²`, or `across` the volume (refracted in and out, unscattered: a caustic)
+    /// `I T cos θ / d²`, or across the volume (refracted in and out, unscattered: a caustic)
     /// `I T (1 − R_in)(1 − R_out) cos θ / (dA⊥/dω)`, the ray tube's cross-section at the light
     /// per solid angle at `y` turned round by reciprocity (both ends in `n_out`); from a light
-    /// inside, a connection through the volume's surface (see [`super::connect`]):
-    /// `I T (1 − R) cos θ / (dA⊥/dω)`.
+    /// inside, a connection through the volume's surface (see [`super::connect`]), after the
+    /// `way`'s reflections inside it: `I T (1 − R) cos θ / (dA⊥/dω)`.
     pub(super) fn surface_light_link(
         &self,
         t: &Tools,
         y: DVec3,
         facing: DVec3,
-        across: bool,
+        way: Way,
         rng: &mut Rng,
         out: &mut [C64],
     ) -> Option<LightLink> {
@@ -295,10 +295,7 @@ impl ParticleTracer<'_> {
         let light = &self.scene.light;
         let q = self.light_point(rng)?;
         let inside = t.flyer.volume.field.bounds.contains(q);
-        if across {
-            if inside {
-                return None;
-            }
+        if way == Way::Across && !inside {
             let (e, carried) = self.across(t, y, Aim::Point(q), rng, out)?;
             let cos = e.direction.dot(facing);
             let to_q = (q - e.surface).dot(e.outgoing);
@@ -318,7 +315,10 @@ impl ParticleTracer<'_> {
             });
         }
         if inside {
-            let o = self.out_to_surface(t, q, y, facing, rng, out)?;
+            let Way::Bounces(bounces) = way else {
+                return None;
+            };
+            let o = self.out_to_surface(t, q, y, facing, bounces, rng, out)?;
             let intensity = light.intensity(o.exit.direction);
             return Some(LightLink {
                 direction: -o.exit.outgoing,
@@ -328,6 +328,9 @@ impl ParticleTracer<'_> {
                 outside: o.outside,
                 pdf: intensity,
             });
+        }
+        if way != Way::Bounces(0) {
+            return None;
         }
         let v = q - y;
         let distance = v.length();
@@ -376,34 +379,44 @@ impl ParticleTracer<'_> {
         rng: &mut Rng,
         out: &mut [C64],
     ) {
-        let Some(link) = self.light_link(t, x, rng, out) else {
-            return;
-        };
-        let phase = t.flyer.volume.scattering.eval(link.direction.dot(u));
-        self.record_sample(
-            t,
-            pixel,
-            w.beta * phase * link.radiance,
-            w.opl + link.delay,
-            out,
-        );
+        for way in self.ways(t, false) {
+            let Some(link) = self.light_link(t, x, way, rng, out) else {
+                continue;
+            };
+            let phase = t.flyer.volume.scattering.eval(link.direction.dot(u));
+            self.record_sample(
+                t,
+                pixel,
+                w.beta * phase * link.radiance,
+                w.opl + link.delay,
+                out,
+            );
+        }
     }
 
     /// The connection from the light to `x` inside the volume: the basic radiance it brings to
-    /// `x` per unit phase function, times the camera's `n_out²` (see the module's notes).
+    /// `x` per unit phase function, times the camera's `n_out²` (see the module's notes); from a
+    /// light outside, after the `way`'s reflections inside the surface.
     pub(super) fn light_link(
         &self,
         t: &Tools,
         x: DVec3,
+        way: Way,
         rng: &mut Rng,
         out: &mut [C64],
     ) -> Option<LightLink> {
+        let Way::Bounces(bounces) = way else {
+            return None;
+        };
         let volume = t.flyer.volume;
         let q = self.light_point(rng)?;
         let first_only = self.scene.connections == super::Connections::First;
         let n_out = volume.field.n_out;
         let light = &self.scene.light;
         if volume.field.bounds.contains(q) {
+            if bounces > 0 {
+                return None;
+            }
             // a curved connection inside: dA_q/dω_x is its spread
             let s: Sampled = match self.scene.connections {
                 super::Connections::Unbiased => t.connector.sample(x, q, rng),
@@ -412,7 +425,7 @@ impl ParticleTracer<'_> {
             let (c, inverse_p) = self.tally(s, out)?;
             let leaving_q = -c.arrival.v.normalize();
             let n_q = t.flyer.n(q);
-            let transmittance = self.transmittance(t, x, c.direction, c.length, rng);
+            let transmittance = self.transmittance(t, x, c.direction, c.length, 0, rng);
             let intensity = light.intensity(leaving_q);
             Some(LightLink {
                 direction: c.direction,
@@ -424,13 +437,13 @@ impl ParticleTracer<'_> {
                 pdf: intensity,
             })
         } else {
-            let s = t.connector.sample_through(x, q, first_only, rng);
+            let s = t.connector.sample_through(x, q, bounces, first_only, rng);
             let (e, inverse_p) = self.tally(s, out)?;
             let to_q = (q - e.surface).dot(e.outgoing);
             if self.scene.blocked_after_exit(e.surface, e.outgoing, to_q) {
                 return None;
             }
-            let transmittance = self.transmittance(t, x, e.direction, e.length, rng);
+            let transmittance = self.transmittance(t, x, e.direction, e.length, bounces, rng);
             // n_q = n_out: the camera's n_out² cancels it
             let intensity = light.intensity(-e.outgoing);
             // the path's optical length holds the straight stretch to the light

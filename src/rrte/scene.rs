@@ -568,6 +568,9 @@ pub struct RenderScene {
     /// `None`: the field is static.
     pub modulation: Option<Modulation>,
     pub connections: Connections,
+    /// Reflections inside the volume's surface a connection through it follows at most before
+    /// it leaves (specular chains: light leaving the glass after reflecting inside it).
+    pub reflections: usize,
     pub tracing: Tracing,
     pub transient: Option<Transient>,
     /// `None`: one unnamed wavelength, the field as given.

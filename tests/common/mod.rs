@@ -60,6 +60,7 @@ pub fn bare_scene(step: f64) -> lightpath::rrte::RenderScene {
         surfaces: vec![],
         modulation: None,
         connections: Default::default(),
+        reflections: 0,
         tracing: Default::default(),
         transient: None,
         spectrum: None,
