@@ -492,19 +492,18 @@ impl<'v> Connector<'v> {
         None
     }
 
-    /// The ray inside reaching the surface at `end` (index `n_in` just inside), with
-    /// sensitivities `xv`, `vv` to the perturbations `dv0` of its start, leaves: its outgoing
-    /// direction, `1 − R`, and the derivatives of the outgoing direction and of the exit point
-    /// along the perturbations — the sensitivities carried to the exit, with the exit time's
-    /// shift (paper 002, Eqs. 11–12) and the refraction at the surface.
+    /// Where the ray inside reaching the surface at `end`, with sensitivities `xv`, `vv` to the
+    /// perturbations `dv0` of its start, meets it: the outward normal there, and the moves of
+    /// the point where it meets the surface and of its velocity there along the perturbations —
+    /// the sensitivities carried to the surface with the time's shift (paper 002, Eqs. 11–12).
+    /// `None` where the ray does not run outwards.
     #[allow(clippy::type_complexity)]
-    fn refract_out(
+    fn at_surface(
         &self,
         end: Ray,
         (xv, vv): (DMat3, DMat3),
         dv0: [DVec3; 2],
-        n_in: f64,
-    ) -> Option<(DVec3, f64, [DVec3; 2], [DVec3; 2])> {
+    ) -> Option<(DVec3, [DVec3; 2], [DVec3; 2])> {
         let field = &self.volume.field;
         let normal = field.bounds.normal(end.x)?;
         let v = end.v;
@@ -512,28 +511,49 @@ impl<'v> Connector<'v> {
         if nv <= 0.0 {
             return None;
         }
-        let eta = n_in / field.n_out;
         let force = {
             let (n, g) = field.value_grad(end.x);
             g * n
         };
+        let mut dx = [DVec3::ZERO; 2];
+        let mut dv = [DVec3::ZERO; 2];
+        for (k, dv0) in dv0.into_iter().enumerate() {
+            let (dxs, dvs) = (xv * dv0, vv * dv0);
+            // the point moves along the ray as v0 changes: g(x) = 0 fixes σ* (Eq. 11)
+            let dsigma = -normal.dot(dxs) / nv;
+            dx[k] = dxs + v * dsigma;
+            dv[k] = dvs + force * dsigma;
+        }
+        Some((normal, dx, dv))
+    }
+
+    /// The ray inside reaching the surface at `end` (index `n_in` just inside), with
+    /// sensitivities `xv`, `vv` to the perturbations `dv0` of its start, leaves: its outgoing
+    /// direction, `1 − R`, and the derivatives of the outgoing direction and of the exit point
+    /// along the perturbations ([`Self::at_surface`], then the refraction's by central
+    /// differences of its closed form).
+    #[allow(clippy::type_complexity)]
+    fn refract_out(
+        &self,
+        end: Ray,
+        sensitivities: (DMat3, DMat3),
+        dv0: [DVec3; 2],
+        n_in: f64,
+    ) -> Option<(DVec3, f64, [DVec3; 2], [DVec3; 2])> {
+        let (normal, moved, dv) = self.at_surface(end, sensitivities, dv0)?;
+        let bounds = &self.volume.field.bounds;
+        let eta = n_in / self.volume.field.n_out;
         let outgoing = |d: DVec3, at: DVec3| -> Option<DVec3> {
-            let nrm = field.bounds.normal(at)?;
+            let nrm = bounds.normal(at)?;
             refract(d, -nrm, eta).ok()
         };
+        let v = end.v;
         let d_in = v.normalize();
         let out = outgoing(d_in, end.x)?;
         let mut deriv = [DVec3::ZERO; 2];
-        let mut moved = [DVec3::ZERO; 2];
-        for (k, dv0) in dv0.into_iter().enumerate() {
-            let (dxs, dvs) = (xv * dv0, vv * dv0);
-            // the exit moves along the ray as v0 changes: g(x) = 0 fixes σ* (Eq. 11)
-            let dsigma = -normal.dot(dxs) / nv;
-            let dx = dxs + v * dsigma;
-            moved[k] = dx;
-            let dv = dvs + force * dsigma;
+        for k in 0..2 {
+            let (dx, dv) = (moved[k], dv[k]);
             let dd = (dv - d_in * d_in.dot(dv)) / v.length();
-            // the refraction's derivative by central differences of the closed form
             let plus = outgoing((d_in + dd * DIFF_STEP).normalize(), end.x + dx * DIFF_STEP)?;
             let minus = outgoing((d_in - dd * DIFF_STEP).normalize(), end.x - dx * DIFF_STEP)?;
             deriv[k] = (plus - minus) / (2.0 * DIFF_STEP);
@@ -597,43 +617,28 @@ impl<'v> Connector<'v> {
     /// sensitivities `xv`, `vv` to the perturbations `dv0` of its start, reflects: its unit
     /// direction after, the Fresnel reflectance `R` (1 beyond the critical angle), and the
     /// derivatives of the reflection point and of the velocity after it along the perturbations
-    /// (the exit time's shift as in [`Self::refract_out`], the mirror's turn by central
-    /// differences of the surface normal). `None` where it would not reach the surface.
+    /// ([`Self::at_surface`], then the mirror's by central differences: the normal turns).
     #[allow(clippy::type_complexity)]
     fn reflect_in(
         &self,
         end: Ray,
-        (xv, vv): (DMat3, DMat3),
+        sensitivities: (DMat3, DMat3),
         dv0: [DVec3; 2],
         n_in: f64,
     ) -> Option<(DVec3, f64, [DVec3; 2], [DVec3; 2])> {
-        let field = &self.volume.field;
-        let normal = field.bounds.normal(end.x)?;
-        let v = end.v;
-        let nv = normal.dot(v);
-        if nv <= 0.0 {
-            return None;
-        }
-        let force = {
-            let (n, g) = field.value_grad(end.x);
-            g * n
-        };
+        let (normal, dx, mut dv) = self.at_surface(end, sensitivities, dv0)?;
+        let bounds = &self.volume.field.bounds;
         let mirror = |v: DVec3, at: DVec3| -> Option<DVec3> {
-            let nrm = field.bounds.normal(at)?;
+            let nrm = bounds.normal(at)?;
             Some(v - nrm * (2.0 * v.dot(nrm)))
         };
-        let mut dx = [DVec3::ZERO; 2];
-        let mut dv = [DVec3::ZERO; 2];
-        for (k, dv0) in dv0.into_iter().enumerate() {
-            let (dxs, dvs) = (xv * dv0, vv * dv0);
-            let dsigma = -normal.dot(dxs) / nv;
-            dx[k] = dxs + v * dsigma;
-            let dvk = dvs + force * dsigma;
-            let plus = mirror(v + dvk * DIFF_STEP, end.x + dx[k] * DIFF_STEP)?;
-            let minus = mirror(v - dvk * DIFF_STEP, end.x - dx[k] * DIFF_STEP)?;
+        let v = end.v;
+        for k in 0..2 {
+            let plus = mirror(v + dv[k] * DIFF_STEP, end.x + dx[k] * DIFF_STEP)?;
+            let minus = mirror(v - dv[k] * DIFF_STEP, end.x - dx[k] * DIFF_STEP)?;
             dv[k] = (plus - minus) / (2.0 * DIFF_STEP);
         }
-        let r = fresnel(nv / v.length(), n_in / field.n_out);
+        let r = fresnel(normal.dot(v) / v.length(), n_in / self.volume.field.n_out);
         Some((mirror(v, end.x)?.normalize(), r, dx, dv))
     }
 
