@@ -144,7 +144,7 @@ fn bad_render_scenes_are_refused_by_key() {
         (
             "[render]",
             "[render]\nreflections = 9",
-            "render.reflections",
+            "render.reflections = 9: must be within",
         ),
     ];
     let dir = tmp("bad");
@@ -157,6 +157,32 @@ fn bad_render_scenes_are_refused_by_key() {
         }
         refused(&dir.join(format!("bad{i}.toml")), &text, key);
     }
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// `render.reflections` is read as a whole number, renders, and is echoed in `render.json`.
+#[test]
+fn reflections_are_read_from_the_config() {
+    let dir = tmp("reflections");
+    std::fs::create_dir_all(&dir).unwrap();
+    let text = std::fs::read_to_string(config("render_slab.toml"))
+        .unwrap()
+        .replacen("[render]", "[render]\nreflections = 2", 1);
+    let path = dir.join("slab.toml");
+    std::fs::write(&path, text).unwrap();
+    let out = dir.join("out");
+    let o = lightpath(&[
+        "render",
+        &path.display().to_string(),
+        "--out",
+        &out.display().to_string(),
+        "--samples",
+        "2000",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let json = std::fs::read_to_string(out.join("render.json")).unwrap();
+    assert!(json.contains("\"reflections\":2"), "{json}");
     let _ = std::fs::remove_dir_all(dir);
 }
 
@@ -317,6 +343,12 @@ fn densities_are_checked_by_key() {
             "interp = \"trilinear\"",
             "interp = \"tricubic\"",
             "density.values",
+        ),
+        // reflected connections are not tracked through a density
+        (
+            "[render]",
+            "[render]\nreflections = 2",
+            "render.reflections = 2",
         ),
     ];
     refused_all(&dir, &base, cases);

@@ -728,6 +728,12 @@ impl RenderConfig {
                 r.reflections
             ));
         }
+        if r.reflections > 0 && volume.density.is_some() {
+            return err(format!(
+                "render.reflections = {}: reflected connections need a homogeneous medium, and [density] makes it heterogeneous; set render.reflections = 0 or drop [density]",
+                r.reflections
+            ));
+        }
         let scene = RenderScene {
             volume,
             light,

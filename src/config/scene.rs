@@ -500,8 +500,9 @@ fn default_paths() -> u64 {
 }
 
 /// Keys that hold whole numbers; everything else numeric is read as a float.
-const INTEGER_KEYS: [&str; 17] = [
+const INTEGER_KEYS: [&str; 18] = [
     "samples",
+    "reflections",
     "aperture_directions",
     "bins",
     "seed",

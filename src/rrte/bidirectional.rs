@@ -476,7 +476,7 @@ impl ParticleTracer<'_> {
                     Connections::First => t.connector.sample_first(z.x, y.x, rng),
                 };
                 let (c, inverse_p) = self.tally(sampled, out)?;
-                let transmittance = self.transmittance(t, z.x, c.direction, c.length, 0, rng);
+                let transmittance = self.transmittance(t, z.x, c.direction, c.length, rng);
                 let n_y = t.flyer.n(y.x);
                 Some(Joint {
                     leave_y: -c.arrival.v.normalize(),
@@ -563,7 +563,7 @@ impl ParticleTracer<'_> {
         {
             return None;
         }
-        let transmittance = self.transmittance(t, x, exit.direction, exit.length, bounces, rng);
+        let transmittance = self.transmittance(t, x, exit.direction, exit.length, rng);
         let outside = volume.field.n_out * to_p;
         Some(OutToSurface {
             carried: transmittance * exit.transmission / exit.jacobian * inverse_p,
@@ -598,7 +598,7 @@ impl ParticleTracer<'_> {
         // reflections at the surface inside (bounces) and outside (glances)
         let (mut inside, mut outside, mut crossings) = (0.0, 0.0, 0);
         let (mut bounces, mut glances) = (0, 0);
-        let most_bounces = if matched { 0 } else { self.scene.reflections };
+        let most_bounces = self.most_bounces(t);
         let mut began_inside = volume.field.bounds.contains(start.x);
         let mut cos_start = 1.0;
         // a connection refracts once between a point inside and one outside, after up to

@@ -390,7 +390,7 @@ impl<'s> ParticleTracer<'s> {
             let Some((c, inverse_p)) = self.tally(s, out) else {
                 continue;
             };
-            let transmittance = self.transmittance(t, x, c.direction, c.length, 0, rng);
+            let transmittance = self.transmittance(t, x, c.direction, c.length, rng);
             let value = weight * emit(c.direction) * transmittance / c.spread * inverse_p;
             if !(value > 0.0 && value.is_finite()) {
                 continue;
@@ -457,7 +457,7 @@ impl<'s> ParticleTracer<'s> {
         };
         let (e, inverse_p) = self.tally(s, out)?;
         self.link_to_camera(t, i, &e, || {
-            let transmittance = self.transmittance(t, x, e.direction, e.length, bounces, rng);
+            let transmittance = self.transmittance(t, x, e.direction, e.length, rng);
             transmittance * e.transmission / e.jacobian * inverse_p
         })
     }
@@ -525,17 +525,16 @@ impl<'s> ParticleTracer<'s> {
     }
 
     /// The transmittance along the connection leaving `x` along unit `w` for geometric length
-    /// `length` inside the volume, reflected `bounces` times by its surface on the way:
-    /// `exp(−σ_t length)` in a homogeneous medium; with a density, an unbiased ratio-tracking
-    /// estimate (Novák et al. 2014): tentative collisions against the majorant along the same
-    /// curved ray, each keeping `1 − ρ/max ρ` of the light.
+    /// `length` inside the volume: `exp(−σ_t length)` in a homogeneous medium (reflections inside
+    /// the surface on the way included); with a density, an unbiased ratio-tracking estimate
+    /// (Novák et al. 2014): tentative collisions against the majorant along the same curved ray,
+    /// each keeping `1 − ρ/max ρ` of the light (connections there do not reflect).
     pub(super) fn transmittance(
         &self,
         t: &Tools,
         x: DVec3,
         w: DVec3,
         length: f64,
-        mut bounces: usize,
         rng: &mut Rng,
     ) -> f64 {
         let volume = t.flyer.volume;
@@ -561,21 +560,6 @@ impl<'s> ParticleTracer<'s> {
                     travelled += d;
                     kept *= 1.0 - density.at(at.x) / density.max;
                     ray = at;
-                }
-                // a reflection on the way: on along the mirrored ray (the flight to come is
-                // drawn afresh, as exponential flights may be)
-                Flight::Boundary {
-                    ray: at,
-                    length: run,
-                    ..
-                } if bounces > 0 => {
-                    bounces -= 1;
-                    travelled += run;
-                    let normal = t.flyer.volume.field.bounds.normal(at.x).unwrap_or(at.v);
-                    ray = Ray {
-                        x: at.x,
-                        v: reflect(at.v, normal),
-                    };
                 }
                 // the path leaves the volume (round-off at an exit connection's end)
                 _ => return kept,
@@ -609,7 +593,7 @@ impl<'s> ParticleTracer<'s> {
             let a = crate::eikonal::trace::entry_parameter(t0.max(from));
             let b = t1.min(length);
             if b > a {
-                transmittance *= self.transmittance(t, y + w * a, w, b - a, 0, rng);
+                transmittance *= self.transmittance(t, y + w * a, w, b - a, rng);
                 inside += b - a;
             }
             if bounds.is_convex() || b >= length {
@@ -851,16 +835,26 @@ impl<'s> ParticleTracer<'s> {
     }
 
     /// The ways a connection from a point inside the volume, or on a surface (`from_surface`),
-    /// may run: reflected up to `render.reflections` times inside the surface before it leaves,
-    /// and from a surface across the volume. Through an index-matched volume nothing reflects
-    /// and a straight line crosses it: one way. Each connection declines the ways that do not
-    /// fit its ends.
+    /// may run: reflected up to [`Self::most_bounces`] times inside the surface before it
+    /// leaves, and from a surface across the volume. Through an index-matched volume a straight
+    /// line crosses it: one way. Each connection declines the ways that do not fit its ends.
     pub(super) fn ways(&self, t: &Tools, from_surface: bool) -> impl Iterator<Item = Way> {
         let matched = t.connector.matched();
-        let bounces = if matched { 0 } else { self.scene.reflections };
+        let bounces = self.most_bounces(t);
         (0..=bounces)
             .map(Way::Bounces)
             .chain((from_surface && !matched).then_some(Way::Across))
+    }
+
+    /// Reflections inside the surface a connection follows at most: `render.reflections`, none
+    /// where nothing reflects (an index-matched volume) or where a density makes the medium
+    /// heterogeneous (the transmittance is not tracked along reflections; the config refuses it).
+    pub(super) fn most_bounces(&self, t: &Tools) -> usize {
+        if t.connector.matched() || t.flyer.volume.density.is_some() {
+            0
+        } else {
+            self.scene.reflections
+        }
     }
 
     /// A path from `y` outside the volume across it (refracted in and out, unscattered) to
@@ -882,7 +876,7 @@ impl<'s> ParticleTracer<'s> {
         if self.scene.blocked(y, e.direction, e.before) {
             return None;
         }
-        let transmittance = self.transmittance(t, e.inside_from, e.inside_along, e.length, 0, rng);
+        let transmittance = self.transmittance(t, e.inside_from, e.inside_along, e.length, rng);
         Some((e, transmittance * e.transmission / e.jacobian * inverse_p))
     }
 
