@@ -500,20 +500,26 @@ impl RenderConfig {
             None => None,
             Some(m) => {
                 let base = field.clone();
-                let ultrasonic = field
-                    .profiles
-                    .iter()
-                    .any(|p| matches!(p, crate::eikonal::Profile::Ultrasonic { .. }));
+                let ultrasonic = field.profiles.iter().any(|p| {
+                    matches!(
+                        p,
+                        crate::eikonal::Profile::Ultrasonic { .. }
+                            | crate::eikonal::Profile::PhasedArray { .. }
+                    )
+                });
                 if !ultrasonic {
                     return err(
-                        "modulation: the field has no ultrasonic profile whose amplitude could oscillate",
+                        "modulation: the field has no ultrasonic profile or phased array whose index could oscillate",
                     );
                 }
                 match *m {
                     ModulationConfig::Sinusoidal {} => {
-                        // every phase must give a valid field: check the amplitude's sign flipped
-                        crate::rrte::particle::modulate(&mut field, &base, -1.0);
-                        check_positive(&field)?;
+                        // every instant must give a valid field: check a period's worth of them
+                        for i in 0..8 {
+                            let omega_t = std::f64::consts::TAU * i as f64 / 8.0;
+                            crate::rrte::particle::modulate(&mut field, &base, omega_t);
+                            check_positive(&field)?;
+                        }
                         field = base;
                         Some(Modulation::Sinusoidal)
                     }
@@ -523,8 +529,7 @@ impl RenderConfig {
                                 "modulation.phase_deg = {phase_deg}: must be within [-360, 360]"
                             ));
                         }
-                        let s = phase_deg.to_radians().sin();
-                        crate::rrte::particle::modulate(&mut field, &base, s);
+                        crate::rrte::particle::modulate(&mut field, &base, phase_deg.to_radians());
                         None
                     }
                 }

@@ -64,12 +64,52 @@ pub enum ProfileConfig {
         n0: f64,
         coefficients: Vec<f64>,
     },
-    /// `n = n0 + n_max J_m(k_r r) cos(m φ)` (paper 002, Eq. 15).
+    /// `n = n0 + n_max J_m(k_r r) cos(m φ)` (paper 002, Eq. 15): `n_max` and `k_r` given, or
+    /// in physical units from the peak `pressure` (Pa), `frequency` (Hz), `sound_speed` (m/s),
+    /// the scene's `length_unit` and `piezo_optic` (dn/dp per pascal) or `density` (kg/m³, for
+    /// the Lorentz–Lorenz relation).
     Ultrasonic {
         n0: f64,
-        n_max: f64,
-        k_r: f64,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        n_max: Option<f64>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        k_r: Option<f64>,
         m: u64,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        pressure: Option<f64>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        frequency: Option<f64>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        sound_speed: Option<f64>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        length_unit: Option<String>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        piezo_optic: Option<f64>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        density: Option<f64>,
+    },
+    /// The index sculpted by a phased ultrasound array of line elements parallel to z, in
+    /// physical units: `n = n0 + piezo_optic · Re[P(x) e^{−iΩt}]` (see `eikonal::acoustic`).
+    PhasedArray {
+        n0: f64,
+        /// Hz.
+        frequency: f64,
+        /// m/s.
+        sound_speed: f64,
+        /// The scene's length unit: "m", "cm", "mm" or "um".
+        length_unit: String,
+        /// dn/dp per pascal; absent: from the Lorentz–Lorenz relation and `density`.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        piezo_optic: Option<f64>,
+        /// kg/m³ (only without `piezo_optic`).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        density: Option<f64>,
+        /// dB/(cm·MHz), linear in frequency (0: lossless).
+        #[serde(default)]
+        attenuation: f64,
+        /// The distance from an element at which its amplitude is stated, scene units.
+        reference_distance: f64,
+        elements: Vec<ElementConfig>,
     },
     /// Samples on a regular grid (x fastest), interpolated tricubically (default) or trilinearly.
     Grid {
@@ -91,6 +131,214 @@ pub enum ProfileConfig {
         n_core: f64,
         depth: f64,
     },
+}
+
+/// One element of a phased array: a line source through `position` (x, y) parallel to z.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ElementConfig {
+    pub position: [f64; 2],
+    /// The pressure amplitude at the array's reference distance, Pa.
+    pub amplitude: f64,
+    #[serde(default)]
+    pub phase_deg: f64,
+}
+
+/// The most elements a phased array may hold (each adds two Hankel functions to every
+/// evaluation of n).
+const MAX_ELEMENTS: usize = 256;
+
+/// Metres per scene length unit.
+fn metres_per_unit(k: &str, unit: &str) -> Result<f64, ConfigError> {
+    match unit {
+        "m" => Ok(1.0),
+        "cm" => Ok(1e-2),
+        "mm" => Ok(1e-3),
+        "um" => Ok(1e-6),
+        other => err(format!(
+            "{k}.length_unit = \"{other}\": expected \"m\", \"cm\", \"mm\" or \"um\" (the scene's length unit)"
+        )),
+    }
+}
+
+/// `dn/dp` per pascal: given, or from the Lorentz–Lorenz relation and the density.
+fn piezo_optic_of(
+    k: &str,
+    n0: f64,
+    sound_speed: f64,
+    given: Option<f64>,
+    density: Option<f64>,
+) -> Result<f64, ConfigError> {
+    match (given, density) {
+        (Some(c), None) if c.is_finite() => Ok(c),
+        (Some(c), None) => err(format!(
+            "{k}.piezo_optic = {c}: must be finite (dn/dp per pascal)"
+        )),
+        (None, Some(rho)) => Ok(crate::eikonal::acoustic::lorentz_lorenz(
+            n0,
+            pos(&format!("{k}.density"), rho)?,
+            sound_speed,
+        )),
+        _ => err(format!(
+            "{k}: give piezo_optic (dn/dp per pascal) or density (kg/m³, for the Lorentz–Lorenz relation), one of the two"
+        )),
+    }
+}
+
+/// The physical keys of an ultrasonic standing wave.
+struct Physical<'a> {
+    pressure: Option<f64>,
+    frequency: Option<f64>,
+    sound_speed: Option<f64>,
+    length_unit: Option<&'a str>,
+    piezo_optic: Option<f64>,
+    density: Option<f64>,
+}
+
+/// `(n_max, k_r)` of Eq. 15: given as they are, or from the peak pressure, `n_max = (dn/dp)
+/// p_max`, and the wavenumber `k_r = 2π f / c` (n does not vary along z, so the whole wave
+/// vector is radial).
+fn standing_wave(
+    k: &str,
+    n0: f64,
+    n_max: Option<f64>,
+    k_r: Option<f64>,
+    p: &Physical,
+) -> Result<(f64, f64), ConfigError> {
+    let any_physical = p.pressure.is_some()
+        || p.frequency.is_some()
+        || p.sound_speed.is_some()
+        || p.length_unit.is_some()
+        || p.piezo_optic.is_some()
+        || p.density.is_some();
+    match (n_max, k_r, any_physical) {
+        (Some(n_max), Some(k_r), false) => {
+            if !n_max.is_finite() {
+                return err(format!("{k}.n_max = {n_max}: must be finite"));
+            }
+            Ok((n_max, pos(&format!("{k}.k_r"), k_r)?))
+        }
+        (None, None, true) => {
+            let need = |key: &str, v: Option<f64>| {
+                v.ok_or_else(|| {
+                    ConfigError(format!(
+                        "{k}.{key}: missing (the physical form needs pressure, frequency, sound_speed and length_unit)"
+                    ))
+                })
+            };
+            let pressure = need("pressure", p.pressure)?;
+            if !pressure.is_finite() {
+                return err(format!("{k}.pressure = {pressure}: must be finite (Pa)"));
+            }
+            let frequency = pos(&format!("{k}.frequency"), need("frequency", p.frequency)?)?;
+            let sound_speed = pos(
+                &format!("{k}.sound_speed"),
+                need("sound_speed", p.sound_speed)?,
+            )?;
+            let unit = metres_per_unit(
+                k,
+                p.length_unit.ok_or_else(|| {
+                    ConfigError(format!(
+                        "{k}.length_unit: missing (\"m\", \"cm\", \"mm\" or \"um\")"
+                    ))
+                })?,
+            )?;
+            let piezo = piezo_optic_of(k, n0, sound_speed, p.piezo_optic, p.density)?;
+            Ok((
+                piezo * pressure,
+                std::f64::consts::TAU * frequency / sound_speed * unit,
+            ))
+        }
+        _ => err(format!(
+            "{k}: give n_max and k_r, or the physical pressure, frequency, sound_speed, length_unit and piezo_optic (or density); not a mix"
+        )),
+    }
+}
+
+/// A phased array's keys, checked: units converted, every element outside the bounds.
+#[allow(clippy::too_many_arguments)]
+fn phased_array(
+    k: &str,
+    n0: f64,
+    frequency: f64,
+    sound_speed: f64,
+    length_unit: &str,
+    piezo_optic: Option<f64>,
+    density: Option<f64>,
+    attenuation: f64,
+    reference_distance: f64,
+    elements: &[ElementConfig],
+    bounds: &Bounds,
+) -> Result<Profile, ConfigError> {
+    use crate::eikonal::acoustic::{Element, PhasedArray, Ultrasound, nepers_per_metre_hertz};
+    let n0 = pos(&format!("{k}.n0"), n0)?;
+    let frequency = pos(&format!("{k}.frequency"), frequency)?;
+    let sound_speed = pos(&format!("{k}.sound_speed"), sound_speed)?;
+    let unit = metres_per_unit(k, length_unit)?;
+    let piezo_optic = piezo_optic_of(k, n0, sound_speed, piezo_optic, density)?;
+    if !(attenuation >= 0.0 && attenuation.is_finite()) {
+        return err(format!(
+            "{k}.attenuation = {attenuation}: must be finite and >= 0 (dB/(cm·MHz))"
+        ));
+    }
+    if elements.is_empty() || elements.len() > MAX_ELEMENTS {
+        return err(format!(
+            "{k}.elements holds {} elements: give 1 to {MAX_ELEMENTS}",
+            elements.len()
+        ));
+    }
+    // the element's line must stay outside the volume: its wave is singular on it
+    let clear = |x: f64, y: f64| match *bounds {
+        Bounds::Everywhere => false,
+        Bounds::Sphere { radius } | Bounds::Cylinder { radius, .. } => x.hypot(y) > radius,
+        _ => bounds
+            .half_extent()
+            .is_some_and(|h| x.abs() > h.x || y.abs() > h.y),
+    };
+    let mut array = Vec::with_capacity(elements.len());
+    for (j, e) in elements.iter().enumerate() {
+        let key = format!("{k}.elements[{j}]");
+        let [x, y] = e.position;
+        if !(x.is_finite() && y.is_finite()) {
+            return err(format!("{key}.position = [{x}, {y}]: must be finite"));
+        }
+        if !clear(x, y) {
+            return err(format!(
+                "{key}.position = [{x}, {y}]: the element's line (parallel to z) meets field.bounds; place elements outside the volume"
+            ));
+        }
+        if !(e.amplitude >= 0.0 && e.amplitude.is_finite()) {
+            return err(format!(
+                "{key}.amplitude = {}: must be finite and >= 0 (Pa)",
+                e.amplitude
+            ));
+        }
+        if !e.phase_deg.is_finite() {
+            return err(format!("{key}.phase_deg = {}: must be finite", e.phase_deg));
+        }
+        array.push(Element {
+            x,
+            y,
+            amplitude: e.amplitude,
+            phase: e.phase_deg.to_radians(),
+        });
+    }
+    Ok(Profile::PhasedArray {
+        array: std::sync::Arc::new(PhasedArray {
+            n0,
+            piezo_optic,
+            ultrasound: Ultrasound {
+                frequency,
+                sound_speed,
+                attenuation: nepers_per_metre_hertz(attenuation),
+                unit,
+            },
+            reference: pos(&format!("{k}.reference_distance"), reference_distance)?,
+            gain: 1.0,
+            elements: array,
+        }),
+        omega_t: std::f64::consts::FRAC_PI_2,
+    })
 }
 
 fn tricubic() -> String {
@@ -589,20 +837,61 @@ impl FieldConfig {
                     n0: pos(&format!("{k}.n0"), n0)?,
                     alpha: pos(&format!("{k}.alpha"), alpha)?,
                 },
-                ProfileConfig::Ultrasonic { n0, n_max, k_r, m } => {
-                    if !n_max.is_finite() {
-                        return err(format!("{k}.n_max = {n_max}: must be finite"));
-                    }
+                ProfileConfig::Ultrasonic {
+                    n0,
+                    n_max,
+                    k_r,
+                    m,
+                    pressure,
+                    frequency,
+                    sound_speed,
+                    ref length_unit,
+                    piezo_optic,
+                    density,
+                } => {
                     if m > 64 {
                         return err(format!("{k}.m = {m}: must be within [0, 64]"));
                     }
+                    let n0 = pos(&format!("{k}.n0"), n0)?;
+                    let physical = Physical {
+                        pressure,
+                        frequency,
+                        sound_speed,
+                        length_unit: length_unit.as_deref(),
+                        piezo_optic,
+                        density,
+                    };
+                    let (n_max, k_r) = standing_wave(&k, n0, n_max, k_r, &physical)?;
                     Profile::Ultrasonic {
-                        n0: pos(&format!("{k}.n0"), n0)?,
+                        n0,
                         n_max,
-                        k_r: pos(&format!("{k}.k_r"), k_r)?,
+                        k_r,
                         m: m as u32,
                     }
                 }
+                ProfileConfig::PhasedArray {
+                    n0,
+                    frequency,
+                    sound_speed,
+                    ref length_unit,
+                    piezo_optic,
+                    density,
+                    attenuation,
+                    reference_distance,
+                    ref elements,
+                } => phased_array(
+                    &k,
+                    n0,
+                    frequency,
+                    sound_speed,
+                    length_unit,
+                    piezo_optic,
+                    density,
+                    attenuation,
+                    reference_distance,
+                    elements,
+                    &bounds,
+                )?,
                 ProfileConfig::RadialPolynomial {
                     n0,
                     ref coefficients,

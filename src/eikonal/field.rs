@@ -67,6 +67,13 @@ pub enum Profile {
         k_r: f64,
         m: u32,
     },
+    /// The index a phased ultrasound array sculpts, `n0 + (dn/dp) Re[P(x) e^{−iΩt}]`, at the
+    /// instant `omega_t` (π/2 unless a modulation sets it, as the ultrasonic profile's full
+    /// amplitude `sin Ωt = 1`); see [`super::acoustic`].
+    PhasedArray {
+        array: Arc<super::acoustic::PhasedArray>,
+        omega_t: f64,
+    },
     /// Sampled field (trilinear or prefiltered tricubic B-spline); parameters are its coefficients.
     Grid(super::grid::GridField),
     /// A Luneburg-like profile graded by the depth below a signed-distance shape's surface (paper
@@ -117,6 +124,7 @@ impl Profile {
             Profile::ParabolicFibre { .. } => "parabolic_fibre",
             Profile::SechFibre { .. } => "sech_fibre",
             Profile::Ultrasonic { .. } => "ultrasonic",
+            Profile::PhasedArray { .. } => "phased_array",
             Profile::RadialPolynomial { .. } => "radial_polynomial",
             Profile::SphericalPolynomial { .. } => "spherical_polynomial",
             Profile::Grid(_) => "grid",
@@ -182,6 +190,7 @@ impl Profile {
                 let h = super::bessel::harmonic(k_r, m, x);
                 (n0 + n_max * h.u, h.grad * n_max, h.hessian * n_max)
             }
+            Profile::PhasedArray { ref array, omega_t } => array.eval(x, omega_t),
             Profile::RadialPolynomial {
                 n0,
                 ref coefficients,
@@ -468,6 +477,8 @@ impl BoundedField {
                 Profile::Ultrasonic { k_r, m, .. } => {
                     super::bessel::nodes(k_r.abs() * radius, *m) as f64
                 }
+                // an element's Hankel functions cost a few simple profiles
+                Profile::PhasedArray { array, .. } => 4.0 * array.evaluation_cost(),
                 Profile::Grid(g) => match g.interp {
                     super::grid::Interp::Tricubic => 64.0,
                     super::grid::Interp::Trilinear => 8.0,
@@ -590,6 +601,7 @@ impl Profile {
             (Profile::Ultrasonic { n_max, .. }, 1) => Some(n_max),
             (Profile::Ultrasonic { k_r, .. }, 2) => Some(k_r),
             (Profile::Grid(g), k) => g.coef.get_mut(k),
+            (Profile::PhasedArray { array, .. }, k) => Arc::make_mut(array).param_mut(k),
             (Profile::SdfLuneburg { n_surface, .. }, 0) => Some(n_surface),
             (Profile::SdfLuneburg { n_core, .. }, 1) => Some(n_core),
             (Profile::SdfLuneburg { depth, .. }, 2) => Some(depth),
@@ -616,6 +628,7 @@ impl Profile {
                 };
             }
             Profile::Grid(_) => &[],
+            Profile::PhasedArray { array, .. } => return array.param_index(name),
             Profile::SdfLuneburg { .. } => &["n_surface", "n_core", "depth"],
         };
         names.iter().position(|n| *n == name)
@@ -626,8 +639,8 @@ impl Profile {
     /// `(∂n/∂θ, ∇(∂n/∂θ))` for analytic parameter `which` of this profile, or `None` if not
     /// differentiable here. Parameters: Constant `[n]`; Linear `[n0, gx, gy, gz]`; Luneburg `[R]`;
     /// Maxwell fish-eye `[R]`; parabolic and sech fibres `[n0, α]`; ultrasonic
-    /// `[n0, n_max, k_r]`; radial and spherical polynomials `[n0, c1, c2, …]`; grid: coefficient
-    /// index.
+    /// `[n0, n_max, k_r]`; radial and spherical polynomials `[n0, c1, c2, …]`; phased array
+    /// `[n0, amplitude_0, phase_0, amplitude_1, …]`; grid: coefficient index.
     pub fn dparam(&self, x: DVec3, which: usize) -> Option<(f64, DVec3)> {
         let eval = || self.eval(x);
         match (self, which) {
@@ -661,6 +674,7 @@ impl Profile {
                 Some((n / n0, grad / *n0))
             }
             (Profile::Grid(g), k) if k < g.coef.len() => Some(g.dcoef(x, k)),
+            (Profile::PhasedArray { array, omega_t }, k) => array.dparam(x, *omega_t, k),
             (
                 Profile::SdfLuneburg {
                     sdf,
@@ -780,6 +794,36 @@ mod tests {
                 n0: 1.62,
                 coefficients: vec![-0.1, 0.04, -0.02],
             },
+            Profile::PhasedArray {
+                // excursions of a few hundredths, so differences resolve every parameter
+                array: Arc::new(crate::eikonal::acoustic::PhasedArray {
+                    n0: 1.33,
+                    piezo_optic: 0.01,
+                    ultrasound: crate::eikonal::acoustic::Ultrasound {
+                        frequency: 1e6,
+                        sound_speed: 1500.0,
+                        attenuation: 3e-5,
+                        unit: 1e-3,
+                    },
+                    reference: 1.0,
+                    gain: 1.3,
+                    elements: vec![
+                        crate::eikonal::acoustic::Element {
+                            x: 3.0,
+                            y: 1.0,
+                            amplitude: 2.0,
+                            phase: 0.4,
+                        },
+                        crate::eikonal::acoustic::Element {
+                            x: -2.0,
+                            y: -4.0,
+                            amplitude: 1.5,
+                            phase: -1.2,
+                        },
+                    ],
+                }),
+                omega_t: 0.7,
+            },
             Profile::SdfLuneburg {
                 // 0.085: the test point stays off the grid's cell faces, where the Hessian is
                 // only continuous (B-splines are C²) and differences of the gradient lose order
@@ -860,24 +904,27 @@ mod tests {
     }
 
     /// `Profile::dparam` (value and gradient) against central differences in each parameter, for
-    /// every analytic profile and every parameter `param_mut` exposes.
+    /// every analytic profile and every parameter `param_mut` exposes (per unit change of a
+    /// parameter of size up to 1, per relative change of a larger one: a frequency in hertz).
     #[test]
     fn parameter_derivatives_match_finite_differences() {
         let profiles = analytic_profiles();
         let x = DVec3::new(0.31, -0.22, 0.4);
-        let h = 1e-6;
         for p in profiles {
             let mut which = 0;
-            while p.clone().param_mut(which).is_some() {
+            while let Some(v) = p.clone().param_mut(which).map(|v| *v) {
+                let scale = v.abs().max(1.0);
+                let h = 1e-6 * scale;
                 let at = |d: f64| {
                     let mut q = p.clone();
                     *q.param_mut(which).unwrap() += d;
                     q.eval(x)
                 };
                 let (dn, dg) = p.dparam(x, which).expect("differentiable");
+                let (dn, dg) = (dn * scale, dg * scale);
                 let (up, down) = (at(h), at(-h));
-                let fd = (up.0 - down.0) / (2.0 * h);
-                let fdg = (up.1 - down.1) / (2.0 * h);
+                let fd = (up.0 - down.0) / (2.0 * h) * scale;
+                let fdg = (up.1 - down.1) / (2.0 * h) * scale;
                 assert!((dn - fd).abs() < 1e-8, "{p:?} param {which}: {dn} vs {fd}");
                 assert!(
                     (dg - fdg).length() < 1e-7,

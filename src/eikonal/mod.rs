@@ -2,6 +2,7 @@
 //! fields, a time-reversible symplectic ray tracer and its constant-memory adjoint. Forward and adjoint only:
 //! the burn operation lives in `diff::trace_op`, the fits and designs in `inverse::grin_*`.
 
+pub mod acoustic;
 pub mod adjoint;
 pub mod bessel;
 pub mod field;

@@ -1149,10 +1149,10 @@ impl Estimator for ParticleTracer<'_> {
             };
             let base = &self.scene.volume.field;
             if let Some(Modulation::Sinusoidal) = self.scene.modulation {
-                // the photon meets the field at a uniformly random time of the period
-                // (paper 002, App. C, Eq. 22): every ultrasonic amplitude times sin θ
-                let theta = std::f64::consts::PI * (uniform(rng) - 0.5);
-                modulate(&mut volume.field, base, theta.sin());
+                // the photon meets the field at a uniformly random instant of the period
+                // (paper 002, App. C, Eq. 22)
+                let omega_t = std::f64::consts::TAU * (uniform(rng) - 0.5);
+                modulate(&mut volume.field, base, omega_t);
             }
             let mut colour = [1.0; 3];
             let mut delay = Delay::NONE;
@@ -1210,17 +1210,22 @@ impl Estimator for ParticleTracer<'_> {
 /// The cost of one leapfrog step of a simple analytic field, in output updates.
 const STEP_COST: f64 = 100.0;
 
-/// Set every ultrasonic profile of `field` to `scale` times its amplitude in `base` (the same
-/// field unmodulated).
+/// Set `field` to its instant `omega_t` of the ultrasound period: every ultrasonic amplitude
+/// to `sin Ωt` times its amplitude in `base` (the same field unmodulated), every phased array to
+/// the instant itself.
 pub fn modulate(
     field: &mut crate::eikonal::BoundedField,
     base: &crate::eikonal::BoundedField,
-    scale: f64,
+    omega_t: f64,
 ) {
     use crate::eikonal::Profile;
     for (p, b) in field.profiles.iter_mut().zip(&base.profiles) {
-        if let (Profile::Ultrasonic { n_max, .. }, Profile::Ultrasonic { n_max: n0, .. }) = (p, b) {
-            *n_max = n0 * scale;
+        match (p, b) {
+            (Profile::Ultrasonic { n_max, .. }, Profile::Ultrasonic { n_max: full, .. }) => {
+                *n_max = full * omega_t.sin();
+            }
+            (Profile::PhasedArray { omega_t: at, .. }, _) => *at = omega_t,
+            _ => {}
         }
     }
 }

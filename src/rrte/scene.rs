@@ -359,9 +359,10 @@ impl Pinhole {
 /// How the index field changes in time as the light meets it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Modulation {
-    /// Every ultrasonic amplitude oscillates as `n_max sin Ωt` and the sensor integrates over
-    /// whole periods (continuous-wave light): each photon meets the field at a uniformly random
-    /// phase (paper 002, App. C, Eq. 22).
+    /// The ultrasound oscillates (an ultrasonic amplitude as `n_max sin Ωt`, a phased array's
+    /// pressure as `Re[P e^{−iΩt}]`) and the sensor integrates over whole periods
+    /// (continuous-wave light): each photon meets the field at a uniformly random instant
+    /// (paper 002, App. C, Eq. 22).
     Sinusoidal,
 }
 
