@@ -413,6 +413,7 @@ fn probe_scene(profile: Profile, sigma_s: f64, g: f64, light: Light, probe: DVec
         modulation: None,
         connections: Default::default(),
         reflections: 0,
+        derivatives: vec![],
         tracing: Default::default(),
         transient: None,
         spectrum: None,

@@ -280,6 +280,12 @@ pub fn rendered(
             pixel_area: None,
             pixel_noise: None,
             files: vec![],
+            derivatives: scene
+                .derivatives
+                .iter()
+                .enumerate()
+                .map(|(j, p)| (p.name(), measured(est.power_derivative(i, j))))
+                .collect(),
         };
         match (s.kind, s.pixel_area()) {
             (SensorKind::Screen, Some(area)) => {

@@ -8,8 +8,8 @@ use super::{ConfigError, err};
 use crate::eikonal::Bounds;
 use crate::medium::{PhaseFunction, Scattering};
 use crate::rrte::{
-    Camera, Connections, Density, Dispersion, Light, Material, Modulation, Probe, RenderScene,
-    Sensor, SensorKind, Spectrum, Surface, Tracing, Transient, Volume,
+    Camera, Connections, Density, Dispersion, Light, MAX_DERIVATIVES, Material, Modulation, Probe,
+    RenderScene, Sensor, SensorKind, Spectrum, Surface, Tracing, Transient, Volume,
 };
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -419,6 +419,11 @@ pub struct RenderSettings {
     /// tried as a path of its own (0: connections leave the volume directly).
     #[serde(default, skip_serializing_if = "is_zero")]
     pub reflections: u64,
+    /// Medium parameters whose derivatives particle tracing estimates for every sensor's power:
+    /// `"sigma_s"`, `"sigma_a"`, `"g"`, `"g[c]"`, `"bin[c][k]"`, `"weight[c]"`, … (path-space
+    /// scores; see the render docs).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub derivatives: Vec<String>,
     /// `"particle"` (photons from the light; every sensor kind), `"path"` (paths from the
     /// cameras, connected to the light) or `"bidirectional"` (both, joined every way and weighted
     /// by multiple importance sampling; no surfaces).
@@ -471,6 +476,7 @@ impl Default for RenderSettings {
             max_steps: default_max_steps(),
             connections: ConnectionsConfig::Unbiased,
             reflections: 0,
+            derivatives: Vec::new(),
             estimator: EstimatorConfig::Particle,
         }
     }
@@ -739,6 +745,7 @@ impl RenderConfig {
                 r.reflections
             ));
         }
+        let derivatives = self.derivatives(&volume)?;
         let scene = RenderScene {
             volume,
             light,
@@ -753,6 +760,7 @@ impl RenderConfig {
                 ConnectionsConfig::First => Connections::First,
             },
             reflections: r.reflections as usize,
+            derivatives,
             tracing: match r.estimator {
                 EstimatorConfig::Particle => Tracing::FromLight,
                 EstimatorConfig::Path => Tracing::FromCameras,
@@ -768,6 +776,57 @@ impl RenderConfig {
             self.check_path_tracing(&scene)?;
         }
         Ok(scene)
+    }
+
+    /// The medium parameters `render.derivatives` names, checked: particle tracing through a
+    /// homogeneous medium that has them (the config's `σ_s > 0`: the score counts collisions per
+    /// `σ_s`).
+    fn derivatives(
+        &self,
+        volume: &Volume,
+    ) -> Result<Vec<crate::medium::params::Param>, ConfigError> {
+        use crate::medium::params::Param;
+        let names = &self.render.derivatives;
+        if names.is_empty() {
+            return Ok(Vec::new());
+        }
+        let key = |i: usize| format!("render.derivatives[{i}] = {:?}", names[i]);
+        if names.len() > MAX_DERIVATIVES {
+            return err(format!(
+                "render.derivatives names {} parameters: at most {MAX_DERIVATIVES}",
+                names.len()
+            ));
+        }
+        if self.render.estimator != EstimatorConfig::Particle {
+            return err(
+                "render.derivatives: the derivatives come from particle tracing; set render.estimator = \"particle\" (the default)",
+            );
+        }
+        if volume.density.is_some() {
+            return err(
+                "render.derivatives: derivatives need a homogeneous medium, and [density] makes it heterogeneous; drop [density] or render.derivatives",
+            );
+        }
+        let mut params = Vec::new();
+        for (i, name) in names.iter().enumerate() {
+            let p = Param::parse(name).map_err(|e| ConfigError(format!("{}: {e}", key(i))))?;
+            if p.value_in(volume.sigma_s, volume.sigma_a, &volume.scattering)
+                .is_none()
+            {
+                return err(format!(
+                    "{}: the medium has no such parameter (phase-function parameters need a component of that kind: g an \"hg\" one, bin a table, vmf_* a vMF mixture)",
+                    key(i)
+                ));
+            }
+            if params.contains(&p) {
+                return err(format!(
+                    "{}: already listed; name each parameter once",
+                    key(i)
+                ));
+            }
+            params.push(p);
+        }
+        Ok(params)
     }
 
     /// Path tracing renders cameras lit by a light it can connect to; bidirectional path

@@ -10,10 +10,12 @@
 pub mod bridge;
 pub mod covariance;
 pub mod ops;
+pub mod render_op;
 pub mod trace_op;
 
 pub use covariance::{CovarianceGradient, Reweighted, ReweightedCovariance};
 pub use ops::{CovarianceEvaluation, CovarianceOp, MeanOp, Proposal, medium_at};
+pub use render_op::{RenderEvaluation, RenderOp};
 pub use trace_op::{ExitGradients, ExitVjp, TraceOp};
 
 pub use crate::medium::params::Param;

@@ -769,6 +769,9 @@ pub struct SensorRecord {
     pub pixel_noise: Option<f64>,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub files: Vec<String>,
+    /// `∂ power / ∂θ` for each parameter of `render.derivatives`, by name.
+    #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    pub derivatives: std::collections::BTreeMap<String, Measured>,
 }
 
 /// A diffuse or black surface of a render: the power reaching it and what it absorbed.

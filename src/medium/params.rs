@@ -102,20 +102,30 @@ impl Param {
 
     /// The parameter's value in `m` (`None` if `m` has no such parameter).
     pub fn get(&self, m: &Medium) -> Option<f64> {
+        self.value_in(m.sigma_s, m.sigma_a, &m.scattering)
+    }
+
+    /// The parameter's value in a medium of these coefficients and particles.
+    pub fn value_in(
+        &self,
+        sigma_s: f64,
+        sigma_a: f64,
+        scattering: &crate::medium::Scattering,
+    ) -> Option<f64> {
         match self {
-            Param::SigmaS => Some(m.sigma_s),
-            Param::SigmaA => Some(m.sigma_a),
-            Param::G(c) => match m.scattering.components().get(*c).map(|x| &x.1) {
+            Param::SigmaS => Some(sigma_s),
+            Param::SigmaA => Some(sigma_a),
+            Param::G(c) => match scattering.components().get(*c).map(|x| &x.1) {
                 Some(PhaseFunction::HenyeyGreenstein { g }) => Some(*g),
                 _ => None,
             },
-            Param::Bin(c, k) => match m.scattering.components().get(*c).map(|x| &x.1) {
+            Param::Bin(c, k) => match scattering.components().get(*c).map(|x| &x.1) {
                 Some(PhaseFunction::Tabulated(t)) => t.node_value(*k),
                 _ => None,
             },
-            Param::Weight(c) => m.scattering.components().get(*c).map(|x| x.0),
+            Param::Weight(c) => scattering.components().get(*c).map(|x| x.0),
             Param::VmfWeight(c, l) | Param::VmfKappa(c, l) => {
-                match m.scattering.components().get(*c).map(|x| &x.1) {
+                match scattering.components().get(*c).map(|x| &x.1) {
                     Some(PhaseFunction::VmfMixture(v)) => v.lobes().get(*l).map(|&(w, k)| {
                         if matches!(self, Param::VmfWeight(..)) {
                             w
@@ -126,6 +136,16 @@ impl Param {
                     _ => None,
                 }
             }
+        }
+    }
+
+    /// `∂ log (β_kind ρ_kind(μ)) / ∂θ`: the score of a scattering event that picked particle type
+    /// `kind` by its share and drew the cosine `μ` from its phase function (0 for the
+    /// coefficients, which enter through flights and weights).
+    pub fn dlog_event(&self, scattering: &crate::medium::Scattering, kind: usize, mu: f64) -> f64 {
+        match *self {
+            Param::Weight(c) => f64::from(u8::from(c == kind)) / scattering.components()[c].0 - 1.0,
+            _ => self.dlog_phase(kind, scattering.phase(kind), mu),
         }
     }
 

@@ -632,7 +632,7 @@ impl ParticleTracer<'_> {
                     let (entry, surface) = self.ahead(t, x, d, left_volume);
                     let end = super::particle::nearest(entry, surface);
                     if start.photon {
-                        self.cross_sensors(t, x, d, end, beta, opl, out);
+                        self.cross_sensors(t, x, d, end, beta, opl, &[], out);
                     }
                     match (entry, surface) {
                         (Some(t0), _) if t0 == end => {

@@ -25,7 +25,7 @@ pub mod spectrum;
 
 pub use particle::{ImageLayout, ParticleTracer, Total};
 pub use scene::{
-    Camera, Connections, Density, Light, Modulation, Pinhole, Probe, RenderScene, Sensor,
-    SensorKind, Surface, Tracing, Transient, Volume,
+    Camera, Connections, Density, Light, MAX_DERIVATIVES, Modulation, Pinhole, Probe, RenderScene,
+    Sensor, SensorKind, Surface, Tracing, Transient, Volume,
 };
 pub use spectrum::{Dispersion, Material, Spectrum};

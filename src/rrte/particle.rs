@@ -18,12 +18,15 @@
 use super::bidirectional::Subpaths;
 use super::connect::{Aim, Connector, Exit, Sampled};
 use super::flight::{Flight, Flyer, fresnel, reflect};
-use super::scene::{Connections, Modulation, RenderScene, SensorKind, Tracing, Volume};
+use super::scene::{
+    Connections, MAX_DERIVATIVES, Modulation, RenderScene, SensorKind, Tracing, Volume,
+};
 use super::spectrum::Delay;
 use crate::eikonal::Ray;
 use crate::eikonal::trace::refract;
 use crate::math::{C64, Rng, uniform};
 use crate::mc::Estimator;
+use crate::medium::params::Param;
 use crate::speckle::paths::{ROULETTE_BELOW, ROULETTE_SURVIVAL};
 use glam::DVec3;
 
@@ -134,13 +137,19 @@ impl Tools<'_> {
     /// The ray leaving a scattering event at `x` where the light arrived along unit `u`, its
     /// direction drawn from the phase function.
     pub(super) fn scatter(&self, x: DVec3, u: DVec3, rng: &mut Rng) -> Ray {
+        self.scatter_by(x, u, rng).0
+    }
+
+    /// [`Self::scatter`], and the particle type whose phase function drew the direction.
+    fn scatter_by(&self, x: DVec3, u: DVec3, rng: &mut Rng) -> (Ray, usize) {
         let scattering = &self.flyer.volume.scattering;
         let kind = scattering.pick(|| uniform(rng));
         let w = scattering.phase(kind).sample(u, uniform(rng), uniform(rng));
-        Ray {
+        let ray = Ray {
             x,
             v: w * self.flyer.n(x),
-        }
+        };
+        (ray, kind)
     }
 }
 
@@ -255,6 +264,8 @@ pub struct ParticleTracer<'s> {
     /// The power reaching each surface.
     surface_offset: usize,
     totals: usize,
+    /// The first derivative output: parameter after parameter, sensor after sensor.
+    derivative_offset: usize,
 }
 
 impl<'s> ParticleTracer<'s> {
@@ -302,7 +313,14 @@ impl<'s> ParticleTracer<'s> {
             probes,
             surface_offset,
             totals: at,
+            derivative_offset: at + TOTALS,
         }
+    }
+
+    /// The output holding the derivative of sensor `i`'s power with respect to
+    /// `scene.derivatives[j]`.
+    pub fn power_derivative(&self, i: usize, j: usize) -> usize {
+        self.derivative_offset + j * self.scene.sensors.len() + i
     }
 
     /// The image of sensor `i` (a flux sensor's: one pixel, one channel, its power per bin).
@@ -643,7 +661,9 @@ impl<'s> ParticleTracer<'s> {
     }
 
     /// Record the sensors the straight segment from `x` along unit `d` crosses within `length`
-    /// (outside the volume), at the optical path `opl` of its start.
+    /// (outside the volume), at the optical path `opl` of its start; with the path's `score`
+    /// (`∂ log` of its probability and weight per differentiated parameter), the derivatives of
+    /// their powers too.
     #[allow(clippy::too_many_arguments)]
     pub(super) fn cross_sensors(
         &self,
@@ -653,10 +673,11 @@ impl<'s> ParticleTracer<'s> {
         length: f64,
         weight: f64,
         opl: f64,
+        score: &[f64],
         out: &mut [C64],
     ) {
         let n_out = t.flyer.volume.field.n_out;
-        for (s, image) in self.scene.sensors.iter().zip(&self.images) {
+        for (i, (s, image)) in self.scene.sensors.iter().zip(&self.images).enumerate() {
             let Some((pixel, distance)) = s.hit(x, d) else {
                 continue;
             };
@@ -668,6 +689,9 @@ impl<'s> ParticleTracer<'s> {
             };
             image.add(out, bin, pixel, weight, &t.colour);
             out[image.total()].re += weight;
+            for (j, s) in score.iter().enumerate() {
+                out[self.power_derivative(i, j)].re += weight * s;
+            }
         }
     }
 
@@ -713,6 +737,7 @@ impl<'s> ParticleTracer<'s> {
             opl: 0.0,
             events: 0,
             steps: 0,
+            score: [0.0; MAX_DERIVATIVES],
         };
         let mut leg = if t.flyer.volume.field.bounds.contains(x) {
             if self.connects() {
@@ -765,7 +790,8 @@ impl<'s> ParticleTracer<'s> {
         let n_out = t.flyer.volume.field.n_out;
         let (entry, surface) = self.ahead(t, x, d, left_volume);
         let end = nearest(entry, surface);
-        self.cross_sensors(t, x, d, end, p.weight, p.opl, out);
+        let score = &p.score[..self.scene.derivatives.len()];
+        self.cross_sensors(t, x, d, end, p.weight, p.opl, score, out);
         match (entry, surface) {
             (Some(t0), _) if t0 == end => {
                 p.opl += t.delay.outside(n_out * t0);
@@ -980,10 +1006,21 @@ impl<'s> ParticleTracer<'s> {
     ) -> Option<Leg> {
         let volume = t.flyer.volume;
         let albedo = volume.albedo();
+        let derivatives = &self.scene.derivatives;
         loop {
             let (stop, travelled) = t.next_event(ray, rng);
             p.steps += travelled.steps;
             p.opl += travelled.opl;
+            // the flight's score: `σ_t e^{−σ_t L}` to a collision (then the weight times the
+            // albedo `σ_s/σ_t`), `e^{−σ_t L}` to the surface
+            let collided = matches!(stop, Stop::Collision(_));
+            for (s, param) in p.score.iter_mut().zip(derivatives) {
+                *s += match param {
+                    Param::SigmaS if collided => 1.0 / volume.sigma_s - travelled.length,
+                    Param::SigmaS | Param::SigmaA => -travelled.length,
+                    _ => 0.0,
+                };
+            }
             match stop {
                 Stop::Collision(hit) => {
                     p.events += 1;
@@ -1001,7 +1038,15 @@ impl<'s> ParticleTracer<'s> {
                         out[self.total(Total::Unfinished)].re += p.weight;
                         return None;
                     }
-                    ray = t.scatter(hit.x, w_in, rng);
+                    let kind;
+                    (ray, kind) = t.scatter_by(hit.x, w_in, rng);
+                    if !derivatives.is_empty() {
+                        // the scattering event's score: its particle type and direction
+                        let mu = w_in.dot(ray.v.normalize());
+                        for (s, param) in p.score.iter_mut().zip(derivatives) {
+                            *s += param.dlog_event(&volume.scattering, kind, mu);
+                        }
+                    }
                 }
                 Stop::Boundary(end) => match Leg::leave(t, end, rng) {
                     Leg::Inside(reflected) => ray = reflected,
@@ -1104,6 +1149,8 @@ struct Photon {
     opl: f64,
     events: usize,
     steps: usize,
+    /// Per differentiated parameter, `∂ log` of the path's probability and weight so far.
+    score: [f64; MAX_DERIVATIVES],
 }
 
 impl Photon {
@@ -1131,7 +1178,7 @@ impl Estimator for ParticleTracer<'_> {
     type Scratch = (Option<Volume>, Subpaths);
 
     fn outputs(&self) -> usize {
-        self.totals + TOTALS
+        self.derivative_offset + self.scene.derivatives.len() * self.scene.sensors.len()
     }
 
     fn scratch(&self) -> Self::Scratch {

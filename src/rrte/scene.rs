@@ -366,6 +366,9 @@ pub enum Modulation {
     Sinusoidal,
 }
 
+/// The most medium parameters a render differentiates at once.
+pub const MAX_DERIVATIVES: usize = 16;
+
 /// How connections to probes are estimated.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum Connections {
@@ -572,6 +575,9 @@ pub struct RenderScene {
     /// Reflections inside the volume's surface a connection through it follows at most before
     /// it leaves (specular chains: light leaving the glass after reflecting inside it).
     pub reflections: usize,
+    /// Medium parameters whose derivatives particle tracing estimates for every sensor's power
+    /// (path-space scores; at most [`MAX_DERIVATIVES`]).
+    pub derivatives: Vec<crate::medium::params::Param>,
     pub tracing: Tracing,
     pub transient: Option<Transient>,
     /// `None`: one unnamed wavelength, the field as given.

@@ -61,6 +61,7 @@ pub fn bare_scene(step: f64) -> lightpath::rrte::RenderScene {
         modulation: None,
         connections: Default::default(),
         reflections: 0,
+        derivatives: vec![],
         tracing: Default::default(),
         transient: None,
         spectrum: None,

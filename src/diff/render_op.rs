@@ -1,0 +1,157 @@
+//! Rendered sensor powers as a differentiable function of the medium's parameters, for the burn
+//! bridge ([`super::bridge`]) and any other reverse-mode user.
+//!
+//! [`RenderOp`] maps `θ` (values of [`Param`]s of the refractive renderer's homogeneous medium) to
+//! the power every sensor receives, estimated by particle tracing; its pullback is the transposed
+//! Jacobian the same photons estimate by their path-space scores (`render.derivatives`). Each
+//! evaluation draws fresh photons (the seed advances): unbiased values and gradients of the
+//! expected powers, as stochastic optimisers (Adam) expect.
+
+use super::bridge::{Differentiable, Pullback};
+use super::{Param, medium_at};
+use crate::mc::{Plan, StopFlag, estimate_until};
+use crate::medium::{Geometry, Medium};
+use crate::rrte::{ParticleTracer, RenderScene, Tracing};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// `θ ↦ (power of sensor 0, power of sensor 1, …)` of a render, with its score pullback.
+pub struct RenderOp {
+    pub scene: RenderScene,
+    pub params: Vec<Param>,
+    pub samples: u64,
+    pub chunk: u64,
+    pub seed: u64,
+    /// Stops every forward of this operation once set (none from [`Self::new`]).
+    pub stop: StopFlag,
+    evaluations: AtomicU64,
+}
+
+/// The powers of one evaluation, their standard errors and `∂ power_i/∂θ_p` (rows: sensors).
+#[derive(Clone, Debug)]
+pub struct RenderEvaluation {
+    pub power: Vec<f64>,
+    pub stderr: Vec<f64>,
+    pub jacobian: Vec<Vec<f64>>,
+}
+
+impl Pullback for RenderEvaluation {
+    fn pullback(&self, dy: &[f64]) -> Vec<f64> {
+        let np = self.jacobian.first().map_or(0, Vec::len);
+        (0..np)
+            .map(|p| {
+                self.jacobian
+                    .iter()
+                    .zip(dy)
+                    .map(|(row, d)| row[p] * d)
+                    .sum()
+            })
+            .collect()
+    }
+}
+
+impl RenderOp {
+    /// The operation on `scene` (particle tracing, a homogeneous medium that has every parameter
+    /// of `params`, at least one sensor), `samples` photons per evaluation.
+    pub fn new(
+        scene: RenderScene,
+        params: Vec<Param>,
+        (samples, chunk, seed): (u64, u64, u64),
+    ) -> crate::Result<Self> {
+        if scene.tracing != Tracing::FromLight {
+            return Err("a render's derivatives come from particle tracing".into());
+        }
+        if scene.volume.density.is_some() {
+            return Err("a render's derivatives need a homogeneous medium (no density)".into());
+        }
+        if scene.sensors.is_empty() {
+            return Err(
+                "a render operation's outputs are its sensors' powers: give a sensor".into(),
+            );
+        }
+        if params.len() > crate::rrte::MAX_DERIVATIVES {
+            return Err(format!(
+                "{} parameters: a render differentiates at most {}",
+                params.len(),
+                crate::rrte::MAX_DERIVATIVES
+            )
+            .into());
+        }
+        if samples == 0 {
+            return Err("a render operation needs at least one photon".into());
+        }
+        Ok(RenderOp {
+            scene,
+            params,
+            samples,
+            chunk,
+            seed,
+            stop: StopFlag::default(),
+            evaluations: AtomicU64::new(0),
+        })
+    }
+
+    /// How many evaluations have been made (each uses the next seed).
+    pub fn evaluations(&self) -> u64 {
+        self.evaluations.load(Ordering::Relaxed)
+    }
+
+    /// The scene with its medium at `θ`, and per parameter the factor turning the scores'
+    /// derivative into `∂/∂θ` (unnormalised table nodes and shares, as [`medium_at`]).
+    fn scene_at(&self, theta: &[f64]) -> crate::Result<(RenderScene, Vec<f64>)> {
+        let v = &self.scene.volume;
+        let base = Medium {
+            // only the coefficients and particles are read
+            geometry: Geometry::boxed([1.0; 3]),
+            sigma_s: v.sigma_s,
+            sigma_a: v.sigma_a,
+            scattering: v.scattering.clone(),
+        };
+        let (m, factor) = medium_at(&base, &self.params, theta)?;
+        let mut scene = self.scene.clone();
+        scene.volume.sigma_s = m.sigma_s;
+        scene.volume.sigma_a = m.sigma_a;
+        scene.volume.scattering = m.scattering;
+        scene.derivatives = self.params.clone();
+        Ok((scene, factor))
+    }
+
+    /// Render at `θ`: the powers, their errors and the Jacobian.
+    pub fn evaluate(&self, theta: &[f64]) -> crate::Result<RenderEvaluation> {
+        let (scene, factor) = self.scene_at(theta)?;
+        let k = self.evaluations.fetch_add(1, Ordering::Relaxed);
+        let plan = Plan::new(self.seed.wrapping_add(k), self.samples, self.chunk);
+        let est = ParticleTracer::new(&scene);
+        let e = estimate_until(&est, &plan, self.stop.get())?;
+        let sensors = scene.sensors.len();
+        let out = RenderEvaluation {
+            power: (0..sensors).map(|i| e.mean[est.power(i)].re).collect(),
+            stderr: (0..sensors).map(|i| e.stderr[est.power(i)]).collect(),
+            jacobian: (0..sensors)
+                .map(|i| {
+                    factor
+                        .iter()
+                        .enumerate()
+                        .map(|(p, f)| e.mean[est.power_derivative(i, p)].re * f)
+                        .collect()
+                })
+                .collect(),
+        };
+        if out
+            .power
+            .iter()
+            .chain(out.jacobian.iter().flatten())
+            .any(|v| !v.is_finite())
+        {
+            return Err("render: a power or derivative is not finite".into());
+        }
+        Ok(out)
+    }
+}
+
+impl Differentiable for RenderOp {
+    fn forward(&self, theta: &[f64]) -> crate::Result<(Vec<f64>, Arc<dyn Pullback>)> {
+        let e = self.evaluate(theta)?;
+        Ok((e.power.clone(), Arc::new(e)))
+    }
+}
