@@ -7,16 +7,14 @@
 
 mod common;
 
-use common::bare_scene;
+use common::{bare_scene, flux};
 use glam::DVec3;
 use lightpath::eikonal::grid::{GridField, Interp};
 use lightpath::eikonal::{BoundedField, Bounds, Profile};
 use lightpath::math::{Rng, stream_rng, uniform};
 use lightpath::mc::Estimate;
 use lightpath::medium::{PhaseFunction, Scattering};
-use lightpath::rrte::{
-    Density, Light, ParticleTracer, Probe, RenderScene, Sensor, SensorKind, Total, Volume,
-};
+use lightpath::rrte::{Density, Light, ParticleTracer, Probe, RenderScene, Total, Volume};
 
 /// Half the slab's lateral extent (far beyond where light spreads) and its thickness (faces at
 /// z = ±0.5).
@@ -47,16 +45,6 @@ fn linear_density() -> Density {
 }
 
 fn slab(profile: Profile, sigma_s: f64, sigma_a: f64, g: f64) -> RenderScene {
-    let flux = |name: &str, z: f64| {
-        Sensor::new(
-            name.into(),
-            SensorKind::Flux,
-            DVec3::new(0.0, 0.0, z),
-            DVec3::Z,
-            None,
-            [1, 1],
-        )
-    };
     RenderScene {
         volume: Volume {
             field: BoundedField::single(

@@ -6,26 +6,16 @@
 
 mod common;
 
-use common::{bare_scene, render};
+use common::{bare_scene, flux, render};
 use glam::DVec3;
 use lightpath::eikonal::{BoundedField, Bounds, Profile};
 use lightpath::medium::params::Param;
 use lightpath::medium::{PhaseFunction, Scattering};
-use lightpath::rrte::{Light, RenderScene, Sensor, SensorKind, Volume};
+use lightpath::rrte::{Light, RenderScene, Volume};
 
 /// A slab (faces at z = ±0.5, wide beyond where light spreads) of index `n` in air under a normal
 /// beam, with flux sensors on both faces: transmitted (0) and reflected (1).
 fn slab(n: f64, sigma_s: f64, sigma_a: f64, g: f64, derivatives: Vec<Param>) -> RenderScene {
-    let flux = |name: &str, z: f64| {
-        Sensor::new(
-            name.into(),
-            SensorKind::Flux,
-            DVec3::new(0.0, 0.0, z),
-            DVec3::Z,
-            None,
-            [1, 1],
-        )
-    };
     RenderScene {
         volume: Volume {
             field: BoundedField::single(
@@ -107,12 +97,39 @@ fn a_scattering_slab_differentiates_as_its_differences() {
     }
 }
 
+/// A screen's derivative image: its pixels add up to the derivative of its power (every photon
+/// adding to one adds to the other), and it is not the power's image.
+#[test]
+fn a_screens_derivative_image_adds_up_to_its_power() {
+    let mut s = slab(1.33, 2.0, 0.3, 0.6, vec![Param::SigmaA, Param::G(0)]);
+    s.sensors[0] = lightpath::rrte::Sensor::new(
+        "screen".into(),
+        lightpath::rrte::SensorKind::Screen,
+        DVec3::new(0.0, 0.0, 0.5),
+        DVec3::Z,
+        Some([3.0, 3.0]),
+        [8, 8],
+    );
+    let (e, est) = render(&s, 100_000, 4);
+    for j in 0..2 {
+        let d = est.derivative_image(0, j);
+        let pixels: f64 = (0..d.pixels).map(|k| e.mean[d.first + k].re).sum();
+        let total = e.mean[d.total()].re;
+        assert!(
+            (pixels - total).abs() <= 1e-12 * total.abs() && total != 0.0,
+            "parameter {j}: pixels {pixels}, total {total}"
+        );
+    }
+    // a flux sensor's derivative has no pixels
+    assert_eq!(est.derivative_image(1, 0).pixels, 0);
+}
+
 /// Bad `render.derivatives` are refused by key; good ones reach `render.json`.
 #[test]
 fn derivatives_are_checked_and_written() {
     let text = |derivatives: &str, extra: &str| {
         format!(
-            "[field]\nprofiles = [{{ kind = \"constant\", n = 1.0 }}]\nbounds = {{ kind = \"box\", size = [4.0, 4.0, 1.0] }}\n[medium]\nsigma_s = 1.0\nsigma_a = 0.1\nphase = {{ kind = \"hg\", g = 0.5 }}\n[light]\nkind = \"beam\"\ncenter = [0.0, 0.0, -1.0]\ndirection = [0.0, 0.0, 1.0]\n[[sensor]]\nkind = \"flux\"\nname = \"T\"\ncenter = [0.0, 0.0, 0.5]\nnormal = [0.0, 0.0, 1.0]\n[render]\nsamples = 4000\nchunk = 1000\nderivatives = {derivatives}\n{extra}"
+            "[field]\nprofiles = [{{ kind = \"constant\", n = 1.0 }}]\nbounds = {{ kind = \"box\", size = [4.0, 4.0, 1.0] }}\n[medium]\nsigma_s = 1.0\nsigma_a = 0.1\nphase = {{ kind = \"hg\", g = 0.5 }}\n[light]\nkind = \"beam\"\ncenter = [0.0, 0.0, -1.0]\ndirection = [0.0, 0.0, 1.0]\n[[sensor]]\nkind = \"flux\"\nname = \"T\"\ncenter = [0.0, 0.0, 0.5]\nnormal = [0.0, 0.0, 1.0]\n[[sensor]]\nkind = \"screen\"\nname = \"S\"\ncenter = [0.0, 0.0, 1.0]\nnormal = [0.0, 0.0, 1.0]\nsize = [2.0, 2.0]\npixels = [4, 4]\n[render]\nsamples = 4000\nchunk = 1000\nderivatives = {derivatives}\n{extra}"
         )
     };
     let refused = |t: String, needles: &[&str]| {
@@ -166,6 +183,18 @@ fn derivatives_are_checked_and_written() {
     // every transmitted photon crossed the slab: dT/dσ_a = −E[L] T with L ≥ 1
     assert!(d <= -power && power > 0.0, "dT/dσ_a = {d}, T = {power}");
     assert!(sensor["derivatives"]["g"]["stderr"].as_f64().unwrap() > 0.0);
+    // the screen's derivative images, written and listed
+    let files: Vec<&str> = json["sensors"][1]["files"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f.as_str().unwrap())
+        .collect();
+    for name in ["screen_S.exr", "screen_S_d_sigma_a.exr", "screen_S_d_g.exr"] {
+        assert!(files.contains(&name), "{files:?}");
+        assert!(dir.join("out").join(name).exists(), "{name}");
+    }
+    assert!(dir.join("out/screen_S_d_g.png").exists());
 }
 
 /// The render as a burn operation: its backward is the scores' Jacobian (bit for bit the one

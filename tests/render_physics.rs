@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::{bare_scene, render};
+use common::{bare_scene, flux, render};
 use glam::DVec3;
 use lightpath::eikonal::{BoundedField, Bounds, Profile};
 use lightpath::math::{Rng, stream_rng, uniform};
@@ -36,17 +36,6 @@ fn slab_volume(
         scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g }),
         density: None,
     }
-}
-
-fn flux(name: &str, z: f64) -> Sensor {
-    Sensor::new(
-        name.into(),
-        SensorKind::Flux,
-        DVec3::new(0.0, 0.0, z),
-        DVec3::Z,
-        None,
-        [1, 1],
-    )
 }
 
 fn beam(z: f64, radius: f64) -> Light {

@@ -47,6 +47,51 @@ def test_render_equals_the_command_line_and_its_images_add_up(repo, run_cli, tmp
         lp.render(repo / "configs" / "quickstart.toml")
 
 
+def test_render_derivatives_give_the_gradient_of_a_loss(tmp_path):
+    # a Fresnel slab's transmission and reflection with their derivatives by the medium; the
+    # gradient of a loss on the powers is the chain rule through them
+    text = """
+[field]
+profiles = [{ kind = "constant", n = 1.33 }]
+bounds = { kind = "box", size = [60.0, 60.0, 1.0] }
+[medium]
+sigma_s = 2.0
+sigma_a = 0.3
+phase = { kind = "hg", g = 0.6 }
+[light]
+kind = "beam"
+center = [0.0, 0.0, -1.0]
+direction = [0.0, 0.0, 1.0]
+[[sensor]]
+kind = "flux"
+name = "T"
+center = [0.0, 0.0, 0.5]
+normal = [0.0, 0.0, 1.0]
+[[sensor]]
+kind = "flux"
+name = "R"
+center = [0.0, 0.0, -0.5]
+normal = [0.0, 0.0, 1.0]
+[render]
+samples = 200000
+chunk = 5000
+derivatives = ["sigma_s", "sigma_a", "g"]
+"""
+    r = lp.render(lp.loads(text), threads=2).result
+    sensors = {s["name"]: s for s in r["sensors"]}
+    jac = np.array([[sensors[n]["derivatives"][p]["mean"] for p in ("sigma_s", "sigma_a", "g")]
+                    for n in ("T", "R")])
+    err = np.array([[sensors[n]["derivatives"][p]["stderr"] for p in ("sigma_s", "sigma_a", "g")]
+                    for n in ("T", "R")])
+    # absorption lowers both; forward scattering (g) lets more through and sends less back
+    assert (jac[:, 1] < -4 * err[:, 1]).all()
+    assert jac[0, 2] > 4 * err[0, 2] and jac[1, 2] < -4 * err[1, 2]
+    # the derivatives come with the powers, from the same photons
+    assert sensors["T"]["power"]["mean"] > 0.2
+    with pytest.raises(ValueError, match="render.derivatives"):
+        lp.loads(text.replace('"g"]', '"g", "bin[2]"]'))
+
+
 STEP_DEG = 0.15
 PIXELS = 64
 PEAKS = [(32, 8), (32, 40)]

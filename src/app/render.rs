@@ -236,6 +236,8 @@ pub struct Image {
     pub total: Vec<(Vec<f64>, Vec<f64>)>,
     /// `[bin][channel] → (values, standard errors)`; empty without time bins.
     pub bins: Vec<Vec<(Vec<f64>, Vec<f64>)>>,
+    /// Values of either sign (a derivative): the preview shows 0 as mid-grey.
+    pub signed: bool,
 }
 
 /// The results of a whole run (or merged shards) from its blocks.
@@ -299,6 +301,19 @@ pub fn rendered(
                 let image = frames.image(format!("screen_{}", s.name), "√irradiance");
                 record.files = image.exr_names();
                 images.push(image);
+                for (j, p) in scene.derivatives.iter().enumerate() {
+                    let frames = Frames {
+                        image: est.derivative_image(i, j),
+                        ..frames
+                    };
+                    let mut image = frames.image(
+                        format!("screen_{}_d_{}", s.name, file_name(&p.name())),
+                        "∂irradiance",
+                    );
+                    image.signed = true;
+                    record.files.extend(image.exr_names());
+                    images.push(image);
+                }
                 record.pixels = Some(s.pixels);
                 record.pixel_area = Some(area);
             }
@@ -540,6 +555,11 @@ struct Frames<'a> {
     scale: f64,
 }
 
+/// A parameter's name as part of a file name: `bin[0][3]` → `bin_0_3`.
+fn file_name(param: &str) -> String {
+    param.replace('[', "_").replace(']', "")
+}
+
 /// The EXR channel names of an image's planes and of their standard errors.
 const MONO: ([&str; 1], [&str; 1]) = (["Y"], ["stderr"]);
 const RGB: ([&str; 3], [&str; 3]) = (["R", "G", "B"], ["stderr.R", "stderr.G", "stderr.B"]);
@@ -578,6 +598,7 @@ impl Frames<'_> {
             } else {
                 vec![]
             },
+            signed: false,
         }
     }
 }
@@ -618,11 +639,11 @@ impl Image {
             write(name, frame)?;
         }
         // the preview's white: the 99.5th percentile, so that a few bright pixels (a point light
-        // seen directly, fireflies) do not leave the rest black
+        // seen directly, fireflies) do not leave the rest black; of the magnitude when signed
         let mut sorted: Vec<f64> = self
             .total
             .iter()
-            .flat_map(|(v, _)| v.iter().cloned())
+            .flat_map(|(v, _)| v.iter().map(|x| if self.signed { x.abs() } else { *x }))
             .collect();
         sorted.sort_by(f64::total_cmp);
         let max = sorted
@@ -633,15 +654,17 @@ impl Image {
             .max(0.0);
         // the plot's rows run upwards from its bottom: back to the images' own order
         let at = |k: usize| (h - 1 - k / w) * w + k % w;
-        let scaled = |v: f64| {
-            if max > 0.0 {
-                (v / max).max(0.0).sqrt()
-            } else {
-                0.0
-            }
+        let scaled = |v: f64| match (max > 0.0, self.signed) {
+            (false, signed) => 0.5 * f64::from(u8::from(signed)),
+            (true, false) => (v / max).max(0.0).sqrt(),
+            (true, true) => 0.5 + 0.5 * (v / max).clamp(-1.0, 1.0),
         };
         let png = out.join(format!("{}.png", self.stem));
-        let title = format!("{}, white at {max:.2e}", self.label);
+        let title = if self.signed {
+            format!("{}, ±{max:.2e}, 0 grey", self.label)
+        } else {
+            format!("{}, white at {max:.2e}", self.label)
+        };
         if channels == 3 {
             let rgb: Vec<[f64; 3]> = (0..n)
                 .map(|k| [0, 1, 2].map(|c| scaled(self.total[c].0[at(k)])))

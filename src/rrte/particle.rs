@@ -264,8 +264,11 @@ pub struct ParticleTracer<'s> {
     /// The power reaching each surface.
     surface_offset: usize,
     totals: usize,
-    /// The first derivative output: parameter after parameter, sensor after sensor.
-    derivative_offset: usize,
+    /// Per differentiated parameter, sensor after sensor: the derivative of its power (the
+    /// layout's total) and, for a screen, of each pixel's.
+    derivative_images: Vec<ImageLayout>,
+    /// Outputs in all.
+    outputs: usize,
 }
 
 impl<'s> ParticleTracer<'s> {
@@ -306,21 +309,46 @@ impl<'s> ParticleTracer<'s> {
         }
         let surface_offset = at;
         at += scene.surfaces.len();
+        let totals = at;
+        at += TOTALS;
+        let mut derivative_images = Vec::new();
+        for _ in &scene.derivatives {
+            for s in &scene.sensors {
+                let pixels = match s.kind {
+                    SensorKind::Flux => 0,
+                    SensorKind::Screen => s.pixel_count(),
+                };
+                derivative_images.push(ImageLayout {
+                    first: at + 1,
+                    pixels,
+                    channels: 1,
+                    bins: 1,
+                });
+                at += 1 + pixels;
+            }
+        }
         ParticleTracer {
             scene,
             tools: Tools::new(&scene.volume, scene, [1.0; 3], Delay::NONE),
             images,
             probes,
             surface_offset,
-            totals: at,
-            derivative_offset: at + TOTALS,
+            totals,
+            derivative_images,
+            outputs: at,
         }
+    }
+
+    /// The derivative of sensor `i`'s image with respect to `scene.derivatives[j]`: its total
+    /// (the power's derivative) and, for a screen, its pixels (one channel, time-integrated).
+    pub fn derivative_image(&self, i: usize, j: usize) -> ImageLayout {
+        self.derivative_images[j * self.scene.sensors.len() + i]
     }
 
     /// The output holding the derivative of sensor `i`'s power with respect to
     /// `scene.derivatives[j]`.
     pub fn power_derivative(&self, i: usize, j: usize) -> usize {
-        self.derivative_offset + j * self.scene.sensors.len() + i
+        self.derivative_image(i, j).total()
     }
 
     /// The image of sensor `i` (a flux sensor's: one pixel, one channel, its power per bin).
@@ -689,8 +717,12 @@ impl<'s> ParticleTracer<'s> {
             };
             image.add(out, bin, pixel, weight, &t.colour);
             out[image.total()].re += weight;
-            for (j, s) in score.iter().enumerate() {
-                out[self.power_derivative(i, j)].re += weight * s;
+            for (j, dlog) in score.iter().enumerate() {
+                let d = self.derivative_image(i, j);
+                out[d.total()].re += weight * dlog;
+                if d.pixels > 0 {
+                    out[d.first + pixel].re += weight * dlog;
+                }
             }
         }
     }
@@ -1178,7 +1210,7 @@ impl Estimator for ParticleTracer<'_> {
     type Scratch = (Option<Volume>, Subpaths);
 
     fn outputs(&self) -> usize {
-        self.derivative_offset + self.scene.derivatives.len() * self.scene.sensors.len()
+        self.outputs
     }
 
     fn scratch(&self) -> Self::Scratch {

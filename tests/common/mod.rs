@@ -70,6 +70,18 @@ pub fn bare_scene(step: f64) -> lightpath::rrte::RenderScene {
     }
 }
 
+/// A flux sensor on the plane `z`, facing +z, infinite.
+pub fn flux(name: &str, z: f64) -> lightpath::rrte::Sensor {
+    lightpath::rrte::Sensor::new(
+        name.into(),
+        lightpath::rrte::SensorKind::Flux,
+        glam::DVec3::new(0.0, 0.0, z),
+        glam::DVec3::Z,
+        None,
+        [1, 1],
+    )
+}
+
 /// Render `scene` with `samples` photons (or camera paths) in 64 chunks from `seed`.
 pub fn render(
     scene: &lightpath::rrte::RenderScene,
