@@ -254,3 +254,62 @@ fn adam_fits_a_slab_through_the_render_operation() {
         "{got:?}"
     );
 }
+
+/// Mixture parameters through the render operation: a share of two particle types (a strongly
+/// forward HG and a tabulated, backward-leaning type) and a table node, both unnormalised (the
+/// operation renormalises, as `lightpath fit` does), against central differences with common
+/// random numbers (each pair of renders at θ ± h from one seed; mean and error over 16 seeds);
+/// each derivative is also far from zero, so the comparison can fail.
+#[test]
+fn mixture_parameters_differentiate_as_their_differences() {
+    use lightpath::diff::RenderOp;
+    use lightpath::medium::Table;
+    let table = Table::from_rho(None, vec![0.3, 0.3, 0.4, 0.6, 4.0, 1.5]).unwrap();
+    let mut s = slab(1.33, 2.0, 0.3, 0.0, vec![]);
+    s.volume.scattering = Scattering::mixture(vec![
+        (0.4, PhaseFunction::HenyeyGreenstein { g: 0.9 }),
+        (0.6, PhaseFunction::Tabulated(table)),
+    ]);
+    let params = vec![Param::Weight(0), Param::Bin(1, 4)];
+    // the node's value in the normalised table
+    let v = &s.volume;
+    let theta = [
+        0.6,
+        params[1]
+            .value_in(v.sigma_s, v.sigma_a, &v.scattering)
+            .unwrap(),
+    ];
+    let op =
+        |photons, seed| RenderOp::new(s.clone(), params.clone(), (photons, 10_000, seed)).unwrap();
+    let d = op(400_000, 31).evaluate(&theta).unwrap();
+    for (p, h) in [0.05, 0.2 * theta[1]].into_iter().enumerate() {
+        let (mut up, mut down) = (theta, theta);
+        up[p] += h;
+        down[p] -= h;
+        let pairs: Vec<[f64; 2]> = (0..16)
+            .map(|k| {
+                let a = op(200_000, 100 + k).evaluate(&up).unwrap().power;
+                let b = op(200_000, 100 + k).evaluate(&down).unwrap().power;
+                [0, 1].map(|i| (a[i] - b[i]) / (2.0 * h))
+            })
+            .collect();
+        for i in 0..2 {
+            let mean = pairs.iter().map(|x| x[i]).sum::<f64>() / 16.0;
+            let var = pairs.iter().map(|x| (x[i] - mean).powi(2)).sum::<f64>() / 15.0;
+            let sdiff = (var / 16.0).sqrt();
+            let (got, sd) = (d.jacobian[i][p], d.jacobian_stderr[i][p]);
+            eprintln!(
+                "d{}/d{}: {got:.5} ± {sd:.5}, differences {mean:.5} ± {sdiff:.5}",
+                ["T", "R"][i],
+                params[p].name()
+            );
+            assert!(got.abs() > 4.0 * sd, "{}: {got} ± {sd}", params[p].name());
+            assert!(
+                (got - mean).abs() < 4.0 * sd.hypot(sdiff),
+                "d{}/d{}: {got} ± {sd}, differences {mean} ± {sdiff}",
+                ["T", "R"][i],
+                params[p].name()
+            );
+        }
+    }
+}

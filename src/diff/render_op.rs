@@ -27,12 +27,14 @@ pub struct RenderOp {
     evaluations: AtomicU64,
 }
 
-/// The powers of one evaluation, their standard errors and `∂ power_i/∂θ_p` (rows: sensors).
+/// The powers of one evaluation, their standard errors, `∂ power_i/∂θ_p` (rows: sensors) and
+/// its standard errors.
 #[derive(Clone, Debug)]
 pub struct RenderEvaluation {
     pub power: Vec<f64>,
     pub stderr: Vec<f64>,
     pub jacobian: Vec<Vec<f64>>,
+    pub jacobian_stderr: Vec<Vec<f64>>,
 }
 
 impl Pullback for RenderEvaluation {
@@ -124,18 +126,23 @@ impl RenderOp {
         let est = ParticleTracer::new(&scene);
         let e = estimate_until(&est, &plan, self.stop.get())?;
         let sensors = scene.sensors.len();
-        let out = RenderEvaluation {
-            power: (0..sensors).map(|i| e.mean[est.power(i)].re).collect(),
-            stderr: (0..sensors).map(|i| e.stderr[est.power(i)]).collect(),
-            jacobian: (0..sensors)
+        // the derivative outputs scaled by each parameter's factor (errors by its size)
+        let per_parameter = |value: &dyn Fn(usize, f64) -> f64| -> Vec<Vec<f64>> {
+            (0..sensors)
                 .map(|i| {
                     factor
                         .iter()
                         .enumerate()
-                        .map(|(p, f)| e.mean[est.power_derivative(i, p)].re * f)
+                        .map(|(p, &f)| value(est.power_derivative(i, p), f))
                         .collect()
                 })
-                .collect(),
+                .collect()
+        };
+        let out = RenderEvaluation {
+            power: (0..sensors).map(|i| e.mean[est.power(i)].re).collect(),
+            stderr: (0..sensors).map(|i| e.stderr[est.power(i)]).collect(),
+            jacobian: per_parameter(&|k, f| e.mean[k].re * f),
+            jacobian_stderr: per_parameter(&|k, f| e.stderr[k] * f.abs()),
         };
         if out
             .power
