@@ -29,6 +29,25 @@ fn results(dir: &Path) -> serde_json::Value {
     v
 }
 
+/// Render the config at `config` into `out` with `samples` photons (or paths) and check that
+/// it succeeded.
+fn render_ok(config: &str, out: &Path, samples: u64) {
+    let o = lightpath(&[
+        "render",
+        config,
+        "--out",
+        &out.display().to_string(),
+        "--samples",
+        &samples.to_string(),
+        "--quiet",
+    ]);
+    assert!(
+        o.status.success(),
+        "{config}: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
 /// Write `text` to `path` and check that `lightpath render` refuses it (exit 2) naming `key`.
 fn refused(path: &Path, text: &str, key: &str) {
     std::fs::write(path, text).unwrap();
@@ -171,16 +190,7 @@ fn reflections_are_read_from_the_config() {
     let path = dir.join("slab.toml");
     std::fs::write(&path, text).unwrap();
     let out = dir.join("out");
-    let o = lightpath(&[
-        "render",
-        &path.display().to_string(),
-        "--out",
-        &out.display().to_string(),
-        "--samples",
-        "2000",
-        "--quiet",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    render_ok(&path.display().to_string(), &out, 2000);
     let json = std::fs::read_to_string(out.join("render.json")).unwrap();
     assert!(json.contains("\"reflections\":2"), "{json}");
     let _ = std::fs::remove_dir_all(dir);
@@ -285,16 +295,7 @@ fn spectra_are_checked_by_key() {
 #[test]
 fn white_light_renders_rgb_images() {
     let out = tmp("rgb");
-    let o = lightpath(&[
-        "render",
-        &config("render_spectral.toml"),
-        "--out",
-        &out.display().to_string(),
-        "--samples",
-        "3000",
-        "--quiet",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    render_ok(&config("render_spectral.toml"), &out, 3000);
     assert_eq!(
         results(&out)["channels"],
         serde_json::json!(["R", "G", "B"])
@@ -433,16 +434,7 @@ fn path_tracing_is_checked_and_runs() {
         refused(&dir.join(format!("bad{i}.toml")), &text, key);
     }
     let out = dir.join("run");
-    let o = lightpath(&[
-        "render",
-        &config("render_path.toml"),
-        "--out",
-        &out.display().to_string(),
-        "--samples",
-        "2000",
-        "--quiet",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    render_ok(&config("render_path.toml"), &out, 2000);
     let r = results(&out);
     assert_eq!(r["estimator"], "path_tracing");
     assert!(r.get("absorbed").is_none() && r.get("surfaces").is_none());
@@ -475,16 +467,7 @@ fn bidirectional_tracing_is_checked_and_runs() {
         let path = dir.join(format!("{name}.toml"));
         std::fs::write(&path, text).unwrap();
         let out = dir.join(name);
-        let o = lightpath(&[
-            "render",
-            &path.display().to_string(),
-            "--out",
-            &out.display().to_string(),
-            "--samples",
-            "1000",
-            "--quiet",
-        ]);
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        render_ok(&path.display().to_string(), &out, 1000);
         let r = results(&out);
         assert_eq!(r["estimator"], "bidirectional");
         let camera = &r["cameras"][0];
@@ -528,16 +511,7 @@ fn tiny_indices_render_or_are_refused() {
     )
     .unwrap();
     let out = dir.join("tiny");
-    let o = lightpath(&[
-        "render",
-        &path.display().to_string(),
-        "--out",
-        &out.display().to_string(),
-        "--samples",
-        "500",
-        "--quiet",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    render_ok(&path.display().to_string(), &out, 500);
     let r = results(&out);
     let mean = r["cameras"][0]["irradiance"]["mean"].as_f64().unwrap();
     assert!(mean.is_finite() && mean >= 0.0, "{mean}");
@@ -602,16 +576,7 @@ fn meshes_are_read_and_checked_by_key() {
         String::from_utf8_lossy(&o.stderr)
     );
     let out = dir.join("run");
-    let o = lightpath(&[
-        "render",
-        &path.display().to_string(),
-        "--out",
-        &out.display().to_string(),
-        "--samples",
-        "1000",
-        "--quiet",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    render_ok(&path.display().to_string(), &out, 1000);
     assert!(
         results(&out)["cameras"][0]["irradiance"]["mean"]
             .as_f64()
@@ -733,20 +698,7 @@ fn signed_distance_shapes_are_checked_and_read_from_files() {
         let path = dir.join(format!("{name}.toml"));
         std::fs::write(&path, text).unwrap();
         let out = dir.join(format!("{name}.out"));
-        let o = lightpath(&[
-            "render",
-            &path.display().to_string(),
-            "--out",
-            &out.display().to_string(),
-            "--samples",
-            "2000",
-            "--quiet",
-        ]);
-        assert!(
-            o.status.success(),
-            "{name}: {}",
-            String::from_utf8_lossy(&o.stderr)
-        );
+        render_ok(&path.display().to_string(), &out, 2000);
         totals.push(results(&out)["sensors"].clone());
     }
     // the same grid (the file's samples are the sphere's distance at the same nodes), so the

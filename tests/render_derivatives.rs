@@ -195,6 +195,7 @@ fn derivatives_are_checked_and_written() {
         assert!(dir.join("out").join(name).exists(), "{name}");
     }
     assert!(dir.join("out/screen_S_d_g.png").exists());
+    let _ = std::fs::remove_dir_all(dir);
 }
 
 /// The render as a burn operation: its backward is the scores' Jacobian (bit for bit the one
@@ -249,8 +250,9 @@ fn adam_fits_a_slab_through_the_render_operation() {
     }
     let got = values(&m.theta.val());
     eprintln!("fitted σ_s {:.4}, σ_a {:.4} (truth 2, 0.3)", got[0], got[1]);
+    // Adam's last steps move each parameter by up to about its learning rate, 0.02
     assert!(
-        (got[0] - 2.0).abs() < 0.1 && (got[1] - 0.3).abs() < 0.03,
+        (got[0] - 2.0).abs() < 0.05 && (got[1] - 0.3).abs() < 0.03,
         "{got:?}"
     );
 }

@@ -203,7 +203,9 @@ impl PhasedArray {
     /// `|H₀⁽¹⁾(k d)| e^{−α d}` at the reference distance: an element of unit weight's amplitude
     /// there.
     fn reference_amplitude(&self) -> f64 {
-        self.radial_at(self.reference).0.norm()
+        let (k, alpha) = (self.ultrasound.wavenumber(), self.ultrasound.alpha());
+        let z = k * self.reference;
+        libm::j0(z).hypot(libm::y0(z)) * (-alpha * self.reference).exp()
     }
 
     /// Element `j`'s weight `c_j = g A_j e^{iψ_j} / (|H₀(k d)| e^{−α d})`.
@@ -226,20 +228,6 @@ impl PhasedArray {
         let s = C64::from_polar(self.piezo_optic, -omega_t);
         let (n, g, h) = self.pressure(x).real_part(s);
         (self.n0 + n, g, h)
-    }
-
-    /// The largest index excursion `(dn/dp) |P|` on the circle of `radius` about the axis
-    /// (sampled at 720 angles): what the field's extremes can reach there.
-    pub fn peak_excursion(&self, radius: f64) -> f64 {
-        (0..720)
-            .map(|i| {
-                let (s, c) = (std::f64::consts::TAU * i as f64 / 720.0).sin_cos();
-                self.pressure(DVec3::new(radius * c, radius * s, 0.0))
-                    .value
-                    .norm()
-            })
-            .fold(0.0, f64::max)
-            * self.piezo_optic
     }
 
     /// Parameter `which` of the design: `n0`, the gain, the frequency (Hz), then each element's
@@ -296,16 +284,16 @@ impl PhasedArray {
             2 => {
                 let freq = self.ultrasound.frequency;
                 let (fr, fr1, _) = self.radial_at(self.reference);
-                // ∂ ln|f(d)| / ∂s
+                // ∂ ln|f(d)| / ∂s: the weights' normalisation
                 let dlog_ref = self.reference / freq * (fr.conj() * fr1).re / fr.norm_sqr();
-                let mut dp = self.pressure(x);
-                dp.value *= -dlog_ref;
-                dp.grad.iter_mut().for_each(|g| *g *= -dlog_ref);
+                // per element `c (∂f/∂s − f ∂ln|f(d)|/∂s)` with `∂f/∂s = (ρ/s) f'`, and its
+                // radial derivative `c ((f' + ρ f'')/s − f' ∂ln|f(d)|/∂s)`
+                let mut dp = Wave::ZERO;
                 for e in &self.elements {
                     let c = self.weight(e, reference);
                     let r = self.radial(e, x);
-                    dp.value += c * r.f1 * (r.rho / freq);
-                    let radial = c * (r.f1 + r.f2 * r.rho) / freq;
+                    dp.value += c * (r.f1 * (r.rho / freq) - r.f * dlog_ref);
+                    let radial = c * ((r.f1 + r.f2 * r.rho) / freq - r.f1 * dlog_ref);
                     dp.grad[0] += radial * r.e[0];
                     dp.grad[1] += radial * r.e[1];
                 }
@@ -321,11 +309,6 @@ impl PhasedArray {
                 real(&self.element_wave(e, x), dc)
             }
         }
-    }
-
-    /// The number of Hankel evaluations of one index evaluation (for time estimates).
-    pub fn evaluation_cost(&self) -> f64 {
-        self.elements.len() as f64
     }
 }
 

@@ -477,8 +477,8 @@ impl BoundedField {
                 Profile::Ultrasonic { k_r, m, .. } => {
                     super::bessel::nodes(k_r.abs() * radius, *m) as f64
                 }
-                // an element's Hankel functions cost a few simple profiles
-                Profile::PhasedArray { array, .. } => 4.0 * array.evaluation_cost(),
+                // an element's four Bessel functions cost a few simple profiles
+                Profile::PhasedArray { array, .. } => 4.0 * array.elements.len() as f64,
                 Profile::Grid(g) => match g.interp {
                     super::grid::Interp::Tricubic => 64.0,
                     super::grid::Interp::Trilinear => 8.0,

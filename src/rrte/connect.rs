@@ -1133,6 +1133,21 @@ mod tests {
         );
     }
 
+    /// `check` on a glass ball (n = 1.5 in air, radius 1) in closed form and stepped (a linear
+    /// profile of zero gradient), each with its connector.
+    fn on_glass_balls(check: impl Fn(&Connector)) {
+        for profile in [
+            Profile::Constant { n: 1.5 },
+            Profile::Linear {
+                n0: 1.5,
+                gradient: DVec3::ZERO,
+            },
+        ] {
+            let v = volume(profile, Bounds::Sphere { radius: 1.0 }, 1.0);
+            check(&Connector::new(&v, 1e-3, 100_000));
+        }
+    }
+
     /// Across a glass ball (n = 1.5 in air), in closed form and stepped: the path found from a
     /// point on one side to a point on the other, from a poor start, refracts by Snell's law
     /// where it enters and leaves and passes through the point; its transmission is the two
@@ -1154,19 +1169,11 @@ mod tests {
                 * (1.0 - reflectance(e.dot(d), e.dot(o), 1.5));
             (e, o, t1, transmission)
         };
-        for profile in [
-            Profile::Constant { n: 1.5 },
-            Profile::Linear {
-                n0: 1.5,
-                gradient: DVec3::ZERO,
-            },
-        ] {
-            let v = volume(profile, Bounds::Sphere { radius: 1.0 }, 1.0);
-            let c = Connector::new(&v, 1e-3, 100_000);
+        on_glass_balls(|c| {
             let start = ((p - y).normalize() + DVec3::X * 0.3).normalize();
             let found = c.solve_across(y, p, start).expect("converges");
             traced_by_hand(&found, p, hand);
-        }
+        });
     }
 
     /// From inside a glass ball (n = 1.5 in air), in closed form and stepped: the path to a
@@ -1197,21 +1204,13 @@ mod tests {
                 r * (1.0 - reflectance(e.dot(d), e.dot(o), 1.5)),
             )
         };
-        for profile in [
-            Profile::Constant { n: 1.5 },
-            Profile::Linear {
-                n0: 1.5,
-                gradient: DVec3::ZERO,
-            },
-        ] {
-            let v = volume(profile, Bounds::Sphere { radius: 1.0 }, 1.0);
-            let c = Connector::new(&v, 1e-3, 100_000);
+        on_glass_balls(|c| {
             let mut rng = crate::math::stream_rng(3, 0);
             let found = (0..200)
                 .find_map(|_| c.solve_through(x, p, c.initial(x, p, &mut rng), 1))
                 .expect("some start converges");
             traced_by_hand(&found, p, hand);
-        }
+        });
     }
 
     #[test]
