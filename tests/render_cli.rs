@@ -728,3 +728,28 @@ fn signed_distance_shapes_are_checked_and_read_from_files() {
     );
     let _ = std::fs::remove_dir_all(dir);
 }
+
+/// The delivery example: a target's fluence and its derivatives by the array's drive and the
+/// medium reach `render.json` by name.
+#[test]
+fn targets_and_their_field_derivatives_reach_render_json() {
+    let out = tmp("delivery");
+    render_ok("configs/render_delivery.toml", &out, 400);
+    let v = results(&out);
+    let target = &v["targets"][0];
+    assert_eq!(target["name"], "depth_10mm");
+    assert_eq!(target["shape"], "sphere");
+    assert!(target["fluence"]["mean"].as_f64().unwrap() > 0.0);
+    for name in [
+        "profiles[0].frequency",
+        "profiles[0].amplitude_0",
+        "profiles[0].phase_1",
+        "sigma_s",
+        "g",
+    ] {
+        let d = &target["derivatives"][name];
+        assert!(d["mean"].as_f64().unwrap().is_finite(), "{name}: {d}");
+        assert!(d["stderr"].as_f64().unwrap() > 0.0, "{name}: {d}");
+    }
+    assert!(v["sensors"].as_array().unwrap().is_empty());
+}

@@ -11,7 +11,7 @@ use glam::DVec3;
 use lightpath::eikonal::{BoundedField, Bounds, Profile};
 use lightpath::medium::params::Param;
 use lightpath::medium::{PhaseFunction, Scattering};
-use lightpath::rrte::{Light, RenderScene, Volume};
+use lightpath::rrte::{Derivative, Light, RenderScene, Volume};
 
 /// A slab (faces at z = ±0.5, wide beyond where light spreads) of index `n` in air under a normal
 /// beam, with flux sensors on both faces: transmitted (0) and reflected (1).
@@ -36,7 +36,7 @@ fn slab(n: f64, sigma_s: f64, sigma_a: f64, g: f64, derivatives: Vec<Param>) -> 
             radius: 0.0,
         },
         sensors: vec![flux("T", 0.5), flux("R", -0.5)],
-        derivatives,
+        derivatives: derivatives.into_iter().map(Derivative::Medium).collect(),
         ..bare_scene(0.01)
     }
 }

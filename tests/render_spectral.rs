@@ -66,6 +66,7 @@ fn plate(spectrum: Spectrum) -> RenderScene {
             size: Some([PIXEL * PIXELS as f64, 0.02]),
             pixels: [PIXELS, 1],
             acceptance: None,
+            region: None,
         }],
         spectrum: Some(spectrum),
         ..bare_scene(0.01)

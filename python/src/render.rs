@@ -54,7 +54,8 @@ pub(crate) struct Render {
 #[pymethods]
 impl Render {
     /// `render.json` as Python values (dicts, lists, floats): every sensor's power and per-bin
-    /// flux, probes, cameras, surfaces, absorbed/escaped totals, statistics and the config.
+    /// flux, probes, targets, cameras, surfaces, absorbed/escaped totals, statistics and the
+    /// config.
     #[getter]
     fn result<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
         json_value(py, &self.rendered.file)

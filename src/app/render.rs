@@ -10,11 +10,11 @@ use crate::error::{Error, Result};
 use crate::io::ResultFile;
 use crate::io::results::{
     CameraRecord, ConnectionStatistics, Measured, ProbeRecord, RenderFile, RenderStatistics,
-    SensorRecord, SurfaceRecord,
+    SensorRecord, SurfaceRecord, TargetRecord,
 };
 use crate::mc::{Block, Checkpoint, Estimate, Plan, merge, resume};
 use crate::medium::{Geometry, Medium};
-use crate::rrte::{ImageLayout, ParticleTracer, SensorKind, Total};
+use crate::rrte::{ImageLayout, ParticleTracer, Region, SensorKind, Total};
 use std::path::Path;
 
 /// The files a render writes (screens add `screen_<name>.exr`, `screen_<name>.png` and, with time
@@ -97,7 +97,7 @@ pub fn describe(task: &RenderTask) -> String {
     let s = &task.scene;
     let v = &s.volume;
     format!(
-        "render config{}: {} index profile(s) ({}) in {}, σ_s = {}, σ_a = {}, {} sensor plane(s), {} probe(s), {} camera(s), {} surface(s), {} output(s){}{}; ~{:.3} scattering events per photon",
+        "render config{}: {} index profile(s) ({}) in {}, σ_s = {}, σ_a = {}, {} sensor plane(s), {} target(s), {} probe(s), {} camera(s), {} surface(s), {} output(s){}{}{}; ~{:.3} scattering events per photon",
         match s.tracing {
             crate::rrte::Tracing::FromLight => "",
             crate::rrte::Tracing::FromCameras => " (path tracing from the cameras)",
@@ -112,11 +112,18 @@ pub fn describe(task: &RenderTask) -> String {
         bounds_text(&v.field.bounds),
         v.sigma_s,
         v.sigma_a,
-        s.sensors.len(),
+        s.sensors.iter().filter(|x| x.region.is_none()).count(),
+        s.sensors.iter().filter(|x| x.region.is_some()).count(),
         s.probes.len(),
         s.cameras.len() + s.pinholes.len(),
         s.surfaces.len(),
         crate::mc::Estimator::outputs(&ParticleTracer::new(s)),
+        if s.derivatives.is_empty() {
+            String::new()
+        } else {
+            let names: Vec<String> = s.derivatives.iter().map(|d| d.name()).collect();
+            format!(", derivatives by {}", names.join(", "))
+        },
         s.transient
             .map_or(String::new(), |t| format!(", {} time bins", t.bins)),
         s.spectrum
@@ -260,7 +267,38 @@ pub fn rendered(
     let mut images = Vec::new();
     let mut sensors = Vec::new();
     let mut summary = Vec::new();
+    let mut targets = Vec::new();
+    let derivatives_of = |i: usize| {
+        scene
+            .derivatives
+            .iter()
+            .enumerate()
+            .map(|(j, p)| (p.name(), measured(est.power_derivative(i, j))))
+            .collect()
+    };
     for (i, s) in scene.sensors.iter().enumerate() {
+        if let Some(region) = s.region {
+            let fluence = measured(est.power(i));
+            summary.push(format!(
+                "{} fluence {:.4e} ± {:.1e}",
+                s.name, fluence.mean, fluence.stderr
+            ));
+            let (shape, radius, size) = match region {
+                Region::Sphere { radius, .. } => ("sphere", Some(radius), None),
+                Region::Box { half, .. } => ("box", None, Some((half * 2.0).to_array())),
+            };
+            targets.push(TargetRecord {
+                name: s.name.clone(),
+                shape: shape.into(),
+                center: region.center().to_array(),
+                radius,
+                size,
+                volume: region.volume(),
+                fluence,
+                derivatives: derivatives_of(i),
+            });
+            continue;
+        }
         let image = est.sensor_image(i);
         let power = measured(est.power(i));
         summary.push(format!(
@@ -270,7 +308,7 @@ pub fn rendered(
         let mut record = SensorRecord {
             name: s.name.clone(),
             kind: match s.kind {
-                SensorKind::Flux => "flux",
+                SensorKind::Flux | SensorKind::Target => "flux",
                 SensorKind::Screen => "screen",
             }
             .into(),
@@ -282,12 +320,7 @@ pub fn rendered(
             pixel_area: None,
             pixel_noise: None,
             files: vec![],
-            derivatives: scene
-                .derivatives
-                .iter()
-                .enumerate()
-                .map(|(j, p)| (p.name(), measured(est.power_derivative(i, j))))
-                .collect(),
+            derivatives: derivatives_of(i),
         };
         match (s.kind, s.pixel_area()) {
             (SensorKind::Screen, Some(area)) => {
@@ -463,6 +496,7 @@ pub fn rendered(
         chunk: plan.chunk_paths,
         sensors,
         probes,
+        targets,
         cameras,
         channels: if scene.channels() == 3 {
             RGB.0.to_vec()

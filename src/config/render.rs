@@ -8,8 +8,9 @@ use super::{ConfigError, err};
 use crate::eikonal::Bounds;
 use crate::medium::{PhaseFunction, Scattering};
 use crate::rrte::{
-    Camera, Connections, Density, Dispersion, Light, MAX_DERIVATIVES, Material, Modulation, Probe,
-    RenderScene, Sensor, SensorKind, Spectrum, Surface, Tracing, Transient, Volume,
+    Camera, Connections, Density, Derivative, Dispersion, FieldDerivative, Light, MAX_DERIVATIVES,
+    MAX_TARGETS, Material, Modulation, Probe, Region, RenderScene, Sensor, SensorKind, Spectrum,
+    Surface, Tracing, Transient, Volume,
 };
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -96,6 +97,16 @@ pub enum SensorConfig {
     },
     /// Fluence rate at a point inside the volume, by connections along curved rays.
     Fluence { name: String, position: [f64; 3] },
+    /// The mean fluence rate over a region inside the volume (a sphere of `radius` or an
+    /// axis-aligned box of `size` about `center`): the light delivered there.
+    Target {
+        name: String,
+        center: [f64; 3],
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        radius: Option<f64>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        size: Option<[f64; 3]>,
+    },
     /// An orthographic camera: the radiance travelling along `direction` (it looks along
     /// `−direction`) over `size` about `center` in `pixels`, by connections through the surface.
     Camera {
@@ -603,6 +614,7 @@ impl RenderConfig {
                 SensorConfig::Flux { name, .. }
                 | SensorConfig::Screen { name, .. }
                 | SensorConfig::Fluence { name, .. }
+                | SensorConfig::Target { name, .. }
                 | SensorConfig::Camera { name, .. }
                 | SensorConfig::Pinhole { name, .. } => name,
             };
@@ -683,6 +695,25 @@ impl RenderConfig {
                     name: name.clone(),
                     position,
                 });
+            } else if let SensorConfig::Target {
+                name,
+                center,
+                radius,
+                size,
+            } = s
+            {
+                if sensors
+                    .iter()
+                    .filter(|s: &&Sensor| s.region.is_some())
+                    .count()
+                    == MAX_TARGETS
+                {
+                    return err(format!(
+                        "sensor[{i}].kind = \"target\": at most {MAX_TARGETS} targets"
+                    ));
+                }
+                let region = target_region(i, *center, *radius, *size, &volume)?;
+                sensors.push(Sensor::target(name.clone(), region));
             } else {
                 sensors.push(sensor(i, s, &volume)?);
             }
@@ -745,7 +776,7 @@ impl RenderConfig {
                 r.reflections
             ));
         }
-        let derivatives = self.derivatives(&volume)?;
+        let derivatives = self.derivatives(&volume, &sensors)?;
         let scene = RenderScene {
             volume,
             light,
@@ -778,13 +809,14 @@ impl RenderConfig {
         Ok(scene)
     }
 
-    /// The medium parameters `render.derivatives` names, checked: particle tracing through a
-    /// homogeneous medium that has them (the config's `σ_s > 0`: the score counts collisions per
-    /// `σ_s`).
+    /// The parameters `render.derivatives` names, checked: medium parameters (`sigma_s`, `g`, …)
+    /// of a homogeneous medium that has them, and index-field parameters (`profiles[i].name`),
+    /// for particle tracing.
     fn derivatives(
         &self,
         volume: &Volume,
-    ) -> Result<Vec<crate::medium::params::Param>, ConfigError> {
+        sensors: &[Sensor],
+    ) -> Result<Vec<Derivative>, ConfigError> {
         use crate::medium::params::Param;
         let names = &self.render.derivatives;
         if names.is_empty() {
@@ -809,16 +841,25 @@ impl RenderConfig {
         }
         let mut params = Vec::new();
         for (i, name) in names.iter().enumerate() {
-            let p = Param::parse(name).map_err(|e| ConfigError(format!("{}: {e}", key(i))))?;
-            if p.value_in(volume.sigma_s, volume.sigma_a, &volume.scattering)
-                .is_none()
-            {
-                return err(format!(
-                    "{}: the medium has no such parameter (phase-function parameters need a component of that kind: g an \"hg\" one, bin a table, vmf_* a vMF mixture)",
-                    key(i)
-                ));
-            }
-            if params.contains(&p) {
+            let p = if name.trim_start().starts_with("profiles[") {
+                let f = self
+                    .field_derivative(name, volume)
+                    .map_err(|e| ConfigError(format!("{}: {e}", key(i))))?;
+                self.check_field_derivative(&key(i), volume, sensors)?;
+                Derivative::Field(f)
+            } else {
+                let p = Param::parse(name).map_err(|e| ConfigError(format!("{}: {e}", key(i))))?;
+                if p.value_in(volume.sigma_s, volume.sigma_a, &volume.scattering)
+                    .is_none()
+                {
+                    return err(format!(
+                        "{}: the medium has no such parameter (phase-function parameters need a component of that kind: g an \"hg\" one, bin a table, vmf_* a vMF mixture; index-field parameters are named profiles[i].name)",
+                        key(i)
+                    ));
+                }
+                Derivative::Medium(p)
+            };
+            if params.iter().any(|q: &Derivative| q.name() == p.name()) {
                 return err(format!(
                     "{}: already listed; name each parameter once",
                     key(i)
@@ -827,6 +868,84 @@ impl RenderConfig {
             params.push(p);
         }
         Ok(params)
+    }
+
+    /// The index-field parameter `profiles[i].name` names.
+    fn field_derivative(&self, name: &str, volume: &Volume) -> Result<FieldDerivative, String> {
+        use crate::eikonal::{FieldParam, Profile};
+        let bad = || {
+            "index-field parameters are named profiles[i].name, e.g. profiles[0].n_max".to_string()
+        };
+        let rest = name.trim().strip_prefix("profiles[").ok_or_else(bad)?;
+        let (index, param) = rest.split_once("].").ok_or_else(bad)?;
+        let profile: usize = index.parse().map_err(|_| bad())?;
+        let profiles = &volume.field.profiles;
+        let prof = profiles
+            .get(profile)
+            .ok_or_else(|| format!("field.profiles has {} profile(s)", profiles.len()))?;
+        let which = prof
+            .param_index(param)
+            .ok_or_else(|| format!("the {} profile has no parameter {param:?}", prof.kind()))?;
+        if prof.dparam(DVec3::ZERO, which).is_none() {
+            return Err(format!(
+                "the {} profile's {param} has no derivative of the index",
+                prof.kind()
+            ));
+        }
+        // under a strobe the field holds an ultrasonic profile's amplitude times sin Ωt
+        let scale = match (&self.modulation, prof) {
+            (Some(ModulationConfig::Strobed { phase_deg }), Profile::Ultrasonic { .. })
+                if which == 1 =>
+            {
+                phase_deg.to_radians().sin()
+            }
+            _ => 1.0,
+        };
+        Ok(FieldDerivative {
+            param: FieldParam { profile, which },
+            name: format!("profiles[{profile}].{param}"),
+            scale,
+        })
+    }
+
+    /// What derivatives with respect to the index field need of the scene: photons that leave
+    /// a convex volume for good (no surfaces), and sensors whose response does not jump as the
+    /// light moves (targets), with nothing estimated by connections.
+    fn check_field_derivative(
+        &self,
+        key: &str,
+        volume: &Volume,
+        sensors: &[Sensor],
+    ) -> Result<(), ConfigError> {
+        let why = "the derivatives follow each photon's path as the field changes";
+        if !volume.field.bounds.is_convex() {
+            return err(format!(
+                "{key}: index-field derivatives need convex bounds (sphere, box, cylinder); {why}, and light leaving a non-convex shape may enter it again"
+            ));
+        }
+        if !self.surface.is_empty() {
+            return err(format!(
+                "{key}: index-field derivatives are estimated without [[surface]]s; {why} to sensors and targets only"
+            ));
+        }
+        for (i, s) in self.sensor.iter().enumerate() {
+            let kind = match s {
+                SensorConfig::Fluence { .. } => "fluence",
+                SensorConfig::Camera { .. } => "camera",
+                SensorConfig::Pinhole { .. } => "pinhole",
+                _ => continue,
+            };
+            return err(format!(
+                "{key}: sensor[{i}].kind = \"{kind}\" is estimated by connections, whose index-field derivatives are not estimated; use a target (kind = \"target\") or a flux sensor"
+            ));
+        }
+        if let Some(s) = sensors.iter().find(|s| s.region.is_none()) {
+            return err(format!(
+                "{key}: sensor {:?} is a plane, and which plane light crosses, and where, jumps as the light moves with the field (that share of the derivative is not estimated); index-field derivatives are of targets (kind = \"target\"): give the light to be delivered as a target region",
+                s.name
+            ));
+        }
+        Ok(())
     }
 
     /// Path tracing renders cameras lit by a light it can connect to; bidirectional path
@@ -839,6 +958,7 @@ impl RenderConfig {
         for (i, s) in self.sensor.iter().enumerate() {
             let kind = match s {
                 SensorConfig::Pinhole { .. } | SensorConfig::Camera { .. } => continue,
+                SensorConfig::Target { .. } => "target",
                 // the light subpaths record them, as particle tracing does
                 _ if scene.tracing == Tracing::Bidirectional => continue,
                 SensorConfig::Flux { .. } => "flux",
@@ -920,14 +1040,54 @@ impl RenderConfig {
 }
 
 /// Sensor `i`, checked to lie outside the volume (it records light that has left it).
+/// A target's region: a sphere (`radius`) or a box (`size`), inside the volume.
+fn target_region(
+    i: usize,
+    center: [f64; 3],
+    radius: Option<f64>,
+    size: Option<[f64; 3]>,
+    volume: &Volume,
+) -> Result<Region, ConfigError> {
+    let key = |k: &str| format!("sensor[{i}].{k}");
+    let center = finite(&key("center"), center)?;
+    let region = match (radius, size) {
+        (Some(r), None) => Region::Sphere {
+            center,
+            radius: positive(&key("radius"), r)?,
+        },
+        (None, Some(size)) => {
+            for (a, v) in size.iter().enumerate() {
+                positive(&key(&format!("size[{a}]")), *v)?;
+            }
+            Region::Box {
+                center,
+                half: DVec3::from_array(size) * 0.5,
+            }
+        }
+        _ => {
+            return err(format!(
+                "sensor[{i}]: a target is a sphere (radius = r) or a box (size = [a, b, c]); give exactly one"
+            ));
+        }
+    };
+    if !volume.field.bounds.contains(center) {
+        return err(format!(
+            "sensor[{i}].center = {:?}: a target must lie inside the volume (field.bounds); its fluence is tallied inside",
+            center.to_array()
+        ));
+    }
+    Ok(region)
+}
+
 fn sensor(i: usize, s: &SensorConfig, volume: &Volume) -> Result<Sensor, ConfigError> {
     let key = |k: &str| format!("sensor[{i}].{k}");
     let mut acceptance = None;
     let (name, kind, center, normal, size, pixels) = match s {
         SensorConfig::Fluence { .. }
+        | SensorConfig::Target { .. }
         | SensorConfig::Camera { .. }
         | SensorConfig::Pinhole { .. } => {
-            return err("a fluence probe or camera is not a plane");
+            return err("a fluence probe, target or camera is not a plane");
         }
         SensorConfig::Flux {
             name,

@@ -114,7 +114,11 @@ impl RenderOp {
         scene.volume.sigma_s = m.sigma_s;
         scene.volume.sigma_a = m.sigma_a;
         scene.volume.scattering = m.scattering;
-        scene.derivatives = self.params.clone();
+        scene.derivatives = self
+            .params
+            .iter()
+            .map(|&p| crate::rrte::Derivative::Medium(p))
+            .collect();
         Ok((scene, factor))
     }
 

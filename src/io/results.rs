@@ -795,6 +795,25 @@ pub struct ProbeRecord {
     pub per_bin_stderr: Vec<f64>,
 }
 
+/// A target of a render: the mean fluence rate over a region inside the volume (per unit
+/// emitted power), with its derivatives.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct TargetRecord {
+    pub name: String,
+    /// `sphere` or `box`.
+    pub shape: String,
+    pub center: [f64; 3],
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub radius: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub size: Option<[f64; 3]>,
+    pub volume: f64,
+    pub fluence: Measured,
+    /// `∂ fluence/∂θ` by parameter name, with standard errors (with `render.derivatives`).
+    #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    pub derivatives: std::collections::BTreeMap<String, Measured>,
+}
+
 /// A camera of a render: orthographic or pinhole.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct CameraRecord {
@@ -863,6 +882,8 @@ pub struct RenderFile {
     pub sensors: Vec<SensorRecord>,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub probes: Vec<ProbeRecord>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub targets: Vec<TargetRecord>,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub cameras: Vec<CameraRecord>,
     /// The channels of screen and camera images: `["Y"]`, or `["R", "G", "B"]` (linear sRGB,

@@ -70,8 +70,26 @@ impl<'v> Flyer<'v> {
     /// Fly from `r` (inside, `|v| = n`) for geometric length `distance` (may be infinite), and the
     /// leapfrog steps it took.
     pub fn fly(&self, r: Ray, distance: f64) -> (Flight, usize) {
+        self.fly_visiting(r, distance, |_, _| {})
+    }
+
+    /// [`Self::fly`], reporting every chord of the flight (from, to) to `chord`: the path the
+    /// flight's length is measured along, for track-length tallies.
+    #[inline]
+    pub fn fly_visiting(
+        &self,
+        r: Ray,
+        distance: f64,
+        mut chord: impl FnMut(DVec3, DVec3),
+    ) -> (Flight, usize) {
         if self.straight {
-            return (self.fly_straight(r, distance), 1);
+            let flight = self.fly_straight(r, distance);
+            let end = match flight {
+                Flight::Collision { ray, .. } | Flight::Boundary { ray, .. } => ray.x,
+                Flight::Stuck { ray, .. } => ray.x,
+            };
+            chord(r.x, end);
+            return (flight, 1);
         }
         let t = &self.tracer;
         let field = &self.volume.field;
@@ -109,15 +127,16 @@ impl<'v> Flyer<'v> {
                 let next = t.leapfrog(r, tau);
                 (next, tau, true, self.n(next.x), DVec3::ZERO)
             };
-            let chord = (next.x - r.x).length();
-            if s + chord >= distance {
+            let length = (next.x - r.x).length();
+            if s + length >= distance {
                 // the collision falls inside this step: shorten it in proportion to the chord
-                let frac = if chord > 0.0 {
-                    (distance - s) / chord
+                let frac = if length > 0.0 {
+                    (distance - s) / length
                 } else {
                     0.0
                 };
                 let hit = t.leapfrog(r, tau * frac);
+                chord(r.x, hit.x);
                 let n1 = self.n(hit.x);
                 let last = (hit.x - r.x).length();
                 let optical_path = opl + 0.5 * (n0 + n1) * last;
@@ -130,8 +149,9 @@ impl<'v> Flyer<'v> {
                     k + 1,
                 );
             }
-            opl += 0.5 * (n0 + n_next) * chord;
-            s += chord;
+            opl += 0.5 * (n0 + n_next) * length;
+            s += length;
+            chord(r.x, next.x);
             r = next;
             n0 = n_next;
             force = force_next;

@@ -13,6 +13,8 @@
 //! - [`path`]: path tracing from pinhole cameras, connected to the light at every event;
 //! - [`bidirectional`]: bidirectional path tracing, subpaths from the light and the cameras
 //!   joined every way and weighted by multiple importance sampling;
+//! - [`tangent`]: derivatives of particle tracing's outputs with respect to the index field's
+//!   parameters, by forward sensitivities of every photon's path;
 //! - [`spectrum`]: dispersive indices (Cauchy, Sellmeier, mixtures), wavelengths and colour.
 
 pub mod bidirectional;
@@ -22,10 +24,12 @@ pub mod particle;
 pub mod path;
 pub mod scene;
 pub mod spectrum;
+pub mod tangent;
 
 pub use particle::{ImageLayout, ParticleTracer, Total};
 pub use scene::{
-    Camera, Connections, Density, Light, MAX_DERIVATIVES, Modulation, Pinhole, Probe, RenderScene,
-    Sensor, SensorKind, Surface, Tracing, Transient, Volume,
+    Camera, Connections, Density, Derivative, FieldDerivative, Light, MAX_DERIVATIVES, MAX_TARGETS,
+    Modulation, Pinhole, Probe, Region, RenderScene, Sensor, SensorKind, Surface, Tracing,
+    Transient, Volume,
 };
 pub use spectrum::{Dispersion, Material, Spectrum};

@@ -19,7 +19,8 @@ use super::bidirectional::Subpaths;
 use super::connect::{Aim, Connector, Exit, Sampled};
 use super::flight::{Flight, Flyer, fresnel, reflect};
 use super::scene::{
-    Connections, MAX_DERIVATIVES, Modulation, RenderScene, SensorKind, Tracing, Volume,
+    Connections, MAX_DERIVATIVES, MAX_TARGETS, Modulation, Region, RenderScene, SensorKind,
+    Tracing, Volume,
 };
 use super::spectrum::Delay;
 use crate::eikonal::Ray;
@@ -32,6 +33,9 @@ use glam::DVec3;
 
 /// Scattering events after which a photon is given up (counted as unfinished).
 pub const MAX_EVENTS: usize = 1_000_000;
+
+/// Track lengths through each target during one flight.
+pub(super) type Tracks = [f64; MAX_TARGETS];
 
 /// Indices of the totals after the sensors' outputs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -68,6 +72,9 @@ pub(super) struct Tools<'v> {
     pub(super) colour: [f64; 3],
     /// The photon's group delay per optical path (its wavelength's dispersion).
     pub(super) delay: Delay,
+    /// The instant `Ωt` of the ultrasound period the photon meets (under a sinusoidal
+    /// modulation).
+    pub(super) instant: Option<f64>,
 }
 
 impl<'v> Tools<'v> {
@@ -77,6 +84,7 @@ impl<'v> Tools<'v> {
             connector: Connector::new(volume, scene.step, scene.max_steps),
             colour,
             delay,
+            instant: None,
         }
     }
 }
@@ -104,10 +112,24 @@ impl Tools<'_> {
 
     /// Fly from `ray` to the next real collision (flying on through delta tracking's null
     /// ones) or to the surface, and how far that took.
-    pub(super) fn next_event(&self, mut ray: Ray, rng: &mut Rng) -> (Stop, Travelled) {
+    pub(super) fn next_event(&self, ray: Ray, rng: &mut Rng) -> (Stop, Travelled) {
+        self.next_event_visiting(ray, rng, |_, _| {})
+    }
+
+    /// [`Self::next_event`], reporting every chord flown (null collisions' flights included) to
+    /// `chord`.
+    #[inline]
+    pub(super) fn next_event_visiting(
+        &self,
+        mut ray: Ray,
+        rng: &mut Rng,
+        mut chord: impl FnMut(DVec3, DVec3),
+    ) -> (Stop, Travelled) {
         let mut travelled = Travelled::default();
         loop {
-            let (flight, k) = self.flyer.fly(ray, self.free_path(rng));
+            let (flight, k) = self
+                .flyer
+                .fly_visiting(ray, self.free_path(rng), &mut chord);
             travelled.steps += k;
             match flight {
                 Flight::Collision {
@@ -267,6 +289,13 @@ pub struct ParticleTracer<'s> {
     /// Per differentiated parameter, sensor after sensor: the derivative of its power (the
     /// layout's total) and, for a screen, of each pixel's.
     derivative_images: Vec<ImageLayout>,
+    /// The sensors that are targets, with their regions.
+    pub(super) targets: Vec<(usize, Region)>,
+    /// Draw every scored choice of [`super::tangent`] with probability ½ (the weights take the
+    /// rest): the estimate is then a smooth function of the field's parameters for fixed random
+    /// numbers, and its derivative its difference quotient, which tests check. Off by default:
+    /// the outcomes' own probabilities, clamped, give less noise.
+    pub even_draws: bool,
     /// Outputs in all.
     outputs: usize,
 }
@@ -290,7 +319,7 @@ impl<'s> ParticleTracer<'s> {
         for s in &scene.sensors {
             // a flux sensor's power per time bin has no colour
             let channels = match s.kind {
-                SensorKind::Flux => 1,
+                SensorKind::Flux | SensorKind::Target => 1,
                 SensorKind::Screen => scene.channels(),
             };
             images.push(image(s.pixel_count(), channels, &mut at));
@@ -315,7 +344,7 @@ impl<'s> ParticleTracer<'s> {
         for _ in &scene.derivatives {
             for s in &scene.sensors {
                 let pixels = match s.kind {
-                    SensorKind::Flux => 0,
+                    SensorKind::Flux | SensorKind::Target => 0,
                     SensorKind::Screen => s.pixel_count(),
                 };
                 derivative_images.push(ImageLayout {
@@ -335,7 +364,46 @@ impl<'s> ParticleTracer<'s> {
             surface_offset,
             totals,
             derivative_images,
+            targets: scene
+                .sensors
+                .iter()
+                .enumerate()
+                .filter_map(|(i, s)| s.region.map(|r| (i, r)))
+                .collect(),
+            even_draws: false,
             outputs: at,
+        }
+    }
+
+    /// Add the chord from `a` to `b` to the track lengths through each target.
+    #[inline]
+    pub(super) fn track(&self, a: DVec3, b: DVec3, tracks: &mut Tracks) {
+        for (k, (_, region)) in self.targets.iter().enumerate() {
+            if let Some((t0, t1)) = region.clip(a, b) {
+                tracks[k] += (t1 - t0) * (b - a).length();
+            }
+        }
+    }
+
+    /// Record a flight's track lengths through the targets (`tracks`) by a photon of `weight`
+    /// with the path's `score`: each target's mean fluence rate is the power-weighted track
+    /// length per unit volume.
+    pub(super) fn record_tracks(
+        &self,
+        tracks: &Tracks,
+        weight: f64,
+        score: &[f64],
+        out: &mut [C64],
+    ) {
+        for (k, &(i, region)) in self.targets.iter().enumerate() {
+            if tracks[k] == 0.0 {
+                continue;
+            }
+            let value = weight * tracks[k] / region.volume();
+            out[self.images[i].total()].re += value;
+            for (j, dlog) in score.iter().enumerate() {
+                out[self.power_derivative(i, j)].re += value * dlog;
+            }
         }
     }
 
@@ -730,6 +798,9 @@ impl<'s> ParticleTracer<'s> {
     /// One sample: a photon from the light, a path from each camera, or both joined.
     fn sample(&self, t: &Tools, subpaths: &mut Subpaths, rng: &mut Rng, out: &mut [C64]) {
         match self.scene.tracing {
+            Tracing::FromLight if self.scene.field_derivatives() => {
+                self.photon_differentiated(t, rng, out)
+            }
             Tracing::FromLight => self.photon(t, rng, out),
             Tracing::FromCameras => self.camera_paths(t, rng, out),
             Tracing::Bidirectional => self.bidirectional(t, subpaths, rng, out),
@@ -1039,25 +1110,34 @@ impl<'s> ParticleTracer<'s> {
         let volume = t.flyer.volume;
         let albedo = volume.albedo();
         let derivatives = &self.scene.derivatives;
+        let mut tracks: Tracks = [0.0; MAX_TARGETS];
         loop {
-            let (stop, travelled) = t.next_event(ray, rng);
+            let (stop, travelled) = if self.targets.is_empty() {
+                t.next_event(ray, rng)
+            } else {
+                tracks = [0.0; MAX_TARGETS];
+                t.next_event_visiting(ray, rng, |a, b| self.track(a, b, &mut tracks))
+            };
             p.steps += travelled.steps;
             p.opl += travelled.opl;
-            // the flight's score: `σ_t e^{−σ_t L}` to a collision (then the weight times the
-            // albedo `σ_s/σ_t`), `e^{−σ_t L}` to the surface
+            // the flight's score: `σ_t e^{−σ_t L}` to a collision, `e^{−σ_t L}` to the surface
             let collided = matches!(stop, Stop::Collision(_));
             for (s, param) in p.score.iter_mut().zip(derivatives) {
-                *s += match param {
-                    Param::SigmaS if collided => 1.0 / volume.sigma_s - travelled.length,
-                    Param::SigmaS | Param::SigmaA => -travelled.length,
-                    _ => 0.0,
-                };
+                *s += flight_score(param.medium(), collided, volume, travelled.length);
+            }
+            if !self.targets.is_empty() {
+                // the flight's tracks count with its own score (they depend on its length)
+                let score = &p.score[..derivatives.len()];
+                self.record_tracks(&tracks, p.weight, score, out);
             }
             match stop {
                 Stop::Collision(hit) => {
                     p.events += 1;
                     out[self.total(Total::Absorbed)].re += p.weight * (1.0 - albedo);
                     p.weight *= albedo;
+                    for (s, param) in p.score.iter_mut().zip(derivatives) {
+                        *s += albedo_score(param.medium(), volume);
+                    }
                     let w_in = hit.v.normalize();
                     if self.connects() {
                         let phase = |d: DVec3| volume.scattering.eval(w_in.dot(d));
@@ -1076,7 +1156,9 @@ impl<'s> ParticleTracer<'s> {
                         // the scattering event's score: its particle type and direction
                         let mu = w_in.dot(ray.v.normalize());
                         for (s, param) in p.score.iter_mut().zip(derivatives) {
-                            *s += param.dlog_event(&volume.scattering, kind, mu);
+                            *s += param
+                                .medium()
+                                .map_or(0.0, |m| m.dlog_event(&volume.scattering, kind, mu));
                         }
                     }
                 }
@@ -1090,6 +1172,32 @@ impl<'s> ParticleTracer<'s> {
                 }
             }
         }
+    }
+}
+
+/// A free flight's score for medium parameter `param` (`∂ log` of its probability): `σ_t
+/// e^{−σ_t L}` to a collision, `e^{−σ_t L}` to the surface, over geometric length `L`. What the
+/// flight itself tallies (a target's track) counts with it; what comes after a collision also
+/// with [`albedo_score`].
+pub(super) fn flight_score(
+    param: Option<Param>,
+    collided: bool,
+    volume: &Volume,
+    length: f64,
+) -> f64 {
+    match param {
+        Some(Param::SigmaS | Param::SigmaA) if collided => 1.0 / volume.sigma_t() - length,
+        Some(Param::SigmaS | Param::SigmaA) => -length,
+        _ => 0.0,
+    }
+}
+
+/// The score of a collision's weight `σ_s/σ_t` (the albedo) for medium parameter `param`.
+pub(super) fn albedo_score(param: Option<Param>, volume: &Volume) -> f64 {
+    match param {
+        Some(Param::SigmaS) => 1.0 / volume.sigma_s - 1.0 / volume.sigma_t(),
+        Some(Param::SigmaA) => -1.0 / volume.sigma_t(),
+        _ => 0.0,
     }
 }
 
@@ -1227,11 +1335,13 @@ impl Estimator for ParticleTracer<'_> {
                 continue;
             };
             let base = &self.scene.volume.field;
+            let mut instant = None;
             if let Some(Modulation::Sinusoidal) = self.scene.modulation {
                 // the photon meets the field at a uniformly random instant of the period
                 // (paper 002, App. C, Eq. 22)
                 let omega_t = std::f64::consts::TAU * (uniform(rng) - 0.5);
                 modulate(&mut volume.field, base, omega_t);
+                instant = Some(omega_t);
             }
             let mut colour = [1.0; 3];
             let mut delay = Delay::NONE;
@@ -1247,7 +1357,8 @@ impl Estimator for ParticleTracer<'_> {
                 colour = spectrum.colour(lambda);
                 delay = spectrum.delay(lambda);
             }
-            let tools = Tools::new(volume, self.scene, colour, delay);
+            let mut tools = Tools::new(volume, self.scene, colour, delay);
+            tools.instant = instant;
             self.sample(&tools, subpaths, rng, out);
         }
     }

@@ -366,8 +366,11 @@ pub enum Modulation {
     Sinusoidal,
 }
 
-/// The most medium parameters a render differentiates at once.
+/// The most parameters a render differentiates at once.
 pub const MAX_DERIVATIVES: usize = 16;
+
+/// Targets a scene has at most.
+pub const MAX_TARGETS: usize = 16;
 
 /// How connections to probes are estimated.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -402,6 +405,133 @@ pub enum SensorKind {
     Flux,
     /// The irradiance on a rectangle of pixels (a bare sensor or a screen): power per pixel area.
     Screen,
+    /// The mean fluence rate over a region inside the volume ([`Sensor::region`]): the light
+    /// delivered there, by the photons' track lengths through it.
+    Target,
+}
+
+/// A parameter a render is differentiated by.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Derivative {
+    /// A parameter of the homogeneous medium: path-space scores of every photon.
+    Medium(crate::medium::params::Param),
+    /// A parameter of the index field: forward sensitivities of every photon's path (see
+    /// [`super::tangent`]).
+    Field(FieldDerivative),
+}
+
+/// A parameter of the index field a render is differentiated by.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FieldDerivative {
+    pub param: crate::eikonal::FieldParam,
+    /// `profiles[i].name`, as configs name it.
+    pub name: String,
+    /// `∂(stored value)/∂(parameter)`: the sine of a strobe's phase for an ultrasonic profile's
+    /// amplitude (the field holds `n_max sin Ωt`), else 1.
+    pub scale: f64,
+}
+
+impl Derivative {
+    pub fn name(&self) -> String {
+        match self {
+            Derivative::Medium(p) => p.name(),
+            Derivative::Field(f) => f.name.clone(),
+        }
+    }
+
+    /// The medium parameter, if this is one.
+    pub fn medium(&self) -> Option<crate::medium::params::Param> {
+        match self {
+            Derivative::Medium(p) => Some(*p),
+            Derivative::Field(_) => None,
+        }
+    }
+}
+
+/// A target region inside the volume.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Region {
+    Sphere {
+        center: DVec3,
+        radius: f64,
+    },
+    /// An axis-aligned box of half-sides `half`.
+    Box {
+        center: DVec3,
+        half: DVec3,
+    },
+}
+
+impl Region {
+    pub fn volume(&self) -> f64 {
+        match *self {
+            Region::Sphere { radius, .. } => 4.0 / 3.0 * std::f64::consts::PI * radius.powi(3),
+            Region::Box { half, .. } => 8.0 * half.x * half.y * half.z,
+        }
+    }
+
+    pub fn center(&self) -> DVec3 {
+        match *self {
+            Region::Sphere { center, .. } | Region::Box { center, .. } => center,
+        }
+    }
+
+    /// A normal of the region's surface at `x` on it (not unit): the direction its boundary
+    /// moves a crossing point along.
+    #[inline]
+    pub fn normal(&self, x: DVec3) -> DVec3 {
+        match *self {
+            Region::Sphere { center, .. } => x - center,
+            Region::Box { center, half } => {
+                let r = (x - center) / half;
+                let a = r.abs().max_position();
+                let mut n = DVec3::ZERO;
+                n[a] = r[a].signum();
+                n
+            }
+        }
+    }
+
+    /// The part `[t0, t1] ⊂ [0, 1]` of the segment `a + t (b − a)` inside the region, if any.
+    #[inline]
+    pub fn clip(&self, a: DVec3, b: DVec3) -> Option<(f64, f64)> {
+        let d = b - a;
+        let (t0, t1) = match *self {
+            Region::Sphere { center, radius } => {
+                let o = a - center;
+                let dd = d.length_squared();
+                if dd == 0.0 {
+                    return None;
+                }
+                let half_b = o.dot(d) / dd;
+                let c = (o.length_squared() - radius * radius) / dd;
+                let disc = half_b * half_b - c;
+                if disc <= 0.0 {
+                    return None;
+                }
+                let root = disc.sqrt();
+                (-half_b - root, -half_b + root)
+            }
+            Region::Box { center, half } => {
+                let (lo, hi) = (center - half - a, center + half - a);
+                let (mut t0, mut t1) = (f64::NEG_INFINITY, f64::INFINITY);
+                for k in 0..3 {
+                    if d[k] == 0.0 {
+                        if lo[k] > 0.0 || hi[k] < 0.0 {
+                            return None;
+                        }
+                        continue;
+                    }
+                    let (u, v) = (lo[k] / d[k], hi[k] / d[k]);
+                    t0 = t0.max(u.min(v));
+                    t1 = t1.min(u.max(v));
+                }
+                (t0, t1)
+            }
+        };
+        let (t0, t1) = (t0.max(0.0), t1.min(1.0));
+        (t1 > t0).then_some((t0, t1))
+    }
 }
 
 /// A plane outside the volume that records the light crossing it after the light has left the
@@ -423,6 +553,8 @@ pub struct Sensor {
     /// Light is counted only within this angle of the normal (radians; a detector behind a
     /// collimator); `None`: every direction.
     pub acceptance: Option<f64>,
+    /// A target's region (`None` for the planes).
+    pub region: Option<Region>,
 }
 
 impl Sensor {
@@ -451,6 +583,22 @@ impl Sensor {
             size,
             pixels,
             acceptance: None,
+            region: None,
+        }
+    }
+
+    /// A target: the mean fluence rate over `region`, inside the volume.
+    pub fn target(name: String, region: Region) -> Self {
+        Sensor {
+            region: Some(region),
+            ..Sensor::new(
+                name,
+                SensorKind::Target,
+                region.center(),
+                DVec3::Z,
+                None,
+                [1, 1],
+            )
         }
     }
 
@@ -462,6 +610,9 @@ impl Sensor {
     /// index (row-major from the lower left, `right` fastest) and the distance `t`.
     #[inline]
     pub fn hit(&self, x: DVec3, d: DVec3) -> Option<(usize, f64)> {
+        if self.kind == SensorKind::Target {
+            return None;
+        }
         let cos = d.dot(self.normal);
         if cos <= 0.0 || self.acceptance.is_some_and(|a| cos < a.cos()) {
             return None;
@@ -575,9 +726,9 @@ pub struct RenderScene {
     /// Reflections inside the volume's surface a connection through it follows at most before
     /// it leaves (specular chains: light leaving the glass after reflecting inside it).
     pub reflections: usize,
-    /// Medium parameters whose derivatives particle tracing estimates for every sensor's power
-    /// (path-space scores; at most [`MAX_DERIVATIVES`]).
-    pub derivatives: Vec<crate::medium::params::Param>,
+    /// Parameters of the medium or the index field whose derivatives particle tracing estimates
+    /// for every sensor's power (at most [`MAX_DERIVATIVES`]).
+    pub derivatives: Vec<Derivative>,
     pub tracing: Tracing,
     pub transient: Option<Transient>,
     /// `None`: one unnamed wavelength, the field as given.
@@ -589,6 +740,13 @@ pub struct RenderScene {
 }
 
 impl RenderScene {
+    /// Whether any derivative is with respect to the index field.
+    pub fn field_derivatives(&self) -> bool {
+        self.derivatives
+            .iter()
+            .any(|d| matches!(d, Derivative::Field(_)))
+    }
+
     /// Time bins per pixel (1 without a transient).
     pub fn bins(&self) -> usize {
         self.transient.map_or(1, |t| t.bins)

@@ -1,0 +1,433 @@
+//! Targets (the mean fluence over a region inside the volume, by track lengths) and derivatives
+//! of rendered targets with respect to the index field's parameters (forward sensitivities of
+//! every photon's path, its choices scored):
+//! - a target's fluence against the closed form of a point source in an absorber, by particle
+//!   tracing and by the differentiating tracer;
+//! - the derivatives against the difference quotients of the estimate itself (every choice drawn
+//!   evenly, so the estimate is smooth in θ for fixed random numbers): a scattering graded ball
+//!   under a beam (refraction in, curved flights, collisions, reflection inside), an ultrasound
+//!   array's drive, phase and frequency under a sinusoidal modulation, Eq. 15's amplitude under
+//!   a strobe;
+//! - the derivatives against central differences of independent particle-tracing renders (the
+//!   expectation's slope, common random numbers per seed pair) for the graded ball's index
+//!   parameters and the medium's σ_s;
+//! - scenes the derivatives do not cover refused by key.
+
+mod common;
+
+use common::render;
+use lightpath::config::{Task, load_text};
+use lightpath::rrte::{ParticleTracer, RenderScene};
+
+fn scene(text: &str) -> RenderScene {
+    match load_text(text) {
+        Ok(Task::Render(t)) => t.scene,
+        Ok(_) => panic!("not a render"),
+        Err(e) => panic!("{e}"),
+    }
+}
+
+/// A scattering ball (radius 1, `σ_a = 0.2`, HG `g`) graded `n = n0 + c2 r²` in air under a beam,
+/// with three targets: a sphere near the top, a box in the middle, and a sphere filling most of
+/// the ball.
+fn graded_ball(n0: f64, c2: f64, sigma_s: f64, derivatives: &str) -> String {
+    format!(
+        r#"
+[field]
+bounds = {{ kind = "sphere", radius = 1.0 }}
+n_out = 1.0
+[[field.profiles]]
+kind = "spherical_polynomial"
+n0 = {n0}
+coefficients = [0.0, {c2}]
+[medium]
+sigma_s = {sigma_s}
+sigma_a = 0.2
+phase = {{ kind = "hg", g = 0.5 }}
+[light]
+kind = "beam"
+center = [0.0, 0.0, -2.0]
+direction = [0.0, 0.0, 1.0]
+radius = 0.6
+[[sensor]]
+kind = "target"
+name = "spot"
+center = [0.0, 0.1, 0.55]
+radius = 0.3
+[[sensor]]
+kind = "target"
+name = "core"
+center = [0.0, 0.0, 0.0]
+size = [0.5, 0.5, 0.5]
+[[sensor]]
+kind = "target"
+name = "shell"
+center = [0.0, 0.0, 0.0]
+radius = 0.95
+[render]
+step = 0.01
+derivatives = [{derivatives}]
+"#
+    )
+}
+
+/// The outputs (every sensor's value) of `samples` photons from `seed`, drawing evenly.
+fn evenly(s: &RenderScene, samples: u64, seed: u64) -> (Vec<f64>, Vec<Vec<f64>>) {
+    let mut est = ParticleTracer::new(s);
+    est.even_draws = true;
+    let e = common::estimate(&est, &lightpath::mc::Plan::new(seed, samples, samples / 8));
+    let sensors = s.sensors.len();
+    let values = (0..sensors).map(|i| e.mean[est.power(i)].re).collect();
+    let derivatives = (0..sensors)
+        .map(|i| {
+            (0..s.derivatives.len())
+                .map(|j| e.mean[est.power_derivative(i, j)].re)
+                .collect()
+        })
+        .collect();
+    (values, derivatives)
+}
+
+/// Derivative `j` of every output equals the central difference quotient (step `h`) of the
+/// estimate at the same random numbers, to `1e-5` of its size (the closed forms' central
+/// differences inside are good to about 1e-10).
+fn is_the_difference_quotient(at: impl Fn(f64) -> RenderScene, theta: f64, h: f64, j: usize) {
+    let (_, d) = evenly(&at(theta), 64, 3);
+    let (up, _) = evenly(&at(theta + h), 64, 3);
+    let (down, _) = evenly(&at(theta - h), 64, 3);
+    let name = at(theta).derivatives[j].name();
+    for i in 0..up.len() {
+        let fd = (up[i] - down[i]) / (2.0 * h);
+        assert!(fd != 0.0, "{name}, output {i}: no slope to compare");
+        assert!(
+            (d[i][j] - fd).abs() < 1e-5 * fd.abs().max(d[i][j].abs()),
+            "{name}, output {i}: estimate {:.9e}, difference quotient {fd:.9e}",
+            d[i][j]
+        );
+    }
+}
+
+#[test]
+fn derivatives_are_the_estimates_difference_quotients_in_a_scattering_graded_ball() {
+    let names = "\"profiles[0].n0\", \"profiles[0].c2\", \"sigma_s\"";
+    let (n0, c2) = (1.3, -0.25);
+    is_the_difference_quotient(|v| scene(&graded_ball(v, c2, 1.5, names)), n0, 1e-7, 0);
+    is_the_difference_quotient(|v| scene(&graded_ball(n0, v, 1.5, names)), c2, 1e-7, 1);
+}
+
+/// Four line elements about a scattering water cylinder (lengths in mm), the field met at a
+/// random instant per photon; a target on the axis at depth.
+fn phased_array(amplitude: f64, phase_deg: f64, frequency: f64) -> String {
+    format!(
+        r#"
+[field]
+bounds = {{ kind = "cylinder", radius = 2.0, half_length = 4.0 }}
+n_out = 1.33
+[[field.profiles]]
+kind = "phased_array"
+n0 = 1.33
+frequency = {frequency}
+sound_speed = 1480.0
+length_unit = "mm"
+density = 1000.0
+reference_distance = 4.0
+elements = [
+  {{ position = [4.0, 0.0], amplitude = {amplitude}, phase_deg = 180.0 }},
+  {{ position = [0.0, 4.0], amplitude = 2e6, phase_deg = {phase_deg} }},
+  {{ position = [-4.0, 0.0], amplitude = 2e6, phase_deg = 180.0 }},
+  {{ position = [0.0, -4.0], amplitude = 2e6, phase_deg = 0.0 }},
+]
+[modulation]
+kind = "sinusoidal"
+[medium]
+sigma_s = 0.2
+sigma_a = 0.01
+phase = {{ kind = "hg", g = 0.85 }}
+[light]
+kind = "beam"
+center = [0.0, 0.0, -5.0]
+direction = [0.0, 0.0, 1.0]
+radius = 1.0
+[[sensor]]
+kind = "target"
+name = "deep"
+center = [0.3, 0.0, 3.0]
+radius = 0.5
+[render]
+step = 0.02
+derivatives = ["profiles[0].amplitude_0", "profiles[0].phase_1", "profiles[0].frequency"]
+"#
+    )
+}
+
+#[test]
+fn an_ultrasound_arrays_drive_phase_and_frequency_differentiate_exactly() {
+    let (a, phase, f) = (2e6, 0.0, 813e3);
+    is_the_difference_quotient(|v| scene(&phased_array(v, phase, f)), a, 1.0, 0);
+    // the phase in degrees in the config, its derivative per radian
+    let per_degree = |v: f64| {
+        let mut s = scene(&phased_array(a, v.to_degrees(), f));
+        s.derivatives.truncate(2);
+        s
+    };
+    is_the_difference_quotient(per_degree, phase, 1e-6, 1);
+    is_the_difference_quotient(|v| scene(&phased_array(a, phase, v)), f, 1e-2, 2);
+}
+
+/// Eq. 15's standing wave frozen by a strobe at 60°: the field holds `n_max sin 60°`, and the
+/// derivative is with respect to the amplitude `n_max` itself.
+#[test]
+fn a_strobed_ultrasonic_amplitude_differentiates_exactly() {
+    let text = |n_max: f64| {
+        format!(
+            r#"
+[field]
+bounds = {{ kind = "cylinder", radius = 1.0, half_length = 2.0 }}
+n_out = 1.33
+[[field.profiles]]
+kind = "ultrasonic"
+n0 = 1.33
+n_max = {n_max}
+k_r = 3.0
+m = 0
+[modulation]
+kind = "strobed"
+phase_deg = 60.0
+[medium]
+sigma_s = 0.5
+sigma_a = 0.05
+phase = {{ kind = "hg", g = 0.8 }}
+[light]
+kind = "beam"
+center = [0.0, 0.0, -3.0]
+direction = [0.0, 0.0, 1.0]
+radius = 0.8
+[[sensor]]
+kind = "target"
+name = "axis"
+center = [0.0, 0.0, 1.5]
+radius = 0.3
+[render]
+step = 0.01
+derivatives = ["profiles[0].n_max"]
+"#
+        )
+    };
+    is_the_difference_quotient(|v| scene(&text(v)), 0.02, 1e-7, 0);
+}
+
+/// Point light at the centre of a clear absorbing ball (`σ_a = 0.5`, `n` = 1 inside and out):
+/// the fluence is `e^{−σ_a r}/(4π r²)`, and a target's mean over a sphere of radius `a` about
+/// `c` is `(1/V) ∫ e^{−σ_a r} (1 − cos θ_r)/2 dr` over the shells it cuts (`cos θ_r =
+/// (r² + |c|² − a²)/(2 r |c|)`), and over a box the mean of the same by quadrature.
+#[test]
+fn a_target_in_an_absorber_reads_the_point_source_closed_form() {
+    let text = |derivatives: &str| {
+        format!(
+            r#"
+[field]
+bounds = {{ kind = "sphere", radius = 1.0 }}
+n_out = 1.0
+[[field.profiles]]
+kind = "constant"
+n = 1.0
+[medium]
+sigma_s = 1e-9
+sigma_a = 0.5
+[light]
+kind = "point"
+position = [0.0, 0.0, 0.0]
+[[sensor]]
+kind = "target"
+name = "ball"
+center = [0.5, 0.0, 0.0]
+radius = 0.1
+[[sensor]]
+kind = "target"
+name = "box"
+center = [0.0, 0.4, 0.2]
+size = [0.2, 0.3, 0.2]
+[render]
+derivatives = [{derivatives}]
+"#
+        )
+    };
+    let sigma_a = 0.5;
+    let fluence = |r: f64| (-sigma_a * r).exp() / (4.0 * std::f64::consts::PI * r * r);
+    // the ball: over the shells it cuts
+    let (c, a) = (0.5, 0.1);
+    let n = 20_000;
+    let mut ball = 0.0;
+    for k in 0..n {
+        let r = c - a + 2.0 * a * (k as f64 + 0.5) / n as f64;
+        let cos = ((r * r + c * c - a * a) / (2.0 * r * c)).clamp(-1.0, 1.0);
+        ball += (-sigma_a * r).exp() * (1.0 - cos) / 2.0 * (2.0 * a / n as f64);
+    }
+    ball /= 4.0 / 3.0 * std::f64::consts::PI * a.powi(3);
+    // the box: the midpoint rule on 60³ cells
+    let (m, size, centre) = (60, [0.2, 0.3, 0.2], [0.0, 0.4, 0.2]);
+    let mut cube = 0.0;
+    for i in 0..m {
+        for j in 0..m {
+            for k in 0..m {
+                let p = [i, j, k].map(|q| (q as f64 + 0.5) / m as f64 - 0.5);
+                let x = glam::DVec3::new(
+                    centre[0] + p[0] * size[0],
+                    centre[1] + p[1] * size[1],
+                    centre[2] + p[2] * size[2],
+                );
+                cube += fluence(x.length());
+            }
+        }
+    }
+    cube /= (m * m * m) as f64;
+    for derivatives in ["", "\"profiles[0].n\""] {
+        let s = scene(&text(derivatives));
+        let (e, est) = render(&s, 1_000_000, 5);
+        for (i, exact) in [ball, cube].into_iter().enumerate() {
+            let (v, se) = (e.mean[est.power(i)].re, e.stderr[est.power(i)]);
+            assert!(se < 0.02 * exact, "{derivatives}: {se} for {exact}");
+            assert!(
+                (v - exact).abs() < 4.0 * se,
+                "target {i} {derivatives}: {v} ± {se} against {exact}"
+            );
+        }
+    }
+}
+
+/// Every output's derivative `j` against central differences over `pairs` seed pairs (each
+/// pair renders θ ± h by particle tracing from one seed, so the difference has little noise),
+/// within 4 combined standard errors; one output's derivative at least must be resolved
+/// (beyond 4 of its errors) so that the check can fail.
+fn agrees_with_differences(
+    at: impl Fn(f64, bool) -> RenderScene,
+    theta: f64,
+    h: f64,
+    j: usize,
+    (samples, pairs, photons): (u64, u64, u64),
+) {
+    let s = at(theta, true);
+    let (e, est) = render(&s, samples, 7);
+    let outputs = s.sensors.len();
+    let mut fd = vec![Vec::new(); outputs];
+    for k in 0..pairs {
+        let values = |v: f64| {
+            let sc = at(v, false);
+            let (e, est) = render(&sc, photons, 1000 + k);
+            (0..outputs)
+                .map(|i| e.mean[est.power(i)].re)
+                .collect::<Vec<_>>()
+        };
+        let (up, down) = (values(theta + h), values(theta - h));
+        for i in 0..outputs {
+            fd[i].push((up[i] - down[i]) / (2.0 * h));
+        }
+    }
+    let name = s.derivatives[j].name();
+    let mut resolved = false;
+    for (i, fd) in fd.iter().enumerate() {
+        let d = e.mean[est.power_derivative(i, j)].re;
+        let sd = e.stderr[est.power_derivative(i, j)];
+        let n = fd.len() as f64;
+        let mean = fd.iter().sum::<f64>() / n;
+        let sf = (fd.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0) / n).sqrt();
+        let target = &s.sensors[i].name;
+        resolved |= d.abs() > 4.0 * sd;
+        assert!(
+            (d - mean).abs() < 4.0 * (sd * sd + sf * sf).sqrt(),
+            "{name} of {target}: estimate {d:.4e} ± {sd:.1e}, differences {mean:.4e} ± {sf:.1e}"
+        );
+    }
+    assert!(resolved, "{name}: no target's derivative is resolved");
+}
+
+/// The graded ball's targets: their slopes in the profile's `c2` (the bending inside) and `n0`
+/// (the surface's index too), and in σ_s alongside, against the slopes of the expectation.
+#[test]
+fn a_graded_balls_targets_differentiate_as_their_differences() {
+    let (n0, c2, sigma_s) = (1.3, -0.25, 1.5);
+    let names = "\"profiles[0].n0\", \"profiles[0].c2\", \"sigma_s\"";
+    let with = |d: bool| if d { names } else { "" };
+    let sizes = (200_000, 16, 40_000);
+    agrees_with_differences(
+        |v, d| scene(&graded_ball(n0, v, sigma_s, with(d))),
+        c2,
+        0.05,
+        1,
+        sizes,
+    );
+    agrees_with_differences(
+        |v, d| scene(&graded_ball(v, c2, sigma_s, with(d))),
+        n0,
+        0.03,
+        0,
+        sizes,
+    );
+    agrees_with_differences(
+        |v, d| scene(&graded_ball(n0, c2, v, with(d))),
+        sigma_s,
+        0.1,
+        2,
+        sizes,
+    );
+}
+
+fn refused(text: &str, needles: &[&str]) {
+    let Err(e) = load_text(text) else {
+        panic!("not refused")
+    };
+    let e = e.to_string();
+    for n in needles {
+        assert!(e.contains(n), "{n:?} not in: {e}");
+    }
+}
+
+#[test]
+fn scenes_the_field_derivatives_do_not_cover_are_refused_by_key() {
+    let base = graded_ball(1.3, -0.25, 1.5, "\"profiles[0].c2\"");
+    let flux = "[[sensor]]\nkind = \"flux\"\nname = \"T\"\ncenter = [0.0, 0.0, 1.0]\nnormal = [0.0, 0.0, 1.0]\n[render]";
+    refused(
+        &base.replacen("[render]", flux, 1),
+        &[
+            "render.derivatives[0] = \"profiles[0].c2\"",
+            "\"T\"",
+            "target",
+        ],
+    );
+    let probe =
+        "[[sensor]]\nkind = \"fluence\"\nname = \"p\"\nposition = [0.0, 0.0, 0.0]\n[render]";
+    refused(
+        &base.replacen("[render]", probe, 1),
+        &["sensor[3].kind = \"fluence\""],
+    );
+    let floor = "[[surface]]\nname = \"floor\"\ncenter = [0.0, -1.5, 0.0]\nnormal = [0.0, 1.0, 0.0]\nalbedo = 0.5\n[render]";
+    refused(&base.replacen("[render]", floor, 1), &["[[surface]]"]);
+    refused(
+        &graded_ball(1.3, -0.25, 1.5, "\"profiles[1].c2\""),
+        &["profiles[1].c2", "1 profile(s)"],
+    );
+    refused(
+        &graded_ball(1.3, -0.25, 1.5, "\"profiles[0].radius\""),
+        &["spherical_polynomial", "\"radius\""],
+    );
+    refused(
+        &graded_ball(1.3, -0.25, 1.5, "\"profiles[0].c2\", \"profiles[0].c2\""),
+        &["render.derivatives[1]", "already listed"],
+    );
+    refused(
+        &graded_ball(1.3, -0.25, 1.5, "").replacen(
+            "[render]",
+            "[render]\nestimator = \"bidirectional\"",
+            1,
+        ),
+        &["sensor[0].kind = \"target\"", "particle"],
+    );
+    refused(
+        &base.replace("center = [0.0, 0.1, 0.55]", "center = [0.0, 0.1, 1.55]"),
+        &["sensor[0].center", "inside the volume"],
+    );
+    refused(
+        &base.replace("radius = 0.3", "radius = 0.3\nsize = [1.0, 1.0, 1.0]"),
+        &["sensor[0]", "exactly one"],
+    );
+}
