@@ -469,6 +469,10 @@ fn dispatch(command: Option<Command>) -> Result<Outcome> {
                 let budget = minutes_only(max_minutes);
                 app::grin::param_fit(&t, !quiet, &budget, &checkpoints.resume(), &out)
             }),
+            Task::Render(t) if t.design.is_some() => with_threads(threads, || {
+                let budget = minutes_only(max_minutes);
+                app::render_design::design(&t, !quiet, &budget, &checkpoints.resume(), &out)
+            }),
             other => Err(wrong_task(
                 &config,
                 "design",

@@ -379,7 +379,8 @@ fn without_seconds(path: &Path) -> serde_json::Value {
 /// Fits and designs killed with SIGKILL just after a checkpoint, three times, and resumed each time
 /// end with the same result file as an uninterrupted run: the material fit (L-BFGS stages), an Adam
 /// fit (stochastic gradients, a fresh seed per iteration, tail averaging), a grid design (Adam over
-/// three grid levels) and a GRIN parameter fit (L-BFGS on the exit adjoint). A checkpoint is not
+/// three grid levels), a GRIN parameter fit (L-BFGS on the exit adjoint) and a render design (Adam
+/// through the rendered target's forward sensitivities, fresh photons per step). A checkpoint is not
 /// resumed with other options, and a refused resume leaves the folder's results alone.
 #[test]
 fn killed_and_resumed_fits_and_designs_equal_uninterrupted_ones() {
@@ -415,6 +416,13 @@ fn killed_and_resumed_fits_and_designs_equal_uninterrupted_ones() {
     let (s, t) = (s.to_str().unwrap(), t.to_str().unwrap());
     let luneburg = repo.join("experiments/luneburg-design/luneburg.toml");
     let fibre = d.join("fibre.toml");
+    // a render design: a graded ball's grading toward more light on a target
+    let render = d.join("render.toml");
+    std::fs::write(
+        &render,
+        "[field]\nbounds = { kind = \"sphere\", radius = 1.0 }\nn_out = 1.0\n[[field.profiles]]\nkind = \"spherical_polynomial\"\nn0 = 1.3\ncoefficients = [0.0, 0.0]\n[medium]\nsigma_s = 1.5\nsigma_a = 0.2\n[light]\nkind = \"beam\"\ncenter = [0.0, 0.0, -2.0]\ndirection = [0.0, 0.0, 1.0]\nradius = 0.6\n[[sensor]]\nkind = \"target\"\nname = \"spot\"\ncenter = [0.0, 0.1, 0.55]\nradius = 0.3\n[render]\nstep = 0.01\n[design]\nmaximize = \"spot\"\nparameters = [{ name = \"profiles[0].c2\", min = -0.3, max = 0.3 }]\niterations = 12\nphotons = 1500\nlearning_rate = 0.3\nverify_photons = 3000\n",
+    )
+    .unwrap();
     let adam = [
         "fit",
         s,
@@ -429,7 +437,7 @@ fn killed_and_resumed_fits_and_designs_equal_uninterrupted_ones() {
         "--learning-rate",
         "0.1",
     ];
-    let cases: [(&str, Vec<&str>, &str, &str); 4] = [
+    let cases: [(&str, Vec<&str>, &str, &str); 5] = [
         (
             "lbfgs",
             vec!["fit", s, "--target", t, "--fit", "mfp,albedo"],
@@ -447,6 +455,12 @@ fn killed_and_resumed_fits_and_designs_equal_uninterrupted_ones() {
             "params",
             vec!["design", fibre.to_str().unwrap()],
             "fit.json",
+            "1",
+        ),
+        (
+            "render",
+            vec!["design", render.to_str().unwrap()],
+            "render_design.json",
             "1",
         ),
     ];

@@ -24,6 +24,7 @@ pub mod fit;
 pub mod grin;
 pub mod mie;
 pub mod render;
+pub mod render_design;
 pub mod run;
 pub mod tilt_shift;
 pub mod wave;

@@ -426,7 +426,11 @@ pub fn merge_shards(inputs: &[PathBuf], out: &Path) -> Result<Outcome> {
         let config: crate::config::RenderConfig =
             serde_json::from_value(h.config).map_err(recorded)?;
         let scene = config.build()?;
-        let task = crate::config::RenderTask { config, scene };
+        let task = crate::config::RenderTask {
+            config,
+            scene,
+            design: None,
+        };
         return merged(kind, Job::Render(&task), &plan, blocks, out);
     }
     let config: Config = serde_json::from_value(h.config).map_err(recorded)?;

@@ -72,6 +72,8 @@ pub struct ParamFitTask {
 pub struct RenderTask {
     pub config: RenderConfig,
     pub scene: crate::rrte::RenderScene,
+    /// The design its `[design]` table describes (`lightpath design`).
+    pub design: Option<crate::inverse::render_design::RenderDesign>,
 }
 
 /// What a config file holds, validated and built.
@@ -114,7 +116,7 @@ impl TaskKind {
                 "speckle images ([acquisition] + [[pair]]; read them with `lightpath acquire-phase`)"
             }
             TaskKind::Render => {
-                "a refractive render ([field] + [light] + [[sensor]]; run it with `lightpath render`)"
+                "a refractive render ([field] + [light] + [[sensor]]; run it with `lightpath render`, or with a [design] table, `lightpath design`)"
             }
         }
     }
@@ -509,7 +511,12 @@ fn build(value: toml::Value, path: &Path) -> Result<Task, ConfigError> {
                 m.resolve_paths(path.parent().unwrap_or(Path::new("")));
             }
             let scene = config.build()?;
-            Task::Render(Box::new(RenderTask { config, scene }))
+            let design = config.design(&scene)?;
+            Task::Render(Box::new(RenderTask {
+                config,
+                scene,
+                design,
+            }))
         }
     })
 }

@@ -45,6 +45,56 @@ pub struct RenderConfig {
     pub spectrum: Option<SpectrumConfig>,
     #[serde(default)]
     pub render: RenderSettings,
+    /// A design of the index field toward a target (`lightpath design`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub design: Option<RenderDesignConfig>,
+}
+
+/// `[design]` of a render config: the index field's parameters Adam moves, each within its range,
+/// to deliver the most light to a target (or the most relative to another: contrast).
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RenderDesignConfig {
+    /// The target (a sensor of kind "target", by name) whose fluence is maximised.
+    pub maximize: String,
+    /// A target the fluence is taken relative to (the objective is then the ratio).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub relative_to: Option<String>,
+    pub parameters: Vec<DesignParameterConfig>,
+    #[serde(default = "default_design_iterations")]
+    pub iterations: u64,
+    /// Photons per iteration (fresh ones every iteration).
+    #[serde(default = "default_design_photons")]
+    pub photons: u64,
+    /// Adam's step in each parameter's logistic coordinate (0.1 moves a parameter in the middle
+    /// of its range by about 2.5 % of the range per step).
+    #[serde(default = "default_design_learning_rate")]
+    pub learning_rate: f64,
+    /// Photons of the renders at a fresh seed that check the design against the start.
+    #[serde(default = "default_verify_photons")]
+    pub verify_photons: u64,
+}
+
+/// A designed parameter: its name (as `render.derivatives` names it) and its range.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct DesignParameterConfig {
+    pub name: String,
+    pub min: f64,
+    pub max: f64,
+}
+
+fn default_design_iterations() -> u64 {
+    60
+}
+fn default_design_photons() -> u64 {
+    5_000
+}
+fn default_design_learning_rate() -> f64 {
+    0.1
+}
+fn default_verify_photons() -> u64 {
+    100_000
 }
 
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
@@ -817,27 +867,39 @@ impl RenderConfig {
         volume: &Volume,
         sensors: &[Sensor],
     ) -> Result<Vec<Derivative>, ConfigError> {
-        use crate::medium::params::Param;
         let names = &self.render.derivatives;
         if names.is_empty() {
             return Ok(Vec::new());
         }
-        let key = |i: usize| format!("render.derivatives[{i}] = {:?}", names[i]);
+        self.parameters("render.derivatives", names, volume, sensors)
+    }
+
+    /// The parameters `names` (listed under `list`) names, checked as
+    /// [`Self::derivatives`] says.
+    fn parameters(
+        &self,
+        list: &str,
+        names: &[String],
+        volume: &Volume,
+        sensors: &[Sensor],
+    ) -> Result<Vec<Derivative>, ConfigError> {
+        use crate::medium::params::Param;
+        let key = |i: usize| format!("{list}[{i}] = {:?}", names[i]);
         if names.len() > MAX_DERIVATIVES {
             return err(format!(
-                "render.derivatives names {} parameters: at most {MAX_DERIVATIVES}",
+                "{list} names {} parameters: at most {MAX_DERIVATIVES}",
                 names.len()
             ));
         }
         if self.render.estimator != EstimatorConfig::Particle {
-            return err(
-                "render.derivatives: the derivatives come from particle tracing; set render.estimator = \"particle\" (the default)",
-            );
+            return err(format!(
+                "{list}: the derivatives come from particle tracing; set render.estimator = \"particle\" (the default)",
+            ));
         }
         if volume.density.is_some() {
-            return err(
-                "render.derivatives: derivatives need a homogeneous medium, and [density] makes it heterogeneous; drop [density] or render.derivatives",
-            );
+            return err(format!(
+                "{list}: derivatives need a homogeneous medium, and [density] makes it heterogeneous; drop [density]",
+            ));
         }
         let mut params = Vec::new();
         for (i, name) in names.iter().enumerate() {
@@ -868,6 +930,120 @@ impl RenderConfig {
             params.push(p);
         }
         Ok(params)
+    }
+
+    /// The design of `[design]`, checked against the built `scene`.
+    pub fn design(
+        &self,
+        scene: &RenderScene,
+    ) -> Result<Option<crate::inverse::render_design::RenderDesign>, ConfigError> {
+        let Some(d) = &self.design else {
+            return Ok(None);
+        };
+        let target = |key: &str, name: &str| {
+            scene
+                .sensors
+                .iter()
+                .position(|s| s.name == name && s.region.is_some())
+                .ok_or_else(|| {
+                    let targets: Vec<&str> = scene
+                        .sensors
+                        .iter()
+                        .filter(|s| s.region.is_some())
+                        .map(|s| s.name.as_str())
+                        .collect();
+                    ConfigError(format!(
+                        "{key} = {name:?}: not a target of this scene; its targets (kind = \"target\"): {targets:?}"
+                    ))
+                })
+        };
+        let maximize = target("design.maximize", &d.maximize)?;
+        let relative_to = match &d.relative_to {
+            Some(r) if *r == d.maximize => {
+                return err(format!(
+                    "design.relative_to = {r:?}: the target maximised; name another target, or leave it out"
+                ));
+            }
+            Some(r) => Some(target("design.relative_to", r)?),
+            None => None,
+        };
+        if d.parameters.is_empty() {
+            return err(
+                "design.parameters = []: name at least one, e.g. [{ name = \"profiles[0].n_max\", min = 0.0, max = 0.002 }]",
+            );
+        }
+        let names: Vec<String> = d.parameters.iter().map(|p| p.name.clone()).collect();
+        let params = self.parameters("design.parameters", &names, &scene.volume, &scene.sensors)?;
+        let mut design_scene = scene.clone();
+        design_scene.derivatives = params;
+        let op = crate::diff::RenderOp::from_scene(design_scene.clone(), (1, 1, 0))
+            .map_err(|e| ConfigError(format!("design: {e}")))?;
+        // θ from the operation: the medium's parameters first
+        let values = op.values();
+        let order: Vec<usize> = (0..names.len())
+            .filter(|&i| matches!(design_scene.derivatives[i], Derivative::Medium(_)))
+            .chain(
+                (0..names.len())
+                    .filter(|&i| matches!(design_scene.derivatives[i], Derivative::Field(_))),
+            )
+            .collect();
+        let mut ranges = Vec::new();
+        let mut start = Vec::new();
+        let mut ordered = Vec::new();
+        for (k, &i) in order.iter().enumerate() {
+            let p = &d.parameters[i];
+            let key = format!("design.parameters[{i}]");
+            if !(p.min.is_finite() && p.max.is_finite() && p.min < p.max) {
+                return err(format!(
+                    "{key}: min = {}, max = {}: give finite numbers with min < max",
+                    p.min, p.max
+                ));
+            }
+            let v = values[k];
+            if !(p.min < v && v < p.max) {
+                return err(format!(
+                    "{key} ({}): the config's value {v} must lie inside (min, max) = ({}, {}), where the design starts",
+                    p.name, p.min, p.max
+                ));
+            }
+            ranges.push((p.min, p.max));
+            start.push(v);
+            ordered.push(design_scene.derivatives[i].name());
+        }
+        design_scene.derivatives = order
+            .iter()
+            .map(|&i| design_scene.derivatives[i].clone())
+            .collect();
+        if !(1..=100_000).contains(&d.iterations) {
+            return err(format!(
+                "design.iterations = {}: must be within [1, 100000]",
+                d.iterations
+            ));
+        }
+        for (key, v) in [("photons", d.photons), ("verify_photons", d.verify_photons)] {
+            if !(100..=1_000_000_000).contains(&v) {
+                return err(format!("design.{key} = {v}: must be within [100, 1e9]"));
+            }
+        }
+        if !(d.learning_rate.is_finite() && d.learning_rate > 0.0 && d.learning_rate <= 10.0) {
+            return err(format!(
+                "design.learning_rate = {}: must be within (0, 10]",
+                d.learning_rate
+            ));
+        }
+        Ok(Some(crate::inverse::render_design::RenderDesign {
+            scene: design_scene,
+            names: ordered,
+            ranges,
+            start,
+            maximize,
+            relative_to,
+            iterations: d.iterations as usize,
+            photons: d.photons,
+            chunk: self.render.chunk.min(d.photons).max(1),
+            seed: self.render.seed,
+            learning_rate: d.learning_rate,
+        }))
     }
 
     /// The index-field parameter `profiles[i].name` names.

@@ -500,7 +500,7 @@ fn default_paths() -> u64 {
 }
 
 /// Keys that hold whole numbers; everything else numeric is read as a float.
-const INTEGER_KEYS: [&str; 18] = [
+const INTEGER_KEYS: [&str; 20] = [
     "samples",
     "reflections",
     "aperture_directions",
@@ -519,6 +519,8 @@ const INTEGER_KEYS: [&str; 18] = [
     "m",
     "dims",
     "profile",
+    "photons",
+    "verify_photons",
 ];
 
 /// Let `1` stand for `1.0` in float keys and `1e6` for `1000000` in integer keys.

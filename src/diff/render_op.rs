@@ -1,17 +1,19 @@
-//! Rendered sensor powers as a differentiable function of the medium's parameters, for the burn
-//! bridge ([`super::bridge`]) and any other reverse-mode user.
+//! Rendered sensor powers (and targets' fluences) as a differentiable function of the medium's
+//! and the index field's parameters, for the burn bridge ([`super::bridge`]) and any other
+//! reverse-mode user.
 //!
-//! [`RenderOp`] maps `θ` (values of [`Param`]s of the refractive renderer's homogeneous medium) to
-//! the power every sensor receives, estimated by particle tracing; its pullback is the transposed
-//! Jacobian the same photons estimate by their path-space scores (`render.derivatives`). Each
-//! evaluation draws fresh photons (the seed advances): unbiased values and gradients of the
-//! expected powers, as stochastic optimisers (Adam) expect.
+//! [`RenderOp`] maps `θ` (values of [`Param`]s of the refractive renderer's homogeneous medium,
+//! then of the index field's parameters) to what every sensor receives, estimated by particle
+//! tracing; its pullback is the transposed Jacobian the same photons estimate by their path-space
+//! scores and forward sensitivities (`render.derivatives`). Each evaluation draws fresh photons
+//! (the seed advances): unbiased values and gradients of the expected outputs, as stochastic
+//! optimisers (Adam) expect.
 
 use super::bridge::{Differentiable, Pullback};
 use super::{Param, medium_at};
 use crate::mc::{Plan, StopFlag, estimate_until};
 use crate::medium::{Geometry, Medium};
-use crate::rrte::{ParticleTracer, RenderScene, Tracing};
+use crate::rrte::{Derivative, FieldDerivative, ParticleTracer, RenderScene, Tracing};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
@@ -19,6 +21,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 pub struct RenderOp {
     pub scene: RenderScene,
     pub params: Vec<Param>,
+    /// Index-field parameters, after `params` in `θ` (none from [`Self::new`]).
+    pub field: Vec<FieldDerivative>,
     pub samples: u64,
     pub chunk: u64,
     pub seed: u64,
@@ -85,12 +89,80 @@ impl RenderOp {
         Ok(RenderOp {
             scene,
             params,
+            field: Vec::new(),
             samples,
             chunk,
             seed,
             stop: StopFlag::default(),
             evaluations: AtomicU64::new(0),
         })
+    }
+
+    /// The operation on a configured scene, differentiated by the parameters its
+    /// `render.derivatives` names: `θ` holds the medium's first, then the index field's, each in
+    /// the config's order.
+    pub fn from_scene(scene: RenderScene, sizes: (u64, u64, u64)) -> crate::Result<Self> {
+        let params = scene
+            .derivatives
+            .iter()
+            .filter_map(Derivative::medium)
+            .collect();
+        let field: Vec<FieldDerivative> = scene
+            .derivatives
+            .iter()
+            .filter_map(|d| match d {
+                Derivative::Field(f) => Some(f.clone()),
+                Derivative::Medium(_) => None,
+            })
+            .collect();
+        if !field.is_empty() && scene.sensors.iter().any(|s| s.region.is_none()) {
+            return Err(
+                "a render's derivatives with respect to the index field are of targets: every sensor must be one".into(),
+            );
+        }
+        let mut op = Self::new(scene, params, sizes)?;
+        if op.params.len() + field.len() > crate::rrte::MAX_DERIVATIVES {
+            return Err(format!(
+                "{} parameters: a render differentiates at most {}",
+                op.params.len() + field.len(),
+                crate::rrte::MAX_DERIVATIVES
+            )
+            .into());
+        }
+        op.field = field;
+        Ok(op)
+    }
+
+    /// The parameters' values in the scene (`θ` where it was configured).
+    pub fn values(&self) -> Vec<f64> {
+        let v = &self.scene.volume;
+        let mut theta: Vec<f64> = self
+            .params
+            .iter()
+            .map(|p| {
+                p.value_in(v.sigma_s, v.sigma_a, &v.scattering)
+                    .unwrap_or(0.0)
+            })
+            .collect();
+        let mut field = v.field.clone();
+        for f in &self.field {
+            let stored = field.profiles[f.param.profile]
+                .param_mut(f.param.which)
+                .map_or(0.0, |x| *x);
+            theta.push(if f.scale != 0.0 {
+                stored / f.scale
+            } else {
+                0.0
+            });
+        }
+        theta
+    }
+
+    /// The scene at `θ`, to render without derivatives (a design's check).
+    pub fn scene_without_derivatives(&self, theta: &[f64]) -> crate::Result<RenderScene> {
+        let (mut scene, _) = self.scene_at(theta)?;
+        scene.derivatives.clear();
+        Ok(scene)
     }
 
     /// How many evaluations have been made (each uses the next seed).
@@ -109,15 +181,34 @@ impl RenderOp {
             sigma_a: v.sigma_a,
             scattering: v.scattering.clone(),
         };
-        let (m, factor) = medium_at(&base, &self.params, theta)?;
+        let m_count = self.params.len();
+        if theta.len() != m_count + self.field.len() {
+            return Err(format!(
+                "{} parameter values for {} parameters",
+                theta.len(),
+                m_count + self.field.len()
+            )
+            .into());
+        }
+        let (m, mut factor) = medium_at(&base, &self.params, &theta[..m_count])?;
         let mut scene = self.scene.clone();
         scene.volume.sigma_s = m.sigma_s;
         scene.volume.sigma_a = m.sigma_a;
         scene.volume.scattering = m.scattering;
+        for (f, &value) in self.field.iter().zip(&theta[m_count..]) {
+            if !value.is_finite() {
+                return Err(format!("{} = {value}: not a finite number", f.name).into());
+            }
+            if let Some(x) = scene.volume.field.profiles[f.param.profile].param_mut(f.param.which) {
+                *x = value * f.scale;
+            }
+        }
+        factor.extend(std::iter::repeat_n(1.0, self.field.len()));
         scene.derivatives = self
             .params
             .iter()
-            .map(|&p| crate::rrte::Derivative::Medium(p))
+            .map(|&p| Derivative::Medium(p))
+            .chain(self.field.iter().cloned().map(Derivative::Field))
             .collect();
         Ok((scene, factor))
     }

@@ -21,6 +21,7 @@ pub mod lbfgs;
 pub mod material_fit;
 pub mod phase_fit;
 pub mod phase_from_speckle;
+pub mod render_design;
 pub mod shortcut;
 pub mod target;
 

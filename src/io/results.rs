@@ -598,6 +598,63 @@ pub struct GrinFitFile {
 }
 result_file!(GrinFitFile, "fit.json");
 
+/// `render_design.json` of `lightpath design` on a render config with a `[design]` table.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct RenderDesignFile {
+    #[serde(default)]
+    pub format_version: u32,
+    /// The target maximised, and the one it is taken relative to.
+    pub maximize: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub relative_to: Option<String>,
+    pub parameters: Vec<DesignedParameter>,
+    /// Per iteration: the objective `ln F (− ln F_reference)` of its photons, and the parameters.
+    pub log: Vec<RenderDesignLogLine>,
+    /// Renders at a fresh seed of the start and of the design.
+    pub verification: DesignVerification,
+    pub convergence: crate::inverse::Convergence,
+    pub seconds: f64,
+    pub version: String,
+    pub config: crate::config::RenderConfig,
+}
+result_file!(RenderDesignFile, "render_design.json");
+
+/// A designed parameter: its range, where it started and where the design put it.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct DesignedParameter {
+    pub name: String,
+    pub min: f64,
+    pub max: f64,
+    pub start: f64,
+    pub designed: f64,
+}
+
+/// One iteration of a render design.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct RenderDesignLogLine {
+    pub iteration: usize,
+    pub objective: f64,
+    pub grad_norm: f64,
+    pub parameters: Vec<f64>,
+}
+
+/// The independent check of a design: the target's fluence (and the reference's, and their
+/// ratio, with one) at the start and at the design, from `photons` photons each at `seed`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct DesignVerification {
+    pub photons: u64,
+    pub seed: u64,
+    pub start: Measured,
+    pub designed: Measured,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reference_start: Option<Measured>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reference_designed: Option<Measured>,
+    /// The objective's gain, `F_designed / F_start` (of the ratios, with a reference), with its
+    /// standard error.
+    pub gain: Measured,
+}
+
 /// `mie.json` of `lightpath mie`: one sphere (or a log-normal suspension of them) by Lorenz–Mie
 /// theory. Lengths in the unit of the inputs; cross-sections per particle (means over the sizes).
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
