@@ -510,8 +510,93 @@ impl GrinFit {
     }
 }
 
-/// A design config run (`lightpath design`): a grid design (`Design`) or, with a
-/// `[parameters]` table, an analytic parameter fit (`GrinFit`).
+/// A render's index field designed toward a target (`lightpath design` on a render config with a
+/// `[design]` table), as its `render_design.json` holds it.
+#[pyclass(frozen, module = "lightpath")]
+pub(crate) struct RenderDesign {
+    file: lightpath::io::results::RenderDesignFile,
+    summary: String,
+}
+
+#[pymethods]
+impl RenderDesign {
+    /// The parameters' names (`profiles[i].name`, or the medium's).
+    #[getter]
+    fn params(&self) -> Vec<String> {
+        self.file
+            .parameters
+            .iter()
+            .map(|p| p.name.clone())
+            .collect()
+    }
+
+    /// float64 `[P]`: where the design started (the config's values).
+    #[getter]
+    fn start<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_vec(py, self.file.parameters.iter().map(|p| p.start).collect())
+    }
+
+    /// float64 `[P]`: the design.
+    #[getter]
+    fn designed<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_vec(
+            py,
+            self.file.parameters.iter().map(|p| p.designed).collect(),
+        )
+    }
+
+    /// float64 `[I]`: each iteration's objective (`ln F`, or `ln F − ln F_reference`).
+    #[getter]
+    fn log_objective<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_vec(py, self.file.log.iter().map(|l| l.objective).collect())
+    }
+
+    /// dict: the check at a fresh seed (`photons`, `seed`, `start`, `designed`, `gain`, each
+    /// fluence `{mean, stderr}`).
+    #[getter]
+    fn verification<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        json_value(py, &self.file.verification)
+    }
+
+    /// Whether the objective stopped rising beyond its noise.
+    #[getter]
+    fn converged(&self) -> bool {
+        self.file.convergence.converged
+    }
+
+    /// What the command prints.
+    #[getter]
+    fn summary(&self) -> String {
+        self.summary.clone()
+    }
+
+    /// `render_design.json` as text, exactly as the command writes it.
+    fn to_json(&self) -> PyResult<String> {
+        json_text(&self.file)
+    }
+
+    /// Write `render_design.json` and `loss.png` into `folder`; the paths written.
+    fn save(&self, folder: PathBuf) -> PyResult<Vec<PathBuf>> {
+        create_out(&folder, &["render_design.json", "loss.png"]).map_err(py_err)?;
+        Ok(lightpath::app::render_design::write(&self.file, &folder)
+            .map_err(py_err)?
+            .files)
+    }
+
+    fn __repr__(&self) -> String {
+        let v = &self.file.verification.gain;
+        format!(
+            "<lightpath.RenderDesign {} parameter(s), gain {:.4} ± {:.4}>",
+            self.file.parameters.len(),
+            v.mean,
+            v.stderr
+        )
+    }
+}
+
+/// A design config run (`lightpath design`): a grid design (`Design`), with a `[parameters]`
+/// table an analytic parameter fit (`GrinFit`), or a render config's `[design]`
+/// (`RenderDesign`).
 #[pyfunction]
 #[pyo3(signature = (task, *, threads=None, max_minutes=240.0, max_memory_gb=8.0, progress=None, checkpoint=None, checkpoint_every=None))]
 #[allow(clippy::too_many_arguments)]
@@ -553,8 +638,29 @@ pub(crate) fn design(
             finished(checkpoint)?;
             Ok(Py::new(py, GrinFit { fitted })?.into_any())
         }
+        config::Task::Render(t) if t.design.is_some() => {
+            let t = (**t).clone();
+            let problem = t.design.clone().expect("a design");
+            lightpath::app::render_design::check(&t, &problem, &limits).map_err(py_err)?;
+            let identity = lightpath::app::grin::identity(&t.config);
+            let journal = journal("render design", identity, checkpoint, checkpoint_every)?;
+            let total = problem.iterations as u64;
+            let file = run_watched(py, threads, progress, move |w| {
+                w.total.store(total, Ordering::Relaxed);
+                lightpath::app::render_design::run(
+                    &t,
+                    &problem,
+                    &|_| w.tick(),
+                    &w.stop_flag(),
+                    &journal,
+                )
+            })?;
+            finished(checkpoint)?;
+            let summary = lightpath::app::render_design::summary(&file);
+            Ok(Py::new(py, RenderDesign { file, summary })?.into_any())
+        }
         other => Err(PyValueError::new_err(format!(
-            "design: needs a design config ([field] + [design], or [parameters] to fit), but the config holds {}",
+            "design: needs a design config ([field] + [design], or [parameters] to fit, or a render config with [design]), but the config holds {}",
             other.kind().describe()
         ))),
     }

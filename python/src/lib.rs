@@ -2100,6 +2100,7 @@ fn _lightpath(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<inverse::Fit>()?;
     m.add_class::<inverse::Design>()?;
     m.add_class::<inverse::GrinFit>()?;
+    m.add_class::<inverse::RenderDesign>()?;
     m.add_function(wrap_pyfunction!(inverse::fit, m)?)?;
     m.add_function(wrap_pyfunction!(inverse::design, m)?)?;
     m.add_class::<render::Render>()?;

@@ -4,6 +4,7 @@ the same files, and they recover what they should from starting points a user wo
 from __future__ import annotations
 
 import json
+import subprocess
 
 import numpy as np
 import pytest
@@ -178,3 +179,55 @@ def test_interrupted_designs_resume_from_their_checkpoint(repo, tmp_path):
     with pytest.raises(ValueError, match="another run"):
         lp.design(luneburg, checkpoint=folder)
     assert (folder / "checkpoint.bin").exists()
+
+
+RENDER_DESIGN = """
+[field]
+bounds = { kind = "sphere", radius = 1.0 }
+n_out = 1.0
+[[field.profiles]]
+kind = "spherical_polynomial"
+n0 = 1.3
+coefficients = [0.0, 0.0]
+[medium]
+sigma_s = 1.5
+sigma_a = 0.2
+[light]
+kind = "beam"
+center = [0.0, 0.0, -2.0]
+direction = [0.0, 0.0, 1.0]
+radius = 0.6
+[[sensor]]
+kind = "target"
+name = "spot"
+center = [0.0, 0.1, 0.55]
+radius = 0.3
+[render]
+step = 0.01
+[design]
+maximize = "spot"
+parameters = [{ name = "profiles[0].c2", min = -0.3, max = 0.3 }]
+iterations = 10
+photons = 2000
+learning_rate = 0.3
+verify_photons = 20000
+"""
+
+
+def test_render_design_equals_the_command_line_and_delivers_more_light(cli, tmp_path):
+    config = tmp_path / "render_design.toml"
+    config.write_text(RENDER_DESIGN)
+    out = tmp_path / "cli"
+    # 3: the objective still rose over the last third (not converged); the results are written
+    done = subprocess.run([str(cli), "design", str(config), "--out", str(out), "--quiet"])
+    assert done.returncode in (0, 3)
+    cli = read_json(out / "render_design.json")
+    py = lp.design(config, threads=2)
+    assert isinstance(py, lp.RenderDesign)
+    assert without_times(json.loads(py.to_json())) == without_times(cli)
+    assert py.params == ["profiles[0].c2"] and len(py.log_objective) == 10
+    assert py.start[0] == 0.0 and -0.3 < py.designed[0] < -0.1
+    gain = py.verification["gain"]
+    assert gain["mean"] - 1 > 4 * gain["stderr"], gain
+    names = [p.name for p in py.save(tmp_path / "py")]
+    assert names == ["render_design.json", "loss.png"]

@@ -61,7 +61,11 @@ pub fn design(
 
 /// Refuse a design whose renders would not fit the time budget: every iteration's photons with
 /// their derivatives, and the two checking renders.
-fn check(task: &RenderTask, problem: &RenderDesign, budget: &super::budget::Budget) -> Result<()> {
+pub fn check(
+    task: &RenderTask,
+    problem: &RenderDesign,
+    budget: &super::budget::Budget,
+) -> Result<()> {
     let est = ParticleTracer::new(&problem.scene);
     let v = &problem.scene.volume;
     let half = v.field.bounds.half_extent().unwrap_or(glam::DVec3::ONE);
@@ -193,6 +197,16 @@ pub fn write(file: &RenderDesignFile, out: &Path) -> Result<Outcome> {
         )],
         false,
     )?;
+    let summary = summary(file);
+    Ok(Outcome {
+        not_converged: file.convergence.warning(),
+        files: vec![path, loss_png],
+        summary,
+    })
+}
+
+/// What the command prints of a design.
+pub fn summary(file: &RenderDesignFile) -> String {
     let v = &file.verification;
     let gained = match &file.relative_to {
         Some(r) => format!("gain of the ratio to {r}"),
@@ -217,9 +231,5 @@ pub fn write(file: &RenderDesignFile, out: &Path) -> Result<Outcome> {
             p.name, p.start, p.designed, p.min, p.max
         );
     }
-    Ok(Outcome {
-        not_converged: file.convergence.warning(),
-        files: vec![path, loss_png],
-        summary: summary.trim_end().to_string(),
-    })
+    summary.trim_end().to_string()
 }
