@@ -198,6 +198,23 @@ fn mismatch() -> crate::Error {
     )
 }
 
+/// How a fixed-length run ended: at a plateau of its `losses` ([`plateaued`]) or at its
+/// iteration limit, after `evaluations` evaluations, with the last gradient's norm.
+pub fn convergence(losses: &[f64], grad_norm: f64, evaluations: usize) -> super::Convergence {
+    let stop = if plateaued(losses) {
+        super::FitStop::LossPlateau
+    } else {
+        super::FitStop::IterationLimit
+    };
+    super::Convergence {
+        converged: stop.converged(),
+        stop,
+        grad_norm,
+        evaluations,
+        iterations: evaluations,
+    }
+}
+
 /// Whether a fixed-length run's loss has stopped decreasing: the mean over the last third is lower
 /// than over the third before by at most 1 % of the whole run's decrease (its largest loss minus the
 /// last third's mean) plus twice the standard error of the difference (the losses of stochastic

@@ -281,18 +281,7 @@ impl FocusDesign {
             .filter(|s| s.level + 1 == self.levels.len())
             .map(|s| s.loss)
             .collect();
-        let stop = if super::adam::plateaued(&last_level) {
-            super::FitStop::LossPlateau
-        } else {
-            super::FitStop::IterationLimit
-        };
-        let convergence = super::Convergence {
-            converged: stop.converged(),
-            stop,
-            grad_norm: last_grad_norm,
-            evaluations: log.len(),
-            iterations: log.len(),
-        };
+        let convergence = super::adam::convergence(&last_level, last_grad_norm, log.len());
         Ok(DesignResult {
             convergence,
             field: self.field_with(&grid),

@@ -10,7 +10,7 @@
 //! estimate is the average of the iterates over the last third (Polyak–Ruppert), and its uncertainty is Gauss–Newton on a fixed-proposal objective
 //! at that point, with the target's and the model's Monte Carlo errors.
 
-use super::{Convergence, FitParam, FitStop, LogEntry, Target, covariance_matrix};
+use super::{Convergence, FitParam, LogEntry, Target, covariance_matrix};
 use crate::diff::bridge::{Differentiable, Pullback, apply, tensor, values};
 use crate::diff::{CovarianceOp, Param, Proposal, medium_at};
 use crate::math::C64;
@@ -444,18 +444,8 @@ impl AdamFit<'_> {
             self.target.model_values(&loss_op.covariance(&y))
         };
         let losses: Vec<f64> = log.iter().map(|e| e.loss).collect();
-        let stop = if super::adam::plateaued(&losses) {
-            FitStop::LossPlateau
-        } else {
-            FitStop::IterationLimit
-        };
-        let convergence = Convergence {
-            converged: stop.converged(),
-            stop,
-            grad_norm: log.last().map_or(f64::NAN, |e| e.grad_norm),
-            evaluations: log.len(),
-            iterations: log.len(),
-        };
+        let grad_norm = log.last().map_or(f64::NAN, |e| e.grad_norm);
+        let convergence = super::adam::convergence(&losses, grad_norm, log.len());
         Ok(AdamResult {
             names,
             initial,

@@ -10,9 +10,9 @@
 //! mean of `u` over the last third of the iterations (stochastic steps scatter about the
 //! optimum); the run converged when its objective stopped improving beyond its noise.
 
-use super::adam::{Iterate, minimise, plateaued};
+use super::Convergence;
+use super::adam::{Iterate, minimise};
 use super::journal::{Journal, Numbers};
-use super::{Convergence, FitStop};
 use crate::diff::RenderOp;
 use crate::diff::bridge::{apply, tensor};
 use crate::mc::StopFlag;
@@ -166,18 +166,8 @@ impl RenderDesign {
             &m.last
         });
         let objectives: Vec<f64> = log.iter().map(|d| -d.objective).collect();
-        let stop = if plateaued(&objectives) {
-            FitStop::LossPlateau
-        } else {
-            FitStop::IterationLimit
-        };
-        let convergence = Convergence {
-            converged: stop.converged(),
-            stop,
-            grad_norm: log.last().map_or(0.0, |d| d.grad_norm),
-            evaluations: log.len(),
-            iterations: log.len(),
-        };
+        let grad_norm = log.last().map_or(f64::NAN, |d| d.grad_norm);
+        let convergence = super::adam::convergence(&objectives, grad_norm, log.len());
         Ok(RenderDesigned {
             log,
             designed,
