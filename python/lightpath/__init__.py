@@ -33,6 +33,7 @@ from ._lightpath import (
     PhaseAcquisition,
     Rays,
     Render,
+    RenderDesign,
     Run,
     Speckle,
     Task,
@@ -53,6 +54,7 @@ __all__ = [
     "PhaseAcquisition",
     "Rays",
     "Render",
+    "RenderDesign",
     "Run",
     "Speckle",
     "Task",
@@ -492,10 +494,12 @@ def design(
     progress: Progress = None,
     checkpoint: Union[str, "os.PathLike[str]", None] = None,
     checkpoint_every: Optional[int] = None,
-) -> Union[Design, GrinFit]:
+) -> Union[Design, GrinFit, RenderDesign]:
     """Run a design config (``lightpath design``): a grid index field shaped by Adam so the beams
-    pass through their foci (returns a :class:`Design`), or, with a ``[parameters]`` table, the
-    analytic field parameters fitted by L-BFGS (returns a :class:`GrinFit`). A design estimated
+    pass through their foci (returns a :class:`Design`); with a ``[parameters]`` table, the
+    analytic field parameters fitted by L-BFGS (returns a :class:`GrinFit`); or a render config's
+    ``[design]``: the index field's parameters moved by Adam toward the most light on a target
+    (returns a :class:`RenderDesign`). A design estimated
     beyond ``max_minutes`` or ``max_memory_gb`` is refused before any work (``ValueError``).
     ``progress(done, total)`` counts Adam iterations over every level, or L-BFGS evaluations
     (``total`` 0: not known in advance). Ctrl-C stops it within one ray's trace. ``checkpoint``

@@ -511,6 +511,28 @@ class GrinFit:
     def to_json(self) -> str: ...
     def save(self, folder: Union[str, PathLike[str]]) -> list[Path]: ...
 
+class RenderDesign:
+    """A render's index field designed toward a target, as `render_design.json` holds it."""
+
+    @property
+    def params(self) -> list[str]: ...
+    @property
+    def start(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def designed(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def log_objective(self) -> npt.NDArray[np.float64]:
+        """[I] the objective (ln F, or ln F - ln F_reference) of every Adam step."""
+    @property
+    def verification(self) -> dict[str, Any]:
+        """The check at a fresh seed: photons, seed, start, designed, gain."""
+    @property
+    def converged(self) -> bool: ...
+    @property
+    def summary(self) -> str: ...
+    def to_json(self) -> str: ...
+    def save(self, folder: Union[str, PathLike[str]]) -> list[Path]: ...
+
 class Render:
     """A render of a refractive, scattering volume, as `render.json` and its images hold it."""
 
@@ -573,7 +595,7 @@ def design(
     progress: Progress = None,
     checkpoint: Union[str, PathLike[str], None] = None,
     checkpoint_every: Optional[int] = None,
-) -> Union[Design, GrinFit]: ...
+) -> Union[Design, GrinFit, RenderDesign]: ...
 def render(
     task: Task,
     *,

@@ -207,10 +207,10 @@ step = 0.01
 [design]
 maximize = "spot"
 parameters = [{ name = "profiles[0].c2", min = -0.3, max = 0.3 }]
-iterations = 10
-photons = 2000
+iterations = 12
+photons = 3000
 learning_rate = 0.3
-verify_photons = 20000
+verify_photons = 60000
 """
 
 
@@ -225,7 +225,7 @@ def test_render_design_equals_the_command_line_and_delivers_more_light(cli, tmp_
     py = lp.design(config, threads=2)
     assert isinstance(py, lp.RenderDesign)
     assert without_times(json.loads(py.to_json())) == without_times(cli)
-    assert py.params == ["profiles[0].c2"] and len(py.log_objective) == 10
+    assert py.params == ["profiles[0].c2"] and len(py.log_objective) == 12
     assert py.start[0] == 0.0 and -0.3 < py.designed[0] < -0.1
     gain = py.verification["gain"]
     assert gain["mean"] - 1 > 4 * gain["stderr"], gain
