@@ -641,7 +641,7 @@ pub(crate) fn design(
         config::Task::Render(t) if t.design.is_some() => {
             let t = (**t).clone();
             let problem = t.design.clone().expect("a design");
-            lightpath::app::render_design::check(&t, &problem, &limits).map_err(py_err)?;
+            lightpath::app::render_design::check(&problem, &limits).map_err(py_err)?;
             let identity = lightpath::app::grin::identity(&t.config);
             let journal = journal("render design", identity, checkpoint, checkpoint_every)?;
             let total = problem.iterations as u64;

@@ -135,7 +135,7 @@ pub fn describe(task: &RenderTask) -> String {
                     sp.range_nm[0], sp.range_nm[1]
                 ),
             }),
-        crate::speckle::paths::expected_events(&proxy_medium(task)),
+        crate::speckle::paths::expected_events(&proxy_medium(&task.scene)),
     )
 }
 
@@ -175,8 +175,8 @@ fn bounds_text(bounds: &crate::eikonal::Bounds) -> String {
 }
 
 /// The volume as a homogeneous medium in its bounding box (for the expected path length).
-fn proxy_medium(task: &RenderTask) -> Medium {
-    let v = &task.scene.volume;
+pub(crate) fn proxy_medium(scene: &crate::rrte::RenderScene) -> Medium {
+    let v = &scene.volume;
     let half = v.field.bounds.half_extent().unwrap_or(glam::DVec3::ONE);
     Medium {
         geometry: Geometry::boxed((half * 2.0).to_array()),
@@ -200,7 +200,7 @@ pub(crate) fn compute(
     let next = done.last().map_or(range.start, |b| b.start + b.len);
     let chunks = range.end.saturating_sub(next);
     let photons = (chunks * plan.chunk_paths) as f64;
-    let medium = proxy_medium(task);
+    let medium = proxy_medium(&task.scene);
     super::budget::check("render", &est, &medium, photons, chunks, 0, budget)?;
     let progress = |n| bar.set(n);
     resume(&est, plan, range, &[], &progress, done, Some(checkpoint))

@@ -31,7 +31,7 @@ pub fn design(
     let problem = task.design.as_ref().ok_or_else(|| {
         Error::input("this render config has no [design] table: add one (maximize, parameters) to design with it, or run it with `lightpath render`")
     })?;
-    check(task, problem, budget)?;
+    check(problem, budget)?;
     let journal = super::journal(
         "render design",
         super::grin::identity(&task.config)?,
@@ -61,22 +61,10 @@ pub fn design(
 
 /// Refuse a design whose renders would not fit the time budget: every iteration's photons with
 /// their derivatives, and the two checking renders.
-pub fn check(
-    task: &RenderTask,
-    problem: &RenderDesign,
-    budget: &super::budget::Budget,
-) -> Result<()> {
+pub fn check(problem: &RenderDesign, budget: &super::budget::Budget) -> Result<()> {
     let est = ParticleTracer::new(&problem.scene);
-    let v = &problem.scene.volume;
-    let half = v.field.bounds.half_extent().unwrap_or(glam::DVec3::ONE);
-    let medium = crate::medium::Medium {
-        geometry: crate::medium::Geometry::boxed((half * 2.0).to_array()),
-        sigma_s: v.sigma_s,
-        sigma_a: v.sigma_a,
-        scattering: v.scattering.clone(),
-    };
-    let verify = task.config.design.as_ref().map_or(0, |d| d.verify_photons);
-    let photons = (problem.iterations as u64 * problem.photons + 2 * verify) as f64;
+    let medium = super::render::proxy_medium(&problem.scene);
+    let photons = (problem.iterations as u64 * problem.photons + 2 * problem.verify_photons) as f64;
     let chunks = (photons / problem.chunk as f64).ceil() as u64;
     super::budget::check("render design", &est, &medium, photons, chunks, 0, budget)
 }
@@ -91,11 +79,7 @@ pub fn run(
 ) -> Result<RenderDesignFile> {
     let t0 = Instant::now();
     let designed = problem.run(progress, stop, journal)?;
-    let verify = task
-        .config
-        .design
-        .as_ref()
-        .map_or(100_000, |d| d.verify_photons);
+    let verify = problem.verify_photons;
     let op = crate::diff::RenderOp::from_scene(problem.scene.clone(), (1, 1, 0))?;
     let fluences = |theta: &[f64]| -> Result<(Measured, Option<Measured>)> {
         let scene = op.scene_without_derivatives(theta)?;

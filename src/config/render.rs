@@ -1043,6 +1043,7 @@ impl RenderConfig {
             chunk: self.render.chunk.min(d.photons).max(1),
             seed: self.render.seed,
             learning_rate: d.learning_rate,
+            verify_photons: d.verify_photons,
         }))
     }
 

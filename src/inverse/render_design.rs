@@ -38,6 +38,8 @@ pub struct RenderDesign {
     pub seed: u64,
     /// Adam's step in the unconstrained variables.
     pub learning_rate: f64,
+    /// Photons of each checking render at a fresh seed (start and design).
+    pub verify_photons: u64,
 }
 
 /// One iteration: the objective at the parameters before the step.

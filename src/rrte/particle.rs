@@ -1112,12 +1112,9 @@ impl<'s> ParticleTracer<'s> {
         let derivatives = &self.scene.derivatives;
         let mut tracks: Tracks = [0.0; MAX_TARGETS];
         loop {
-            let (stop, travelled) = if self.targets.is_empty() {
-                t.next_event(ray, rng)
-            } else {
-                tracks = [0.0; MAX_TARGETS];
-                t.next_event_visiting(ray, rng, |a, b| self.track(a, b, &mut tracks))
-            };
+            tracks.fill(0.0);
+            let (stop, travelled) =
+                t.next_event_visiting(ray, rng, |a, b| self.track(a, b, &mut tracks));
             p.steps += travelled.steps;
             p.opl += travelled.opl;
             // the flight's score: `σ_t e^{−σ_t L}` to a collision, `e^{−σ_t L}` to the surface
@@ -1125,11 +1122,8 @@ impl<'s> ParticleTracer<'s> {
             for (s, param) in p.score.iter_mut().zip(derivatives) {
                 *s += flight_score(param.medium(), collided, volume, travelled.length);
             }
-            if !self.targets.is_empty() {
-                // the flight's tracks count with its own score (they depend on its length)
-                let score = &p.score[..derivatives.len()];
-                self.record_tracks(&tracks, p.weight, score, out);
-            }
+            // the flight's tracks count with its own score (they depend on its length)
+            self.record_tracks(&tracks, p.weight, &p.score[..derivatives.len()], out);
             match stop {
                 Stop::Collision(hit) => {
                     p.events += 1;
