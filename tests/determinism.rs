@@ -379,8 +379,9 @@ fn without_seconds(path: &Path) -> serde_json::Value {
 /// Fits and designs killed with SIGKILL just after a checkpoint, three times, and resumed each time
 /// end with the same result file as an uninterrupted run: the material fit (L-BFGS stages), an Adam
 /// fit (stochastic gradients, a fresh seed per iteration, tail averaging), a grid design (Adam over
-/// three grid levels), a GRIN parameter fit (L-BFGS on the exit adjoint) and a render design (Adam
-/// through the rendered target's forward sensitivities, fresh photons per step). A checkpoint is not
+/// three grid levels), a GRIN parameter fit (L-BFGS on the exit adjoint) and render designs (Adam
+/// through the rendered target's forward sensitivities, fresh photons per step; L-BFGS on held
+/// photons). A checkpoint is not
 /// resumed with other options, and a refused resume leaves the folder's results alone.
 #[test]
 fn killed_and_resumed_fits_and_designs_equal_uninterrupted_ones() {
@@ -423,6 +424,16 @@ fn killed_and_resumed_fits_and_designs_equal_uninterrupted_ones() {
         "[field]\nbounds = { kind = \"sphere\", radius = 1.0 }\nn_out = 1.0\n[[field.profiles]]\nkind = \"spherical_polynomial\"\nn0 = 1.3\ncoefficients = [0.0, 0.0]\n[medium]\nsigma_s = 1.5\nsigma_a = 0.2\n[light]\nkind = \"beam\"\ncenter = [0.0, 0.0, -2.0]\ndirection = [0.0, 0.0, 1.0]\nradius = 0.6\n[[sensor]]\nkind = \"target\"\nname = \"spot\"\ncenter = [0.0, 0.1, 0.55]\nradius = 0.3\n[render]\nstep = 0.01\n[design]\nmaximize = \"spot\"\nparameters = [{ name = \"profiles[0].c2\", min = -0.3, max = 0.3 }]\niterations = 12\nphotons = 1500\nlearning_rate = 0.3\nverify_photons = 3000\n",
     )
     .unwrap();
+    // the same by L-BFGS on held photons, two parameters
+    let render_lbfgs = d.join("render-lbfgs.toml");
+    std::fs::write(
+        &render_lbfgs,
+        std::fs::read_to_string(&render).unwrap().replace(
+            "parameters = [{ name = \"profiles[0].c2\", min = -0.3, max = 0.3 }]",
+            "method = \"lbfgs\"\nparameters = [{ name = \"profiles[0].c2\", min = -0.3, max = 0.3 }, { name = \"profiles[0].n0\", min = 1.1, max = 1.6 }]",
+        ),
+    )
+    .unwrap();
     let adam = [
         "fit",
         s,
@@ -437,7 +448,7 @@ fn killed_and_resumed_fits_and_designs_equal_uninterrupted_ones() {
         "--learning-rate",
         "0.1",
     ];
-    let cases: [(&str, Vec<&str>, &str, &str); 5] = [
+    let cases: [(&str, Vec<&str>, &str, &str); 6] = [
         (
             "lbfgs",
             vec!["fit", s, "--target", t, "--fit", "mfp,albedo"],
@@ -460,6 +471,12 @@ fn killed_and_resumed_fits_and_designs_equal_uninterrupted_ones() {
         (
             "render",
             vec!["design", render.to_str().unwrap()],
+            "render_design.json",
+            "1",
+        ),
+        (
+            "render-lbfgs",
+            vec!["design", render_lbfgs.to_str().unwrap()],
             "render_design.json",
             "1",
         ),

@@ -793,14 +793,25 @@ learning_rate = 0.3
 verify_photons = 30000
 "#;
 
-/// `lightpath design` on a render config: Adam moves the grading within its range, and the
-/// renders at a fresh seed find more light on the target at the design than at the start.
+/// `lightpath design` on a render config: Adam moves the grading and the index within their
+/// ranges, and the renders at a fresh seed find more light on the target at the design than at
+/// the start. (The index's derivative is resolved by each step's 3 000 photons; the grading's,
+/// about −0.1 ± 0.34 at 30 000, is not, so where Adam leaves the grading is not asserted.)
 #[test]
 fn a_render_design_delivers_more_light_and_checks_it() {
     let dir = tmp("render-design");
     std::fs::create_dir_all(&dir).unwrap();
     let config = dir.join("design.toml");
-    std::fs::write(&config, DESIGN).unwrap();
+    let from = "parameters = [{ name = \"profiles[0].c2\", min = -0.3, max = 0.3 }]";
+    assert!(DESIGN.contains(from));
+    std::fs::write(
+        &config,
+        DESIGN.replace(
+            from,
+            "parameters = [{ name = \"profiles[0].c2\", min = -0.3, max = 0.3 }, { name = \"profiles[0].n0\", min = 1.1, max = 1.6 }]",
+        ),
+    )
+    .unwrap();
     let out = dir.join("out");
     let o = lightpath(&[
         "design",
@@ -818,10 +829,15 @@ fn a_render_design_delivers_more_light_and_checks_it() {
     let v: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("render_design.json")).unwrap()).unwrap();
     assert_eq!(v["maximize"], "spot");
+    assert_eq!(v["method"], "adam");
     assert_eq!(v["log"].as_array().unwrap().len(), 12);
-    let p = &v["parameters"][0];
-    let designed = p["designed"].as_f64().unwrap();
-    assert!((-0.3..0.3).contains(&designed) && designed < -0.1, "{p}");
+    let p = &v["parameters"];
+    let (c2, n0) = (
+        p[0]["designed"].as_f64().unwrap(),
+        p[1]["designed"].as_f64().unwrap(),
+    );
+    assert!((-0.3..0.3).contains(&c2), "{p}");
+    assert!((1.45..1.6).contains(&n0), "{p}");
     let gain = &v["verification"]["gain"];
     let (g, sg) = (
         gain["mean"].as_f64().unwrap(),
@@ -830,6 +846,68 @@ fn a_render_design_delivers_more_light_and_checks_it() {
     assert!(g - 1.0 > 4.0 * sg, "gain {g} ± {sg}");
     assert!(out.join("loss.png").exists());
     assert!(!out.join("checkpoint.bin").exists());
+}
+
+/// `method = "lbfgs"`: L-BFGS on held photons moves the grading and the index together; it
+/// converges (the gradient vanishes, or the held sample resolves no more), its design is the
+/// best point it evaluated, and the renders at a fresh seed confirm the gain.
+#[test]
+fn an_lbfgs_render_design_converges_on_held_photons_and_checks_it() {
+    let dir = tmp("render-design-lbfgs");
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = dir.join("design.toml");
+    let from =
+        "parameters = [{ name = \"profiles[0].c2\", min = -0.3, max = 0.3 }]\niterations = 12";
+    assert!(DESIGN.contains(from));
+    std::fs::write(
+        &config,
+        DESIGN.replace(
+            from,
+            "method = \"lbfgs\"\nparameters = [{ name = \"profiles[0].c2\", min = -0.3, max = 0.3 }, { name = \"profiles[0].n0\", min = 1.1, max = 1.6 }]\niterations = 20",
+        ),
+    )
+    .unwrap();
+    let out = dir.join("out");
+    let o = lightpath(&[
+        "design",
+        &config.display().to_string(),
+        "--out",
+        &out.display().to_string(),
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("render_design.json")).unwrap()).unwrap();
+    assert_eq!(v["method"], "lbfgs");
+    // here the projected gradient vanishes at the bounds (other seeds' line searches can end
+    // on a kink of the held estimate instead, and say so)
+    assert_eq!(v["convergence"]["converged"], true, "{}", v["convergence"]);
+    let log = v["log"].as_array().unwrap();
+    assert!(log.len() >= 3, "{} evaluations", log.len());
+    // the design is the best point evaluated
+    let best = log
+        .iter()
+        .map(|l| l["objective"].as_f64().unwrap())
+        .fold(f64::NEG_INFINITY, f64::max);
+    let designed: Vec<f64> = v["parameters"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p["designed"].as_f64().unwrap())
+        .collect();
+    let at_best = log
+        .iter()
+        .find(|l| l["objective"].as_f64().unwrap() == best)
+        .unwrap();
+    assert_eq!(at_best["parameters"], serde_json::json!(designed));
+    assert!(designed[0] < -0.1, "c2 {designed:?}");
+    assert!((1.1..=1.6).contains(&designed[1]), "n0 {designed:?}");
+    let gain = &v["verification"]["gain"];
+    let (g, sg) = (
+        gain["mean"].as_f64().unwrap(),
+        gain["stderr"].as_f64().unwrap(),
+    );
+    assert!(g - 1.0 > 4.0 * sg, "gain {g} ± {sg}");
 }
 
 /// Bad `[design]` tables are refused by key.
@@ -881,6 +959,17 @@ fn bad_render_designs_are_refused_by_key() {
     bad(
         design("iterations = 12", "iterations = 0"),
         &["design.iterations"],
+    );
+    bad(
+        design("iterations = 12", "method = \"newton\"\niterations = 12"),
+        &["design.method = \"newton\"", "\"lbfgs\""],
+    );
+    bad(
+        design(
+            "parameters = [{ name = \"profiles[0].c2\", min = -0.3, max = 0.3 }]",
+            "method = \"lbfgs\"\nparameters = [{ name = \"profiles[0].c2\", min = -0.3, max = 0.3 }, { name = \"sigma_s\", min = 1.0, max = 2.0 }]",
+        ),
+        &["design.parameters[1] (sigma_s)", "method = \"adam\""],
     );
     bad(
         design(

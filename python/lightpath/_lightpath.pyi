@@ -517,12 +517,15 @@ class RenderDesign:
     @property
     def params(self) -> list[str]: ...
     @property
+    def method(self) -> str:
+        """"adam" (fresh photons every iteration) or "lbfgs" (held photons)."""
+    @property
     def start(self) -> npt.NDArray[np.float64]: ...
     @property
     def designed(self) -> npt.NDArray[np.float64]: ...
     @property
     def log_objective(self) -> npt.NDArray[np.float64]:
-        """[I] the objective (ln F, or ln F - ln F_reference) of every Adam step."""
+        """[I] the objective (ln F, or ln F - ln F_reference) of every Adam iteration or L-BFGS evaluation."""
     @property
     def verification(self) -> dict[str, Any]:
         """The check at a fresh seed: photons, seed, start, designed, gain."""

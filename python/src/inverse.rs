@@ -530,6 +530,15 @@ impl RenderDesign {
             .collect()
     }
 
+    /// `"adam"` (fresh photons every iteration) or `"lbfgs"` (held photons).
+    #[getter]
+    fn method(&self) -> &'static str {
+        match self.file.method {
+            lightpath::inverse::render_design::DesignMethod::Adam => "adam",
+            lightpath::inverse::render_design::DesignMethod::Lbfgs => "lbfgs",
+        }
+    }
+
     /// float64 `[P]`: where the design started (the config's values).
     #[getter]
     fn start<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
@@ -545,7 +554,8 @@ impl RenderDesign {
         )
     }
 
-    /// float64 `[I]`: each iteration's objective (`ln F`, or `ln F − ln F_reference`).
+    /// float64 `[I]`: the objective (`ln F`, or `ln F − ln F_reference`) of each Adam iteration
+    /// or L-BFGS evaluation.
     #[getter]
     fn log_objective<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
         PyArray1::from_vec(py, self.file.log.iter().map(|l| l.objective).collect())

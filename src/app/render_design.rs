@@ -1,12 +1,12 @@
 //! `lightpath design` on a render config with a `[design]` table: the index field's parameters
-//! moved by Adam, within their ranges, to deliver the most light to a target (or the most
+//! moved by Adam or L-BFGS, within their ranges, to deliver the most light to a target (or the most
 //! relative to another), then the start and the design rendered at a fresh seed to check the
 //! gain → render_design.json and loss.png.
 
 use super::{Outcome, create_out};
 use crate::config::RenderTask;
 use crate::error::{Error, Result};
-use crate::inverse::render_design::{DesignIterate, RenderDesign};
+use crate::inverse::render_design::{DesignIterate, DesignMethod, RenderDesign};
 use crate::io::ResultFile;
 use crate::io::results::{
     DesignVerification, DesignedParameter, Measured, RenderDesignFile, RenderDesignLogLine,
@@ -40,13 +40,18 @@ pub fn design(
     )?;
     create_out(out, &[RenderDesignFile::NAME, "loss.png"])?;
     let iterations = problem.iterations;
+    // Adam's iterations are many and cheap; L-BFGS's evaluations few
+    let (every, step) = match problem.method {
+        DesignMethod::Adam => (10, "iteration"),
+        DesignMethod::Lbfgs => (1, "evaluation"),
+    };
     let file = run(
         task,
         problem,
         &|d: &DesignIterate| {
-            if show && (d.iteration.is_multiple_of(10) || d.iteration + 1 == iterations) {
+            if show && (d.iteration.is_multiple_of(every) || d.iteration + 1 == iterations) {
                 eprintln!(
-                    "iteration {:>5} objective {:.5e} parameters {:?}",
+                    "{step} {:>5} objective {:.5e} parameters {:?}",
                     d.iteration, d.objective, d.theta
                 );
             }
@@ -73,7 +78,7 @@ pub fn check(problem: &RenderDesign, budget: &super::budget::Budget) -> Result<(
 pub fn run(
     task: &RenderTask,
     problem: &RenderDesign,
-    progress: &dyn Fn(&DesignIterate),
+    progress: &(dyn Fn(&DesignIterate) + Sync),
     stop: &StopFlag,
     journal: &crate::inverse::journal::Journal,
 ) -> Result<RenderDesignFile> {
@@ -120,6 +125,7 @@ pub fn run(
         format_version: crate::io::results::FORMAT_VERSION,
         maximize: name(problem.maximize),
         relative_to: problem.relative_to.map(name),
+        method: problem.method,
         parameters: problem
             .names
             .iter()
@@ -167,13 +173,25 @@ pub fn write(file: &RenderDesignFile, out: &Path) -> Result<Outcome> {
         Some(r) => format!("ln (F {} / F {r})", file.maximize),
         None => format!("ln F {}", file.maximize),
     };
+    let (title, x, method) = match file.method {
+        DesignMethod::Adam => (
+            "Design: the objective of each iteration's photons",
+            "iteration",
+            "Adam",
+        ),
+        DesignMethod::Lbfgs => (
+            "Design: the objective of the held photons",
+            "evaluation",
+            "L-BFGS",
+        ),
+    };
     crate::io::plot::lines(
         &loss_png,
-        "Design: the objective of each iteration's photons",
-        "iteration",
+        title,
+        x,
         &objective,
         &[(
-            "Adam".to_string(),
+            method.to_string(),
             file.log
                 .iter()
                 .map(|d| (d.iteration as f64, d.objective))

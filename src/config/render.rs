@@ -50,8 +50,9 @@ pub struct RenderConfig {
     pub design: Option<RenderDesignConfig>,
 }
 
-/// `[design]` of a render config: the index field's parameters Adam moves, each within its range,
-/// to deliver the most light to a target (or the most relative to another: contrast).
+/// `[design]` of a render config: the index field's parameters moved by Adam or L-BFGS, each
+/// within its range, to deliver the most light to a target (or the most relative to another:
+/// contrast).
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct RenderDesignConfig {
@@ -61,9 +62,14 @@ pub struct RenderDesignConfig {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub relative_to: Option<String>,
     pub parameters: Vec<DesignParameterConfig>,
+    /// "adam" (fresh photons every iteration; many parameters) or "lbfgs" (held photons: a
+    /// deterministic sample-average objective; a few parameters).
+    #[serde(default = "default_design_method")]
+    pub method: String,
     #[serde(default = "default_design_iterations")]
     pub iterations: u64,
-    /// Photons per iteration (fresh ones every iteration).
+    /// Photons per iteration (fresh ones every Adam iteration; the same ones for every L-BFGS
+    /// evaluation).
     #[serde(default = "default_design_photons")]
     pub photons: u64,
     /// Adam's step in each parameter's logistic coordinate (0.1 moves a parameter in the middle
@@ -84,6 +90,9 @@ pub struct DesignParameterConfig {
     pub max: f64,
 }
 
+fn default_design_method() -> String {
+    "adam".into()
+}
 fn default_design_iterations() -> u64 {
     60
 }
@@ -1014,6 +1023,27 @@ impl RenderConfig {
             .iter()
             .map(|&i| design_scene.derivatives[i].clone())
             .collect();
+        use crate::inverse::render_design::DesignMethod;
+        let method = match d.method.as_str() {
+            "adam" => DesignMethod::Adam,
+            "lbfgs" => DesignMethod::Lbfgs,
+            other => {
+                return err(format!(
+                    "design.method = {other:?}: must be \"adam\" (fresh photons every iteration) or \"lbfgs\" (held photons, a few parameters)"
+                ));
+            }
+        };
+        if method == DesignMethod::Lbfgs
+            && let Some(i) = design_scene
+                .derivatives
+                .iter()
+                .position(|d| matches!(d, Derivative::Medium(_)))
+        {
+            return err(format!(
+                "design.parameters[{}] ({}): method = \"lbfgs\" holds the photons and follows their paths as the index field moves; a medium parameter is differentiated by its paths' scores instead, which a held sample's objective does not follow: design it with method = \"adam\"",
+                order[i], d.parameters[order[i]].name
+            ));
+        }
         if !(1..=100_000).contains(&d.iterations) {
             return err(format!(
                 "design.iterations = {}: must be within [1, 100000]",
@@ -1038,6 +1068,7 @@ impl RenderConfig {
             start,
             maximize,
             relative_to,
+            method,
             iterations: d.iterations as usize,
             photons: d.photons,
             chunk: self.render.chunk.min(d.photons).max(1),

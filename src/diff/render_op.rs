@@ -7,7 +7,8 @@
 //! tracing; its pullback is the transposed Jacobian the same photons estimate by their path-space
 //! scores and forward sensitivities (`render.derivatives`). Each evaluation draws fresh photons
 //! (the seed advances): unbiased values and gradients of the expected outputs, as stochastic
-//! optimisers (Adam) expect.
+//! optimisers (Adam) expect. Held ([`RenderOp::held`]), every evaluation draws the same photons:
+//! a smooth deterministic estimate with its exact gradient, as L-BFGS expects.
 
 use super::bridge::{Differentiable, Pullback};
 use super::{Param, medium_at};
@@ -28,6 +29,11 @@ pub struct RenderOp {
     pub seed: u64,
     /// Stops every forward of this operation once set (none from [`Self::new`]).
     pub stop: StopFlag,
+    /// Hold the photons: every evaluation draws the same random numbers (the seed does not
+    /// advance) and every scored choice with probability ½, so the estimate is a deterministic,
+    /// smooth function of `θ` whose Jacobian is its exact derivative (a sample-average
+    /// approximation, for L-BFGS). Off from [`Self::new`].
+    pub held: bool,
     evaluations: AtomicU64,
 }
 
@@ -94,6 +100,7 @@ impl RenderOp {
             chunk,
             seed,
             stop: StopFlag::default(),
+            held: false,
             evaluations: AtomicU64::new(0),
         })
     }
@@ -217,8 +224,14 @@ impl RenderOp {
     pub fn evaluate(&self, theta: &[f64]) -> crate::Result<RenderEvaluation> {
         let (scene, factor) = self.scene_at(theta)?;
         let k = self.evaluations.fetch_add(1, Ordering::Relaxed);
-        let plan = Plan::new(self.seed.wrapping_add(k), self.samples, self.chunk);
-        let est = ParticleTracer::new(&scene);
+        let seed = if self.held {
+            self.seed
+        } else {
+            self.seed.wrapping_add(k)
+        };
+        let plan = Plan::new(seed, self.samples, self.chunk);
+        let mut est = ParticleTracer::new(&scene);
+        est.even_draws = self.held;
         let e = estimate_until(&est, &plan, self.stop.get())?;
         let sensors = scene.sensors.len();
         // the derivative outputs scaled by each parameter's factor (errors by its size)

@@ -607,8 +607,12 @@ pub struct RenderDesignFile {
     pub maximize: String,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub relative_to: Option<String>,
+    /// Adam (fresh photons every iteration) or L-BFGS (held photons).
+    #[serde(default = "adam")]
+    pub method: crate::inverse::render_design::DesignMethod,
     pub parameters: Vec<DesignedParameter>,
-    /// Per iteration: the objective `ln F (− ln F_reference)` of its photons, and the parameters.
+    /// Per Adam iteration or L-BFGS evaluation: the objective `ln F (− ln F_reference)` of its
+    /// photons, and the parameters.
     pub log: Vec<RenderDesignLogLine>,
     /// Renders at a fresh seed of the start and of the design.
     pub verification: DesignVerification,
@@ -618,6 +622,10 @@ pub struct RenderDesignFile {
     pub config: crate::config::RenderConfig,
 }
 result_file!(RenderDesignFile, "render_design.json");
+
+fn adam() -> crate::inverse::render_design::DesignMethod {
+    crate::inverse::render_design::DesignMethod::Adam
+}
 
 /// A designed parameter: its range, where it started and where the design put it.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -629,7 +637,7 @@ pub struct DesignedParameter {
     pub designed: f64,
 }
 
-/// One iteration of a render design.
+/// One iteration (Adam) or evaluation (L-BFGS) of a render design.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct RenderDesignLogLine {
     pub iteration: usize,

@@ -68,6 +68,26 @@ pub fn direction_about(w: DVec3, mu: f64, phi: f64) -> DVec3 {
     (t * (s * phi.cos()) + b * (s * phi.sin()) + w * mu).normalize()
 }
 
+/// [`direction_about`] in a frame continuous in `w` everywhere but at `w = −ẑ` (Frisvad 2012:
+/// the rotation taking `ẑ` to `w`), where [`orthonormal_basis`] flips across `w_z = 0`. The
+/// directions drawn from the same numbers then move continuously as `w` does, which a path
+/// differentiated through its scattering directions needs.
+#[inline]
+pub fn direction_about_continuously(w: DVec3, mu: f64, phi: f64) -> DVec3 {
+    let (t, b) = if w.z > -1.0 + 1e-12 {
+        let a = 1.0 / (1.0 + w.z);
+        let c = -w.x * w.y * a;
+        (
+            DVec3::new(1.0 - w.x * w.x * a, c, -w.x),
+            DVec3::new(c, 1.0 - w.y * w.y * a, -w.y),
+        )
+    } else {
+        (DVec3::X, DVec3::NEG_Y)
+    };
+    let s = (1.0 - mu * mu).max(0.0).sqrt();
+    (t * (s * phi.cos()) + b * (s * phi.sin()) + w * mu).normalize()
+}
+
 /// Rotate `v` by `angle` (radians) about the unit `axis` (Rodrigues' formula).
 pub fn rotate(v: DVec3, axis: DVec3, angle: f64) -> DVec3 {
     let (s, c) = angle.sin_cos();

@@ -798,7 +798,7 @@ impl<'s> ParticleTracer<'s> {
     /// One sample: a photon from the light, a path from each camera, or both joined.
     fn sample(&self, t: &Tools, subpaths: &mut Subpaths, rng: &mut Rng, out: &mut [C64]) {
         match self.scene.tracing {
-            Tracing::FromLight if self.scene.field_derivatives() => {
+            Tracing::FromLight if self.scene.field_derivatives() || self.even_draws => {
                 self.photon_differentiated(t, rng, out)
             }
             Tracing::FromLight => self.photon(t, rng, out),
@@ -1297,8 +1297,14 @@ impl Photon {
 /// Russian roulette on a photon's weight or a path's throughput once it is small: `false` if it
 /// ends, else the survivor's weight raised to keep the estimate unbiased.
 pub(super) fn roulette(weight: &mut f64, rng: &mut Rng) -> bool {
+    *weight >= ROULETTE_BELOW || roulette_by(weight, uniform(rng))
+}
+
+/// [`roulette`] by the uniform `u`, drawn whatever the weight (so the random numbers after it do
+/// not depend on whether the game was played).
+pub(super) fn roulette_by(weight: &mut f64, u: f64) -> bool {
     if *weight < ROULETTE_BELOW {
-        if uniform(rng) >= ROULETTE_SURVIVAL {
+        if u >= ROULETTE_SURVIVAL {
             return false;
         }
         *weight /= ROULETTE_SURVIVAL;
@@ -1324,6 +1330,16 @@ impl Estimator for ParticleTracer<'_> {
     fn run_chunk(&self, rng: &mut Rng, paths: u64, scratch: &mut Self::Scratch, out: &mut [C64]) {
         let (volume, subpaths) = scratch;
         for _ in 0..paths {
+            // with even draws every photon draws from its own stream, so a photon drawing more or
+            // fewer numbers as θ moves leaves the next photons' numbers where they were
+            let mut own;
+            let rng: &mut Rng = if self.even_draws {
+                use rand::{Rng as _, SeedableRng as _};
+                own = Rng::seed_from_u64(rng.next_u64());
+                &mut own
+            } else {
+                &mut *rng
+            };
             let Some(volume) = volume.as_mut() else {
                 self.sample(&self.tools, subpaths, rng, out);
                 continue;

@@ -29,11 +29,13 @@
 // the sensitivities are parallel arrays, one entry per field parameter, read together by index
 #![allow(clippy::needless_range_loop)]
 
-use super::particle::{ParticleTracer, Tools, Total, albedo_score, flight_score, roulette};
+use super::particle::{
+    ParticleTracer, Tools, Total, albedo_score, flight_score, roulette, roulette_by,
+};
 use super::scene::{Derivative, MAX_DERIVATIVES, MAX_TARGETS};
 use crate::eikonal::trace::{entry_parameter, jacobian_of, refract};
 use crate::eikonal::{BoundedField, IndexField, Profile, Ray, Tracer};
-use crate::math::{C64, Rng, uniform};
+use crate::math::{C64, Rng, direction_about_continuously, uniform};
 use glam::{DMat3, DVec3};
 
 use super::flight::{fresnel, reflect};
@@ -537,7 +539,9 @@ impl ParticleTracer<'_> {
         d_prob: &[f64; P],
         u: f64,
     ) -> bool {
-        let drawn = if prob <= 0.0 || prob >= 1.0 {
+        // even draws draw certain outcomes evenly too (the impossible one then ends the photon
+        // with weight 0), so a weight does not jump where an outcome becomes certain
+        let drawn = if !self.even_draws && (prob <= 0.0 || prob >= 1.0) {
             prob.clamp(0.0, 1.0)
         } else {
             self.drawing(prob)
@@ -549,8 +553,10 @@ impl ParticleTracer<'_> {
             (1.0 - prob, -1.0, 1.0 - drawn)
         };
         p.weight *= value / chance;
-        for k in 0..sens.count {
-            p.score[sens.params[k].0] += sign * d_prob[k] / value;
+        if value > 0.0 {
+            for k in 0..sens.count {
+                p.score[sens.params[k].0] += sign * d_prob[k] / value;
+            }
         }
         first
     }
@@ -641,7 +647,14 @@ impl ParticleTracer<'_> {
             for (s, param) in p.score.iter_mut().zip(derivatives) {
                 *s += albedo_score(param.medium(), volume);
             }
-            if !roulette(&mut p.weight, rng) {
+            // with even draws the game's number is drawn always, so the photons' random numbers
+            // stay where they were as θ moves
+            let survives = if self.even_draws {
+                roulette_by(&mut p.weight, uniform(rng))
+            } else {
+                roulette(&mut p.weight, rng)
+            };
+            if !survives {
                 return None;
             }
             if p.events >= super::particle::MAX_EVENTS {
@@ -669,7 +682,9 @@ impl ParticleTracer<'_> {
         let phase = scattering.phase(kind);
         let speed = ray.v.length();
         let w_in = ray.v / speed;
-        let w = phase.sample(w_in, u1, u2);
+        // the direction about the incoming one in a frame that turns continuously with it
+        let (mu, phi) = (phase.sample_mu(u1), std::f64::consts::TAU * u2);
+        let w = direction_about_continuously(w_in, mu, phi);
         let mu = w_in.dot(w);
         for (s, param) in p.score.iter_mut().zip(&self.scene.derivatives) {
             *s += param
@@ -682,7 +697,7 @@ impl ParticleTracer<'_> {
         for k in 0..sens.count {
             let dw_in = (tan.v[k] - w_in * w_in.dot(tan.v[k])) / speed;
             let dw = slope(dw_in.length(), |s| {
-                phase.sample((w_in + dw_in * s).normalize(), u1, u2)
+                direction_about_continuously((w_in + dw_in * s).normalize(), mu, phi)
             });
             next.x[k] = tan.x[k];
             next.v[k] = dw * l.n + w * dn[k];
@@ -730,8 +745,17 @@ impl ParticleTracer<'_> {
                 fresnel(d.dot(normal) + d_cos[k] * s, eta + d_eta * s)
             });
         }
-        match refract(d, -normal, eta) {
-            Ok(leaving) if !self.choose(sens, p, r, &d_r, uniform(rng)) => Some((end.x, leaving)),
+        let refracted = refract(d, -normal, eta);
+        let reflects = match refracted {
+            Ok(_) => self.choose(sens, p, r, &d_r, uniform(rng)),
+            // total internal reflection, certain; with even draws drawn too, so the weight does
+            // not jump as the critical angle passes
+            Err(_) => !self.even_draws || self.choose(sens, p, 1.0, &d_r, uniform(rng)),
+        };
+        match refracted {
+            Ok(leaving) if !reflects => Some((end.x, leaving)),
+            // the impossible outcome drawn: the photon ends with weight 0
+            Err(_) if !reflects => Some((end.x, d)),
             _ => {
                 let w = reflect(d, normal);
                 for k in 0..sens.count {
