@@ -793,25 +793,19 @@ learning_rate = 0.3
 verify_photons = 30000
 "#;
 
-/// `lightpath design` on a render config: Adam moves the grading and the index within their
-/// ranges, and the renders at a fresh seed find more light on the target at the design than at
-/// the start. (The index's derivative is resolved by each step's 3 000 photons; the grading's,
-/// about −0.1 ± 0.34 at 30 000, is not, so where Adam leaves the grading is not asserted.)
-#[test]
-fn a_render_design_delivers_more_light_and_checks_it() {
-    let dir = tmp("render-design");
+/// `lightpath design` on [`DESIGN`] with the index `n0` designed beside the grading, `method`
+/// and `iterations` as given: the exit status and render_design.json's content.
+fn design_grading_and_index(name: &str, method: &str, iterations: u32) -> (i32, serde_json::Value) {
+    let dir = tmp(name);
     std::fs::create_dir_all(&dir).unwrap();
     let config = dir.join("design.toml");
-    let from = "parameters = [{ name = \"profiles[0].c2\", min = -0.3, max = 0.3 }]";
+    let from =
+        "parameters = [{ name = \"profiles[0].c2\", min = -0.3, max = 0.3 }]\niterations = 12";
     assert!(DESIGN.contains(from));
-    std::fs::write(
-        &config,
-        DESIGN.replace(
-            from,
-            "parameters = [{ name = \"profiles[0].c2\", min = -0.3, max = 0.3 }, { name = \"profiles[0].n0\", min = 1.1, max = 1.6 }]",
-        ),
-    )
-    .unwrap();
+    let to = format!(
+        "method = \"{method}\"\nparameters = [{{ name = \"profiles[0].c2\", min = -0.3, max = 0.3 }}, {{ name = \"profiles[0].n0\", min = 1.1, max = 1.6 }}]\niterations = {iterations}"
+    );
+    std::fs::write(&config, DESIGN.replace(from, &to)).unwrap();
     let out = dir.join("out");
     let o = lightpath(&[
         "design",
@@ -820,14 +814,37 @@ fn a_render_design_delivers_more_light_and_checks_it() {
         &out.display().to_string(),
         "--quiet",
     ]);
-    // 0, or 3 when the objective still rose at the end (its last third above the one before)
+    let code = o.status.code().unwrap_or(-1);
     assert!(
-        matches!(o.status.code(), Some(0 | 3)),
+        matches!(code, 0 | 3),
         "{}",
         String::from_utf8_lossy(&o.stderr)
     );
-    let v: serde_json::Value =
+    assert!(out.join("loss.png").exists());
+    assert!(!out.join("checkpoint.bin").exists());
+    let v =
         serde_json::from_slice(&std::fs::read(out.join("render_design.json")).unwrap()).unwrap();
+    (code, v)
+}
+
+/// The design's gain at a fresh seed is resolved beyond 4 standard errors.
+fn gains(v: &serde_json::Value) {
+    let gain = &v["verification"]["gain"];
+    let (g, sg) = (
+        gain["mean"].as_f64().unwrap(),
+        gain["stderr"].as_f64().unwrap(),
+    );
+    assert!(g - 1.0 > 4.0 * sg, "gain {g} ± {sg}");
+}
+
+/// `lightpath design` on a render config: Adam moves the grading and the index within their
+/// ranges, and the renders at a fresh seed find more light on the target at the design than at
+/// the start. (The index's derivative is resolved by each step's 3 000 photons; the grading's,
+/// about −0.1 ± 0.34 at 30 000, is not, so where Adam leaves the grading is not asserted.)
+#[test]
+fn a_render_design_delivers_more_light_and_checks_it() {
+    // exit status 3 when the objective still rose at the end (its last third above the one before)
+    let (_, v) = design_grading_and_index("render-design", "adam", 12);
     assert_eq!(v["maximize"], "spot");
     assert_eq!(v["method"], "adam");
     assert_eq!(v["log"].as_array().unwrap().len(), 12);
@@ -838,53 +855,21 @@ fn a_render_design_delivers_more_light_and_checks_it() {
     );
     assert!((-0.3..0.3).contains(&c2), "{p}");
     assert!((1.45..1.6).contains(&n0), "{p}");
-    let gain = &v["verification"]["gain"];
-    let (g, sg) = (
-        gain["mean"].as_f64().unwrap(),
-        gain["stderr"].as_f64().unwrap(),
-    );
-    assert!(g - 1.0 > 4.0 * sg, "gain {g} ± {sg}");
-    assert!(out.join("loss.png").exists());
-    assert!(!out.join("checkpoint.bin").exists());
+    gains(&v);
 }
 
 /// `method = "lbfgs"`: L-BFGS on held photons moves the grading and the index together; it
-/// converges (the gradient vanishes, or the held sample resolves no more), its design is the
-/// best point it evaluated, and the renders at a fresh seed confirm the gain.
+/// converges (here the projected gradient vanishes with both on their bounds; other seeds' line
+/// searches can end on a kink of the held estimate instead, and say so), its design is the best
+/// point it evaluated, and the renders at a fresh seed confirm the gain.
 #[test]
 fn an_lbfgs_render_design_converges_on_held_photons_and_checks_it() {
-    let dir = tmp("render-design-lbfgs");
-    std::fs::create_dir_all(&dir).unwrap();
-    let config = dir.join("design.toml");
-    let from =
-        "parameters = [{ name = \"profiles[0].c2\", min = -0.3, max = 0.3 }]\niterations = 12";
-    assert!(DESIGN.contains(from));
-    std::fs::write(
-        &config,
-        DESIGN.replace(
-            from,
-            "method = \"lbfgs\"\nparameters = [{ name = \"profiles[0].c2\", min = -0.3, max = 0.3 }, { name = \"profiles[0].n0\", min = 1.1, max = 1.6 }]\niterations = 20",
-        ),
-    )
-    .unwrap();
-    let out = dir.join("out");
-    let o = lightpath(&[
-        "design",
-        &config.display().to_string(),
-        "--out",
-        &out.display().to_string(),
-        "--quiet",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let v: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out.join("render_design.json")).unwrap()).unwrap();
+    let (code, v) = design_grading_and_index("render-design-lbfgs", "lbfgs", 20);
+    assert_eq!(code, 0);
     assert_eq!(v["method"], "lbfgs");
-    // here the projected gradient vanishes at the bounds (other seeds' line searches can end
-    // on a kink of the held estimate instead, and say so)
     assert_eq!(v["convergence"]["converged"], true, "{}", v["convergence"]);
     let log = v["log"].as_array().unwrap();
     assert!(log.len() >= 3, "{} evaluations", log.len());
-    // the design is the best point evaluated
     let best = log
         .iter()
         .map(|l| l["objective"].as_f64().unwrap())
@@ -902,12 +887,7 @@ fn an_lbfgs_render_design_converges_on_held_photons_and_checks_it() {
     assert_eq!(at_best["parameters"], serde_json::json!(designed));
     assert!(designed[0] < -0.1, "c2 {designed:?}");
     assert!((1.1..=1.6).contains(&designed[1]), "n0 {designed:?}");
-    let gain = &v["verification"]["gain"];
-    let (g, sg) = (
-        gain["mean"].as_f64().unwrap(),
-        gain["stderr"].as_f64().unwrap(),
-    );
-    assert!(g - 1.0 > 4.0 * sg, "gain {g} ± {sg}");
+    gains(&v);
 }
 
 /// Bad `[design]` tables are refused by key.
@@ -978,4 +958,33 @@ fn bad_render_designs_are_refused_by_key() {
         ),
         &["design.parameters[0]", "\"T\"", "target"],
     );
+}
+
+/// A transducer's placement as a design parameter: its range must keep the element's line
+/// outside the volume everywhere (its wave is singular on the line), refused by key where it
+/// does not; a range outside the volume is accepted.
+#[test]
+fn a_placement_range_through_the_volume_is_refused_by_key() {
+    let dir = tmp("render-design-placement");
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("design.toml");
+    let text = std::fs::read_to_string(config("render_delivery.toml")).unwrap();
+    let last = "  { name = \"profiles[0].amplitude_3\", min = 0.0, max = 4e6 },\n";
+    assert!(text.contains(last));
+    let check = |range: &str| {
+        let placed = format!("{last}  {{ name = \"profiles[0].x_0\", {range} }},\n");
+        std::fs::write(&path, text.replace(last, &placed)).unwrap();
+        lightpath(&["check", &path.display().to_string()])
+    };
+    let o = check("min = 2.0, max = 12.0");
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{e}");
+    for needle in [
+        "design.parameters[5] (profiles[0].x_0)",
+        "meets field.bounds",
+    ] {
+        assert!(e.contains(needle), "{needle:?} not in {e}");
+    }
+    let o = check("min = 6.0, max = 14.0");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }

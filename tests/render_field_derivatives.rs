@@ -118,6 +118,12 @@ fn derivatives_are_the_estimates_difference_quotients_in_a_scattering_graded_bal
 /// Four line elements about a scattering water cylinder (lengths in mm), the field met at a
 /// random instant per photon; a target on the axis at depth.
 fn phased_array(amplitude: f64, phase_deg: f64, frequency: f64) -> String {
+    placed_array(amplitude, phase_deg, frequency, 4.0)
+}
+
+/// [`phased_array`] with its first element at `x0` on the x axis, differentiated by its
+/// placement too.
+fn placed_array(amplitude: f64, phase_deg: f64, frequency: f64, x0: f64) -> String {
     format!(
         r#"
 [field]
@@ -132,7 +138,7 @@ length_unit = "mm"
 density = 1000.0
 reference_distance = 4.0
 elements = [
-  {{ position = [4.0, 0.0], amplitude = {amplitude}, phase_deg = 180.0 }},
+  {{ position = [{x0:?}, 0.0], amplitude = {amplitude}, phase_deg = 180.0 }},
   {{ position = [0.0, 4.0], amplitude = 2e6, phase_deg = {phase_deg} }},
   {{ position = [-4.0, 0.0], amplitude = 2e6, phase_deg = 180.0 }},
   {{ position = [0.0, -4.0], amplitude = 2e6, phase_deg = 0.0 }},
@@ -155,13 +161,13 @@ center = [0.3, 0.0, 3.0]
 radius = 0.5
 [render]
 step = 0.02
-derivatives = ["profiles[0].amplitude_0", "profiles[0].phase_1", "profiles[0].frequency"]
+derivatives = ["profiles[0].amplitude_0", "profiles[0].phase_1", "profiles[0].frequency", "profiles[0].x_0"]
 "#
     )
 }
 
 #[test]
-fn an_ultrasound_arrays_drive_phase_and_frequency_differentiate_exactly() {
+fn an_ultrasound_arrays_drive_phase_frequency_and_placement_differentiate_exactly() {
     let (a, phase, f) = (2e6, 0.0, 813e3);
     is_the_difference_quotient(|v| scene(&phased_array(v, phase, f)), a, 1.0, 0);
     // the phase in degrees in the config, its derivative per radian
@@ -172,6 +178,8 @@ fn an_ultrasound_arrays_drive_phase_and_frequency_differentiate_exactly() {
     };
     is_the_difference_quotient(per_degree, phase, 1e-6, 1);
     is_the_difference_quotient(|v| scene(&phased_array(a, phase, v)), f, 1e-2, 2);
+    // the transducer's placement
+    is_the_difference_quotient(|v| scene(&placed_array(a, phase, f, v)), 4.0, 1e-6, 3);
 }
 
 /// Eq. 15's standing wave frozen by a strobe at 60°: the field holds `n_max sin 60°`, and the

@@ -34,6 +34,7 @@ from ._lightpath import (
     Rays,
     Render,
     RenderDesign,
+    RenderVjp,
     Run,
     Speckle,
     Task,
@@ -55,6 +56,7 @@ __all__ = [
     "Rays",
     "Render",
     "RenderDesign",
+    "RenderVjp",
     "Run",
     "Speckle",
     "Task",
@@ -73,6 +75,7 @@ __all__ = [
     "memory_effect",
     "mie",
     "render",
+    "render_vjp",
     "speckle",
     "tilt_shift",
     "trace",
@@ -542,6 +545,49 @@ def render(
         max_minutes=max_minutes,
         max_memory_gb=max_memory_gb,
         progress=progress,
+    )
+
+
+def render_vjp(
+    config: Config,
+    params: Sequence[str],
+    *,
+    theta: Optional[Sequence[float]] = None,
+    photons: Optional[int] = None,
+    seed: Optional[int] = None,
+    held: bool = False,
+    threads: Optional[int] = None,
+    max_minutes: float = 240.0,
+    max_memory_gb: float = 8.0,
+) -> RenderVjp:
+    """A render config's sensor outputs at ``theta`` and their vector–Jacobian product, by
+    particle tracing (as ``render.derivatives``).
+
+    ``params`` names what ``render.derivatives`` accepts: the medium's ``sigma_s``, ``sigma_a``,
+    ``g``, … and the index field's ``"profiles[i].name"`` (a phased array's ``frequency``,
+    ``amplitude_j``, ``phase_j``, ``x_j``, ``y_j``; an ultrasonic profile's ``n_max``; any
+    analytic profile's coefficients; with index-field parameters every sensor must be a target).
+    ``theta`` defaults to the config's values, ``photons`` and ``seed`` to ``[render]``'s.
+
+    Fresh photons (a new ``seed`` per call) give unbiased stochastic gradients of the expected
+    outputs (Adam). ``held=True`` draws every scored choice evenly from the same random numbers
+    for any ``theta``: the outputs are then a deterministic function whose Jacobian is its exact
+    derivative (L-BFGS; index-field parameters only).
+
+    Returns a :class:`RenderVjp`: ``value`` and ``stderr`` (float64 ``[S]``, the sensors in the
+    config's order, ``sensors`` their names), ``jacobian`` and ``jacobian_stderr`` (``[S, P]``),
+    ``params``, ``theta``; calling it with ``∂L/∂value`` (``[S]``) returns ``∂L/∂θ`` (``[P]``).
+    """
+    return _lightpath.render_vjp(
+        load(config),
+        list(params),
+        theta=None if theta is None else [float(x) for x in theta],
+        photons=photons,
+        seed=seed,
+        held=held,
+        threads=threads,
+        max_minutes=max_minutes,
+        max_memory_gb=max_memory_gb,
     )
 
 

@@ -536,6 +536,29 @@ class RenderDesign:
     def to_json(self) -> str: ...
     def save(self, folder: Union[str, PathLike[str]]) -> list[Path]: ...
 
+class RenderVjp:
+    """A render's sensor outputs at `theta` with their Jacobian; calling it with d(loss)/d(value) gives d(loss)/d(theta)."""
+
+    @property
+    def value(self) -> npt.NDArray[np.float64]:
+        """[S] every sensor's output (flux sensors' power, targets' fluence), in the config's order."""
+    @property
+    def stderr(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def jacobian(self) -> npt.NDArray[np.float64]:
+        """[S, P] d value_i / d theta_p."""
+    @property
+    def jacobian_stderr(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def sensors(self) -> list[str]: ...
+    @property
+    def params(self) -> list[str]: ...
+    @property
+    def theta(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def held(self) -> bool: ...
+    def __call__(self, adjoint: npt.ArrayLike) -> npt.NDArray[np.float64]: ...
+
 class Render:
     """A render of a refractive, scattering volume, as `render.json` and its images hold it."""
 
@@ -609,4 +632,16 @@ def render(
     max_memory_gb: float = 8.0,
     progress: Progress = None,
 ) -> Render: ...
+def render_vjp(
+    task: Task,
+    params: list[str],
+    *,
+    theta: Optional[list[float]] = None,
+    photons: Optional[int] = None,
+    seed: Optional[int] = None,
+    held: bool = False,
+    threads: Optional[int] = None,
+    max_minutes: float = 240.0,
+    max_memory_gb: float = 8.0,
+) -> RenderVjp: ...
 def acquire_phase(task: Task) -> PhaseAcquisition: ...

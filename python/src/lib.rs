@@ -2104,8 +2104,10 @@ fn _lightpath(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(inverse::fit, m)?)?;
     m.add_function(wrap_pyfunction!(inverse::design, m)?)?;
     m.add_class::<render::Render>()?;
+    m.add_class::<render::RenderVjp>()?;
     m.add_class::<render::PhaseAcquisition>()?;
     m.add_function(wrap_pyfunction!(render::render, m)?)?;
+    m.add_function(wrap_pyfunction!(render::render_vjp, m)?)?;
     m.add_function(wrap_pyfunction!(render::acquire_phase, m)?)?;
     Ok(())
 }

@@ -1,12 +1,15 @@
 //! Rendering and acquisition from Python: `render` (a refractive, scattering volume by particle or
-//! camera path tracing, as `lightpath render`) and `acquire_phase` (the phase function read from
-//! speckle images, as `lightpath acquire-phase`).
+//! camera path tracing, as `lightpath render`), `render_vjp` (its sensors' outputs as a
+//! differentiable function of the medium's and the index field's parameters) and `acquire_phase`
+//! (the phase function read from speckle images, as `lightpath acquire-phase`).
 
 use crate::{Task, budget, json_text, json_value, py_err, real, run_watched};
 use lightpath::app::create_out;
 use lightpath::app::render::{FILES, Image, Rendered};
 use lightpath::config;
 use lightpath::io::results::PhaseAcquisitionFile;
+use numpy::{PyArray1, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
+use pyo3::exceptions::PyRuntimeError;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -145,6 +148,256 @@ pub(crate) fn render(
         lightpath::app::render::evaluate(t, samples, seed, &limits, w)
     })?;
     Ok(Render { rendered })
+}
+
+/// A render's sensor outputs (flux sensors' powers, targets' fluences) at `theta` with their
+/// Jacobian, from one particle-tracing run (`render_vjp`); calling it with `∂L/∂outputs` gives
+/// `∂L/∂θ`.
+#[pyclass(frozen, module = "lightpath")]
+pub(crate) struct RenderVjp {
+    params: Vec<String>,
+    sensors: Vec<String>,
+    theta: Vec<f64>,
+    value: Vec<f64>,
+    stderr: Vec<f64>,
+    /// `[S, P]`, row-major.
+    jacobian: Vec<f64>,
+    jacobian_stderr: Vec<f64>,
+    held: bool,
+}
+
+#[pymethods]
+impl RenderVjp {
+    /// float64 `[S]`: every sensor's output at `theta`, in the config's order.
+    #[getter]
+    fn value<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_slice(py, &self.value)
+    }
+
+    /// float64 `[S]`: the standard error of `value`.
+    #[getter]
+    fn stderr<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_slice(py, &self.stderr)
+    }
+
+    /// float64 `[S, P]`: `∂ value_i / ∂θ_p`.
+    #[getter]
+    fn jacobian<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        real(
+            py,
+            (
+                self.jacobian.clone(),
+                vec![self.sensors.len(), self.params.len()],
+            ),
+        )
+    }
+
+    /// float64 `[S, P]`: the standard error of `jacobian`.
+    #[getter]
+    fn jacobian_stderr<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        real(
+            py,
+            (
+                self.jacobian_stderr.clone(),
+                vec![self.sensors.len(), self.params.len()],
+            ),
+        )
+    }
+
+    /// The sensors' names, in the order of `value`.
+    #[getter]
+    fn sensors(&self) -> Vec<String> {
+        self.sensors.clone()
+    }
+
+    /// The parameters' names, in the order of `theta` and of the gradient.
+    #[getter]
+    fn params(&self) -> Vec<String> {
+        self.params.clone()
+    }
+
+    /// float64 `[P]`: the parameter values the render was evaluated at.
+    #[getter]
+    fn theta<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_slice(py, &self.theta)
+    }
+
+    /// Whether the photons were held (the same random numbers for any `theta`).
+    #[getter]
+    fn held(&self) -> bool {
+        self.held
+    }
+
+    /// `∂L/∂θ` (float64 `[P]`) for the adjoint `∂L/∂value` (float `[S]`).
+    fn __call__<'py>(
+        &self,
+        py: Python<'py>,
+        adjoint: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyArray1<f64>>> {
+        let kwargs = PyDict::new(py);
+        kwargs.set_item("dtype", "float64")?;
+        let array = py
+            .import("numpy")?
+            .call_method("asarray", (adjoint,), Some(&kwargs))?;
+        let adjoint = array
+            .cast::<PyArrayDyn<f64>>()
+            .map_err(|_| PyValueError::new_err("adjoint: not an array of real numbers"))?
+            .readonly();
+        let s = self.sensors.len();
+        if adjoint.shape() != [s] {
+            return Err(PyValueError::new_err(format!(
+                "adjoint: shape {:?}, but the render has [S] = [{s}] outputs ({:?})",
+                adjoint.shape(),
+                self.sensors
+            )));
+        }
+        let dy: Vec<f64> = adjoint.as_array().iter().copied().collect();
+        if dy.iter().any(|x| !x.is_finite()) {
+            return Err(PyValueError::new_err(
+                "adjoint: holds non-finite values (NaN or infinity)",
+            ));
+        }
+        let p = self.params.len();
+        let gradient = (0..p)
+            .map(|k| (0..s).map(|i| dy[i] * self.jacobian[i * p + k]).sum())
+            .collect();
+        Ok(PyArray1::from_vec(py, gradient))
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "<lightpath.RenderVjp {:?} at {:?}, {} output(s){}>",
+            self.params,
+            self.theta,
+            self.sensors.len(),
+            if self.held { ", held" } else { "" }
+        )
+    }
+}
+
+/// A render config's sensor outputs at `theta` (values of `params`, default: the config's) and
+/// their VJP, by particle tracing with the path-space scores and forward sensitivities
+/// `render.derivatives` uses. Fresh photons give unbiased gradients of the expected outputs
+/// (Adam); `held = True` draws every scored choice evenly from the same random numbers for any
+/// `theta`, so the outputs are a deterministic function whose Jacobian is its exact derivative
+/// (L-BFGS; index-field parameters only).
+#[pyfunction]
+#[pyo3(signature = (task, params, *, theta=None, photons=None, seed=None, held=false, threads=None, max_minutes=240.0, max_memory_gb=8.0))]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn render_vjp(
+    py: Python<'_>,
+    task: &Task,
+    params: Vec<String>,
+    theta: Option<Vec<f64>>,
+    photons: Option<u64>,
+    seed: Option<u64>,
+    held: bool,
+    threads: Option<usize>,
+    max_minutes: f64,
+    max_memory_gb: f64,
+) -> PyResult<RenderVjp> {
+    use lightpath::rrte::{Derivative, ParticleTracer};
+    let config::Task::Render(t) = &task.task else {
+        return Err(PyValueError::new_err(format!(
+            "render_vjp: needs a render config ([volume] with lights and sensors), but the config holds {}",
+            task.task.kind().describe()
+        )));
+    };
+    if params.is_empty() {
+        return Err(PyValueError::new_err("params: give at least one parameter"));
+    }
+    let derivatives = t
+        .config
+        .parameters("params", &params, &t.scene.volume, &t.scene.sensors)
+        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+    if held
+        && let Some(i) = derivatives
+            .iter()
+            .position(|d| matches!(d, Derivative::Medium(_)))
+    {
+        return Err(PyValueError::new_err(format!(
+            "params[{i}] = {:?}: held photons follow their paths as the index field moves; a medium parameter is differentiated by its paths' scores instead, which a held sample does not follow: use held = False",
+            params[i]
+        )));
+    }
+    let r = &t.config.render;
+    let photons = photons.unwrap_or(r.samples);
+    if photons == 0 {
+        return Err(PyValueError::new_err("photons = 0: must be at least 1"));
+    }
+    let mut scene = t.scene.clone();
+    scene.derivatives = derivatives.clone();
+    let chunk = r.chunk.min(photons).max(1);
+    let mut op = lightpath::diff::RenderOp::from_scene(
+        scene.clone(),
+        (photons, chunk, seed.unwrap_or(r.seed)),
+    )
+    .map_err(py_err)?;
+    op.held = held;
+    // the operation's θ holds the medium's parameters first, then the field's: slot k of it is
+    // the caller's parameter order[k]
+    let is_medium = |i: &usize| matches!(derivatives[*i], Derivative::Medium(_));
+    let order: Vec<usize> = (0..params.len())
+        .filter(is_medium)
+        .chain((0..params.len()).filter(|i| !is_medium(i)))
+        .collect();
+    let theta = match theta {
+        Some(v) if v.len() != params.len() => {
+            return Err(PyValueError::new_err(format!(
+                "theta: {} values for {} parameter(s) {params:?}",
+                v.len(),
+                params.len()
+            )));
+        }
+        Some(v) => v,
+        None => {
+            let mut v = vec![0.0; params.len()];
+            for (k, x) in op.values().into_iter().enumerate() {
+                v[order[k]] = x;
+            }
+            v
+        }
+    };
+    let at: Vec<f64> = order.iter().map(|&u| theta[u]).collect();
+    let limits = budget(max_minutes, max_memory_gb);
+    lightpath::app::budget::check(
+        "render_vjp",
+        &ParticleTracer::new(&scene),
+        &lightpath::app::render::proxy_medium(&scene),
+        photons as f64,
+        photons.div_ceil(chunk),
+        0,
+        &limits,
+    )
+    .map_err(py_err)?;
+    let e = run_watched(py, threads, None, move |w| {
+        op.stop = w.stop_flag();
+        op.evaluate(&at)
+    })?;
+    let p = params.len();
+    let mut jacobian = vec![0.0; e.power.len() * p];
+    let mut jacobian_stderr = vec![0.0; e.power.len() * p];
+    for i in 0..e.power.len() {
+        for (k, &u) in order.iter().enumerate() {
+            jacobian[i * p + u] = e.jacobian[i][k];
+            jacobian_stderr[i * p + u] = e.jacobian_stderr[i][k];
+        }
+    }
+    if e.power.iter().any(|v| !v.is_finite()) {
+        return Err(PyRuntimeError::new_err(
+            "render_vjp: an output is not finite",
+        ));
+    }
+    Ok(RenderVjp {
+        params,
+        sensors: t.scene.sensors.iter().map(|s| s.name.clone()).collect(),
+        theta,
+        value: e.power,
+        stderr: e.stderr,
+        jacobian,
+        jacobian_stderr,
+        held,
+    })
 }
 
 /// The phase function read from speckle images (`lightpath acquire-phase`), as

@@ -92,6 +92,85 @@ derivatives = ["sigma_s", "sigma_a", "g"]
         lp.loads(text.replace('"g"]', '"g", "bin[2]"]'))
 
 
+GRADED_BALL = """
+[field]
+bounds = { kind = "sphere", radius = 1.0 }
+n_out = 1.0
+[[field.profiles]]
+kind = "spherical_polynomial"
+n0 = 1.3
+coefficients = [0.0, 0.05]
+[medium]
+sigma_s = 1.5
+sigma_a = 0.2
+phase = { kind = "hg", g = 0.5 }
+[light]
+kind = "beam"
+center = [0.0, 0.0, -2.0]
+direction = [0.0, 0.0, 1.0]
+radius = 0.6
+[[sensor]]
+kind = "target"
+name = "spot"
+center = [0.0, 0.1, 0.55]
+radius = 0.3
+[[sensor]]
+kind = "target"
+name = "core"
+center = [0.0, 0.0, 0.0]
+size = [0.5, 0.5, 0.5]
+[render]
+samples = 4000
+chunk = 500
+seed = 7
+step = 0.01
+derivatives = ["profiles[0].c2", "sigma_s", "profiles[0].n0"]
+"""
+
+
+def test_render_vjp_is_the_renders_jacobian_and_held_photons_differentiate_exactly():
+    config = lp.loads(GRADED_BALL)
+    params = ["profiles[0].c2", "sigma_s", "profiles[0].n0"]
+    vjp = lp.render_vjp(config, params, threads=2)
+    assert isinstance(vjp, lp.RenderVjp)
+    assert vjp.sensors == ["spot", "core"] and vjp.params == params
+    assert list(vjp.theta) == [0.05, 1.5, 1.3] and not vjp.held
+    # the same photons as the command's render with these derivatives: the same numbers
+    targets = lp.render(config, threads=2).result["targets"]
+    for i, t in enumerate(targets):
+        assert vjp.value[i] == pytest.approx(t["fluence"]["mean"], rel=1e-12)
+        assert vjp.stderr[i] == pytest.approx(t["fluence"]["stderr"], rel=1e-12)
+        for k, name in enumerate(params):
+            d = t["derivatives"][name]
+            assert vjp.jacobian[i, k] == pytest.approx(d["mean"], rel=1e-9, abs=1e-15), name
+            assert vjp.jacobian_stderr[i, k] == pytest.approx(d["stderr"], rel=1e-9), name
+    # the VJP contracts the Jacobian with the adjoint
+    adjoint = np.array([1.0 / vjp.value[0], -0.5])
+    assert np.allclose(vjp(adjoint), adjoint @ vjp.jacobian, rtol=1e-12, atol=0)
+    # held photons: the same bits at the same theta, and the Jacobian is the derivative of the
+    # outputs (central differences of 1e-7 on the same photons)
+    field = ["profiles[0].n0", "profiles[0].c2"]
+    held = lp.render_vjp(config, field, theta=[1.4, -0.1], photons=2000, held=True, threads=2)
+    again = lp.render_vjp(config, field, theta=[1.4, -0.1], photons=2000, held=True, threads=2)
+    assert held.held and np.array_equal(held.value, again.value)
+    for k in range(2):
+        step = np.zeros(2)
+        step[k] = 1e-7
+        up, down = (
+            lp.render_vjp(config, field, theta=list(np.array([1.4, -0.1]) + s), photons=2000,
+                          held=True, threads=2).value
+            for s in (step, -step)
+        )
+        fd = (up - down) / 2e-7
+        assert np.allclose(held.jacobian[:, k], fd, rtol=1e-4, atol=0), (k, held.jacobian, fd)
+    with pytest.raises(ValueError, match="sigma_s"):
+        lp.render_vjp(config, ["sigma_s"], held=True)
+    with pytest.raises(ValueError, match="params"):
+        lp.render_vjp(config, ["profiles[0].c7"])
+    with pytest.raises(ValueError, match="adjoint"):
+        vjp([1.0, 2.0, 3.0])
+
+
 STEP_DEG = 0.15
 PIXELS = 64
 PEAKS = [(32, 8), (32, 40)]

@@ -175,7 +175,7 @@ fn bounds_text(bounds: &crate::eikonal::Bounds) -> String {
 }
 
 /// The volume as a homogeneous medium in its bounding box (for the expected path length).
-pub(crate) fn proxy_medium(scene: &crate::rrte::RenderScene) -> Medium {
+pub fn proxy_medium(scene: &crate::rrte::RenderScene) -> Medium {
     let v = &scene.volume;
     let half = v.field.bounds.half_extent().unwrap_or(glam::DVec3::ONE);
     Medium {

@@ -81,6 +81,39 @@ pub struct RenderDesignConfig {
     pub verify_photons: u64,
 }
 
+/// A designed transducer position keeps its element's line outside the volume over its whole
+/// range (checked at 257 points of it), where its wave is singular.
+fn check_placement(
+    key: &str,
+    p: &DesignParameterConfig,
+    derivative: &Derivative,
+    volume: &Volume,
+) -> Result<(), ConfigError> {
+    let Derivative::Field(f) = derivative else {
+        return Ok(());
+    };
+    let crate::eikonal::Profile::PhasedArray { array, .. } =
+        &volume.field.profiles[f.param.profile]
+    else {
+        return Ok(());
+    };
+    let Some((j, axis)) = array.position_param(f.param.which) else {
+        return Ok(());
+    };
+    let e = &array.elements[j];
+    for i in 0..=256 {
+        let v = p.min + (p.max - p.min) * f64::from(i) / 256.0;
+        let (x, y) = if axis == 0 { (v, e.y) } else { (e.x, v) };
+        if !super::trace::element_clear(&volume.field.bounds, x, y) {
+            return err(format!(
+                "{key} ({}): at {v} within (min, max) = ({}, {}) element {j}'s line (parallel to z) meets field.bounds; keep the range outside the volume",
+                p.name, p.min, p.max
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// A designed parameter: its name (as `render.derivatives` names it) and its range.
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -884,8 +917,8 @@ impl RenderConfig {
     }
 
     /// The parameters `names` (listed under `list`) names, checked as
-    /// [`Self::derivatives`] says.
-    fn parameters(
+    /// [`Self::derivatives`] says (for `render.derivatives`, a design, Python's `render_vjp`).
+    pub fn parameters(
         &self,
         list: &str,
         names: &[String],
@@ -1015,6 +1048,7 @@ impl RenderConfig {
                     p.name, p.min, p.max
                 ));
             }
+            check_placement(&key, p, &design_scene.derivatives[i], &scene.volume)?;
             ranges.push((p.min, p.max));
             start.push(v);
             ordered.push(design_scene.derivatives[i].name());

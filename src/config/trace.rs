@@ -255,6 +255,18 @@ fn standing_wave(
     }
 }
 
+/// Whether a phased array's element at `(x, y)` keeps its line (parallel to z) outside the
+/// volume: its wave is singular on the line.
+pub(crate) fn element_clear(bounds: &Bounds, x: f64, y: f64) -> bool {
+    match *bounds {
+        Bounds::Everywhere => false,
+        Bounds::Sphere { radius } | Bounds::Cylinder { radius, .. } => x.hypot(y) > radius,
+        _ => bounds
+            .half_extent()
+            .is_some_and(|h| x.abs() > h.x || y.abs() > h.y),
+    }
+}
+
 /// A phased array's keys, checked: units converted, every element outside the bounds.
 #[allow(clippy::too_many_arguments)]
 fn phased_array(
@@ -287,14 +299,7 @@ fn phased_array(
             elements.len()
         ));
     }
-    // the element's line must stay outside the volume: its wave is singular on it
-    let clear = |x: f64, y: f64| match *bounds {
-        Bounds::Everywhere => false,
-        Bounds::Sphere { radius } | Bounds::Cylinder { radius, .. } => x.hypot(y) > radius,
-        _ => bounds
-            .half_extent()
-            .is_some_and(|h| x.abs() > h.x || y.abs() > h.y),
-    };
+    let clear = |x: f64, y: f64| element_clear(bounds, x, y);
     let mut array = Vec::with_capacity(elements.len());
     for (j, e) in elements.iter().enumerate() {
         let key = format!("{k}.elements[{j}]");

@@ -81,6 +81,9 @@ pub struct PhasedArray {
     pub elements: Vec<Element>,
 }
 
+/// An element's parameters: amplitude, phase, x, y.
+const ELEMENT_PARAMS: usize = 4;
+
 /// One element's wave `f(ρ) = H₀⁽¹⁾(k ρ) e^{−α ρ}` at a point: `ρ`, the unit vector from the
 /// element's line (in the xy plane), `f`, `f'`, `f''`.
 struct Radial {
@@ -231,25 +234,34 @@ impl PhasedArray {
     }
 
     /// Parameter `which` of the design: `n0`, the gain, the frequency (Hz), then each element's
-    /// amplitude and phase (radians) at `3 + 2j`, `4 + 2j`.
+    /// amplitude, phase (radians) and position `x`, `y` (scene units: the transducer's
+    /// placement) at `3 + 4j` … `6 + 4j`.
     pub fn param_mut(&mut self, which: usize) -> Option<&mut f64> {
         match which {
             0 => Some(&mut self.n0),
             1 => Some(&mut self.gain),
             2 => Some(&mut self.ultrasound.frequency),
             _ => {
-                let e = self.elements.get_mut((which - 3) / 2)?;
-                Some(if which % 2 == 1 {
-                    &mut e.amplitude
-                } else {
-                    &mut e.phase
+                let e = self.elements.get_mut((which - 3) / ELEMENT_PARAMS)?;
+                Some(match (which - 3) % ELEMENT_PARAMS {
+                    0 => &mut e.amplitude,
+                    1 => &mut e.phase,
+                    2 => &mut e.x,
+                    _ => &mut e.y,
                 })
             }
         }
     }
 
+    /// The element and axis (0: x, 1: y) parameter `which` places, if it is a position.
+    pub fn position_param(&self, which: usize) -> Option<(usize, usize)> {
+        let j = which.checked_sub(3)? / ELEMENT_PARAMS;
+        let k = (which - 3) % ELEMENT_PARAMS;
+        (j < self.elements.len() && k >= 2).then_some((j, k - 2))
+    }
+
     /// The names of [`Self::param_mut`]'s parameters: `n0`, `gain`, `frequency`,
-    /// `amplitude_j`, `phase_j`.
+    /// `amplitude_j`, `phase_j`, `x_j`, `y_j`.
     pub fn param_index(&self, name: &str) -> Option<usize> {
         match name {
             "n0" => return Some(0),
@@ -259,15 +271,16 @@ impl PhasedArray {
         }
         let (field, j) = name.rsplit_once('_')?;
         let j: usize = j.parse().ok().filter(|j| *j < self.elements.len())?;
-        match field {
-            "amplitude" => Some(3 + 2 * j),
-            "phase" => Some(4 + 2 * j),
-            _ => None,
-        }
+        let k = ["amplitude", "phase", "x", "y"]
+            .iter()
+            .position(|f| *f == field)?;
+        Some(3 + ELEMENT_PARAMS * j + k)
     }
 
     /// `(∂n/∂θ, ∇(∂n/∂θ))` for parameter `which` at the instant `omega_t`. The index is linear in
-    /// the gain and in each element's weight (`∂c_j/∂A_j = c_j/A_j`, `∂c_j/∂ψ_j = i c_j`). An
+    /// the gain and in each element's weight (`∂c_j/∂A_j = c_j/A_j`, `∂c_j/∂ψ_j = i c_j`); an
+    /// element's wave depends on its position `p_j` through `x − p_j`, so `∂/∂p_j = −∇` (its
+    /// gradient for the value, its Hessian for the gradient). An
     /// element's wave depends on the frequency `s` only through `s ρ` (both `k` and `α` are
     /// proportional to it), so `∂f/∂s = (ρ/s) f'`; the weights' normalisation at the reference
     /// distance moves likewise.
@@ -300,13 +313,26 @@ impl PhasedArray {
                 real(&dp, C64::new(1.0, 0.0))
             }
             _ => {
-                let e = self.elements.get((which - 3) / 2)?;
-                let dc = if which % 2 == 1 {
-                    C64::from_polar(self.gain / reference, e.phase)
-                } else {
-                    C64::i() * self.weight(e, reference)
+                let e = self.elements.get((which - 3) / ELEMENT_PARAMS)?;
+                let w = self.element_wave(e, x);
+                let axis = match (which - 3) % ELEMENT_PARAMS {
+                    0 => return real(&w, C64::from_polar(self.gain / reference, e.phase)),
+                    1 => return real(&w, C64::i() * self.weight(e, reference)),
+                    k => k - 2,
                 };
-                real(&self.element_wave(e, x), dc)
+                // −∂_axis of the element's wave: value from its gradient, gradient from its
+                // Hessian's row
+                let row = if axis == 0 {
+                    [w.hessian[0], w.hessian[1]]
+                } else {
+                    [w.hessian[1], w.hessian[2]]
+                };
+                let shifted = Wave {
+                    value: -w.grad[axis],
+                    grad: [-row[0], -row[1]],
+                    hessian: [C64::new(0.0, 0.0); 3],
+                };
+                real(&shifted, self.weight(e, reference))
             }
         }
     }

@@ -640,7 +640,8 @@ impl Profile {
     /// differentiable here. Parameters: Constant `[n]`; Linear `[n0, gx, gy, gz]`; Luneburg `[R]`;
     /// Maxwell fish-eye `[R]`; parabolic and sech fibres `[n0, α]`; ultrasonic
     /// `[n0, n_max, k_r]`; radial and spherical polynomials `[n0, c1, c2, …]`; phased array
-    /// `[n0, amplitude_0, phase_0, amplitude_1, …]`; grid: coefficient index.
+    /// `[n0, gain, frequency, amplitude_0, phase_0, x_0, y_0, amplitude_1, …]`; grid: coefficient
+    /// index.
     pub fn dparam(&self, x: DVec3, which: usize) -> Option<(f64, DVec3)> {
         let eval = || self.eval(x);
         match (self, which) {
