@@ -793,9 +793,14 @@ learning_rate = 0.3
 verify_photons = 30000
 "#;
 
-/// `lightpath design` on [`DESIGN`] with the index `n0` designed beside the grading, `method`
-/// and `iterations` as given: the exit status and render_design.json's content.
-fn design_grading_and_index(name: &str, method: &str, iterations: u32) -> (i32, serde_json::Value) {
+/// `lightpath design` on [`DESIGN`] with the index `n0` designed beside the grading, `method`,
+/// `iterations` and the seed as given: the exit status and render_design.json's content.
+fn design_grading_and_index(
+    name: &str,
+    method: &str,
+    iterations: u32,
+    seed: u64,
+) -> (i32, serde_json::Value) {
     let dir = tmp(name);
     std::fs::create_dir_all(&dir).unwrap();
     let config = dir.join("design.toml");
@@ -805,7 +810,10 @@ fn design_grading_and_index(name: &str, method: &str, iterations: u32) -> (i32, 
     let to = format!(
         "method = \"{method}\"\nparameters = [{{ name = \"profiles[0].c2\", min = -0.3, max = 0.3 }}, {{ name = \"profiles[0].n0\", min = 1.1, max = 1.6 }}]\niterations = {iterations}"
     );
-    std::fs::write(&config, DESIGN.replace(from, &to)).unwrap();
+    let seeded = DESIGN
+        .replace(from, &to)
+        .replace("step = 0.01\n", &format!("step = 0.01\nseed = {seed}\n"));
+    std::fs::write(&config, seeded).unwrap();
     let out = dir.join("out");
     let o = lightpath(&[
         "design",
@@ -844,7 +852,7 @@ fn gains(v: &serde_json::Value) {
 #[test]
 fn a_render_design_delivers_more_light_and_checks_it() {
     // exit status 3 when the objective still rose at the end (its last third above the one before)
-    let (_, v) = design_grading_and_index("render-design", "adam", 12);
+    let (_, v) = design_grading_and_index("render-design", "adam", 12, 1);
     assert_eq!(v["maximize"], "spot");
     assert_eq!(v["method"], "adam");
     assert_eq!(v["log"].as_array().unwrap().len(), 12);
@@ -859,12 +867,20 @@ fn a_render_design_delivers_more_light_and_checks_it() {
 }
 
 /// `method = "lbfgs"`: L-BFGS on held photons moves the grading and the index together; it
-/// converges (here the projected gradient vanishes with both on their bounds; other seeds' line
-/// searches can end on a kink of the held estimate instead, and say so), its design is the best
-/// point it evaluated, and the renders at a fresh seed confirm the gain.
+/// converges (the projected gradient vanishes with both on or near their bounds), its design is
+/// the best point it evaluated, and the renders at a fresh seed confirm the gain. Seed 4's first
+/// line search ends on a kink of the held estimate (after 3 evaluations, at a gain of 1.36): the
+/// restart from the best point with a fresh memory carries it on.
 #[test]
 fn an_lbfgs_render_design_converges_on_held_photons_and_checks_it() {
-    let (code, v) = design_grading_and_index("render-design-lbfgs", "lbfgs", 20);
+    for seed in [1, 4] {
+        lbfgs_design_converges(seed);
+    }
+}
+
+fn lbfgs_design_converges(seed: u64) {
+    let (code, v) =
+        design_grading_and_index(&format!("render-design-lbfgs-{seed}"), "lbfgs", 20, seed);
     assert_eq!(code, 0);
     assert_eq!(v["method"], "lbfgs");
     assert_eq!(v["convergence"]["converged"], true, "{}", v["convergence"]);

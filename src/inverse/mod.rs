@@ -81,7 +81,9 @@ impl FitStop {
             FitStop::StepTolerance => "the step left is below tolerance",
             FitStop::CostChange => "the loss no longer changed",
             FitStop::LossPlateau => "the loss reached a plateau",
-            FitStop::IterationLimit => "the iteration limit was reached (raise --iterations)",
+            FitStop::IterationLimit => {
+                "the iteration limit was reached (raise it: `lightpath fit --iterations`, or `iterations` of the config's [design] or [parameters] table)"
+            }
             FitStop::StageLimit => "the stage limit was reached (raise --stages)",
             FitStop::TrustRegion => {
                 "no step could be confirmed with fresh paths (the trust region collapsed; more --samples help)"

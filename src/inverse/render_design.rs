@@ -27,6 +27,7 @@ use crate::rrte::RenderScene;
 use burn::tensor::activation::sigmoid;
 use serde::{Deserialize, Serialize};
 use std::sync::Mutex;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// How a render design moves its parameters.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -181,9 +182,11 @@ impl RenderDesign {
         objective.start = Some((s0.clone(), first));
         let scale = objective.scale;
         let log = Mutex::new(Vec::new());
+        // evaluations of earlier runs (after a restart the driver counts from 0 again)
+        let before = AtomicUsize::new(0);
         let observe = |e: &lbfgs::Evaluation| {
             let d = DesignIterate {
-                iteration: e.index,
+                iteration: before.load(Ordering::Relaxed) + e.index,
                 objective: -e.loss / scale,
                 grad_norm: e.grad_norm / scale,
                 theta: theta(&e.x),
@@ -193,23 +196,46 @@ impl RenderDesign {
                 log.push(d);
             }
         };
-        // converged once the gradient would change the objective by less than a hundredth of
-        // its standard error across the whole ranges (the held sample's own optimum is only
-        // known to about its standard error); an iteration that changes it little is no sign of
-        // the end here, where some directions are far flatter than others
-        let settings = lbfgs::Settings {
-            max_iters: self.iterations,
-            grad_tol: 0.01 * noise * scale,
-            cost_tol: 1e-12 * scale,
-            bounds: Some(Bounds {
-                lower: vec![0.0; n],
-                upper: vec![1.0; n],
-            }),
-        };
-        let out = lbfgs::minimise(&objective, &s0, &settings, &observe).map_err(|e| match e {
-            crate::Error::Interrupted => e,
-            e => format!("render design: {e}").into(),
-        })?;
+        // a line search that ends on a kink of the held objective restarts from the best point
+        // with a fresh memory, while that still improves it
+        let mut best: Option<lbfgs::Outcome> = None;
+        let (mut from, mut left, mut restarts) = (s0, self.iterations, 0);
+        let (mut evaluations, mut iterations) = (0, 0);
+        loop {
+            // converged once the gradient would change the objective by less than a hundredth
+            // of its standard error across the whole ranges (the held sample's own optimum is
+            // only known to about its standard error); an iteration that changes it little is
+            // no sign of the end here, where some directions are far flatter than others
+            let settings = lbfgs::Settings {
+                max_iters: left,
+                grad_tol: 0.01 * noise * scale,
+                cost_tol: 1e-12 * scale,
+                bounds: Some(Bounds {
+                    lower: vec![0.0; n],
+                    upper: vec![1.0; n],
+                }),
+            };
+            let out =
+                lbfgs::minimise(&objective, &from, &settings, &observe).map_err(|e| match e {
+                    crate::Error::Interrupted => e,
+                    e => format!("render design: {e}").into(),
+                })?;
+            before.fetch_add(out.evaluations, Ordering::Relaxed);
+            evaluations += out.evaluations;
+            iterations += out.iterations;
+            left = left.saturating_sub(out.iterations.max(1));
+            let improved = best.as_ref().is_none_or(|b| out.loss < b.loss);
+            let kink = matches!(out.stop, lbfgs::Stop::LineSearch(_));
+            if improved {
+                best = Some(out);
+            }
+            if !(kink && improved && left > 0 && restarts < MAX_RESTARTS) {
+                break;
+            }
+            restarts += 1;
+            from = best.as_ref().map(|b| b.x.clone()).unwrap_or_default();
+        }
+        let out = best.ok_or_else(|| crate::Error::input("render design: no evaluation"))?;
         let stop = super::FitStop::from(&out.stop);
         Ok(RenderDesigned {
             log: log.into_inner().unwrap_or_default(),
@@ -218,8 +244,8 @@ impl RenderDesign {
                 converged: stop.converged(),
                 stop,
                 grad_norm: out.grad_norm / scale,
-                evaluations: out.evaluations,
-                iterations: out.iterations,
+                evaluations,
+                iterations,
             },
         })
     }
@@ -319,6 +345,8 @@ type ValueAndGradient = (f64, Vec<f64>);
 
 /// The longest first step of L-BFGS, in the range-scaled coordinates.
 const FIRST_STEP: f64 = 0.1;
+/// Restarts of L-BFGS after line searches that end on kinks.
+const MAX_RESTARTS: usize = 3;
 
 impl Held<'_> {
     /// The standard error of the objective at `s`, its value and its gradient.
