@@ -1004,3 +1004,30 @@ fn a_placement_range_through_the_volume_is_refused_by_key() {
     let o = check("min = 6.0, max = 14.0");
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }
+
+/// A render design whose renders would not fit the time budget is refused before any photon is
+/// traced, naming the flag (L-BFGS counted at three evaluations per iteration).
+#[test]
+fn a_render_design_beyond_the_time_budget_is_refused() {
+    let dir = tmp("render-design-budget");
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("design.toml");
+    let text = DESIGN
+        .replace("iterations = 12", "method = \"lbfgs\"\niterations = 100")
+        .replace("photons = 3000\n", "photons = 100000000\n");
+    std::fs::write(&path, text).unwrap();
+    let o = lightpath(&[
+        "design",
+        &path.display().to_string(),
+        "--out",
+        &dir.join("out").display().to_string(),
+        "--max-minutes",
+        "10",
+    ]);
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{e}");
+    for needle in ["render design", "--max-minutes"] {
+        assert!(e.contains(needle), "{needle:?} not in {e}");
+    }
+    assert!(!dir.join("out").join("render_design.json").exists());
+}

@@ -65,11 +65,16 @@ pub fn design(
 }
 
 /// Refuse a design whose renders would not fit the time budget: every iteration's photons with
-/// their derivatives, and the two checking renders.
+/// their derivatives (L-BFGS: three evaluations per iteration, its line searches' usual count
+/// on kinked held objectives), and the two checking renders.
 pub fn check(problem: &RenderDesign, budget: &super::budget::Budget) -> Result<()> {
     let est = ParticleTracer::new(&problem.scene);
     let medium = super::render::proxy_medium(&problem.scene);
-    let photons = (problem.iterations as u64 * problem.photons + 2 * problem.verify_photons) as f64;
+    let evaluations = match problem.method {
+        DesignMethod::Adam => problem.iterations as u64,
+        DesignMethod::Lbfgs => 3 * problem.iterations as u64,
+    };
+    let photons = (evaluations * problem.photons + 2 * problem.verify_photons) as f64;
     let chunks = (photons / problem.chunk as f64).ceil() as u64;
     super::budget::check("render design", &est, &medium, photons, chunks, 0, budget)
 }
