@@ -485,7 +485,7 @@ fn adam_designs_the_grading_that_delivers_more_light() {
     assert!(after - before > 4.0 * sb.hypot(sa), "{before} → {after}");
 }
 
-/// Held photons (`RenderOp::held`): every evaluation draws the same random numbers and every
+/// Held photons (`RenderOp::hold`): every evaluation draws the same random numbers and every
 /// scored choice evenly (total internal reflection included), each photon from its own stream,
 /// scattered in frames that turn continuously with it, so the estimate is a deterministic
 /// function of the index field whose Jacobian is its exact derivative (what L-BFGS needs): the
@@ -499,7 +499,7 @@ fn held_photons_give_a_deterministic_objective_with_its_exact_gradient() {
     let names = "\"profiles[0].n0\", \"profiles[0].c2\"";
     let mut op =
         RenderOp::from_scene(scene(&graded_ball(1.3, 0.0, 1.5, names)), (4_000, 500, 9)).unwrap();
-    op.held = true;
+    op.hold().unwrap();
     assert_eq!(op.values(), vec![1.3, 0.0]);
     let a = op.evaluate(&[1.3, 0.05]).unwrap();
     let b = op.evaluate(&[1.3, 0.05]).unwrap();

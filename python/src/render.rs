@@ -310,16 +310,6 @@ pub(crate) fn render_vjp(
         .config
         .parameters("params", &params, &t.scene.volume, &t.scene.sensors)
         .map_err(|e| PyValueError::new_err(e.to_string()))?;
-    if held
-        && let Some(i) = derivatives
-            .iter()
-            .position(|d| matches!(d, Derivative::Medium(_)))
-    {
-        return Err(PyValueError::new_err(format!(
-            "params[{i}] = {:?}: held photons follow their paths as the index field moves; a medium parameter is differentiated by its paths' scores instead, which a held sample does not follow: use held = False",
-            params[i]
-        )));
-    }
     let r = &t.config.render;
     let photons = photons.unwrap_or(r.samples);
     if photons == 0 {
@@ -333,7 +323,10 @@ pub(crate) fn render_vjp(
         (photons, chunk, seed.unwrap_or(r.seed)),
     )
     .map_err(py_err)?;
-    op.held = held;
+    if held {
+        op.hold()
+            .map_err(|e| PyValueError::new_err(format!("params: {e}: use held = False")))?;
+    }
     // the operation's θ holds the medium's parameters first, then the field's: slot k of it is
     // the caller's parameter order[k]
     let is_medium = |i: &usize| matches!(derivatives[*i], Derivative::Medium(_));

@@ -82,7 +82,7 @@ pub struct RenderDesignConfig {
 }
 
 /// A designed transducer position keeps its element's line outside the volume over its whole
-/// range (checked at 257 points of it), where its wave is singular.
+/// range, where its wave is singular.
 fn check_placement(
     key: &str,
     p: &DesignParameterConfig,
@@ -101,17 +101,14 @@ fn check_placement(
         return Ok(());
     };
     let e = &array.elements[j];
-    for i in 0..=256 {
-        let v = p.min + (p.max - p.min) * f64::from(i) / 256.0;
-        let (x, y) = if axis == 0 { (v, e.y) } else { (e.x, v) };
-        if !super::trace::element_clear(&volume.field.bounds, x, y) {
-            return err(format!(
-                "{key} ({}): at {v} within (min, max) = ({}, {}) element {j}'s line (parallel to z) meets field.bounds; keep the range outside the volume",
-                p.name, p.min, p.max
-            ));
-        }
+    let other = if axis == 0 { e.y } else { e.x };
+    match super::trace::element_blocked(&volume.field.bounds, axis, other) {
+        Some((a, b)) if a <= p.max && p.min <= b => err(format!(
+            "{key} ({}): (min, max) = ({}, {}) reaches ({a}, {b}), where element {j}'s line (parallel to z) meets field.bounds; keep the range outside the volume",
+            p.name, p.min, p.max
+        )),
+        _ => Ok(()),
     }
-    Ok(())
 }
 
 /// A designed parameter: its name (as `render.derivatives` names it) and its range.

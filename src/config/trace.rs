@@ -258,12 +258,22 @@ fn standing_wave(
 /// Whether a phased array's element at `(x, y)` keeps its line (parallel to z) outside the
 /// volume: its wave is singular on the line.
 pub(crate) fn element_clear(bounds: &Bounds, x: f64, y: f64) -> bool {
+    element_blocked(bounds, 0, y).is_none_or(|(a, b)| x < a || x > b)
+}
+
+/// The interval of an element's coordinate `axis` (0: x, 1: y) over which its line meets the
+/// volume, its other coordinate at `other`; `None` if it meets it nowhere.
+pub(crate) fn element_blocked(bounds: &Bounds, axis: usize, other: f64) -> Option<(f64, f64)> {
     match *bounds {
-        Bounds::Everywhere => false,
-        Bounds::Sphere { radius } | Bounds::Cylinder { radius, .. } => x.hypot(y) > radius,
-        _ => bounds
-            .half_extent()
-            .is_some_and(|h| x.abs() > h.x || y.abs() > h.y),
+        Bounds::Everywhere => Some((f64::NEG_INFINITY, f64::INFINITY)),
+        Bounds::Sphere { radius } | Bounds::Cylinder { radius, .. } => {
+            let w = (radius * radius - other * other).max(0.0).sqrt();
+            (other.abs() <= radius).then_some((-w, w))
+        }
+        _ => bounds.half_extent().and_then(|h| {
+            let (along, across) = if axis == 0 { (h.x, h.y) } else { (h.y, h.x) };
+            (other.abs() <= across).then_some((-along, along))
+        }),
     }
 }
 

@@ -7,7 +7,7 @@
 //! tracing; its pullback is the transposed Jacobian the same photons estimate by their path-space
 //! scores and forward sensitivities (`render.derivatives`). Each evaluation draws fresh photons
 //! (the seed advances): unbiased values and gradients of the expected outputs, as stochastic
-//! optimisers (Adam) expect. Held ([`RenderOp::held`]), every evaluation draws the same photons:
+//! optimisers (Adam) expect. Held ([`RenderOp::hold`]), every evaluation draws the same photons:
 //! a smooth deterministic estimate with its exact gradient, as L-BFGS expects.
 
 use super::bridge::{Differentiable, Pullback};
@@ -29,11 +29,8 @@ pub struct RenderOp {
     pub seed: u64,
     /// Stops every forward of this operation once set (none from [`Self::new`]).
     pub stop: StopFlag,
-    /// Hold the photons: every evaluation draws the same random numbers (the seed does not
-    /// advance) and every scored choice with probability ½, so the estimate is a deterministic,
-    /// smooth function of `θ` whose Jacobian is its exact derivative (a sample-average
-    /// approximation, for L-BFGS). Off from [`Self::new`].
-    pub held: bool,
+    /// Whether the photons are held ([`Self::hold`]).
+    held: bool,
     evaluations: AtomicU64,
 }
 
@@ -138,6 +135,23 @@ impl RenderOp {
         }
         op.field = field;
         Ok(op)
+    }
+
+    /// Hold the photons: every evaluation draws the same random numbers (the seed does not
+    /// advance) and every scored choice with probability ½, so the estimate is a deterministic
+    /// function of the index field's parameters whose Jacobian is its exact derivative (a
+    /// sample-average approximation, for L-BFGS). Refused with medium parameters: their
+    /// derivatives are path scores, which a held sample's estimate does not follow.
+    pub fn hold(&mut self) -> crate::Result<()> {
+        if let Some(p) = self.params.first() {
+            return Err(format!(
+                "{}: held photons follow their paths as the index field moves; a medium parameter is differentiated by its paths' scores instead, which a held sample does not follow",
+                p.name()
+            )
+            .into());
+        }
+        self.held = true;
+        Ok(())
     }
 
     /// The parameters' values in the scene (`θ` where it was configured).

@@ -10,7 +10,7 @@
 //!   range; Adam moves `u`. The design returned is the mean of `u` over the last third of the
 //!   iterations (stochastic steps scatter about the optimum); the run converged when its
 //!   objective stopped improving beyond its noise.
-//! - **L-BFGS** (a few parameters): the photons are held ([`RenderOp::held`]), so the objective is
+//! - **L-BFGS** (a few parameters): the photons are held ([`RenderOp::hold`]), so the objective is
 //!   a deterministic, smooth sample-average approximation with its exact gradient, minimised by
 //!   the projected L-BFGS driver in `s = (θ − lo)/(hi − lo) ∈ [0, 1]` (a parameter may end on
 //!   its bound). The design is optimal for the photons held; the checking renders at a fresh
@@ -155,7 +155,7 @@ impl RenderDesign {
         let mut op =
             RenderOp::from_scene(self.scene.clone(), (self.photons, self.chunk, self.seed))?;
         op.stop = stop.clone();
-        op.held = true;
+        op.hold()?;
         let theta = |s: &[f64]| self.in_range(s);
         let s0: Vec<f64> = self
             .start

@@ -63,9 +63,7 @@ pub fn uniform_sphere(u1: f64, u2: f64) -> DVec3 {
 /// The direction at polar cosine `mu` and azimuth `phi` about the unit axis `w`.
 #[inline]
 pub fn direction_about(w: DVec3, mu: f64, phi: f64) -> DVec3 {
-    let (t, b) = orthonormal_basis(w);
-    let s = (1.0 - mu * mu).max(0.0).sqrt();
-    (t * (s * phi.cos()) + b * (s * phi.sin()) + w * mu).normalize()
+    in_frame(orthonormal_basis(w), w, mu, phi)
 }
 
 /// [`direction_about`] in a frame continuous in `w` everywhere but at `w = −ẑ` (Frisvad 2012:
@@ -74,7 +72,7 @@ pub fn direction_about(w: DVec3, mu: f64, phi: f64) -> DVec3 {
 /// differentiated through its scattering directions needs.
 #[inline]
 pub fn direction_about_continuously(w: DVec3, mu: f64, phi: f64) -> DVec3 {
-    let (t, b) = if w.z > -1.0 + 1e-12 {
+    let frame = if w.z > -1.0 + 1e-12 {
         let a = 1.0 / (1.0 + w.z);
         let c = -w.x * w.y * a;
         (
@@ -84,6 +82,12 @@ pub fn direction_about_continuously(w: DVec3, mu: f64, phi: f64) -> DVec3 {
     } else {
         (DVec3::X, DVec3::NEG_Y)
     };
+    in_frame(frame, w, mu, phi)
+}
+
+/// The direction at polar cosine `mu` and azimuth `phi` in the frame `(t, b, w)`.
+#[inline]
+fn in_frame((t, b): (DVec3, DVec3), w: DVec3, mu: f64, phi: f64) -> DVec3 {
     let s = (1.0 - mu * mu).max(0.0).sqrt();
     (t * (s * phi.cos()) + b * (s * phi.sin()) + w * mu).normalize()
 }

@@ -685,7 +685,6 @@ impl ParticleTracer<'_> {
         // the direction about the incoming one in a frame that turns continuously with it
         let (mu, phi) = (phase.sample_mu(u1), std::f64::consts::TAU * u2);
         let w = direction_about_continuously(w_in, mu, phi);
-        let mu = w_in.dot(w);
         for (s, param) in p.score.iter_mut().zip(&self.scene.derivatives) {
             *s += param
                 .medium()
