@@ -17,7 +17,7 @@ mod common;
 
 use common::render;
 use lightpath::config::{Task, load_text};
-use lightpath::rrte::{ParticleTracer, RenderScene};
+use lightpath::rrte::{ParticleTracer, RenderScene, SensorKind};
 
 fn scene(text: &str) -> RenderScene {
     match load_text(text) {
@@ -71,38 +71,62 @@ derivatives = [{derivatives}]
     )
 }
 
-/// The outputs (every sensor's value) of `samples` photons from `seed`, drawing evenly.
-fn evenly(s: &RenderScene, samples: u64, seed: u64) -> (Vec<f64>, Vec<Vec<f64>>) {
+/// Every output the tests compare, with the output holding its derivative in parameter `j`
+/// (0 without one): each sensor's power, and each screen's pixels (time-integrated).
+fn outputs(s: &RenderScene, est: &ParticleTracer, j: Option<usize>) -> Vec<(String, usize, usize)> {
+    let mut all = Vec::new();
+    for (i, sensor) in s.sensors.iter().enumerate() {
+        let d = j.map(|j| est.derivative_image(i, j));
+        all.push((
+            sensor.name.clone(),
+            est.power(i),
+            d.map_or(0, |d| d.total()),
+        ));
+        if sensor.kind == SensorKind::Screen {
+            let image = est.sensor_image(i);
+            for p in 0..sensor.pixel_count() {
+                let name = format!("{} pixel {p}", sensor.name);
+                all.push((
+                    name,
+                    image.plane(Some(0), 0) + p,
+                    d.map_or(0, |d| d.first + p),
+                ));
+            }
+        }
+    }
+    all
+}
+
+/// The outputs' values and derivatives in parameter `j` of `samples` photons from `seed`,
+/// drawing evenly.
+fn evenly(s: &RenderScene, samples: u64, seed: u64, j: usize) -> Vec<(String, f64, f64)> {
     let mut est = ParticleTracer::new(s);
     est.even_draws = true;
     let e = common::estimate(&est, &lightpath::mc::Plan::new(seed, samples, samples / 8));
-    let sensors = s.sensors.len();
-    let values = (0..sensors).map(|i| e.mean[est.power(i)].re).collect();
-    let derivatives = (0..sensors)
-        .map(|i| {
-            (0..s.derivatives.len())
-                .map(|j| e.mean[est.power_derivative(i, j)].re)
-                .collect()
-        })
-        .collect();
-    (values, derivatives)
+    outputs(s, &est, Some(j))
+        .into_iter()
+        .map(|(name, v, d)| (name, e.mean[v].re, e.mean[d].re))
+        .collect()
 }
 
 /// Derivative `j` of every output equals the central difference quotient (step `h`) of the
 /// estimate at the same random numbers, to `1e-5` of its size (the closed forms' central
-/// differences inside are good to about 1e-10).
+/// differences inside are good to about 1e-10). Every sensor must have a slope; a pixel the
+/// photons miss is left out.
 fn is_the_difference_quotient(at: impl Fn(f64) -> RenderScene, theta: f64, h: f64, j: usize) {
-    let (_, d) = evenly(&at(theta), 64, 3);
-    let (up, _) = evenly(&at(theta + h), 64, 3);
-    let (down, _) = evenly(&at(theta - h), 64, 3);
-    let name = at(theta).derivatives[j].name();
-    for i in 0..up.len() {
-        let fd = (up[i] - down[i]) / (2.0 * h);
-        assert!(fd != 0.0, "{name}, output {i}: no slope to compare");
+    let here = evenly(&at(theta), 64, 3, j);
+    let up = evenly(&at(theta + h), 64, 3, j);
+    let down = evenly(&at(theta - h), 64, 3, j);
+    let param = at(theta).derivatives[j].name();
+    for (((name, _, d), (_, up, _)), (_, down, _)) in here.iter().zip(&up).zip(&down) {
+        let fd = (up - down) / (2.0 * h);
+        if name.contains(" pixel ") && fd == 0.0 && *d == 0.0 {
+            continue;
+        }
+        assert!(fd != 0.0, "{param}, {name}: no slope to compare");
         assert!(
-            (d[i][j] - fd).abs() < 1e-5 * fd.abs().max(d[i][j].abs()),
-            "{name}, output {i}: estimate {:.9e}, difference quotient {fd:.9e}",
-            d[i][j]
+            (d - fd).abs() < 1e-5 * fd.abs().max(d.abs()),
+            "{param}, {name}: estimate {d:.9e}, difference quotient {fd:.9e}"
         );
     }
 }
@@ -113,6 +137,44 @@ fn derivatives_are_the_estimates_difference_quotients_in_a_scattering_graded_bal
     let (n0, c2) = (1.3, -0.25);
     is_the_difference_quotient(|v| scene(&graded_ball(v, c2, 1.5, names)), n0, 1e-7, 0);
     is_the_difference_quotient(|v| scene(&graded_ball(n0, v, 1.5, names)), c2, 1e-7, 1);
+}
+
+/// A spot above the ball: the light crossing `z = 1.4` weighted by a Gaussian aperture of
+/// `1/e²` radius 0.3 about the axis (where the graded ball focuses the beam).
+const SPOT: &str = "[[sensor]]\nkind = \"spot\"\nname = \"focus\"\ncenter = [0.0, 0.0, 1.4]\nnormal = [0.0, 0.0, 1.0]\nradius = 0.3\n[render]";
+
+/// A screen on the same plane, 0.6 wide in 4 × 4 pixels, sharing each crossing bilinearly.
+const SCREEN: &str = "[[sensor]]\nkind = \"screen\"\nname = \"image\"\ncenter = [0.0, 0.0, 1.4]\nnormal = [0.0, 0.0, 1.0]\nsize = [0.6, 0.6]\npixels = [4, 4]\nfilter = \"tent\"\n[render]";
+
+/// `text` with the spot and the screen added.
+fn with_planes(text: &str) -> String {
+    text.replacen("[render]", SPOT, 1)
+        .replacen("[render]", SCREEN, 1)
+}
+
+#[test]
+fn a_spots_and_screens_derivatives_are_their_estimates_difference_quotients() {
+    let names = "\"profiles[0].n0\", \"profiles[0].c2\", \"sigma_s\"";
+    let (n0, c2) = (1.3, -0.25);
+    let ball = |n0, c2| scene(&with_planes(&graded_ball(n0, c2, 0.5, names)));
+    is_the_difference_quotient(|v| ball(v, c2), n0, 1e-7, 0);
+    is_the_difference_quotient(|v| ball(n0, v), c2, 1e-7, 1);
+}
+
+/// The spot's and the screen's slopes in the grading and the ball's index against the slopes
+/// of the expectation: no edge is missed (light leaving sideways crosses the plane far out,
+/// where the aperture's weight has fallen to nothing; a pixel's share falls to 0 at its tent's
+/// edge). The steps are small: at `c2` − 0.05 the focused beam's edge sweeps into the outer
+/// pixels, and a difference over that step is not the slope at `c2`.
+#[test]
+fn spots_and_screens_differentiate_as_their_differences() {
+    let (n0, c2, sigma_s) = (1.3, -0.25, 0.5);
+    let names = "\"profiles[0].n0\", \"profiles[0].c2\"";
+    let with = |d: bool| if d { names } else { "" };
+    let ball = |n0, c2, d| scene(&with_planes(&graded_ball(n0, c2, sigma_s, with(d))));
+    let sizes = (100_000, 16, 20_000);
+    agrees_with_differences(|v, d| ball(n0, v, d), c2, 0.01, 1, sizes);
+    agrees_with_differences(|v, d| ball(v, c2, d), n0, 0.01, 0, sizes);
 }
 
 /// Four line elements about a scattering water cylinder (lengths in mm), the field met at a
@@ -227,7 +289,9 @@ derivatives = ["profiles[0].n_max"]
 /// Point light at the centre of a clear absorbing ball (`σ_a = 0.5`, `n` = 1 inside and out):
 /// the fluence is `e^{−σ_a r}/(4π r²)`, and a target's mean over a sphere of radius `a` about
 /// `c` is `(1/V) ∫ e^{−σ_a r} (1 − cos θ_r)/2 dr` over the shells it cuts (`cos θ_r =
-/// (r² + |c|² − a²)/(2 r |c|)`), and over a box the mean of the same by quadrature.
+/// (r² + |c|² − a²)/(2 r |c|)`), and over a box the mean of the same by quadrature; a spot on
+/// a plane above collects the escaping light by its aperture's weight where it crosses, and a
+/// tent-filtered screen there each pixel's tent-weighted share of the irradiance.
 #[test]
 fn a_target_in_an_absorber_reads_the_point_source_closed_form() {
     let text = |derivatives: &str| {
@@ -255,6 +319,20 @@ kind = "target"
 name = "box"
 center = [0.0, 0.4, 0.2]
 size = [0.2, 0.3, 0.2]
+[[sensor]]
+kind = "spot"
+name = "above"
+center = [0.0, 0.0, 1.5]
+normal = [0.0, 0.0, 1.0]
+radius = 0.5
+[[sensor]]
+kind = "screen"
+name = "tent"
+center = [0.2, 0.1, 1.5]
+normal = [0.0, 0.0, 1.0]
+size = [0.6, 0.4]
+pixels = [3, 2]
+filter = "tent"
 [render]
 derivatives = [{derivatives}]
 "#
@@ -289,15 +367,58 @@ derivatives = [{derivatives}]
         }
     }
     cube /= (m * m * m) as f64;
+    // the spot: light leaving along μ = cos θ crosses the plane at ρ = h tan θ, having lost
+    // e^{−σ_a} on its way out; (1/2) ∫ e^{−2ρ²/w²} dμ over the upper half by the midpoint rule
+    let (h, w) = (1.5, 0.5);
+    let mut spot = 0.0;
+    for k in 0..n {
+        let mu = (k as f64 + 0.5) / n as f64;
+        spot += (-2.0 * h * h * (1.0 / (mu * mu) - 1.0) / (w * w)).exp() / (2.0 * n as f64);
+    }
+    spot *= (-sigma_a).exp();
+    // the tent-filtered screen: each pixel's share of the irradiance e^{−σ_a} h/(4π r³), its
+    // tent (one pixel wide each way from its centre) by the midpoint rule
+    let (pixel, pixels, corner) = (0.2, [3, 2], [-0.1, -0.1]);
+    let irradiance = |x: f64, y: f64| {
+        let r = (x * x + y * y + h * h).sqrt();
+        (-sigma_a).exp() * h / (4.0 * std::f64::consts::PI * r.powi(3))
+    };
+    let steps = 200;
+    let tent: Vec<f64> = (0..pixels[0] * pixels[1])
+        .map(|k| {
+            let centre = [
+                corner[0] + (k % pixels[0]) as f64 * pixel + 0.5 * pixel,
+                corner[1] + (k / pixels[0]) as f64 * pixel + 0.5 * pixel,
+            ];
+            let mut sum = 0.0;
+            for a in 0..steps {
+                for b in 0..steps {
+                    let u = -1.0 + 2.0 * (a as f64 + 0.5) / steps as f64;
+                    let v = -1.0 + 2.0 * (b as f64 + 0.5) / steps as f64;
+                    let share = (1.0 - u.abs()) * (1.0 - v.abs());
+                    let (x, y) = (centre[0] + u * pixel, centre[1] + v * pixel);
+                    sum += irradiance(x, y) * share;
+                }
+            }
+            sum * (2.0 * pixel / steps as f64).powi(2)
+        })
+        .collect();
     for derivatives in ["", "\"profiles[0].n\""] {
         let s = scene(&text(derivatives));
         let (e, est) = render(&s, 1_000_000, 5);
-        for (i, exact) in [ball, cube].into_iter().enumerate() {
-            let (v, se) = (e.mean[est.power(i)].re, e.stderr[est.power(i)]);
-            assert!(se < 0.02 * exact, "{derivatives}: {se} for {exact}");
+        let first = est.sensor_image(3).plane(Some(0), 0);
+        let outputs = [ball, cube, spot]
+            .into_iter()
+            .enumerate()
+            .map(|(i, v)| (est.power(i), v, 0.02));
+        // a pixel receives about a thousandth of the photons
+        let pixels = tent.iter().enumerate().map(|(k, &v)| (first + k, v, 0.05));
+        for (o, exact, resolution) in outputs.chain(pixels) {
+            let (v, se) = (e.mean[o].re, e.stderr[o]);
+            assert!(se < resolution * exact, "{derivatives}: {se} for {exact}");
             assert!(
                 (v - exact).abs() < 4.0 * se,
-                "target {i} {derivatives}: {v} ± {se} against {exact}"
+                "output {o} {derivatives}: {v} ± {se} against {exact}"
             );
         }
     }
@@ -316,37 +437,36 @@ fn agrees_with_differences(
 ) {
     let s = at(theta, true);
     let (e, est) = render(&s, samples, 7);
-    let outputs = s.sensors.len();
-    let mut fd = vec![Vec::new(); outputs];
+    let compared = outputs(&s, &est, Some(j));
+    let mut fd = vec![Vec::new(); compared.len()];
     for k in 0..pairs {
         let values = |v: f64| {
             let sc = at(v, false);
             let (e, est) = render(&sc, photons, 1000 + k);
-            (0..outputs)
-                .map(|i| e.mean[est.power(i)].re)
+            outputs(&sc, &est, None)
+                .into_iter()
+                .map(|(_, o, _)| e.mean[o].re)
                 .collect::<Vec<_>>()
         };
         let (up, down) = (values(theta + h), values(theta - h));
-        for i in 0..outputs {
+        for i in 0..compared.len() {
             fd[i].push((up[i] - down[i]) / (2.0 * h));
         }
     }
-    let name = s.derivatives[j].name();
+    let param = s.derivatives[j].name();
     let mut resolved = false;
-    for (i, fd) in fd.iter().enumerate() {
-        let d = e.mean[est.power_derivative(i, j)].re;
-        let sd = e.stderr[est.power_derivative(i, j)];
+    for (fd, (name, _, o)) in fd.iter().zip(&compared) {
+        let (d, sd) = (e.mean[*o].re, e.stderr[*o]);
         let n = fd.len() as f64;
         let mean = fd.iter().sum::<f64>() / n;
         let sf = (fd.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0) / n).sqrt();
-        let target = &s.sensors[i].name;
         resolved |= d.abs() > 4.0 * sd;
         assert!(
             (d - mean).abs() < 4.0 * (sd * sd + sf * sf).sqrt(),
-            "{name} of {target}: estimate {d:.4e} ± {sd:.1e}, differences {mean:.4e} ± {sf:.1e}"
+            "{param} of {name}: estimate {d:.4e} ± {sd:.1e}, differences {mean:.4e} ± {sf:.1e}"
         );
     }
-    assert!(resolved, "{name}: no target's derivative is resolved");
+    assert!(resolved, "{param}: no output's derivative is resolved");
 }
 
 /// The graded ball's targets: their slopes in the profile's `c2` (the bending inside) and `n0`
@@ -401,6 +521,22 @@ fn scenes_the_field_derivatives_do_not_cover_are_refused_by_key() {
             "\"T\"",
             "target",
         ],
+    );
+    let timed = SPOT.replace(
+        "[render]",
+        "[transient]\nbins = 4\nmax_path = 10.0\n[render]",
+    );
+    refused(
+        &base.replacen("[render]", &timed, 1),
+        &["[transient]", "\"focus\""],
+    );
+    refused(
+        &base.replacen("[render]", &SPOT.replace("radius = 0.3", "radius = 0.0"), 1),
+        &["sensor[3].radius = 0"],
+    );
+    refused(
+        &base.replacen("[render]", &SCREEN.replace("filter = \"tent\"\n", ""), 1),
+        &["sensor \"image\"", "filter = \"tent\""],
     );
     let probe =
         "[[sensor]]\nkind = \"fluence\"\nname = \"p\"\nposition = [0.0, 0.0, 0.0]\n[render]";
@@ -525,4 +661,119 @@ fn held_photons_give_a_deterministic_objective_with_its_exact_gradient() {
             }
         }
     }
+}
+
+/// With nothing scattered or absorbed and the surface index-matched (`n_out` = the ball's index
+/// at its surface, so no light is reflected), the spot's power, the screen's pixels and their
+/// derivatives in the ball's `n0` and `c2` equal the deterministic exit adjoint's: the beam's
+/// disc by the midpoint rule (equal-area rings), each ray traced to its exit and on to the
+/// plane, the gradient of its weight (the aperture's, a pixel's share) pulled back through the
+/// crossing (`x̄ = ḡ − N (ḡ·d)/(N·d)`, `d̄ = t x̄`) and the trace.
+#[test]
+fn a_clear_spots_and_screens_derivatives_are_the_exit_adjoints() {
+    use glam::DVec3;
+    use lightpath::diff::ExitVjp;
+    use lightpath::rrte::scene::Derivative;
+    let (n0, c2) = (1.3, -0.25);
+    let text = graded_ball(n0, c2, 1e-9, "\"profiles[0].n0\", \"profiles[0].c2\"")
+        .replace("n_out = 1.0", &format!("n_out = {}", n0 + c2))
+        .replace("sigma_a = 0.2", "sigma_a = 0.0");
+    // the screen beyond the focus, off the axis, where the beam has spread over its pixels
+    let screen = SCREEN
+        .replace("[0.0, 0.0, 1.4]", "[0.07, 0.03, 2.5]")
+        .replace("[0.6, 0.6]", "[0.8, 0.8]");
+    let text = text
+        .replacen("[render]", SPOT, 1)
+        .replacen("[render]", &screen, 1);
+    let s = scene(&text);
+    let (e, est) = render(&s, 400_000, 11);
+    // the beam: radius 0.6 about the axis from z = −2
+    let (radius, rings, spokes) = (0.6, 200, 96);
+    let mut rays = Vec::new();
+    for i in 0..rings {
+        let r = radius * ((i as f64 + 0.5) / rings as f64).sqrt();
+        for j in 0..spokes {
+            let phi = std::f64::consts::TAU * (j as f64 + 0.5) / spokes as f64;
+            rays.push((DVec3::new(r * phi.cos(), r * phi.sin(), -2.0), DVec3::Z));
+        }
+    }
+    let params = s
+        .derivatives
+        .iter()
+        .map(|d| match d {
+            Derivative::Field(f) => f.param,
+            Derivative::Medium(_) => unreachable!(),
+        })
+        .collect();
+    let watch = lightpath::mc::Watch::default();
+    let field = s.volume.field.clone();
+    let vjp = ExitVjp::new(field, params, None, rays, s.step, s.max_steps, &watch).unwrap();
+    let share = 1.0 / vjp.ends.len() as f64;
+    // an output's value and derivatives from the weight (and its gradient on the plane) each
+    // crossing gets
+    let by_adjoint = |plane: &lightpath::rrte::Sensor, weight: &dyn Fn(DVec3) -> (f64, DVec3)| {
+        let (mut value, mut d_position, mut d_direction) = (0.0, Vec::new(), Vec::new());
+        for end in &vjp.ends {
+            let (x, d) = (end.x, end.direction);
+            let cos = d.dot(plane.normal);
+            let (mut xb, mut db) = (DVec3::ZERO, DVec3::ZERO);
+            if cos > 0.0 {
+                let t = (plane.center - x).dot(plane.normal) / cos;
+                let (g, grad) = weight(x + d * t);
+                value += g * share;
+                xb = (grad - plane.normal * (grad.dot(d) / cos)) * share;
+                db = xb * t;
+            }
+            d_position.push(xb);
+            d_direction.push(db);
+        }
+        let grads = vjp.pullback(&d_position, &d_direction, &watch).unwrap();
+        (value, grads.params)
+    };
+    let (spot, screen) = (&s.sensors[3], &s.sensors[4]);
+    let mut compared = vec![(
+        "spot".to_string(),
+        est.power(3),
+        (0..2)
+            .map(|j| est.power_derivative(3, j))
+            .collect::<Vec<_>>(),
+        by_adjoint(spot, &|p| (spot.aperture(p), spot.aperture_gradient(p))),
+    )];
+    for pixel in 0..screen.pixel_count() {
+        let exact = by_adjoint(screen, &|p| {
+            let (splat, count) = screen.splat(p);
+            splat[..count]
+                .iter()
+                .find(|&&(k, _, _)| k == pixel)
+                .map_or((0.0, DVec3::ZERO), |&(_, w, g)| (w, g))
+        });
+        let value = est.sensor_image(4).plane(Some(0), 0) + pixel;
+        let slopes = (0..2)
+            .map(|j| est.derivative_image(4, j).first + pixel)
+            .collect();
+        compared.push((format!("pixel {pixel}"), value, slopes, exact));
+    }
+    let mut resolved = 0;
+    for (name, value, slopes, (exact, grads)) in compared {
+        let (v, se) = (e.mean[value].re, e.stderr[value]);
+        // (a photon of the 1e-9 scattering lands anywhere)
+        assert!(
+            (v - exact).abs() < 4.0 * se + 1e-8,
+            "{name}: {v} ± {se}, exit adjoint {exact}"
+        );
+        for (j, (&o, exact)) in slopes.iter().zip(grads).enumerate() {
+            let (d, sd) = (e.mean[o].re, e.stderr[o]);
+            let param = s.derivatives[j].name();
+            resolved += usize::from(sd < 0.05 * exact.abs());
+            assert!(
+                (d - exact).abs() < 4.0 * sd + 1e-8,
+                "{name}, {param}: render {d:.5e} ± {sd:.1e}, exit adjoint {exact:.5e}"
+            );
+        }
+    }
+    // the spot's and most pixels' (a few pixels' slopes are near 0)
+    assert!(
+        resolved >= 24,
+        "only {resolved} derivatives resolved to 5 %"
+    );
 }

@@ -67,6 +67,8 @@ fn plate(spectrum: Spectrum) -> RenderScene {
             pixels: [PIXELS, 1],
             acceptance: None,
             region: None,
+            window: None,
+            filter: lightpath::rrte::Filter::Box,
         }],
         spectrum: Some(spectrum),
         ..bare_scene(0.01)

@@ -541,7 +541,7 @@ class RenderVjp:
 
     @property
     def value(self) -> npt.NDArray[np.float64]:
-        """[S] every sensor's output (flux sensors' power, targets' fluence), in the config's order."""
+        """[S] every sensor's output (power of flux sensors, screens and spots; targets' fluence), in the config's order."""
     @property
     def stderr(self) -> npt.NDArray[np.float64]: ...
     @property

@@ -150,9 +150,9 @@ pub(crate) fn render(
     Ok(Render { rendered })
 }
 
-/// A render's sensor outputs (flux sensors' powers, targets' fluences) at `theta` with their
-/// Jacobian, from one particle-tracing run (`render_vjp`); calling it with `∂L/∂outputs` gives
-/// `∂L/∂θ`.
+/// A render's sensor outputs (powers of flux sensors, screens and spots, targets' fluences) at
+/// `theta` with their Jacobian, from one particle-tracing run (`render_vjp`); calling it with
+/// `∂L/∂outputs` gives `∂L/∂θ`.
 #[pyclass(frozen, module = "lightpath")]
 pub(crate) struct RenderVjp {
     params: Vec<String>,

@@ -171,6 +171,37 @@ def test_render_vjp_is_the_renders_jacobian_and_held_photons_differentiate_exact
         vjp([1.0, 2.0, 3.0])
 
 
+def test_a_spots_power_and_its_field_derivatives_come_through_render_vjp():
+    spot = """[[sensor]]
+kind = "spot"
+name = "focus"
+center = [0.0, 0.0, 1.4]
+normal = [0.0, 0.0, 1.0]
+radius = 0.3
+[render]"""
+    config = lp.loads(GRADED_BALL.replace("[render]", spot, 1))
+    sensors = {s["name"]: s for s in lp.render(config, threads=2).result["sensors"]}
+    assert sensors["focus"]["kind"] == "spot" and sensors["focus"]["radius"] == 0.3
+    field = ["profiles[0].n0", "profiles[0].c2"]
+    theta = np.array([1.3, -0.25])
+    held = lp.render_vjp(config, field, theta=list(theta), photons=2000, held=True, threads=2)
+    assert held.sensors == ["spot", "core", "focus"] and held.value[2] > 0
+    for k in range(2):
+        step = np.zeros(2)
+        step[k] = 1e-7
+        up, down = (
+            lp.render_vjp(config, field, theta=list(theta + s), photons=2000, held=True,
+                          threads=2).value
+            for s in (step, -step)
+        )
+        fd = (up[2] - down[2]) / 2e-7
+        assert held.jacobian[2, k] == pytest.approx(fd, rel=1e-4), (k, held.jacobian, fd)
+    # a box-filtered screen has edges the field derivatives do not follow
+    screen = spot.replace('"spot"', '"screen"').replace("radius = 0.3", "size = [1.0, 1.0]\npixels = [4, 4]")
+    with pytest.raises(ValueError, match="tent"):
+        lp.render_vjp(lp.loads(GRADED_BALL.replace("[render]", screen, 1)), field)
+
+
 STEP_DEG = 0.15
 PIXELS = 64
 PEAKS = [(32, 8), (32, 40)]

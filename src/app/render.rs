@@ -14,7 +14,7 @@ use crate::io::results::{
 };
 use crate::mc::{Block, Checkpoint, Estimate, Plan, merge, resume};
 use crate::medium::{Geometry, Medium};
-use crate::rrte::{ImageLayout, ParticleTracer, Region, SensorKind, Total};
+use crate::rrte::{Filter, ImageLayout, ParticleTracer, Region, SensorKind, Total};
 use std::path::Path;
 
 /// The files a render writes (screens add `screen_<name>.exr`, `screen_<name>.png` and, with time
@@ -309,10 +309,13 @@ pub fn rendered(
             name: s.name.clone(),
             kind: match s.kind {
                 SensorKind::Flux | SensorKind::Target => "flux",
+                SensorKind::Spot => "spot",
                 SensorKind::Screen => "screen",
             }
             .into(),
             power,
+            radius: s.window,
+            filter: (s.filter == Filter::Tent).then(|| "tent".into()),
             bins,
             per_bin: None,
             per_bin_stderr: None,

@@ -1,6 +1,6 @@
 //! `lightpath design` on a render config with a `[design]` table: the index field's parameters
-//! moved by Adam or L-BFGS, within their ranges, to deliver the most light to a target (or the most
-//! relative to another), then the start and the design rendered at a fresh seed to check the
+//! moved by Adam or L-BFGS, within their ranges, to deliver the most light to a target or into
+//! a spot (or the most relative to another), then the start and the design rendered at a fresh seed to check the
 //! gain → render_design.json and loss.png.
 
 use super::{Outcome, create_out};
@@ -91,7 +91,7 @@ pub fn run(
     let designed = problem.run(progress, stop, journal)?;
     let verify = problem.verify_photons;
     let op = crate::diff::RenderOp::from_scene(problem.scene.clone(), (1, 1, 0))?;
-    let fluences = |theta: &[f64]| -> Result<(Measured, Option<Measured>)> {
+    let outputs = |theta: &[f64]| -> Result<(Measured, Option<Measured>)> {
         let scene = op.scene_without_derivatives(theta)?;
         let est = ParticleTracer::new(&scene);
         let plan = Plan::new(CHECK_SEED, verify, problem.chunk.min(verify));
@@ -102,8 +102,8 @@ pub fn run(
         };
         Ok((at(problem.maximize), problem.relative_to.map(at)))
     };
-    let (start, reference_start) = fluences(&problem.start)?;
-    let (end, reference_designed) = fluences(&designed.designed)?;
+    let (start, reference_start) = outputs(&problem.start)?;
+    let (end, reference_designed) = outputs(&designed.designed)?;
     let objective = |f: &Measured, r: &Option<Measured>| match r {
         Some(r) => Measured {
             mean: f.mean / r.mean,
@@ -122,7 +122,7 @@ pub fn run(
     };
     if !(gain.mean.is_finite() && gain.stderr.is_finite()) {
         return Err(Error::Numerical(format!(
-            "render design: no light reached the target in the checking renders ({verify} photons): raise design.verify_photons"
+            "render design: no light reached the sensor maximised in the checking renders ({verify} photons): raise design.verify_photons"
         )));
     }
     let name = |i: usize| problem.scene.sensors[i].name.clone();
@@ -220,7 +220,7 @@ pub fn summary(file: &RenderDesignFile) -> String {
         None => "gain".to_string(),
     };
     let mut summary = format!(
-        "render design in {:.1} s ({}): fluence {} {:.5e} ± {:.1e} → {:.5e} ± {:.1e} ({gained} {:.4} ± {:.4}, {} photons at a fresh seed)\n",
+        "render design in {:.1} s ({}): {} {:.5e} ± {:.1e} → {:.5e} ± {:.1e} ({gained} {:.4} ± {:.4}, {} photons at a fresh seed)\n",
         file.seconds,
         file.convergence.line(),
         file.maximize,

@@ -8,9 +8,9 @@ use super::{ConfigError, err};
 use crate::eikonal::Bounds;
 use crate::medium::{PhaseFunction, Scattering};
 use crate::rrte::{
-    Camera, Connections, Density, Derivative, Dispersion, FieldDerivative, Light, MAX_DERIVATIVES,
-    MAX_TARGETS, Material, Modulation, Probe, Region, RenderScene, Sensor, SensorKind, Spectrum,
-    Surface, Tracing, Transient, Volume,
+    Camera, Connections, Density, Derivative, Dispersion, FieldDerivative, Filter, Light,
+    MAX_DERIVATIVES, MAX_TARGETS, Material, Modulation, Probe, Region, RenderScene, Sensor,
+    SensorKind, Spectrum, Surface, Tracing, Transient, Volume,
 };
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -56,9 +56,11 @@ pub struct RenderConfig {
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct RenderDesignConfig {
-    /// The target (a sensor of kind "target", by name) whose fluence is maximised.
+    /// The target or spot (a sensor of kind "target" or "spot", by name) whose output is
+    /// maximised.
     pub maximize: String,
-    /// A target the fluence is taken relative to (the objective is then the ratio).
+    /// A target or spot the output is taken relative to (the objective is then the ratio: a
+    /// spot's contrast against a wider one, say).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub relative_to: Option<String>,
     pub parameters: Vec<DesignParameterConfig>,
@@ -176,13 +178,25 @@ pub enum SensorConfig {
         #[serde(default, skip_serializing_if = "Option::is_none")]
         acceptance_deg: Option<f64>,
     },
-    /// Irradiance on a rectangle of pixels.
+    /// The power crossing a plane weighted by a Gaussian aperture of `1/e²` radius `radius`
+    /// about `center`: a focal spot's power, differentiable as the field moves the light.
+    Spot {
+        name: String,
+        center: [f64; 3],
+        normal: [f64; 3],
+        radius: f64,
+    },
+    /// Irradiance on a rectangle of pixels, each crossing given to the pixel it falls in
+    /// (`filter = "box"`) or shared bilinearly among the four about it (`"tent"`, which index-
+    /// field derivatives need).
     Screen {
         name: String,
         center: [f64; 3],
         normal: [f64; 3],
         size: [f64; 2],
         pixels: [u64; 2],
+        #[serde(default, skip_serializing_if = "FilterConfig::is_box")]
+        filter: FilterConfig,
     },
     /// Fluence rate at a point inside the volume, by connections along curved rays.
     Fluence { name: String, position: [f64; 3] },
@@ -217,6 +231,21 @@ pub enum SensorConfig {
         fov_deg: f64,
         pixels: [u64; 2],
     },
+}
+
+/// `sensor.filter` of a screen.
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum FilterConfig {
+    #[default]
+    Box,
+    Tent,
+}
+
+impl FilterConfig {
+    fn is_box(&self) -> bool {
+        *self == FilterConfig::Box
+    }
 }
 
 fn default_up() -> [f64; 3] {
@@ -701,6 +730,7 @@ impl RenderConfig {
         for (i, s) in self.sensor.iter().enumerate() {
             let name = match s {
                 SensorConfig::Flux { name, .. }
+                | SensorConfig::Spot { name, .. }
                 | SensorConfig::Screen { name, .. }
                 | SensorConfig::Fluence { name, .. }
                 | SensorConfig::Target { name, .. }
@@ -979,20 +1009,22 @@ impl RenderConfig {
         let Some(d) = &self.design else {
             return Ok(None);
         };
+        // what a design can follow: a target's tracks or a spot's aperture, both continuous
+        let designable = |s: &Sensor| s.region.is_some() || s.window.is_some();
         let target = |key: &str, name: &str| {
             scene
                 .sensors
                 .iter()
-                .position(|s| s.name == name && s.region.is_some())
+                .position(|s| s.name == name && designable(s))
                 .ok_or_else(|| {
                     let targets: Vec<&str> = scene
                         .sensors
                         .iter()
-                        .filter(|s| s.region.is_some())
+                        .filter(|s| designable(s))
                         .map(|s| s.name.as_str())
                         .collect();
                     ConfigError(format!(
-                        "{key} = {name:?}: not a target of this scene; its targets (kind = \"target\"): {targets:?}"
+                        "{key} = {name:?}: not a target or spot of this scene; its targets (kind = \"target\") and spots (kind = \"spot\"): {targets:?}"
                     ))
                 })
         };
@@ -1000,7 +1032,7 @@ impl RenderConfig {
         let relative_to = match &d.relative_to {
             Some(r) if *r == d.maximize => {
                 return err(format!(
-                    "design.relative_to = {r:?}: the target maximised; name another target, or leave it out"
+                    "design.relative_to = {r:?}: the sensor maximised; name another target or spot, or leave it out"
                 ));
             }
             Some(r) => Some(target("design.relative_to", r)?),
@@ -1149,7 +1181,7 @@ impl RenderConfig {
 
     /// What derivatives with respect to the index field need of the scene: photons that leave
     /// a convex volume for good (no surfaces), and sensors whose response does not jump as the
-    /// light moves (targets), with nothing estimated by connections.
+    /// light moves (targets and spots), with nothing estimated by connections.
     fn check_field_derivative(
         &self,
         key: &str,
@@ -1175,12 +1207,23 @@ impl RenderConfig {
                 _ => continue,
             };
             return err(format!(
-                "{key}: sensor[{i}].kind = \"{kind}\" is estimated by connections, whose index-field derivatives are not estimated; use a target (kind = \"target\") or a flux sensor"
+                "{key}: sensor[{i}].kind = \"{kind}\" is estimated by connections, whose index-field derivatives are not estimated; use a target (kind = \"target\") or a spot (kind = \"spot\")"
             ));
         }
-        if let Some(s) = sensors.iter().find(|s| s.region.is_none()) {
+        let plane = |s: &&Sensor| s.region.is_none();
+        if let Some(s) = sensors.iter().find(|s| !s.follows_light_continuously()) {
+            let why = if s.kind == SensorKind::Screen {
+                "gives each crossing to the pixel it falls in, and which pixel jumps as the light moves with the field (that share of the derivative is not estimated); give it filter = \"tent\" (pixels share crossings bilinearly, continuously)"
+            } else {
+                "has edges (its rectangle or acceptance cone, or the plane's own edge at grazing light), and which side of an edge light crosses jumps as the light moves with the field (that share of the derivative is not estimated); index-field derivatives are of targets (kind = \"target\"), spots (kind = \"spot\": a Gaussian aperture) and screens with filter = \"tent\""
+            };
+            return err(format!("{key}: sensor {:?} {why}", s.name));
+        }
+        if self.transient.is_some()
+            && let Some(s) = sensors.iter().find(plane)
+        {
             return err(format!(
-                "{key}: sensor {:?} is a plane, and which plane light crosses, and where, jumps as the light moves with the field (that share of the derivative is not estimated); index-field derivatives are of targets (kind = \"target\"): give the light to be delivered as a target region",
+                "{key}: [transient] with sensor {:?}: light arriving after the last time bin is not counted, an edge that moves with the field; index-field derivatives of a plane's light are of its time-integrated power: leave [transient] out",
                 s.name
             ));
         }
@@ -1201,6 +1244,7 @@ impl RenderConfig {
                 // the light subpaths record them, as particle tracing does
                 _ if scene.tracing == Tracing::Bidirectional => continue,
                 SensorConfig::Flux { .. } => "flux",
+                SensorConfig::Spot { .. } => "spot",
                 SensorConfig::Screen { .. } => "screen",
                 SensorConfig::Fluence { .. } => "fluence",
             };
@@ -1278,7 +1322,6 @@ impl RenderConfig {
     }
 }
 
-/// Sensor `i`, checked to lie outside the volume (it records light that has left it).
 /// A target's region: a sphere (`radius`) or a box (`size`), inside the volume.
 fn target_region(
     i: usize,
@@ -1318,9 +1361,12 @@ fn target_region(
     Ok(region)
 }
 
+/// Sensor `i`, checked to lie outside the volume (it records light that has left it).
 fn sensor(i: usize, s: &SensorConfig, volume: &Volume) -> Result<Sensor, ConfigError> {
     let key = |k: &str| format!("sensor[{i}].{k}");
     let mut acceptance = None;
+    let mut window = None;
+    let mut filter = Filter::Box;
     let (name, kind, center, normal, size, pixels) = match s {
         SensorConfig::Fluence { .. }
         | SensorConfig::Target { .. }
@@ -1345,20 +1391,35 @@ fn sensor(i: usize, s: &SensorConfig, volume: &Volume) -> Result<Sensor, ConfigE
             }
             (name, SensorKind::Flux, center, normal, *size, [1, 1])
         }
+        SensorConfig::Spot {
+            name,
+            center,
+            normal,
+            radius,
+        } => {
+            window = Some(positive(&key("radius"), *radius)?);
+            (name, SensorKind::Spot, center, normal, None, [1, 1])
+        }
         SensorConfig::Screen {
             name,
             center,
             normal,
             size,
             pixels,
-        } => (
-            name,
-            SensorKind::Screen,
-            center,
-            normal,
-            Some(*size),
-            *pixels,
-        ),
+            filter: f,
+        } => {
+            if *f == FilterConfig::Tent {
+                filter = Filter::Tent;
+            }
+            (
+                name,
+                SensorKind::Screen,
+                center,
+                normal,
+                Some(*size),
+                *pixels,
+            )
+        }
     };
     let center = finite(&key("center"), *center)?;
     let normal = unit(&key("normal"), *normal)?;
@@ -1391,6 +1452,8 @@ fn sensor(i: usize, s: &SensorConfig, volume: &Volume) -> Result<Sensor, ConfigE
         [pixels[0] as usize, pixels[1] as usize],
     );
     sensor.acceptance = acceptance;
+    sensor.window = window;
+    sensor.filter = filter;
     Ok(sensor)
 }
 

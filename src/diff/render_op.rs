@@ -119,10 +119,17 @@ impl RenderOp {
                 Derivative::Medium(_) => None,
             })
             .collect();
-        if !field.is_empty() && scene.sensors.iter().any(|s| s.region.is_none()) {
-            return Err(
-                "a render's derivatives with respect to the index field are of targets: every sensor must be one".into(),
-            );
+        if !field.is_empty()
+            && let Some(s) = scene
+                .sensors
+                .iter()
+                .find(|s| !s.follows_light_continuously())
+        {
+            return Err(format!(
+                "sensor {:?}: a render's derivatives with respect to the index field are of targets, spots and tent-filtered screens, whose response follows the light continuously",
+                s.name
+            )
+            .into());
         }
         let mut op = Self::new(scene, params, sizes)?;
         if op.params.len() + field.len() > crate::rrte::MAX_DERIVATIVES {

@@ -1,6 +1,6 @@
 //! Designing a refractive render's index field (an ultrasound array's drive, frequency and phases,
-//! a profile's coefficients) so that it delivers the most light to a target, or the most relative
-//! to another target (contrast), each parameter kept within its physical range, with gradients
+//! a profile's coefficients) so that it delivers the most light to a target or into a spot, or the
+//! most relative to another one (contrast), each parameter kept within its physical range, with gradients
 //! from the render operation ([`crate::diff::RenderOp`]: forward sensitivities of the photons).
 //! The objective is `ln F_target − ln F_reference` (`F_reference` = 1 without a reference), whose
 //! gradient is `∂F/F`. Two methods:
@@ -48,7 +48,8 @@ pub struct RenderDesign {
     pub names: Vec<String>,
     pub ranges: Vec<(f64, f64)>,
     pub start: Vec<f64>,
-    /// The sensor (a target) whose output is maximised, and the one it is taken relative to.
+    /// The sensor (a target or spot) whose output is maximised, and the one it is taken relative
+    /// to.
     pub maximize: usize,
     pub relative_to: Option<usize>,
     pub method: DesignMethod,

@@ -646,8 +646,8 @@ pub struct RenderDesignLogLine {
     pub parameters: Vec<f64>,
 }
 
-/// The independent check of a design: the target's fluence (and the reference's, and their
-/// ratio, with one) at the start and at the design, from `photons` photons each at `seed`.
+/// The independent check of a design: the target's fluence or the spot's power (and the
+/// reference's, and their ratio, with one) at the start and at the design, from `photons` photons each at `seed`.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct DesignVerification {
     pub photons: u64,
@@ -812,10 +812,17 @@ pub struct Measured {
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct SensorRecord {
     pub name: String,
-    /// `flux` or `screen`.
+    /// `flux`, `spot` or `screen`.
     pub kind: String,
-    /// Fraction of the emitted power the sensor received (all pixels and time bins).
+    /// Fraction of the emitted power the sensor received (all pixels and time bins); a spot's
+    /// weighted by its aperture.
     pub power: Measured,
+    /// Spots: the `1/e²` radius of the Gaussian aperture.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub radius: Option<f64>,
+    /// Screens whose pixels share each crossing bilinearly: `"tent"` (absent: `"box"`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub filter: Option<String>,
     /// Time bins (1 without `[transient]`).
     pub bins: usize,
     /// Flux sensors: the fraction of the emitted power per time bin, and its standard error.

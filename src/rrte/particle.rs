@@ -19,7 +19,7 @@ use super::bidirectional::Subpaths;
 use super::connect::{Aim, Connector, Exit, Sampled};
 use super::flight::{Flight, Flyer, fresnel, reflect};
 use super::scene::{
-    Connections, MAX_DERIVATIVES, MAX_TARGETS, Modulation, Region, RenderScene, SensorKind,
+    Connections, Filter, MAX_DERIVATIVES, MAX_TARGETS, Modulation, Region, RenderScene, SensorKind,
     Tracing, Volume,
 };
 use super::spectrum::Delay;
@@ -319,7 +319,7 @@ impl<'s> ParticleTracer<'s> {
         for s in &scene.sensors {
             // a flux sensor's power per time bin has no colour
             let channels = match s.kind {
-                SensorKind::Flux | SensorKind::Target => 1,
+                SensorKind::Flux | SensorKind::Spot | SensorKind::Target => 1,
                 SensorKind::Screen => scene.channels(),
             };
             images.push(image(s.pixel_count(), channels, &mut at));
@@ -344,7 +344,7 @@ impl<'s> ParticleTracer<'s> {
         for _ in &scene.derivatives {
             for s in &scene.sensors {
                 let pixels = match s.kind {
-                    SensorKind::Flux | SensorKind::Target => 0,
+                    SensorKind::Flux | SensorKind::Spot | SensorKind::Target => 0,
                     SensorKind::Screen => s.pixel_count(),
                 };
                 derivative_images.push(ImageLayout {
@@ -774,7 +774,7 @@ impl<'s> ParticleTracer<'s> {
     ) {
         let n_out = t.flyer.volume.field.n_out;
         for (i, (s, image)) in self.scene.sensors.iter().zip(&self.images).enumerate() {
-            let Some((pixel, distance)) = s.hit(x, d) else {
+            let Some(distance) = s.crossing(x, d) else {
                 continue;
             };
             if distance >= length {
@@ -783,14 +783,25 @@ impl<'s> ParticleTracer<'s> {
             let Some(bin) = self.bin(opl + t.delay.outside(n_out * distance)) else {
                 continue;
             };
-            image.add(out, bin, pixel, weight, &t.colour);
-            out[image.total()].re += weight;
-            for (j, dlog) in score.iter().enumerate() {
-                let d = self.derivative_image(i, j);
-                out[d.total()].re += weight * dlog;
-                if d.pixels > 0 {
-                    out[d.first + pixel].re += weight * dlog;
+            let at = x + d * distance;
+            let mut add = |pixel: usize, weight: f64| {
+                image.add(out, bin, pixel, weight, &t.colour);
+                out[image.total()].re += weight;
+                for (j, dlog) in score.iter().enumerate() {
+                    let d = self.derivative_image(i, j);
+                    out[d.total()].re += weight * dlog;
+                    if d.pixels > 0 {
+                        out[d.first + pixel].re += weight * dlog;
+                    }
                 }
+            };
+            if s.filter == Filter::Tent {
+                let (splat, count) = s.splat(at);
+                for &(pixel, share, _) in &splat[..count] {
+                    add(pixel, weight * share);
+                }
+            } else if let Some((pixel, _)) = s.hit(x, d) {
+                add(pixel, weight * s.aperture(at));
             }
         }
     }

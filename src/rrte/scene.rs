@@ -408,6 +408,11 @@ pub enum SensorKind {
     /// The mean fluence rate over a region inside the volume ([`Sensor::region`]): the light
     /// delivered there, by the photons' track lengths through it.
     Target,
+    /// The power crossing a plane weighted by a Gaussian aperture about its centre
+    /// ([`Sensor::aperture`]): the light a detector of Gaussian response collects, the focal
+    /// spot of a relay lens. The weight falls smoothly to 0, so the output follows the light
+    /// continuously as the field moves it.
+    Spot,
 }
 
 /// A parameter a render is differentiated by.
@@ -534,6 +539,22 @@ impl Region {
     }
 }
 
+/// How a screen's pixels share a crossing.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Filter {
+    /// All to the pixel it falls in.
+    #[default]
+    Box,
+    /// Bilinearly to the four pixels whose centres surround it (a tent one pixel wide each way):
+    /// each pixel's share falls continuously to 0, so the image follows the light continuously
+    /// as the field moves it. The footprint reaches half a pixel beyond the rectangle, and the
+    /// image is the irradiance convolved with the tent.
+    Tent,
+}
+
+/// The pixels one crossing adds to: `(pixel, share, ∂share/∂p)`, `p` the crossing on the plane.
+pub type Splat = ([(usize, f64, DVec3); 4], usize);
+
 /// A plane outside the volume that records the light crossing it after the light has left the
 /// volume (straight rays, index `n_out`): whole (a flux sensor without a size) or as pixels.
 #[derive(Clone, Debug, PartialEq)]
@@ -555,6 +576,11 @@ pub struct Sensor {
     pub acceptance: Option<f64>,
     /// A target's region (`None` for the planes).
     pub region: Option<Region>,
+    /// A spot's Gaussian aperture: the `1/e²` radius `w` of its weight `exp(−2ρ²/w²)`, `ρ` the
+    /// crossing's distance from `center` (`None` for the other kinds).
+    pub window: Option<f64>,
+    /// How a screen's pixels share a crossing.
+    pub filter: Filter,
 }
 
 impl Sensor {
@@ -584,6 +610,38 @@ impl Sensor {
             pixels,
             acceptance: None,
             region: None,
+            window: None,
+            filter: Filter::Box,
+        }
+    }
+
+    /// Whether what the sensor records changes continuously as the light it receives moves
+    /// (targets, spots, tent-filtered screens; not a flux plane's or a box-filtered pixel's
+    /// edges), as index-field derivatives need.
+    pub fn follows_light_continuously(&self) -> bool {
+        match self.kind {
+            SensorKind::Target | SensorKind::Spot => true,
+            SensorKind::Screen => self.filter == Filter::Tent,
+            SensorKind::Flux => false,
+        }
+    }
+
+    /// The weight of a crossing at `at` on the plane: a spot's Gaussian aperture
+    /// `exp(−2ρ²/w²)`, 1 for the other sensors.
+    #[inline]
+    pub fn aperture(&self, at: DVec3) -> f64 {
+        match self.window {
+            Some(w) => (-2.0 * (at - self.center).length_squared() / (w * w)).exp(),
+            None => 1.0,
+        }
+    }
+
+    /// The gradient of [`Self::aperture`] at `at` (in the plane: `at − center` lies in it).
+    #[inline]
+    pub fn aperture_gradient(&self, at: DVec3) -> DVec3 {
+        match self.window {
+            Some(w) => (at - self.center) * (-4.0 / (w * w)) * self.aperture(at),
+            None => DVec3::ZERO,
         }
     }
 
@@ -606,10 +664,10 @@ impl Sensor {
         self.pixels[0] * self.pixels[1]
     }
 
-    /// Where the straight ray `x + t d` (after it left the volume) crosses the sensor: the pixel
-    /// index (row-major from the lower left, `right` fastest) and the distance `t`.
+    /// Where the straight ray `x + t d` (after it left the volume) crosses the sensor's plane
+    /// within its acceptance cone: the distance `t`.
     #[inline]
-    pub fn hit(&self, x: DVec3, d: DVec3) -> Option<(usize, f64)> {
+    pub fn crossing(&self, x: DVec3, d: DVec3) -> Option<f64> {
         if self.kind == SensorKind::Target {
             return None;
         }
@@ -622,17 +680,64 @@ impl Sensor {
         if t < -1e-9 * (1.0 + self.center.length()) {
             return None;
         }
-        let t = t.max(0.0);
-        let rel = x + d * t - self.center;
-        let Some(size) = self.size else {
+        Some(t.max(0.0))
+    }
+
+    /// Where the crossing at `p` on the plane lies across the rectangle, as fractions of its
+    /// sides from its lower left corner (`None` for a whole plane).
+    #[inline]
+    fn fractions(&self, p: DVec3) -> Option<(f64, f64)> {
+        let size = self.size?;
+        let rel = p - self.center;
+        Some((
+            rel.dot(self.right) / size[0] + 0.5,
+            rel.dot(self.up) / size[1] + 0.5,
+        ))
+    }
+
+    /// Where the straight ray `x + t d` (after it left the volume) crosses the sensor: the pixel
+    /// index (row-major from the lower left, `right` fastest) and the distance `t`.
+    #[inline]
+    pub fn hit(&self, x: DVec3, d: DVec3) -> Option<(usize, f64)> {
+        let t = self.crossing(x, d)?;
+        let Some((a, b)) = self.fractions(x + d * t) else {
             return Some((0, t));
         };
-        let a = rel.dot(self.right) / size[0] + 0.5;
-        let b = rel.dot(self.up) / size[1] + 0.5;
         if !(0.0..1.0).contains(&a) || !(0.0..1.0).contains(&b) {
             return None;
         }
         Some((grid_pixel(a, b, self.pixels), t))
+    }
+
+    /// The pixels of a tent-filtered screen a crossing at `p` adds to, with their shares and
+    /// the shares' gradients along the plane (none outside the footprint).
+    #[inline]
+    pub fn splat(&self, p: DVec3) -> Splat {
+        let mut splat = ([(0, 0.0, DVec3::ZERO); 4], 0);
+        let (Some((a, b)), Some(size)) = (self.fractions(p), self.size) else {
+            return splat;
+        };
+        // per axis: the two pixels whose centres surround the crossing, their weights and the
+        // weights' slopes along the plane
+        let axis = |f: f64, pixels: usize, side: f64, along: DVec3| {
+            let u = f * pixels as f64 - 0.5;
+            let lower = u.floor();
+            let frac = u - lower;
+            let slope = along * (pixels as f64 / side);
+            [(lower, 1.0 - frac, -slope), (lower + 1.0, frac, slope)]
+                .map(|(k, w, g)| (k >= 0.0 && k < pixels as f64).then_some((k as usize, w, g)))
+        };
+        let xs = axis(a, self.pixels[0], size[0], self.right);
+        let ys = axis(b, self.pixels[1], size[1], self.up);
+        for &(j, wy, gy) in ys.iter().flatten() {
+            for &(i, wx, gx) in xs.iter().flatten() {
+                if wx * wy > 0.0 {
+                    splat.0[splat.1] = (j * self.pixels[0] + i, wx * wy, gx * wy + gy * wx);
+                    splat.1 += 1;
+                }
+            }
+        }
+        splat
     }
 
     /// The area of one pixel (`None` for an unbounded plane).

@@ -17,11 +17,14 @@
 //! step that meets the surface (its length moves so the end stays on it), refraction and
 //! reflection, and scattering directions drawn in the frame of the incoming direction. Each
 //! output then receives `∂f/∂θ + f · score`: the pathwise derivative of what the photon tallies
-//! (a target's track length) plus its value times the score of the choices made before it
-//! (a flux sensor's share is all score). Both parts are unbiased, so the sum is `∂E[f]/∂θ`.
+//! (a target's track length, a spot's aperture weight `e^{−2ρ²/w²}` or a tent-filtered pixel's
+//! share where the photon crosses the plane, which moves with the exit point and the direction
+//! leaving) plus its value times
+//! the score of the choices made before it. Both parts are unbiased, so the sum is `∂E[f]/∂θ`.
 //!
-//! Sensors must not have edges that move with the light (a rectangle, pixels, an acceptance
-//! cone: their crossings' share is not estimated), and photons leave the convex volume for good
+//! Sensors must not have edges that move with the light (a flux plane's rectangle or its
+//! grazing edge, box-filtered pixels, an acceptance cone: their crossings' share is not
+//! estimated), and photons leave the convex volume for good
 //! (the config refuses the rest). The derivatives of closed forms at the surface (Fresnel,
 //! refraction, the surface normal's turn) and of a scattering direction's frame are central
 //! differences of those closed forms, accurate to about 1e-10.
@@ -32,7 +35,7 @@
 use super::particle::{
     ParticleTracer, Tools, Total, albedo_score, flight_score, roulette, roulette_by,
 };
-use super::scene::{Derivative, MAX_DERIVATIVES, MAX_TARGETS};
+use super::scene::{Derivative, Filter, MAX_DERIVATIVES, MAX_TARGETS};
 use crate::eikonal::trace::{entry_parameter, jacobian_of, refract};
 use crate::eikonal::{BoundedField, IndexField, Profile, Ray, Tracer};
 use crate::math::{C64, Rng, direction_about_continuously, uniform};
@@ -403,6 +406,26 @@ where
     (f(h) - f(-h)) * (0.5 / h)
 }
 
+/// Where a photon leaves the volume and along which unit direction, with their sensitivities
+/// (none for light that never entered: its path does not depend on the field).
+struct Leaving {
+    x: DVec3,
+    d: DVec3,
+    dx: Vectors,
+    dd: Vectors,
+}
+
+impl Leaving {
+    fn fixed(x: DVec3, d: DVec3) -> Self {
+        Leaving {
+            x,
+            d,
+            dx: [DVec3::ZERO; P],
+            dd: [DVec3::ZERO; P],
+        }
+    }
+}
+
 /// A photon's weight, score and sensitivities.
 struct Photon {
     weight: f64,
@@ -441,9 +464,9 @@ impl ParticleTracer<'_> {
             self.enter(t, &sens, x, d, &mut p, rng, out)
         };
         if let Some((ray, tan)) = start
-            && let Some((x, d)) = self.inside_differentiated(t, &sens, ray, tan, &mut p, rng, out)
+            && let Some(leaving) = self.inside_differentiated(t, &sens, ray, tan, &mut p, rng, out)
         {
-            self.leave_for_good(t, x, d, &p, out);
+            self.leave_for_good(t, &sens, &leaving, &p, out);
         }
         out[self.total(Total::Events)].re += p.events as f64;
         out[self.total(Total::Steps)].re += p.steps as f64;
@@ -467,7 +490,7 @@ impl ParticleTracer<'_> {
         let entry = match field.bounds.interval(x, d) {
             Some((t0, t1)) if t1 > 0.0 && t0 >= 0.0 => t0,
             _ => {
-                self.leave_for_good(t, x, d, p, out);
+                self.leave_for_good(t, sens, &Leaving::fixed(x, d), p, out);
                 return None;
             }
         };
@@ -488,7 +511,7 @@ impl ParticleTracer<'_> {
             d_r[k] = slope(d_eta[k].abs(), |s| fresnel(cos, eta + d_eta[k] * s));
         }
         if r > 0.0 && self.choose(sens, p, r, &d_r, uniform(rng)) {
-            self.leave_for_good(t, at, reflect(d, normal), p, out);
+            self.leave_for_good(t, sens, &Leaving::fixed(at, reflect(d, normal)), p, out);
             return None;
         }
         match refract(d, normal, eta) {
@@ -509,7 +532,7 @@ impl ParticleTracer<'_> {
                 ))
             }
             Err(mirrored) => {
-                self.leave_for_good(t, at, mirrored, p, out);
+                self.leave_for_good(t, sens, &Leaving::fixed(at, mirrored), p, out);
                 None
             }
         }
@@ -561,12 +584,72 @@ impl ParticleTracer<'_> {
         first
     }
 
-    /// A photon leaving the (convex) volume from `x` along `d`: the sensors it crosses, then
-    /// away for good.
-    fn leave_for_good(&self, t: &Tools, x: DVec3, d: DVec3, p: &Photon, out: &mut [C64]) {
+    /// A photon leaving the (convex) volume: the sensors it crosses, then away for good.
+    fn leave_for_good(
+        &self,
+        t: &Tools,
+        sens: &Sensitivity,
+        e: &Leaving,
+        p: &Photon,
+        out: &mut [C64],
+    ) {
         let dlog = &p.score[..self.scene.derivatives.len()];
-        self.cross_sensors(t, x, d, f64::INFINITY, p.weight, p.opl, dlog, out);
+        self.cross_sensors(t, e.x, e.d, f64::INFINITY, p.weight, p.opl, dlog, out);
+        self.crossing_slopes(t, sens, e, p, out);
         out[self.total(Total::Escaped)].re += p.weight;
+    }
+
+    /// The pathwise part of the derivatives of spots and tent-filtered screens: the crossing
+    /// moves on the plane as the photon's exit and direction move,
+    /// `δp = m − d (N·m)/(N·d)` with `m = δx + δd t`, and the aperture's weight or the pixels'
+    /// shares with it.
+    fn crossing_slopes(
+        &self,
+        t: &Tools,
+        sens: &Sensitivity,
+        e: &Leaving,
+        p: &Photon,
+        out: &mut [C64],
+    ) {
+        let n_out = t.flyer.volume.field.n_out;
+        for (i, s) in self.scene.sensors.iter().enumerate() {
+            let tent = s.filter == Filter::Tent;
+            if s.window.is_none() && !tent {
+                continue;
+            }
+            let Some(distance) = s.crossing(e.x, e.d) else {
+                continue;
+            };
+            if self
+                .bin(p.opl + t.delay.outside(n_out * distance))
+                .is_none()
+            {
+                continue;
+            }
+            let at = e.x + e.d * distance;
+            let cos = e.d.dot(s.normal);
+            let mut moved = [DVec3::ZERO; P];
+            for k in 0..sens.count {
+                let m = e.dx[k] + e.dd[k] * distance;
+                moved[k] = m - e.d * (s.normal.dot(m) / cos);
+            }
+            let (splat, count) = if tent {
+                s.splat(at)
+            } else {
+                ([(0, 0.0, s.aperture_gradient(at)); 4], 1)
+            };
+            for &(pixel, _, grad) in &splat[..count] {
+                let grad = grad * p.weight;
+                for k in 0..sens.count {
+                    let slope = grad.dot(moved[k]);
+                    let image = self.derivative_image(i, sens.params[k].0);
+                    out[image.total()].re += slope;
+                    if image.pixels > 0 {
+                        out[image.first + pixel].re += slope;
+                    }
+                }
+            }
+        }
     }
 
     /// Free flights and scattering inside the volume from `ray` (sensitivities `tan`) until the
@@ -581,7 +664,7 @@ impl ParticleTracer<'_> {
         p: &mut Photon,
         rng: &mut Rng,
         out: &mut [C64],
-    ) -> Option<(DVec3, DVec3)> {
+    ) -> Option<Leaving> {
         let volume = t.flyer.volume;
         let (sigma_t, albedo) = (volume.sigma_t(), volume.albedo());
         let straight = volume.homogeneous();
@@ -710,8 +793,9 @@ impl ParticleTracer<'_> {
         )
     }
 
-    /// At the surface from inside: leave refracted (where and along which direction), or
-    /// reflect back inside (`None`: `ray` and `tan` turned in place), Fresnel's choice scored.
+    /// At the surface from inside: leave refracted (where and along which direction, with their
+    /// sensitivities), or reflect back inside (`None`: `ray` and `tan` turned in place),
+    /// Fresnel's choice scored.
     fn leave(
         &self,
         t: &Tools,
@@ -720,7 +804,7 @@ impl ParticleTracer<'_> {
         tan: &mut Tangent,
         p: &mut Photon,
         rng: &mut Rng,
-    ) -> Option<(DVec3, DVec3)> {
+    ) -> Option<Leaving> {
         let end = *ray;
         let field = &t.flyer.volume.field;
         let n_out = field.n_out;
@@ -752,9 +836,26 @@ impl ParticleTracer<'_> {
             Err(_) => !self.even_draws || self.choose(sens, p, 1.0, &d_r, uniform(rng)),
         };
         match refracted {
-            Ok(leaving) if !reflects => Some((end.x, leaving)),
+            Ok(leaving) if !reflects => {
+                let mut dd_out = [DVec3::ZERO; P];
+                for k in 0..sens.count {
+                    let d_eta = dn[k] / n_out;
+                    let size = dd[k].length().max(turn[k].length()).max(d_eta.abs());
+                    dd_out[k] = slope(size, |s| {
+                        let normal = (normal + turn[k] * s).normalize();
+                        refract((d + dd[k] * s).normalize(), -normal, eta + d_eta * s)
+                            .unwrap_or(leaving)
+                    });
+                }
+                Some(Leaving {
+                    x: end.x,
+                    d: leaving,
+                    dx: tan.x,
+                    dd: dd_out,
+                })
+            }
             // the impossible outcome drawn: the photon ends with weight 0
-            Err(_) if !reflects => Some((end.x, d)),
+            Err(_) if !reflects => Some(Leaving::fixed(end.x, d)),
             _ => {
                 let w = reflect(d, normal);
                 for k in 0..sens.count {
