@@ -156,6 +156,11 @@ fn bad_render_scenes_are_refused_by_key() {
         ),
         ("radius = 0.0", "radius = -1.0", "light.radius"),
         (
+            "radius = 0.0",
+            "radius = 0.1\nfocus = [0.0, 0.0, -2.0]",
+            "light.focus = [0.0, 0.0, -2.0]: must lie ahead",
+        ),
+        (
             "direction = [0.0, 0.0, 1.0]",
             "direction = [0.0, 0.0, 0.0]",
             "light.direction",
@@ -176,6 +181,16 @@ fn bad_render_scenes_are_refused_by_key() {
         }
         refused(&dir.join(format!("bad{i}.toml")), &text, key);
     }
+    // a focused beam is rendered by particle tracing alone
+    let pinhole = "[[sensor]]\nkind = \"pinhole\"\nname = \"eye\"\nposition = [0.0, 0.0, 3.0]\nlook_at = [0.0, 0.0, 0.0]\nfov_deg = 30.0\npixels = [4, 4]\n[render]\nestimator = \"bidirectional\"";
+    let text = base
+        .replacen("radius = 0.0", "radius = 0.1\nfocus = [0.0, 0.0, 0.0]", 1)
+        .replacen("[render]", pinhole, 1);
+    refused(
+        &dir.join("focused.toml"),
+        &text,
+        "light.focus: a focused beam",
+    );
     let _ = std::fs::remove_dir_all(dir);
 }
 

@@ -764,3 +764,56 @@ fn a_strobed_field_is_the_field_at_its_phase() {
     assert_eq!(n_max(&cw), 0.01);
     assert_eq!(cw.modulation, Some(lightpath::rrte::Modulation::Sinusoidal));
 }
+
+/// A beam focused by a lens outside on a point inside a clear, index-matched ball: every ray
+/// crosses the focus, so a small target about it reads its diameter `2a` over its volume for
+/// every photon; beyond the focus the rays spread uniformly over a disc of radius `R L/F` (`F`
+/// from the beam's disc to the focus, `L` from the focus to the plane, along the axis), about
+/// the line through the disc's centre and the focus, which a spot there reads as
+/// `(w²/2R'²)(1 − e^{−2R'²/w²})`.
+#[test]
+fn a_focused_beam_crosses_its_focus_and_spreads_uniformly_beyond_it() {
+    use lightpath::rrte::Region;
+    let (centre, focus) = (DVec3::new(0.0, 0.0, -2.0), DVec3::new(0.1, 0.0, 0.4));
+    let (radius, w, a, plane) = (0.5, 0.4, 0.05, 2.0);
+    let ratio = (plane - focus.z) / (focus.z - centre.z);
+    let beyond = focus + (focus - centre) * ratio;
+    let mut spot = Sensor::new(
+        "beyond".into(),
+        SensorKind::Spot,
+        beyond,
+        DVec3::Z,
+        None,
+        [1, 1],
+    );
+    spot.window = Some(w);
+    let target = Sensor::target(
+        "focus".into(),
+        Region::Sphere {
+            center: focus,
+            radius: a,
+        },
+    );
+    let scene = RenderScene {
+        light: Light::FocusedBeam {
+            center: centre,
+            direction: DVec3::Z,
+            radius,
+            focus,
+        },
+        sensors: vec![target, spot],
+        ..bare_scene(0.01)
+    };
+    let (e, est) = render(&scene, 20_000, 3);
+    let (fluence, _) = value(&e, est.power(0));
+    let exact = 2.0 * a / (4.0 / 3.0 * std::f64::consts::PI * a.powi(3));
+    assert!(
+        (fluence / exact - 1.0).abs() < 1e-6,
+        "{fluence} against {exact}"
+    );
+    let spread = radius * ratio;
+    let exact = w * w / (2.0 * spread * spread) * (1.0 - (-2.0 * spread * spread / (w * w)).exp());
+    let (v, se) = value(&e, est.power(1));
+    assert!(se < 0.01 * exact, "{se} for {exact}");
+    assert!((v - exact).abs() < 4.0 * se, "{v} ± {se} against {exact}");
+}

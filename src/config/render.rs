@@ -141,12 +141,15 @@ fn default_verify_photons() -> u64 {
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum LightConfig {
-    /// A collimated laser beam, uniform over a disc (`radius = 0`: one ray).
+    /// A collimated laser beam, uniform over a disc (`radius = 0`: one ray); with `focus`,
+    /// focused there by a lens outside the volume (each ray from the disc aimed at it).
     Beam {
         center: [f64; 3],
         direction: [f64; 3],
         #[serde(default)]
         radius: f64,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        focus: Option<[f64; 3]>,
     },
     Point {
         position: [f64; 3],
@@ -1257,6 +1260,11 @@ impl RenderConfig {
                 "render.estimator = \"{name}\": no camera to trace paths from ([[sensor]] kind = \"pinhole\" or \"camera\")",
             ));
         }
+        if matches!(scene.light, Light::FocusedBeam { .. }) {
+            return err(format!(
+                "light.focus: a focused beam's directions are a delta and its rays converge, which render.estimator = \"{name}\" does not connect; use render.estimator = \"particle\""
+            ));
+        }
         if scene.tracing == Tracing::Bidirectional {
             return Ok(());
         }
@@ -1274,15 +1282,35 @@ impl RenderConfig {
                 center,
                 direction,
                 radius,
-            } => Light::Beam {
-                center: finite("light.center", center)?,
-                direction: unit("light.direction", direction)?,
-                radius: if radius.is_finite() && radius >= 0.0 {
-                    radius
-                } else {
+                focus,
+            } => {
+                let center = finite("light.center", center)?;
+                let direction = unit("light.direction", direction)?;
+                if !(radius.is_finite() && radius >= 0.0) {
                     return err(format!("light.radius = {radius}: must be >= 0"));
-                },
-            },
+                }
+                match focus {
+                    None => Light::Beam {
+                        center,
+                        direction,
+                        radius,
+                    },
+                    Some(f) => {
+                        let focus = finite("light.focus", f)?;
+                        if (focus - center).dot(direction) <= 0.0 {
+                            return err(format!(
+                                "light.focus = {f:?}: must lie ahead of the beam's disc along light.direction"
+                            ));
+                        }
+                        Light::FocusedBeam {
+                            center,
+                            direction,
+                            radius,
+                            focus,
+                        }
+                    }
+                }
+            }
             LightConfig::Point { position } => Light::Point {
                 position: finite("light.position", position)?,
             },

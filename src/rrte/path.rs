@@ -354,7 +354,7 @@ impl ParticleTracer<'_> {
     /// A point of the light to connect to (`None` for a beam).
     pub(super) fn light_point(&self, rng: &mut Rng) -> Option<DVec3> {
         match self.scene.light {
-            Light::Beam { .. } => None,
+            Light::Beam { .. } | Light::FocusedBeam { .. } => None,
             Light::Point { position } | Light::Spot { position, .. } => Some(position),
             Light::Area { .. } => {
                 let (x, _) = self

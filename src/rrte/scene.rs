@@ -127,6 +127,14 @@ pub enum Light {
         direction: DVec3,
         radius: f64,
     },
+    /// A beam focused by a lens outside the volume: uniform over a disc of `radius` about
+    /// `center` normal to unit `direction`, each ray aimed at `focus` (geometric optics).
+    FocusedBeam {
+        center: DVec3,
+        direction: DVec3,
+        radius: f64,
+        focus: DVec3,
+    },
     /// An isotropic point source.
     Point { position: DVec3 },
     /// A point source emitting uniformly into the cone of `half_angle` (radians) about unit `axis`.
@@ -159,6 +167,18 @@ impl Light {
                 let r = radius * u[0].sqrt();
                 let phi = 2.0 * PI * u[1];
                 (center + (a * phi.cos() + b * phi.sin()) * r, direction)
+            }
+            Light::FocusedBeam {
+                center,
+                direction,
+                radius,
+                focus,
+            } => {
+                let (a, b) = orthonormal_basis(direction);
+                let r = radius * u[0].sqrt();
+                let phi = 2.0 * PI * u[1];
+                let x = center + (a * phi.cos() + b * phi.sin()) * r;
+                (x, (focus - x).normalize())
             }
             Light::Point { position } => (position, uniform_sphere(u[0], u[1])),
             Light::Spot {
@@ -195,7 +215,7 @@ impl Light {
     /// whose directions are a delta).
     pub fn intensity(&self, d: DVec3) -> f64 {
         match *self {
-            Light::Beam { .. } => 0.0,
+            Light::Beam { .. } | Light::FocusedBeam { .. } => 0.0,
             Light::Point { .. } => 1.0 / (4.0 * PI),
             Light::Spot {
                 axis, half_angle, ..
