@@ -800,7 +800,7 @@ impl<'s> ParticleTracer<'s> {
                 for &(pixel, share, _) in &splat[..count] {
                     add(pixel, weight * share);
                 }
-            } else if let Some((pixel, _)) = s.hit(x, d) {
+            } else if let Some(pixel) = s.pixel_at(at) {
                 add(pixel, weight * s.aperture(at));
             }
         }

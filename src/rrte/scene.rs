@@ -153,6 +153,15 @@ pub enum Light {
     },
 }
 
+/// A point uniform over the disc of `radius` about `center` normal to `direction`, from `u[0]`
+/// and `u[1]`.
+fn disc_point(center: DVec3, direction: DVec3, radius: f64, u: [f64; 4]) -> DVec3 {
+    let (a, b) = orthonormal_basis(direction);
+    let r = radius * u[0].sqrt();
+    let phi = 2.0 * PI * u[1];
+    center + (a * phi.cos() + b * phi.sin()) * r
+}
+
 impl Light {
     /// A start position and unit direction from four uniform numbers (each with its density over
     /// the light's area and directions, so every photon carries the same power).
@@ -162,22 +171,14 @@ impl Light {
                 center,
                 direction,
                 radius,
-            } => {
-                let (a, b) = orthonormal_basis(direction);
-                let r = radius * u[0].sqrt();
-                let phi = 2.0 * PI * u[1];
-                (center + (a * phi.cos() + b * phi.sin()) * r, direction)
-            }
+            } => (disc_point(center, direction, radius, u), direction),
             Light::FocusedBeam {
                 center,
                 direction,
                 radius,
                 focus,
             } => {
-                let (a, b) = orthonormal_basis(direction);
-                let r = radius * u[0].sqrt();
-                let phi = 2.0 * PI * u[1];
-                let x = center + (a * phi.cos() + b * phi.sin()) * r;
+                let x = disc_point(center, direction, radius, u);
                 (x, (focus - x).normalize())
             }
             Light::Point { position } => (position, uniform_sphere(u[0], u[1])),
@@ -715,18 +716,14 @@ impl Sensor {
         ))
     }
 
-    /// Where the straight ray `x + t d` (after it left the volume) crosses the sensor: the pixel
-    /// index (row-major from the lower left, `right` fastest) and the distance `t`.
+    /// The pixel a crossing at `p` on the plane falls in (row-major from the lower left, `right`
+    /// fastest; 0 on a whole plane; `None` off the rectangle).
     #[inline]
-    pub fn hit(&self, x: DVec3, d: DVec3) -> Option<(usize, f64)> {
-        let t = self.crossing(x, d)?;
-        let Some((a, b)) = self.fractions(x + d * t) else {
-            return Some((0, t));
+    pub fn pixel_at(&self, p: DVec3) -> Option<usize> {
+        let Some((a, b)) = self.fractions(p) else {
+            return Some(0);
         };
-        if !(0.0..1.0).contains(&a) || !(0.0..1.0).contains(&b) {
-            return None;
-        }
-        Some((grid_pixel(a, b, self.pixels), t))
+        ((0.0..1.0).contains(&a) && (0.0..1.0).contains(&b)).then(|| grid_pixel(a, b, self.pixels))
     }
 
     /// The pixels of a tent-filtered screen a crossing at `p` adds to, with their shares and
