@@ -1012,8 +1012,9 @@ impl RenderConfig {
         let Some(d) = &self.design else {
             return Ok(None);
         };
-        // what a design can follow: a target's tracks or a spot's aperture, both continuous
-        let designable = |s: &Sensor| s.region.is_some() || s.window.is_some();
+        // one output that follows the light continuously: a target's tracks or a spot's aperture
+        let designable =
+            |s: &Sensor| s.follows_light_continuously() && s.kind != SensorKind::Screen;
         let target = |key: &str, name: &str| {
             scene
                 .sensors

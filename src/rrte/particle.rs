@@ -772,6 +772,25 @@ impl<'s> ParticleTracer<'s> {
         score: &[f64],
         out: &mut [C64],
     ) {
+        self.cross_sensors_with(t, x, d, length, weight, opl, score, out, |_, _, _, _, _| {});
+    }
+
+    /// [`Self::cross_sensors`], also reporting each share of a crossing whose weight moves with
+    /// where it crosses (a spot's aperture, a tent-filtered pixel) to `moving`, as `(out, sensor,
+    /// pixel, distance along d, ∂(recorded power)/∂(crossing point))`.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn cross_sensors_with(
+        &self,
+        t: &Tools,
+        x: DVec3,
+        d: DVec3,
+        length: f64,
+        weight: f64,
+        opl: f64,
+        score: &[f64],
+        out: &mut [C64],
+        mut moving: impl FnMut(&mut [C64], usize, usize, f64, DVec3),
+    ) {
         let n_out = t.flyer.volume.field.n_out;
         for (i, (s, image)) in self.scene.sensors.iter().zip(&self.images).enumerate() {
             let Some(distance) = s.crossing(x, d) else {
@@ -784,7 +803,7 @@ impl<'s> ParticleTracer<'s> {
                 continue;
             };
             let at = x + d * distance;
-            let mut add = |pixel: usize, weight: f64| {
+            let add = |out: &mut [C64], pixel: usize, weight: f64| {
                 image.add(out, bin, pixel, weight, &t.colour);
                 out[image.total()].re += weight;
                 for (j, dlog) in score.iter().enumerate() {
@@ -797,11 +816,15 @@ impl<'s> ParticleTracer<'s> {
             };
             if s.filter == Filter::Tent {
                 let (splat, count) = s.splat(at);
-                for &(pixel, share, _) in &splat[..count] {
-                    add(pixel, weight * share);
+                for &(pixel, share, gradient) in &splat[..count] {
+                    add(out, pixel, weight * share);
+                    moving(out, i, pixel, distance, gradient * weight);
                 }
             } else if let Some(pixel) = s.pixel_at(at) {
-                add(pixel, weight * s.aperture(at));
+                add(out, pixel, weight * s.aperture(at));
+                if s.window.is_some() {
+                    moving(out, i, pixel, distance, s.aperture_gradient(at) * weight);
+                }
             }
         }
     }

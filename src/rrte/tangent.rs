@@ -35,7 +35,7 @@
 use super::particle::{
     ParticleTracer, Tools, Total, albedo_score, flight_score, roulette, roulette_by,
 };
-use super::scene::{Derivative, Filter, MAX_DERIVATIVES, MAX_TARGETS};
+use super::scene::{Derivative, MAX_DERIVATIVES, MAX_TARGETS};
 use crate::eikonal::trace::{entry_parameter, jacobian_of, refract};
 use crate::eikonal::{BoundedField, IndexField, Profile, Ray, Tracer};
 use crate::math::{C64, Rng, direction_about_continuously, uniform};
@@ -584,7 +584,10 @@ impl ParticleTracer<'_> {
         first
     }
 
-    /// A photon leaving the (convex) volume: the sensors it crosses, then away for good.
+    /// A photon leaving the (convex) volume: the sensors it crosses, then away for good. Where
+    /// a recorded weight moves with the crossing (a spot's aperture, a tent-filtered pixel's
+    /// share), its pathwise derivative too: the crossing moves on the plane as the photon's exit
+    /// and direction move, `δp = m − d (N·m)/(N·d)` with `m = δx + δd t`.
     fn leave_for_good(
         &self,
         t: &Tools,
@@ -594,62 +597,23 @@ impl ParticleTracer<'_> {
         out: &mut [C64],
     ) {
         let dlog = &p.score[..self.scene.derivatives.len()];
-        self.cross_sensors(t, e.x, e.d, f64::INFINITY, p.weight, p.opl, dlog, out);
-        self.crossing_slopes(t, sens, e, p, out);
-        out[self.total(Total::Escaped)].re += p.weight;
-    }
-
-    /// The pathwise part of the derivatives of spots and tent-filtered screens: the crossing
-    /// moves on the plane as the photon's exit and direction move,
-    /// `δp = m − d (N·m)/(N·d)` with `m = δx + δd t`, and the aperture's weight or the pixels'
-    /// shares with it.
-    fn crossing_slopes(
-        &self,
-        t: &Tools,
-        sens: &Sensitivity,
-        e: &Leaving,
-        p: &Photon,
-        out: &mut [C64],
-    ) {
-        let n_out = t.flyer.volume.field.n_out;
-        for (i, s) in self.scene.sensors.iter().enumerate() {
-            let tent = s.filter == Filter::Tent;
-            if s.window.is_none() && !tent {
-                continue;
-            }
-            let Some(distance) = s.crossing(e.x, e.d) else {
-                continue;
-            };
-            if self
-                .bin(p.opl + t.delay.outside(n_out * distance))
-                .is_none()
-            {
-                continue;
-            }
-            let at = e.x + e.d * distance;
-            let cos = e.d.dot(s.normal);
-            let mut moved = [DVec3::ZERO; P];
+        let sensors = &self.scene.sensors;
+        let moving = |out: &mut [C64], i: usize, pixel: usize, distance: f64, grad: DVec3| {
+            let normal = sensors[i].normal;
+            let cos = e.d.dot(normal);
             for k in 0..sens.count {
                 let m = e.dx[k] + e.dd[k] * distance;
-                moved[k] = m - e.d * (s.normal.dot(m) / cos);
-            }
-            let (splat, count) = if tent {
-                s.splat(at)
-            } else {
-                ([(0, 0.0, s.aperture_gradient(at)); 4], 1)
-            };
-            for &(pixel, _, grad) in &splat[..count] {
-                let grad = grad * p.weight;
-                for k in 0..sens.count {
-                    let slope = grad.dot(moved[k]);
-                    let image = self.derivative_image(i, sens.params[k].0);
-                    out[image.total()].re += slope;
-                    if image.pixels > 0 {
-                        out[image.first + pixel].re += slope;
-                    }
+                let slope = grad.dot(m - e.d * (normal.dot(m) / cos));
+                let image = self.derivative_image(i, sens.params[k].0);
+                out[image.total()].re += slope;
+                if image.pixels > 0 {
+                    out[image.first + pixel].re += slope;
                 }
             }
-        }
+        };
+        let (x, d) = (e.x, e.d);
+        self.cross_sensors_with(t, x, d, f64::INFINITY, p.weight, p.opl, dlog, out, moving);
+        out[self.total(Total::Escaped)].re += p.weight;
     }
 
     /// Free flights and scattering inside the volume from `ray` (sensitivities `tan`) until the
