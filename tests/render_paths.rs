@@ -4,7 +4,8 @@
 //! straight rays and a point light outside, a scattering Luneburg lens with curved rays and a point
 //! light inside, and a white floor beside a scattering sphere; then bidirectional tracing too,
 //! with Fresnel faces and surfaces, and light crossing a volume between two points outside it (a
-//! floor seen and lit through a lens, a wall lit through a glass ball).
+//! floor seen and lit through a lens, a wall lit through a glass ball), and light reflected off
+//! its outside (a floor seen in a dark glass ball's mirror image, the lamp's reflection on it).
 
 mod common;
 
@@ -368,6 +369,29 @@ fn a_wall_lit_through_glass_agrees() {
         0.7,
     ));
     agree(s, 4_000_000, 40_000, false);
+}
+
+/// A dark glass ball (n = 1.5 in air, absorbing all it lets in) over a white floor lit by a
+/// lamp beside it, seen by a pinhole that takes in the ball and the floor around it. The ball
+/// shows the floor's mirror image (the Fresnel reflectance off its outside), and throws the
+/// lamp's reflection onto the floor. Particle tracing joins the floor to the camera off the
+/// ball's outside, path tracing the lamp to the floor so; the other half of each is traced
+/// (a photon reflected on its way to the floor, a camera path on its way from the camera), and
+/// bidirectional tracing weighs both. Without the connection off the outside particle tracing
+/// sees a black ball.
+#[test]
+fn a_floor_mirrored_in_a_dark_glass_ball_agrees() {
+    let mut s = scene(
+        Profile::Constant { n: 1.5 },
+        Light::Point {
+            position: DVec3::new(2.2, 1.8, 1.2),
+        },
+        camera(DVec3::new(3.0, -0.6, 0.2), DVec3::new(0.0, 0.0, -0.4), 40.0),
+    );
+    s.volume.sigma_s = 0.0;
+    s.volume.sigma_a = 200.0;
+    s.surfaces.push(floor());
+    agree(s, 2_000_000, 200_000, true);
 }
 
 /// Light leaving a scattering glass cube (n = 1.5 in air) after reflecting inside it, with a

@@ -130,10 +130,11 @@ fn the_floor_shows_the_caustic_the_screen_measures() {
         Some([side, side]),
         [pixels, pixels],
     ));
-    // a low camera whose lines of sight to the lit floor pass below the ball
+    // a low camera whose lines of sight to the lit floor pass below the ball, tilted down so
+    // that the ball (and the floor's mirror image in it) lies above its field of view
     let position = DVec3::new(0.0, -4.0, -0.7);
     s.pinholes
-        .push(camera(position, DVec3::new(0.0, 0.0, FLOOR)));
+        .push(camera(position, DVec3::new(0.0, 0.0, FLOOR - 0.4)));
     let (e, est) = render(&s, 200_000);
     let screen = est.sensor_image(0);
     let sensor = &s.sensors[0];

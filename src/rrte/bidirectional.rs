@@ -13,8 +13,8 @@
 //! camera event as a point sensor). Between two events inside the volume the connection runs
 //! along curved rays (see [`super::connect`]); between an event inside and one on a surface it
 //! leaves the volume through its surface, refracted once; between two surfaces it is straight,
-//! past the volume only where it is index-matched, or runs across the volume, refracted in and
-//! out. Unscattered light from a light inside the
+//! past the volume only where it is index-matched, runs across the volume, refracted in and
+//! out, or reflects off its outside. Unscattered light from a light inside the
 //! volume is connected to the cameras directly (the one way to make it). Flux sensors, screens,
 //! fluence probes and the light reaching each surface are estimated by the light subpaths
 //! alone, as in particle tracing: the sensor planes they cross, their events connected to the
@@ -23,8 +23,8 @@
 //! The estimates are weighted by the balance heuristic over the strategies that can make the path:
 //! `w_s = p_s / Σ_j p_j`, with `p_j` the density strategy `j` gives the path's vertices. A
 //! connection reflects inside the surface at most `render.reflections` times, and only on its way
-//! between a point inside and one outside (refracted once there), never off the surface's outside;
-//! between two points outside a volume that is not index-matched it refracts never or twice. A
+//! between a point inside and one outside (refracted once there); between two points outside a
+//! volume that is not index-matched it refracts never or twice, or reflects once off its outside. A
 //! segment that no connection makes is made only by tracing: the strategies that would connect
 //! across it are left out of the sum, as is the light's own (`s = 0`) for a beam, whose directions
 //! are a delta. The weights use the straight-ray density of each segment — `ρ σ_t e^{−σ_t ℓ}/ℓ²`
@@ -445,10 +445,11 @@ impl ParticleTracer<'_> {
         // the far end of a straight stretch lies on a surface: stop short of it
         const SHORT: f64 = 1.0 - 1e-9;
         match (y.facing, z.facing, way) {
-            (Some(facing_y), Some(facing_z), Way::Across) => {
-                // from z across the volume to y: y's intensity brings z the irradiance
-                // `T (1 − R_in)(1 − R_out) cos θ_z / (dA⊥/dω)` (reciprocity: both ends in n_out)
-                let (e, carried) = self.across(t, z.x, Aim::Point(y.x), rng, out)?;
+            (Some(facing_y), Some(facing_z), Way::Across | Way::Mirror) => {
+                // from z across the volume (or off its outside) to y: y's intensity brings z the
+                // irradiance `T (1 − R_in)(1 − R_out) cos θ_z / (dA⊥/dω)` (`R cos θ_z / (dA⊥/dω)`
+                // off the outside; reciprocity: both ends in n_out)
+                let (e, carried) = self.across(t, z.x, Aim::Point(y.x), way, rng, out)?;
                 let to_y = (y.x - e.surface).dot(e.outgoing);
                 let (cos_y, cos_z) = (-facing_y.dot(e.outgoing), facing_z.dot(e.direction));
                 if cos_y <= 0.0
@@ -604,14 +605,17 @@ impl ParticleTracer<'_> {
         // a connection refracts once between a point inside and one outside, after up to
         // `render.reflections` reflections inside the surface; never meets the surface between
         // two points inside; and between two points outside either never (straight, also across
-        // an index-matched volume) or twice, in and out again
+        // an index-matched volume), twice (in and out again), or reflects once off the outside
         let connectible = |began_inside: bool, ends_inside: bool, crossings, (bounces, glances)| {
             if began_inside != ends_inside {
                 crossings == 1 + bounces && glances == 0 && bounces <= most_bounces
             } else if ends_inside {
                 crossings == 0
             } else {
-                crossings == 0 || matched || (crossings == 2 && bounces + glances == 0)
+                crossings == 0
+                    || matched
+                    || (crossings == 2 && bounces + glances == 0)
+                    || (crossings == 1 && glances == 1)
             }
         };
         let mut leg = if began_inside {

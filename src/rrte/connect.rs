@@ -3,7 +3,9 @@
 //! solved as initial-value problems. The same solver joins a point inside to a point outside or
 //! to a direction (refracted once at the surface, [`Connector::sample_through`],
 //! [`Connector::sample_exit`]), and two points outside across the volume (refracted in and out,
-//! [`Connector::sample_across`]): a surface seen or lit through it.
+//! [`Connector::sample_across`]): a surface seen or lit through it; and two points outside by the
+//! path reflected off the volume's outside ([`Connector::sample_mirror`]): a surface seen or lit
+//! in its mirror image.
 //!
 //! A ray from `x` with unit direction `w` (velocity `v0 = n(x) w` in the σ-form) is traced to its
 //! closest approach to `y`, where `(x_s − y)·v_s = 0` (the type-2 condition of Sec. 4 and App. B).
@@ -19,7 +21,7 @@
 //! it by restarting until the same path is found again (Alg. 3, after Booth 2007 and Zeltner et
 //! al. 2020): `Σ_k f(C_k)` is then estimated without bias by `f(C)/p(C)`.
 
-use super::flight::fresnel;
+use super::flight::{fresnel, reflect};
 use super::scene::Volume;
 use crate::eikonal::trace::{entry_parameter, jacobian_of, refract};
 use crate::eikonal::{BoundedField, IndexField, Ray, Tracer};
@@ -704,6 +706,60 @@ impl<'v> Connector<'v> {
         ))
     }
 
+    /// As [`Self::exit_map`] for the ray from `y` outside the volume that reflects off its
+    /// surface there (a mirror image in the volume): the reflection point sliding along the
+    /// surface as `w` turns, the mirror's derivative by central differences (the normal turns).
+    /// Its `transmission` is the Fresnel reflectance from outside, and it runs nothing inside.
+    /// `None` if it misses the volume, or nothing reflects where it meets it (`n` matched there).
+    #[allow(clippy::type_complexity)]
+    fn mirror_map(&self, y: DVec3, w: DVec3) -> Option<(Exit, [DVec3; 2], [DVec3; 2])> {
+        let field = &self.volume.field;
+        let bounds = &field.bounds;
+        let (t0, _) = bounds.interval(y, w)?;
+        if t0 <= 0.0 {
+            return None;
+        }
+        let at = y + w * t0;
+        let normal = bounds.normal(at)?;
+        let nw = normal.dot(w);
+        if nw >= 0.0 {
+            return None;
+        }
+        let reflectance = fresnel(nw, field.n_out / field.n(y + w * entry_parameter(t0)));
+        if reflectance <= 0.0 {
+            return None;
+        }
+        let mirror =
+            |d: DVec3, at: DVec3| -> Option<DVec3> { Some(reflect(d, bounds.normal(at)?)) };
+        let (e1, e2) = orthonormal_basis(w);
+        let mut dx = [DVec3::ZERO; 2];
+        let mut dout = [DVec3::ZERO; 2];
+        for (k, e) in [e1, e2].into_iter().enumerate() {
+            dx[k] = (e - w * (normal.dot(e) / nw)) * t0;
+            let plus = mirror((w + e * DIFF_STEP).normalize(), at + dx[k] * DIFF_STEP)?;
+            let minus = mirror((w - e * DIFF_STEP).normalize(), at - dx[k] * DIFF_STEP)?;
+            dout[k] = (plus - minus) / (2.0 * DIFF_STEP);
+        }
+        let outgoing = reflect(w, normal);
+        Some((
+            Exit {
+                direction: w,
+                surface: at,
+                outgoing,
+                inside_from: at,
+                inside_along: outgoing,
+                before: t0,
+                length: 0.0,
+                optical_path: field.n_out * t0,
+                transmission: reflectance,
+                jacobian: 0.0,
+                iterations: 0,
+            },
+            dout,
+            dx,
+        ))
+    }
+
     /// The path Newton's method reaches from `w0` that leaves the volume and passes through the
     /// point `p` outside it (a pinhole), in a straight line from the surface. Its `jacobian` is the
     /// ray tube's cross-section at `p` per unit solid angle at `x` (`dA⊥/dω`): the irradiance at
@@ -720,6 +776,12 @@ impl<'v> Connector<'v> {
         self.aim_at(p, w0, |w| self.across_map(y, w))
     }
 
+    /// As [`Self::solve_across`] for a path from `y` outside the volume that reflects off its
+    /// surface on its way to `p`: a surface seen, or lit, in the volume's mirror image.
+    pub fn solve_mirror(&self, y: DVec3, p: DVec3, w0: DVec3) -> Option<Exit> {
+        self.aim_at(p, w0, |w| self.mirror_map(y, w))
+    }
+
     /// Newton's method on the direction `w` given to `map` (from `w0`) for the path that passes
     /// through `p` after leaving the volume.
     fn aim_at(
@@ -729,8 +791,14 @@ impl<'v> Connector<'v> {
         map: impl Fn(DVec3) -> Option<(Exit, [DVec3; 2], [DVec3; 2])>,
     ) -> Option<Exit> {
         let mut w = w0.normalize();
+        // the last direction the map took, to step back towards when a step leaves its domain
+        let mut last = None;
         for iteration in 0..self.max_iterations {
-            let (mut exit, dout, dsurf) = map(w)?;
+            let Some((mut exit, dout, dsurf)) = map(w) else {
+                w = step_back(last?, w)?;
+                continue;
+            };
+            last = Some(w);
             let o = exit.outgoing;
             let to_p = p - exit.surface;
             let distance = to_p.length();
@@ -794,15 +862,68 @@ impl<'v> Connector<'v> {
 
     /// A path from `y` outside the volume across it (refracted in and out, unscattered) to the
     /// point `p` outside, or leaving it along the unit direction `c`, drawn like
-    /// [`Connector::sample`]: Newton starts half the time near the straight line (or `c`), half
-    /// the time towards a uniform point of the volume's bounding box. None through an
-    /// index-matched volume, which a straight line crosses.
+    /// [`Connector::sample`]. None through an index-matched volume, which a straight line crosses.
     pub fn sample_across(
         &self,
         y: DVec3,
         target: Aim,
         first_only: bool,
         rng: &mut Rng,
+    ) -> Sampled<Exit> {
+        // most paths across leave near the straight line
+        let near = match target {
+            Aim::Point(p) => (p - y).normalize(),
+            Aim::Along(c) => c,
+        };
+        self.sample_outside(y, target, (near, 0.5), first_only, rng, |w| {
+            self.across_map(y, w)
+        })
+    }
+
+    /// A path from `y` outside the volume reflected off its surface (outside it) to the point
+    /// `p`, or along the unit direction `c`, drawn like [`Connector::sample`]. None off an
+    /// index-matched volume, which reflects nothing.
+    pub fn sample_mirror(
+        &self,
+        y: DVec3,
+        target: Aim,
+        first_only: bool,
+        rng: &mut Rng,
+    ) -> Sampled<Exit> {
+        // a convex surface reflects where its normal bisects the directions to both ends: near
+        // the bounding box's point along that bisector, seen from the box's centre
+        let Some(half) = self.volume.field.bounds.half_extent() else {
+            return Sampled::none();
+        };
+        let bisector = match target {
+            Aim::Point(p) => y.normalize_or_zero() + p.normalize_or_zero(),
+            Aim::Along(c) => y.normalize_or_zero() + c,
+        };
+        let to_near = half * bisector.normalize_or_zero() - y;
+        // jittered by a fraction of the box's angular size
+        let jitter = (0.25 * half.length() / to_near.length()).min(0.5);
+        self.sample_outside(
+            y,
+            target,
+            (to_near.normalize(), jitter),
+            first_only,
+            rng,
+            |w| self.mirror_map(y, w),
+        )
+    }
+
+    /// A path from `y` outside the volume that `map` follows, to the point or along the
+    /// direction of `target`: Newton starts half the time near the unit direction `near` (a
+    /// uniform direction times `jitter` added), half the time towards a uniform point of the
+    /// volume's bounding box.
+    fn sample_outside(
+        &self,
+        y: DVec3,
+        target: Aim,
+        (near, jitter): (DVec3, f64),
+        first_only: bool,
+        rng: &mut Rng,
+        map: impl Fn(DVec3) -> Option<(Exit, [DVec3; 2], [DVec3; 2])>,
     ) -> Sampled<Exit> {
         let none = Sampled::none();
         let Some(half) = self.volume.field.bounds.half_extent() else {
@@ -811,14 +932,10 @@ impl<'v> Connector<'v> {
         if self.matched {
             return none;
         }
-        let toward = match target {
-            Aim::Point(p) => (p - y).normalize(),
-            Aim::Along(c) => c,
-        };
         let start = |rng: &mut Rng| {
             if uniform(rng) < 0.5 {
                 let u = uniform_sphere(uniform(rng), uniform(rng));
-                (toward + u * 0.5).normalize()
+                (near + u * jitter).normalize()
             } else {
                 let corner = DVec3::new(uniform(rng), uniform(rng), uniform(rng));
                 (half * (corner * 2.0 - 1.0) - y).normalize()
@@ -826,8 +943,8 @@ impl<'v> Connector<'v> {
         };
         let solve = |w| {
             match target {
-                Aim::Point(p) => self.solve_across(y, p, w),
-                Aim::Along(c) => self.aim_along(c, w, |w| self.across_map(y, w)),
+                Aim::Point(p) => self.aim_at(p, w, &map),
+                Aim::Along(c) => self.aim_along(c, w, &map),
             }
             .map(|e| (e, e.direction, e.iterations))
         };
@@ -854,8 +971,13 @@ impl<'v> Connector<'v> {
     ) -> Option<Exit> {
         let (f1, f2) = orthonormal_basis(c);
         let mut w = w0.normalize();
+        let mut last = None;
         for iteration in 0..self.max_iterations {
-            let (mut exit, [d1, d2], _) = map(w)?;
+            let Some((mut exit, [d1, d2], _)) = map(w) else {
+                w = step_back(last?, w)?;
+                continue;
+            };
+            last = Some(w);
             let out = exit.outgoing;
             if out.dot(c) < STEER {
                 // leaving far from the camera's direction (even against it): turn towards it
@@ -914,6 +1036,13 @@ fn steer(w: DVec3, o: DVec3, g: DVec3, dout: [DVec3; 2], dg: [DVec3; 2]) -> Opti
     }
     let det = m[0][0] * m[1][1] - m[0][1] * m[1][0];
     newton_turn(w, m, det, r)
+}
+
+/// Half a Newton step back from `w`, where the map failed (the ray missed the volume or left it
+/// the wrong way), towards `last`, where it held; `None` once the step is negligible.
+fn step_back(last: DVec3, w: DVec3) -> Option<DVec3> {
+    let half = (last + w).normalize();
+    ((half - last).length() >= 1e-3 * MAX_TURN).then_some(half)
 }
 
 /// One Newton step on the direction `w` for the 2×2 system `m δ = −r` in the angles of `w`'s
@@ -1211,6 +1340,91 @@ mod tests {
                 .expect("some start converges");
             traced_by_hand(&found, p, hand);
         });
+    }
+
+    /// Off a glass ball (n = 1.5 in air), in closed form and stepped: the path found between two
+    /// points outside, from a poor start, reflects off the ball's outside by the law of
+    /// reflection, passes through the point, carries the Fresnel reflectance from outside, and
+    /// spreads as neighbouring rays traced by hand do (a convex mirror: wider than the straight
+    /// line's `s²`). A convex ball has one such path, and Alg. 3 finds only it.
+    #[test]
+    fn a_path_mirrored_off_a_glass_ball_spreads_as_traced_by_hand() {
+        let (y, p) = (DVec3::new(0.3, -2.2, 0.4), DVec3::new(-1.8, -1.5, -0.6));
+        let hand = |w: DVec3| {
+            let b = y.dot(w);
+            let t0 = -b - (b * b - (y.length_squared() - 1.0)).sqrt();
+            let a = y + w * t0;
+            let o = w - a * (2.0 * w.dot(a));
+            let cos_i = -a.dot(w);
+            let cos_t = (1.0 - (1.0 - cos_i * cos_i) / (1.5 * 1.5)).sqrt();
+            (a, o, 0.0, reflectance(cos_i, cos_t, 1.0 / 1.5))
+        };
+        on_glass_balls(|c| {
+            let start = (-y.normalize() + DVec3::X * 0.1).normalize();
+            let found = c.solve_mirror(y, p, start).expect("converges");
+            traced_by_hand(&found, p, hand);
+            let s = (found.surface - y).length() + (p - found.surface).length();
+            assert!(
+                found.jacobian > 1.2 * s * s,
+                "{} vs {}",
+                found.jacobian,
+                s * s
+            );
+            // Alg. 3's inverse probabilities (0 where the first start fails) average to the
+            // one path's count, 1
+            let mut rng = crate::math::stream_rng(5, 0);
+            let draws = 4000;
+            let (mut sum, mut sum2, mut found_first) = (0.0, 0.0, 0);
+            for _ in 0..draws {
+                let drawn = c.sample_mirror(y, Aim::Point(p), false, &mut rng);
+                let Some((e, inverse_p)) = drawn.path else {
+                    continue;
+                };
+                assert!((e.direction - found.direction).length() < 1e-8);
+                assert_eq!(drawn.distinct, 1);
+                (sum, sum2, found_first) = (
+                    sum + inverse_p,
+                    sum2 + inverse_p * inverse_p,
+                    found_first + 1,
+                );
+            }
+            let mean = sum / draws as f64;
+            let se = ((sum2 / draws as f64 - mean * mean) / draws as f64).sqrt();
+            eprintln!("found from {found_first} of {draws} starts; count {mean} ± {se}");
+            assert!((mean - 1.0).abs() < 4.0 * se, "{mean} ± {se}");
+        });
+    }
+
+    /// Off a face of a glass cube, a flat mirror: the path between two points outside it runs
+    /// through the face's point on the line from the mirror image of the first point to the
+    /// second, and spreads as a straight line from that image, `(|y − a| + |a − p|)²`; its
+    /// transmission is the Fresnel reflectance at that angle.
+    #[test]
+    fn a_path_mirrored_off_a_glass_cube_runs_from_the_mirror_image() {
+        let v = volume(
+            Profile::Constant { n: 1.5 },
+            Bounds::Box {
+                half: DVec3::splat(1.0),
+            },
+            1.0,
+        );
+        let c = Connector::new(&v, 1e-3, 100_000);
+        let (y, p) = (DVec3::new(0.3, -0.2, 2.5), DVec3::new(-0.6, 0.4, 1.6));
+        let image = DVec3::new(y.x, y.y, 2.0 - y.z);
+        let along = (p - image).normalize();
+        let a = image + along * ((1.0 - image.z) / along.z);
+        let found = c
+            .solve_mirror(y, p, DVec3::new(0.1, 0.1, -1.0))
+            .expect("converges");
+        assert!((found.surface - a).length() < 1e-9, "{found:?}");
+        assert!((found.outgoing - along).length() < 1e-9);
+        let s = (a - y).length() + (p - a).length();
+        assert!((found.jacobian - s * s).abs() < 1e-6 * s * s);
+        let cos_i = along.z;
+        let cos_t = (1.0 - (1.0 - cos_i * cos_i) / (1.5 * 1.5)).sqrt();
+        let r = reflectance(cos_i, cos_t, 1.0 / 1.5);
+        assert!((found.transmission - r).abs() < 1e-12);
+        assert!((found.optical_path - s).abs() < 1e-9);
     }
 
     #[test]

@@ -999,14 +999,16 @@ impl<'s> ParticleTracer<'s> {
 
     /// The ways a connection from a point inside the volume, or on a surface (`from_surface`),
     /// may run: reflected up to [`Self::most_bounces`] times inside the surface before it
-    /// leaves, and from a surface across the volume. Through an index-matched volume a straight
-    /// line crosses it: one way. Each connection declines the ways that do not fit its ends.
+    /// leaves, and from a surface across the volume or off its outside. Through an index-matched
+    /// volume a straight line crosses it: one way. Each connection declines the ways that do not
+    /// fit its ends.
     pub(super) fn ways(&self, t: &Tools, from_surface: bool) -> impl Iterator<Item = Way> {
         let matched = t.connector.matched();
         let bounces = self.most_bounces(t);
+        let outside = (from_surface && !matched).then_some([Way::Across, Way::Mirror]);
         (0..=bounces)
             .map(Way::Bounces)
-            .chain((from_surface && !matched).then_some(Way::Across))
+            .chain(outside.into_iter().flatten())
     }
 
     /// Reflections inside the surface a connection follows at most: `render.reflections`, none
@@ -1020,21 +1022,26 @@ impl<'s> ParticleTracer<'s> {
         }
     }
 
-    /// A path from `y` outside the volume across it (refracted in and out, unscattered) to
-    /// `aim`, its stretch before the volume past every surface (the caller checks the one
-    /// after), and what it carries per unit intensity leaving `y`: `T (1 − R_in)(1 − R_out) /
-    /// jacobian` over the inverse probability of drawing it, the `jacobian` of
+    /// A path from `y` outside the volume to `aim` across it (refracted in and out,
+    /// unscattered) or, with `way` = [`Way::Mirror`], reflected off its outside; its stretch
+    /// before the volume past every surface (the caller checks the one after), and what it
+    /// carries per unit intensity leaving `y`: `T (1 − R_in)(1 − R_out) / jacobian` (`R /
+    /// jacobian` off the outside) over the inverse probability of drawing it, the `jacobian` of
     /// [`Connector::solve_across`] for a point, of [`Connector::solve_exit`] for a direction.
     pub(super) fn across(
         &self,
         t: &Tools,
         y: DVec3,
         aim: Aim,
+        way: Way,
         rng: &mut Rng,
         out: &mut [C64],
     ) -> Option<(Exit, f64)> {
         let first_only = self.scene.connections == Connections::First;
-        let s = t.connector.sample_across(y, aim, first_only, rng);
+        let s = match way {
+            Way::Mirror => t.connector.sample_mirror(y, aim, first_only, rng),
+            _ => t.connector.sample_across(y, aim, first_only, rng),
+        };
         let (e, inverse_p) = self.tally(s, out)?;
         if self.scene.blocked(y, e.direction, e.before) {
             return None;
@@ -1062,7 +1069,9 @@ impl<'s> ParticleTracer<'s> {
         let n_out = t.flyer.volume.field.n_out;
         let orthographic = self.scene.cameras.len();
         match way {
-            Way::Across => return self.surface_camera_across(t, y, facing, i, rng, out),
+            Way::Across | Way::Mirror => {
+                return self.surface_camera_across(t, y, facing, i, way, rng, out);
+            }
             Way::Bounces(0) => {}
             Way::Bounces(_) => return None,
         }
@@ -1110,13 +1119,15 @@ impl<'s> ParticleTracer<'s> {
         })
     }
 
-    /// [`Self::surface_camera_link`] across the volume.
+    /// [`Self::surface_camera_link`] across the volume or off its outside (`way`).
+    #[allow(clippy::too_many_arguments)]
     fn surface_camera_across(
         &self,
         t: &Tools,
         y: DVec3,
         facing: DVec3,
         i: usize,
+        way: Way,
         rng: &mut Rng,
         out: &mut [C64],
     ) -> Option<CameraLink> {
@@ -1124,7 +1135,7 @@ impl<'s> ParticleTracer<'s> {
             Some(cam) => Aim::Along(cam.direction),
             None => Aim::Point(self.scene.pinholes[i - self.scene.cameras.len()].position),
         };
-        let (e, carried) = self.across(t, y, aim, rng, out)?;
+        let (e, carried) = self.across(t, y, aim, way, rng, out)?;
         if e.direction.dot(facing) <= 0.0 {
             return None;
         }
@@ -1258,6 +1269,8 @@ pub(super) enum Way {
     Bounces(usize),
     /// Across the volume between two points outside it, refracted in and out.
     Across,
+    /// Off the volume's surface between two points outside it, reflected once outside it.
+    Mirror,
 }
 
 impl Leg {

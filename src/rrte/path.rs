@@ -8,7 +8,8 @@
 //! At every scattering event the light is connected to it: through the volume by a boundary-value
 //! connection (a curved ray to a light inside, or a ray leaving the volume and running straight to
 //! a light outside, solved as in [`super::connect`]); to a surface from a light outside in a
-//! straight line and across the volume (refracted in and out: the caustics it throws), or from a
+//! straight line, across the volume (refracted in and out: the caustics it throws) and off its
+//! outside (reflected: the light's mirror image thrown on the surface), or from a
 //! light inside through the volume's surface.
 //!
 //! The estimate is carried in basic radiance `B = L/n²`, which the RRTE conserves along rays and
@@ -21,9 +22,9 @@
 //!
 //! A beam cannot be connected to (its directions are a delta); a light inside the volume is
 //! connected to the cameras directly, as in particle tracing, and one outside is not imaged
-//! itself. The connections reflect inside the surface at most `render.reflections` times and
-//! never off it, so light that reaches its first scattering event only after more reflections is
-//! missed (particle tracing misses the mirror case, light leaving its last event so): with
+//! itself (nor its mirror image in the volume). The connections reflect inside the surface at
+//! most `render.reflections` times, so light that reaches its first scattering event only after
+//! more reflections is missed (particle tracing misses the mirror case, light leaving its last event so): with
 //! index-matched surfaces the two estimate the same images.
 
 use super::connect::{Aim, Sampled};
@@ -295,8 +296,8 @@ impl ParticleTracer<'_> {
         let light = &self.scene.light;
         let q = self.light_point(rng)?;
         let inside = t.flyer.volume.field.bounds.contains(q);
-        if way == Way::Across && !inside {
-            let (e, carried) = self.across(t, y, Aim::Point(q), rng, out)?;
+        if matches!(way, Way::Across | Way::Mirror) && !inside {
+            let (e, carried) = self.across(t, y, Aim::Point(q), way, rng, out)?;
             let cos = e.direction.dot(facing);
             let to_q = (q - e.surface).dot(e.outgoing);
             if cos <= 0.0 || self.scene.blocked_after_exit(e.surface, e.outgoing, to_q) {
