@@ -401,7 +401,9 @@ fn a_floor_mirrored_in_a_dark_glass_ball_agrees() {
 /// with `reflections = 3` joins every event to the camera after up to three reflections inside,
 /// and agrees with bidirectional tracing (which joins them so too, and makes the rest by
 /// tracing; paths reflecting more often on their last segment carry less than the noise here);
-/// with none it reads 11 % less (9 standard errors).
+/// with none it reads 11 % less (9 standard errors). Path tracing is left out: a cube traps
+/// light by total internal reflection on every face, so much of what reaches the first event
+/// has reflected more often than any connection does.
 #[test]
 fn light_reflected_inside_a_glass_cube_agrees() {
     let mut s = scene(
@@ -426,4 +428,31 @@ fn light_reflected_inside_a_glass_cube_agrees() {
     p.tracing = Tracing::Bidirectional;
     let (b, _) = render(&p, 40_000, 12);
     compare_images(&a, &b, est.pinhole_image(0), false);
+}
+
+/// A lamp near the middle of a weakly scattering ball of high index (n = 3 in air: 25 %
+/// reflected at normal incidence), seen by a pinhole. The lamp's light meets the surface too
+/// steeply to be trapped, and much of it reaches its first event only after reflecting inside.
+/// With `reflections = 2` path tracing joins the lamp to every event after up to two reflections
+/// inside (each order a set of stationary paths of its own, drawn by Alg. 3 from uniform starts),
+/// and particle tracing every event to the camera so: the two agree (image quadrants and total;
+/// the restart counts are heavy-tailed, so single pixels are not compared). Without the
+/// reflected connections from the lamp, path tracing reads 7 % low (8 standard errors).
+#[test]
+fn light_reflected_inside_a_ball_before_its_first_event_agrees() {
+    let mut s = scene(
+        Profile::Constant { n: 3.0 },
+        Light::Point {
+            position: DVec3::new(0.1, -0.05, 0.15),
+        },
+        camera(DVec3::new(2.6, 1.2, 0.8), DVec3::ZERO, 50.0),
+    );
+    s.volume.sigma_s = 0.6;
+    s.reflections = 2;
+    s.tracing = Tracing::FromLight;
+    let (a, est) = render(&s, 100_000, 14);
+    let mut p = s.clone();
+    p.tracing = Tracing::FromCameras;
+    let (b, _) = render(&p, 100_000, 15);
+    compare_images(&a, &b, est.pinhole_image(0), true);
 }

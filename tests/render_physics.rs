@@ -508,6 +508,63 @@ fn a_fluence_probe_matches_a_track_length_tally_with_straight_and_curved_connect
     }
 }
 
+/// A lamp and a fluence probe inside a clear, absorbing glass cube (n = 1.5 in air, half-width
+/// 1): with `render.reflections = 1` the probe sees the lamp directly and once in each of the six
+/// faces, each path from the lamp's mirror image in the face, `e^{−σ_a s} R / (4π s²)` with `s`
+/// the distance from the image and `R` the Fresnel reflectance inside (total beyond the critical
+/// angle); without reflections, directly only.
+#[test]
+fn a_probe_in_a_glass_cube_sees_the_lamp_reflected_in_each_face() {
+    let (q, y) = (DVec3::new(0.3, -0.2, 0.1), DVec3::new(-0.5, 0.4, -0.3));
+    let mut scene = probe_scene(
+        Profile::Constant { n: 1.5 },
+        0.0,
+        0.0,
+        Light::Point { position: q },
+        y,
+    );
+    scene.volume.field = BoundedField::single(
+        Profile::Constant { n: 1.5 },
+        Bounds::Box {
+            half: DVec3::splat(1.0),
+        },
+        1.0,
+    );
+    scene.volume.sigma_a = 0.2;
+    let seen = |s: f64, r: f64| r * (-0.2 * s).exp() / (4.0 * std::f64::consts::PI * s * s);
+    let direct = seen((y - q).length(), 1.0);
+    let mut reflected = 0.0;
+    for axis in 0..3 {
+        for side in [-1.0, 1.0] {
+            let mut image = q;
+            image[axis] = 2.0 * side - q[axis];
+            let to = y - image;
+            let cos_i = to[axis].abs() / to.length();
+            let sin2_t = 1.5 * 1.5 * (1.0 - cos_i * cos_i);
+            let r = if sin2_t >= 1.0 {
+                1.0
+            } else {
+                let cos_t = (1.0 - sin2_t).sqrt();
+                let rs = (1.5 * cos_i - cos_t) / (1.5 * cos_i + cos_t);
+                let rp = (cos_i - 1.5 * cos_t) / (cos_i + 1.5 * cos_t);
+                0.5 * (rs * rs + rp * rp)
+            };
+            reflected += seen(to.length(), r);
+        }
+    }
+    let (e, est) = render(&scene, 20_000, 9);
+    let (f, se) = value(&e, est.probe_total(0));
+    assert!((f - direct).abs() < 1e-12 * direct, "{f} vs {direct}");
+    scene.reflections = 1;
+    let (e, est) = render(&scene, 20_000, 9);
+    let (f, se1) = value(&e, est.probe_total(0));
+    let want = direct + reflected;
+    assert!(
+        (f - want).abs() < 4.0 * se1 && se1 < 0.02 * reflected,
+        "{f} ± {se1} vs {want} ({direct} directly, ± {se})"
+    );
+}
+
 #[test]
 fn a_probe_in_a_clear_luneburg_lens_sees_the_ray_tube_of_its_curved_path() {
     // a point source and a probe inside the lens, nothing scattering: the fluence is the source's

@@ -11,7 +11,8 @@
 //! event to the camera (`t = 0`, particle tracing's), or a light event to a camera event (the
 //! light event seen as a point source of intensity `w ρ`, or `w cos θ / π` on a surface, the
 //! camera event as a point sensor). Between two events inside the volume the connection runs
-//! along curved rays (see [`super::connect`]); between an event inside and one on a surface it
+//! along curved rays (see [`super::connect`]), reflected inside the surface up to
+//! `render.reflections` times; between an event inside and one on a surface it
 //! leaves the volume through its surface, refracted once; between two surfaces it is straight,
 //! past the volume only where it is index-matched, runs across the volume, refracted in and
 //! out, or reflects off its outside. Unscattered light from a light inside the
@@ -22,8 +23,9 @@
 //!
 //! The estimates are weighted by the balance heuristic over the strategies that can make the path:
 //! `w_s = p_s / Σ_j p_j`, with `p_j` the density strategy `j` gives the path's vertices. A
-//! connection reflects inside the surface at most `render.reflections` times, and only on its way
-//! between a point inside and one outside (refracted once there); between two points outside a
+//! connection reflects inside the surface at most `render.reflections` times, between two points
+//! inside or on its way between a point inside and one outside (refracted once there), where it
+//! meets the surface no other way; between two points outside a
 //! volume that is not index-matched it refracts never or twice, or reflects once off its outside. A
 //! segment that no connection makes is made only by tracing: the strategies that would connect
 //! across it are left out of the sum, as is the light's own (`s = 0`) for a beam, whose directions
@@ -471,18 +473,19 @@ impl ParticleTracer<'_> {
                         .with_cos(cos_y, cos_z),
                 })
             }
-            (None, None, Way::Bounces(0)) => {
-                let sampled = match self.scene.connections {
-                    Connections::Unbiased => t.connector.sample(z.x, y.x, rng),
-                    Connections::First => t.connector.sample_first(z.x, y.x, rng),
-                };
+            (None, None, Way::Bounces(bounces)) => {
+                let first_only = self.scene.connections == Connections::First;
+                let sampled = t
+                    .connector
+                    .sample_bounced(z.x, y.x, bounces, first_only, rng);
                 let (c, inverse_p) = self.tally(sampled, out)?;
                 let transmittance = self.transmittance(t, z.x, c.direction, c.length, rng);
                 let n_y = t.flyer.n(y.x);
                 Some(Joint {
                     leave_y: -c.arrival.v.normalize(),
                     leave_z: c.direction,
-                    carried: n_out * n_out * transmittance / (n_y * n_y * c.spread) * inverse_p,
+                    carried: n_out * n_out * transmittance * c.reflectance / (n_y * n_y * c.spread)
+                        * inverse_p,
                     delay: t.delay.inside(c.optical_path, c.length),
                     segment: Segment::new(volume, c.length, 0.0, false, true),
                 })
@@ -603,14 +606,15 @@ impl ParticleTracer<'_> {
         let mut began_inside = volume.field.bounds.contains(start.x);
         let mut cos_start = 1.0;
         // a connection refracts once between a point inside and one outside, after up to
-        // `render.reflections` reflections inside the surface; never meets the surface between
-        // two points inside; and between two points outside either never (straight, also across
-        // an index-matched volume), twice (in and out again), or reflects once off the outside
+        // `render.reflections` reflections inside the surface; only reflects inside it, as
+        // often, between two points inside; and between two points outside either never meets
+        // it (straight, also across an index-matched volume), refracts twice (in and out again),
+        // or reflects once off the outside
         let connectible = |began_inside: bool, ends_inside: bool, crossings, (bounces, glances)| {
             if began_inside != ends_inside {
                 crossings == 1 + bounces && glances == 0 && bounces <= most_bounces
             } else if ends_inside {
-                crossings == 0
+                crossings == bounces && bounces <= most_bounces
             } else {
                 crossings == 0
                     || matched

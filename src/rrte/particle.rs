@@ -496,25 +496,28 @@ impl<'s> ParticleTracer<'s> {
         rng: &mut Rng,
         out: &mut [C64],
     ) {
+        let first_only = self.scene.connections == Connections::First;
         for (i, probe) in self.scene.probes.iter().enumerate() {
-            let s = match self.scene.connections {
-                Connections::Unbiased => t.connector.sample(x, probe.position, rng),
-                Connections::First => t.connector.sample_first(x, probe.position, rng),
-            };
-            let Some((c, inverse_p)) = self.tally(s, out) else {
-                continue;
-            };
-            let transmittance = self.transmittance(t, x, c.direction, c.length, rng);
-            let value = weight * emit(c.direction) * transmittance / c.spread * inverse_p;
-            if !(value > 0.0 && value.is_finite()) {
-                continue;
+            for bounces in 0..=self.most_bounces(t) {
+                let s = t
+                    .connector
+                    .sample_bounced(x, probe.position, bounces, first_only, rng);
+                let Some((c, inverse_p)) = self.tally(s, out) else {
+                    continue;
+                };
+                let transmittance = self.transmittance(t, x, c.direction, c.length, rng);
+                let value = weight * emit(c.direction) * transmittance * c.reflectance / c.spread
+                    * inverse_p;
+                if !(value > 0.0 && value.is_finite()) {
+                    continue;
+                }
+                let Some(bin) = self.bin(opl + t.delay.inside(c.optical_path, c.length)) else {
+                    continue;
+                };
+                let o = self.probe_offset(i);
+                out[o + bin].re += value;
+                out[o - 1].re += value;
             }
-            let Some(bin) = self.bin(opl + t.delay.inside(c.optical_path, c.length)) else {
-                continue;
-            };
-            let o = self.probe_offset(i);
-            out[o + bin].re += value;
-            out[o - 1].re += value;
         }
     }
 

@@ -27,7 +27,7 @@
 //! more reflections is missed (particle tracing misses the mirror case, light leaving its last event so): with
 //! index-matched surfaces the two estimate the same images.
 
-use super::connect::{Aim, Sampled};
+use super::connect::Aim;
 use super::particle::{Leg, ParticleTracer, Stop, Tools, Way};
 use super::scene::{Light, grid_pixel};
 use crate::eikonal::Ray;
@@ -415,14 +415,9 @@ impl ParticleTracer<'_> {
         let n_out = volume.field.n_out;
         let light = &self.scene.light;
         if volume.field.bounds.contains(q) {
-            if bounces > 0 {
-                return None;
-            }
-            // a curved connection inside: dA_q/dω_x is its spread
-            let s: Sampled = match self.scene.connections {
-                super::Connections::Unbiased => t.connector.sample(x, q, rng),
-                super::Connections::First => t.connector.sample_first(x, q, rng),
-            };
+            // a curved connection inside (after the way's reflections inside the surface):
+            // dA_q/dω_x is its spread
+            let s = t.connector.sample_bounced(x, q, bounces, first_only, rng);
             let (c, inverse_p) = self.tally(s, out)?;
             let leaving_q = -c.arrival.v.normalize();
             let n_q = t.flyer.n(q);
@@ -430,7 +425,8 @@ impl ParticleTracer<'_> {
             let intensity = light.intensity(leaving_q);
             Some(LightLink {
                 direction: c.direction,
-                radiance: n_out * n_out * intensity * transmittance / (n_q * n_q * c.spread)
+                radiance: n_out * n_out * intensity * transmittance * c.reflectance
+                    / (n_q * n_q * c.spread)
                     * inverse_p,
                 delay: t.delay.inside(c.optical_path, c.length),
                 inside: c.length,
