@@ -360,12 +360,6 @@ fn densities_are_checked_by_key() {
             "interp = \"tricubic\"",
             "density.values",
         ),
-        // reflected connections are not tracked through a density
-        (
-            "[render]",
-            "[render]\nreflections = 2",
-            "render.reflections = 2",
-        ),
     ];
     refused_all(&dir, &base, cases);
     // a density needs a medium to scale

@@ -14,7 +14,9 @@ use lightpath::eikonal::{BoundedField, Bounds, Profile};
 use lightpath::math::{Rng, stream_rng, uniform};
 use lightpath::mc::Estimate;
 use lightpath::medium::{PhaseFunction, Scattering};
-use lightpath::rrte::{Density, Light, ParticleTracer, Probe, RenderScene, Total, Volume};
+use lightpath::rrte::{
+    Density, Light, ParticleTracer, Pinhole, Probe, RenderScene, Total, Tracing, Volume,
+};
 
 /// Half the slab's lateral extent (far beyond where light spreads) and its thickness (faces at
 /// z = ±0.5).
@@ -250,4 +252,69 @@ fn a_scattering_gradient_matches_an_analog_tracer() {
         analog(0).0 - t > 10.0 * st,
         "without the density T = {t} ± {st}"
     );
+}
+
+/// A scattering glass cube (n = 1.5 in air) with a lamp inside, seen corner-on by a pinhole, whose
+/// medium is given as a density of 1 everywhere, renders as the homogeneous cube with
+/// `reflections = 2`: ratio tracking along each connection that reflects inside the surface
+/// runs stretch by stretch between its reflections. (Tracking the whole length along one ray
+/// that stops where it first meets the surface reads 9 % bright.)
+#[test]
+fn a_uniform_density_renders_as_the_homogeneous_medium_with_reflections() {
+    let n = 5;
+    let grid = GridField::from_samples(
+        DVec3::splat(-0.5),
+        0.25,
+        [n, n, n],
+        vec![1.0; n * n * n],
+        Interp::Trilinear,
+    )
+    .unwrap();
+    let mut s = RenderScene {
+        volume: Volume {
+            field: BoundedField::single(
+                Profile::Constant { n: 1.5 },
+                Bounds::Box {
+                    half: DVec3::splat(0.5),
+                },
+                1.0,
+            ),
+            sigma_s: 1.0,
+            sigma_a: 0.1,
+            scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g: 0.5 }),
+            density: None,
+        },
+        light: Light::Point {
+            position: DVec3::new(0.1, -0.05, 0.15),
+        },
+        pinholes: vec![
+            Pinhole::looking_at(
+                "cam".into(),
+                DVec3::new(2.0, 1.2, 1.5),
+                DVec3::ZERO,
+                DVec3::Z,
+                40f64.to_radians(),
+                [4, 4],
+            )
+            .unwrap(),
+        ],
+        reflections: 2,
+        tracing: Tracing::FromLight,
+        ..bare_scene(0.004)
+    };
+    let (a, est) = common::render(&s, 200_000, 21);
+    let image = est.pinhole_image(0);
+    s.volume.density = Some(Density::new(grid).unwrap());
+    let (b, _) = common::render(&s, 200_000, 22);
+    let mut lit = 0;
+    for k in std::iter::once(image.total()).chain((0..16).map(|p| image.plane(None, 0) + p)) {
+        let (x, y) = (a.mean[k].re, b.mean[k].re);
+        let se = a.stderr[k].hypot(b.stderr[k]);
+        lit += usize::from(x > 0.0);
+        assert!(
+            (x - y).abs() < 4.0 * se || x == y,
+            "output {k}: homogeneous {x}, density {y} (± {se})"
+        );
+    }
+    assert!(lit > 8, "only {lit} of the total and 16 pixels lit");
 }

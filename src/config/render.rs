@@ -892,12 +892,6 @@ impl RenderConfig {
                 r.reflections
             ));
         }
-        if r.reflections > 0 && volume.density.is_some() {
-            return err(format!(
-                "render.reflections = {}: reflected connections need a homogeneous medium, and [density] makes it heterogeneous; set render.reflections = 0 or drop [density]",
-                r.reflections
-            ));
-        }
         let derivatives = self.derivatives(&volume, &sensors)?;
         let scene = RenderScene {
             volume,

@@ -479,7 +479,8 @@ impl ParticleTracer<'_> {
                     .connector
                     .sample_bounced(z.x, y.x, bounces, first_only, rng);
                 let (c, inverse_p) = self.tally(sampled, out)?;
-                let transmittance = self.transmittance(t, z.x, c.direction, c.length, rng);
+                let transmittance =
+                    self.transmittance(t, z.x, c.direction, (c.length, bounces), rng);
                 let n_y = t.flyer.n(y.x);
                 Some(Joint {
                     leave_y: -c.arrival.v.normalize(),
@@ -567,7 +568,7 @@ impl ParticleTracer<'_> {
         {
             return None;
         }
-        let transmittance = self.transmittance(t, x, exit.direction, exit.length, rng);
+        let transmittance = self.transmittance(t, x, exit.direction, (exit.length, bounces), rng);
         let outside = volume.field.n_out * to_p;
         Some(OutToSurface {
             carried: transmittance * exit.transmission / exit.jacobian * inverse_p,

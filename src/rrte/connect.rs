@@ -663,6 +663,31 @@ impl<'v> Connector<'v> {
         Some(r)
     }
 
+    /// The stretches inside of the path leaving `x` (inside) along unit `w` that reflects
+    /// `bounces` times inside the surface and runs `length` in all (a connection's): each
+    /// stretch's start (just inside, after a reflection), unit direction and geometric length, to
+    /// `visit`, in order. Nothing is visited if the path does not reflect so (it was found, so
+    /// only round-off could make it).
+    pub fn stretches(
+        &self,
+        x: DVec3,
+        w: DVec3,
+        bounces: usize,
+        length: f64,
+        mut visit: impl FnMut(DVec3, DVec3, f64),
+    ) {
+        let Some(reflected) = (0..=bounces)
+            .map(|k| self.reflect_inside(x, w, k))
+            .collect::<Option<Vec<_>>>()
+        else {
+            return;
+        };
+        for (k, r) in reflected.iter().enumerate() {
+            let end = reflected.get(k + 1).map_or(length, |next| next.length);
+            visit(r.from, r.along, end - r.length);
+        }
+    }
+
     /// The stationary path Newton's method reaches from the initial direction `w0` that joins
     /// `x` to `y` (both inside) after `bounces` reflections inside the surface (as
     /// [`Self::solve`] without them): the sensitivities carried through each reflection as for a

@@ -505,7 +505,7 @@ impl<'s> ParticleTracer<'s> {
                 let Some((c, inverse_p)) = self.tally(s, out) else {
                     continue;
                 };
-                let transmittance = self.transmittance(t, x, c.direction, c.length, rng);
+                let transmittance = self.transmittance(t, x, c.direction, (c.length, bounces), rng);
                 let value = weight * emit(c.direction) * transmittance * c.reflectance / c.spread
                     * inverse_p;
                 if !(value > 0.0 && value.is_finite()) {
@@ -574,7 +574,7 @@ impl<'s> ParticleTracer<'s> {
         };
         let (e, inverse_p) = self.tally(s, out)?;
         self.link_to_camera(t, i, &e, || {
-            let transmittance = self.transmittance(t, x, e.direction, e.length, rng);
+            let transmittance = self.transmittance(t, x, e.direction, (e.length, bounces), rng);
             transmittance * e.transmission / e.jacobian * inverse_p
         })
     }
@@ -642,18 +642,40 @@ impl<'s> ParticleTracer<'s> {
     }
 
     /// The transmittance along the connection leaving `x` along unit `w` for geometric length
-    /// `length` inside the volume: `exp(−σ_t length)` in a homogeneous medium (reflections inside
-    /// the surface on the way included); with a density, an unbiased ratio-tracking estimate
-    /// (Novák et al. 2014): tentative collisions against the majorant along the same curved ray,
-    /// each keeping `1 − ρ/max ρ` of the light (connections there do not reflect).
+    /// `length` inside the volume, reflected `bounces` times inside the surface on the way:
+    /// `exp(−σ_t length)` in a homogeneous medium; with a density, an unbiased ratio-tracking
+    /// estimate (Novák et al. 2014): tentative collisions against the majorant along the same
+    /// curved ray, each keeping `1 − ρ/max ρ` of the light, stretch by stretch between the
+    /// reflections (independent estimates, so their product is unbiased too).
     pub(super) fn transmittance(
         &self,
         t: &Tools,
         x: DVec3,
         w: DVec3,
-        length: f64,
+        (length, bounces): (f64, usize),
         rng: &mut Rng,
     ) -> f64 {
+        let volume = t.flyer.volume;
+        if volume.density.is_none() {
+            return (-volume.sigma_t() * length).exp();
+        }
+        if bounces == 0 {
+            return self.ratio_tracking(t, x, w, length, rng);
+        }
+        let mut kept = 0.0;
+        let mut first = true;
+        t.connector
+            .stretches(x, w, bounces, length, |from, along, stretch| {
+                let k = self.ratio_tracking(t, from, along, stretch, rng);
+                kept = if first { k } else { kept * k };
+                first = false;
+            });
+        kept
+    }
+
+    /// Ratio tracking along the curved ray from `x` (inside) along unit `w` for geometric length
+    /// `length`: see [`Self::transmittance`].
+    fn ratio_tracking(&self, t: &Tools, x: DVec3, w: DVec3, length: f64, rng: &mut Rng) -> f64 {
         let volume = t.flyer.volume;
         let Some(density) = &volume.density else {
             return (-volume.sigma_t() * length).exp();
@@ -710,7 +732,7 @@ impl<'s> ParticleTracer<'s> {
             let a = crate::eikonal::trace::entry_parameter(t0.max(from));
             let b = t1.min(length);
             if b > a {
-                transmittance *= self.transmittance(t, y + w * a, w, b - a, rng);
+                transmittance *= self.transmittance(t, y + w * a, w, (b - a, 0), rng);
                 inside += b - a;
             }
             if bounds.is_convex() || b >= length {
@@ -1015,10 +1037,9 @@ impl<'s> ParticleTracer<'s> {
     }
 
     /// Reflections inside the surface a connection follows at most: `render.reflections`, none
-    /// where nothing reflects (an index-matched volume) or where a density makes the medium
-    /// heterogeneous (the transmittance is not tracked along reflections; the config refuses it).
+    /// where nothing reflects (an index-matched volume).
     pub(super) fn most_bounces(&self, t: &Tools) -> usize {
-        if t.connector.matched() || t.flyer.volume.density.is_some() {
+        if t.connector.matched() {
             0
         } else {
             self.scene.reflections
@@ -1049,7 +1070,8 @@ impl<'s> ParticleTracer<'s> {
         if self.scene.blocked(y, e.direction, e.before) {
             return None;
         }
-        let transmittance = self.transmittance(t, e.inside_from, e.inside_along, e.length, rng);
+        let transmittance =
+            self.transmittance(t, e.inside_from, e.inside_along, (e.length, 0), rng);
         Some((e, transmittance * e.transmission / e.jacobian * inverse_p))
     }
 

@@ -421,7 +421,7 @@ impl ParticleTracer<'_> {
             let (c, inverse_p) = self.tally(s, out)?;
             let leaving_q = -c.arrival.v.normalize();
             let n_q = t.flyer.n(q);
-            let transmittance = self.transmittance(t, x, c.direction, c.length, rng);
+            let transmittance = self.transmittance(t, x, c.direction, (c.length, bounces), rng);
             let intensity = light.intensity(leaving_q);
             Some(LightLink {
                 direction: c.direction,
@@ -440,7 +440,7 @@ impl ParticleTracer<'_> {
             if self.scene.blocked_after_exit(e.surface, e.outgoing, to_q) {
                 return None;
             }
-            let transmittance = self.transmittance(t, x, e.direction, e.length, rng);
+            let transmittance = self.transmittance(t, x, e.direction, (e.length, bounces), rng);
             // n_q = n_out: the camera's n_out² cancels it
             let intensity = light.intensity(-e.outgoing);
             // the path's optical length holds the straight stretch to the light
