@@ -666,8 +666,8 @@ impl<'v> Connector<'v> {
     /// The stretches inside of the path leaving `x` (inside) along unit `w` that reflects
     /// `bounces` times inside the surface and runs `length` in all (a connection's): each
     /// stretch's start (just inside, after a reflection), unit direction and geometric length, to
-    /// `visit`, in order. Nothing is visited if the path does not reflect so (it was found, so
-    /// only round-off could make it).
+    /// `visit`, in order. `false` if the path does not reflect so after all (it was found, so
+    /// only round-off could make it), having visited the stretches before.
     pub fn stretches(
         &self,
         x: DVec3,
@@ -675,17 +675,22 @@ impl<'v> Connector<'v> {
         bounces: usize,
         length: f64,
         mut visit: impl FnMut(DVec3, DVec3, f64),
-    ) {
-        let Some(reflected) = (0..=bounces)
-            .map(|k| self.reflect_inside(x, w, k))
-            .collect::<Option<Vec<_>>>()
-        else {
-            return;
-        };
-        for (k, r) in reflected.iter().enumerate() {
-            let end = reflected.get(k + 1).map_or(length, |next| next.length);
-            visit(r.from, r.along, end - r.length);
+    ) -> bool {
+        let mut previous: Option<Reflected> = None;
+        for k in 0..=bounces {
+            // each traced afresh from x: no storage, and reflections are few
+            let Some(r) = self.reflect_inside(x, w, k) else {
+                return false;
+            };
+            if let Some(p) = previous {
+                visit(p.from, p.along, r.length - p.length);
+            }
+            previous = Some(r);
         }
+        if let Some(p) = previous {
+            visit(p.from, p.along, length - p.length);
+        }
+        true
     }
 
     /// The stationary path Newton's method reaches from the initial direction `w0` that joins
@@ -799,6 +804,33 @@ impl<'v> Connector<'v> {
         Some((mirror(v, end.x)?.normalize(), r, dx, dv))
     }
 
+    /// Where the straight ray from `y` outside the volume along unit `w` meets its surface from
+    /// outside ([`Meet`]); `None` if it misses the volume.
+    fn meet(&self, y: DVec3, w: DVec3) -> Option<Meet> {
+        let bounds = &self.volume.field.bounds;
+        let (t0, _) = bounds.interval(y, w)?;
+        if t0 <= 0.0 {
+            return None;
+        }
+        let at = y + w * t0;
+        let normal = bounds.normal(at)?;
+        let cos = normal.dot(w);
+        if cos >= 0.0 {
+            return None;
+        }
+        let (e1, e2) = orthonormal_basis(w);
+        // the point slides along the surface: its move along w's turn, less the part along w
+        // that leaves the tangent plane
+        let slide = [e1, e2].map(|e| (e - w * (normal.dot(e) / cos)) * t0);
+        Some(Meet {
+            t0,
+            at,
+            cos,
+            frame: [e1, e2],
+            slide,
+        })
+    }
+
     /// As [`Self::exit_map`] for the ray from `y` outside the volume: straight to the volume,
     /// refracted in (the entry point sliding along the surface as `w` turns, the refraction's
     /// derivative by central differences of its closed form), across, refracted out. `None` if
@@ -807,16 +839,13 @@ impl<'v> Connector<'v> {
     fn across_map(&self, y: DVec3, w: DVec3) -> Option<(Exit, [DVec3; 2], [DVec3; 2])> {
         let field = &self.volume.field;
         let bounds = &field.bounds;
-        let (t0, _) = bounds.interval(y, w)?;
-        if t0 <= 0.0 {
-            return None;
-        }
-        let at = y + w * t0;
-        let normal = bounds.normal(at)?;
-        let nw = normal.dot(w);
-        if nw >= 0.0 {
-            return None;
-        }
+        let Meet {
+            t0,
+            at,
+            cos: nw,
+            frame,
+            slide: dx,
+        } = self.meet(y, w)?;
         let inside = y + w * entry_parameter(t0);
         let (n_in, grad) = field.value_grad(inside);
         let eta = field.n_out / n_in;
@@ -825,11 +854,8 @@ impl<'v> Connector<'v> {
             refract(d, nrm, eta).ok()
         };
         let d_in = inward(w, at)?;
-        let (e1, e2) = orthonormal_basis(w);
-        let mut dx = [DVec3::ZERO; 2];
         let mut dv = [DVec3::ZERO; 2];
-        for (k, e) in [e1, e2].into_iter().enumerate() {
-            dx[k] = (e - w * (normal.dot(e) / nw)) * t0;
+        for (k, e) in frame.into_iter().enumerate() {
             let plus = inward((w + e * DIFF_STEP).normalize(), at + dx[k] * DIFF_STEP)?;
             let minus = inward((w - e * DIFF_STEP).normalize(), at - dx[k] * DIFF_STEP)?;
             // v = n d: the direction turns, and |v| follows n along the move
@@ -870,32 +896,26 @@ impl<'v> Connector<'v> {
     fn mirror_map(&self, y: DVec3, w: DVec3) -> Option<(Exit, [DVec3; 2], [DVec3; 2])> {
         let field = &self.volume.field;
         let bounds = &field.bounds;
-        let (t0, _) = bounds.interval(y, w)?;
-        if t0 <= 0.0 {
-            return None;
-        }
-        let at = y + w * t0;
-        let normal = bounds.normal(at)?;
-        let nw = normal.dot(w);
-        if nw >= 0.0 {
-            return None;
-        }
+        let Meet {
+            t0,
+            at,
+            cos: nw,
+            frame,
+            slide: dx,
+        } = self.meet(y, w)?;
         let reflectance = fresnel(nw, field.n_out / field.n(y + w * entry_parameter(t0)));
         if reflectance <= 0.0 {
             return None;
         }
         let mirror =
             |d: DVec3, at: DVec3| -> Option<DVec3> { Some(reflect(d, bounds.normal(at)?)) };
-        let (e1, e2) = orthonormal_basis(w);
-        let mut dx = [DVec3::ZERO; 2];
         let mut dout = [DVec3::ZERO; 2];
-        for (k, e) in [e1, e2].into_iter().enumerate() {
-            dx[k] = (e - w * (normal.dot(e) / nw)) * t0;
+        for (k, e) in frame.into_iter().enumerate() {
             let plus = mirror((w + e * DIFF_STEP).normalize(), at + dx[k] * DIFF_STEP)?;
             let minus = mirror((w - e * DIFF_STEP).normalize(), at - dx[k] * DIFF_STEP)?;
             dout[k] = (plus - minus) / (2.0 * DIFF_STEP);
         }
-        let outgoing = reflect(w, normal);
+        let outgoing = mirror(w, at)?;
         Some((
             Exit {
                 direction: w,
@@ -1151,6 +1171,19 @@ impl<'v> Connector<'v> {
         }
         None
     }
+}
+
+/// Where a straight ray from outside meets the volume's surface ([`Connector::meet`]).
+struct Meet {
+    /// The distance to it, and the point.
+    t0: f64,
+    at: DVec3,
+    /// The ray's cosine with the outward normal there (negative).
+    cos: f64,
+    /// The two angles of the ray's direction (`e1`, `e2` of its frame), and how the point slides
+    /// along the surface as the direction turns along each.
+    frame: [DVec3; 2],
+    slide: [DVec3; 2],
 }
 
 /// A ray inside after reflections inside the surface ([`Connector::reflect_inside`]).

@@ -662,15 +662,13 @@ impl<'s> ParticleTracer<'s> {
         if bounces == 0 {
             return self.ratio_tracking(t, x, w, length, rng);
         }
-        let mut kept = 0.0;
-        let mut first = true;
-        t.connector
+        let mut kept = 1.0;
+        let whole = t
+            .connector
             .stretches(x, w, bounces, length, |from, along, stretch| {
-                let k = self.ratio_tracking(t, from, along, stretch, rng);
-                kept = if first { k } else { kept * k };
-                first = false;
+                kept *= self.ratio_tracking(t, from, along, stretch, rng);
             });
-        kept
+        if whole { kept } else { 0.0 }
     }
 
     /// Ratio tracking along the curved ray from `x` (inside) along unit `w` for geometric length
