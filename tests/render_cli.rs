@@ -938,6 +938,21 @@ fn bad_render_designs_are_refused_by_key() {
         design("maximize = \"spot\"", "maximize = \"spott\""),
         &["design.maximize = \"spott\"", "\"spot\""],
     );
+    // a fluence probe may be the objective, or the reference
+    let probe =
+        "[[sensor]]\nkind = \"fluence\"\nname = \"deep\"\nposition = [0.0, 0.1, 0.4]\n[render]";
+    let with_probe = |from: &str, to: &str| design(from, to).replacen("[render]", probe, 1);
+    for (from, to) in [
+        ("maximize = \"spot\"", "maximize = \"deep\""),
+        (
+            "maximize = \"spot\"",
+            "maximize = \"spot\"\nrelative_to = \"deep\"",
+        ),
+    ] {
+        std::fs::write(&path, with_probe(from, to)).unwrap();
+        let o = lightpath(&["check", &path.display().to_string()]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
     bad(
         design(
             "maximize = \"spot\"",

@@ -94,6 +94,13 @@ fn outputs(s: &RenderScene, est: &ParticleTracer, j: Option<usize>) -> Vec<(Stri
             }
         }
     }
+    for (i, probe) in s.probes.iter().enumerate() {
+        all.push((
+            probe.name.clone(),
+            est.probe_total(i),
+            j.map_or(0, |j| est.probe_derivative(i, j)),
+        ));
+    }
     all
 }
 
@@ -177,8 +184,77 @@ fn spots_and_screens_differentiate_as_their_differences() {
     agrees_with_differences(|v, d| ball(v, c2, d), n0, 0.01, 0, sizes);
 }
 
+/// Two fluence probes inside the ball: one above the centre where the grading gathers the beam,
+/// one off to the side near the entry.
+const PROBES: &str = "[[sensor]]\nkind = \"fluence\"\nname = \"deep\"\nposition = [0.0, 0.1, 0.4]\n[[sensor]]\nkind = \"fluence\"\nname = \"side\"\nposition = [0.5, 0.0, -0.2]\n[render]";
+
+/// `text` with the probes added.
+fn with_probes(text: &str) -> String {
+    text.replacen("[render]", PROBES, 1)
+}
+
+/// A probe's connections move with the field (the boundary-value problem's implicit dependence
+/// on `n`) and with the scattering events (the photons' sensitivities): their derivatives equal
+/// the estimate's difference quotients, with and without reflections inside the surface joining
+/// the events to the probes. A reflected connection's value is smooth only to about 1e-12 of
+/// itself (the reflection's sensitivities are central differences of the mirror, whose round-off
+/// varies with θ), so its difference quotient is taken over a larger step.
+#[test]
+fn a_probes_derivatives_are_its_estimates_difference_quotients() {
+    let names = "\"profiles[0].n0\", \"profiles[0].c2\", \"sigma_s\"";
+    let (n0, c2) = (1.3, -0.25);
+    for (reflections, h) in [("", 1e-7), ("reflections = 1\n", 1e-5)] {
+        let ball = |n0, c2| {
+            let text = with_probes(&graded_ball(n0, c2, 1.5, names));
+            scene(&text.replacen("[render]\n", &format!("[render]\n{reflections}"), 1))
+        };
+        is_the_difference_quotient(|v| ball(v, c2), n0, h, 0);
+        is_the_difference_quotient(|v| ball(n0, v), c2, h, 1);
+    }
+}
+
+/// The probes' slopes in the grading and in the medium's σ_s and `g` (which particle tracing
+/// estimates without following the field when no field parameter is asked for) against the slopes
+/// of the expectation. One path joins an event to a probe in this ball, so Newton's first is
+/// taken (`connections = "first"`).
+#[test]
+fn probes_differentiate_as_their_differences() {
+    let (n0, c2, sigma_s, g) = (1.3, -0.25, 1.5, 0.5);
+    let ball = |c2, sigma_s, g: f64, names: &str| {
+        let text = with_probes(&graded_ball(n0, c2, sigma_s, names))
+            .replace("g = 0.5", &format!("g = {g}"))
+            .replacen("[render]\n", "[render]\nconnections = \"first\"\n", 1);
+        scene(&text)
+    };
+    let sizes = (40_000, 8, 10_000);
+    let names = |d: bool, names: &'static str| if d { names } else { "" };
+    let field = "\"profiles[0].c2\"";
+    agrees_with_differences(
+        |v, d| ball(v, sigma_s, g, names(d, field)),
+        c2,
+        0.05,
+        0,
+        sizes,
+    );
+    let medium = "\"sigma_s\", \"g\"";
+    agrees_with_differences(
+        |v, d| ball(c2, v, g, names(d, medium)),
+        sigma_s,
+        0.1,
+        0,
+        sizes,
+    );
+    agrees_with_differences(
+        |v, d| ball(c2, sigma_s, v, names(d, medium)),
+        g,
+        0.05,
+        1,
+        sizes,
+    );
+}
+
 /// Four line elements about a scattering water cylinder (lengths in mm), the field met at a
-/// random instant per photon; a target on the axis at depth.
+/// random instant per photon; a target and a fluence probe at depth.
 fn phased_array(amplitude: f64, phase_deg: f64, frequency: f64) -> String {
     placed_array(amplitude, phase_deg, frequency, 4.0)
 }
@@ -221,6 +297,10 @@ kind = "target"
 name = "deep"
 center = [0.3, 0.0, 3.0]
 radius = 0.5
+[[sensor]]
+kind = "fluence"
+name = "axis"
+position = [0.2, 0.1, 2.0]
 [render]
 step = 0.02
 derivatives = ["profiles[0].amplitude_0", "profiles[0].phase_1", "profiles[0].frequency", "profiles[0].x_0"]
@@ -540,9 +620,22 @@ fn scenes_the_field_derivatives_do_not_cover_are_refused_by_key() {
     );
     let probe =
         "[[sensor]]\nkind = \"fluence\"\nname = \"p\"\nposition = [0.0, 0.0, 0.0]\n[render]";
+    assert!(load_text(&base.replacen("[render]", probe, 1)).is_ok());
+    let timed = probe.replace(
+        "[render]",
+        "[transient]\nbins = 4\nmax_path = 10.0\n[render]",
+    );
     refused(
-        &base.replacen("[render]", probe, 1),
-        &["sensor[3].kind = \"fluence\""],
+        &base.replacen("[render]", &timed, 1),
+        &["[transient]", "fluence probe \"p\""],
+    );
+    let pinhole = "[[sensor]]\nkind = \"pinhole\"\nname = \"eye\"\nposition = [0.0, 0.0, 3.0]\nlook_at = [0.0, 0.0, 0.0]\nfov_deg = 40.0\npixels = [4, 4]\n[render]";
+    refused(
+        &base.replacen("[render]", pinhole, 1),
+        &[
+            "sensor[3].kind = \"pinhole\"",
+            "connections leaving the volume",
+        ],
     );
     let floor = "[[surface]]\nname = \"floor\"\ncenter = [0.0, -1.5, 0.0]\nnormal = [0.0, 1.0, 0.0]\nalbedo = 0.5\n[render]";
     refused(&base.replacen("[render]", floor, 1), &["[[surface]]"]);
@@ -633,11 +726,13 @@ fn adam_designs_the_grading_that_delivers_more_light() {
 fn held_photons_give_a_deterministic_objective_with_its_exact_gradient() {
     use lightpath::diff::RenderOp;
     let names = "\"profiles[0].n0\", \"profiles[0].c2\"";
-    let mut op =
-        RenderOp::from_scene(scene(&graded_ball(1.3, 0.0, 1.5, names)), (4_000, 500, 9)).unwrap();
+    let ball = with_probes(&graded_ball(1.3, 0.0, 1.5, names));
+    let mut op = RenderOp::from_scene(scene(&ball), (4_000, 500, 9)).unwrap();
     op.hold().unwrap();
     assert_eq!(op.values(), vec![1.3, 0.0]);
     let a = op.evaluate(&[1.3, 0.05]).unwrap();
+    // the three targets, then the two probes
+    assert_eq!(a.power.len(), 5);
     let b = op.evaluate(&[1.3, 0.05]).unwrap();
     assert_eq!(a.power, b.power, "held evaluations differ");
     assert_eq!(a.jacobian, b.jacobian);
@@ -655,7 +750,7 @@ fn held_photons_give_a_deterministic_objective_with_its_exact_gradient() {
                 let fd = (up[i] - down[i]) / (2.0 * h);
                 assert!(
                     (d.jacobian[i][j] - fd).abs() < 1e-4 * fd.abs().max(d.jacobian[i][j].abs()),
-                    "θ = {theta:?}, parameter {j}, target {i}: derivative {:.9e}, difference quotient {fd:.9e}",
+                    "θ = {theta:?}, parameter {j}, output {i}: derivative {:.9e}, difference quotient {fd:.9e}",
                     d.jacobian[i][j]
                 );
             }

@@ -541,7 +541,7 @@ class RenderVjp:
 
     @property
     def value(self) -> npt.NDArray[np.float64]:
-        """[S] every sensor's output (power of flux sensors, screens and spots; targets' fluence), in the config's order."""
+        """[S] every sensor's output (power of flux sensors, screens and spots; targets' and fluence probes' fluence), in the config's order, the probes last."""
     @property
     def stderr(self) -> npt.NDArray[np.float64]: ...
     @property

@@ -150,7 +150,8 @@ pub(crate) fn render(
     Ok(Render { rendered })
 }
 
-/// A render's sensor outputs (powers of flux sensors, screens and spots, targets' fluences) at
+/// A render's sensor outputs (powers of flux sensors, screens and spots, targets' and fluence
+/// probes' fluences) at
 /// `theta` with their Jacobian, from one particle-tracing run (`render_vjp`); calling it with
 /// `∂L/∂outputs` gives `∂L/∂θ`.
 #[pyclass(frozen, module = "lightpath")]
@@ -168,7 +169,8 @@ pub(crate) struct RenderVjp {
 
 #[pymethods]
 impl RenderVjp {
-    /// float64 `[S]`: every sensor's output at `theta`, in the config's order.
+    /// float64 `[S]`: every sensor's output at `theta`, in the config's order (the fluence probes
+    /// after the other sensors).
     #[getter]
     fn value<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
         PyArray1::from_slice(py, &self.value)
@@ -204,7 +206,7 @@ impl RenderVjp {
         )
     }
 
-    /// The sensors' names, in the order of `value`.
+    /// The sensors' names, in the order of `value` (the fluence probes after the other sensors).
     #[getter]
     fn sensors(&self) -> Vec<String> {
         self.sensors.clone()
@@ -383,7 +385,7 @@ pub(crate) fn render_vjp(
     }
     Ok(RenderVjp {
         params,
-        sensors: t.scene.sensors.iter().map(|s| s.name.clone()).collect(),
+        sensors: t.scene.objectives(),
         theta,
         value: e.power,
         stderr: e.stderr,

@@ -202,6 +202,38 @@ radius = 0.3
         lp.render_vjp(lp.loads(GRADED_BALL.replace("[render]", screen, 1)), field)
 
 
+def test_a_probes_fluence_and_its_derivatives_come_through_render_and_render_vjp():
+    probe = """[[sensor]]
+kind = "fluence"
+name = "deep"
+position = [0.0, 0.1, 0.4]
+[render]"""
+    config = lp.loads(GRADED_BALL.replace("[render]", probe, 1))
+    params = ["profiles[0].c2", "sigma_s", "profiles[0].n0"]
+    vjp = lp.render_vjp(config, params, threads=2)
+    # the probes after the other sensors, as the command's render.json reports them
+    assert vjp.sensors == ["spot", "core", "deep"]
+    (deep,) = lp.render(config, threads=2).result["probes"]
+    assert vjp.value[2] == pytest.approx(deep["fluence"]["mean"], rel=1e-12)
+    for k, name in enumerate(params):
+        d = deep["derivatives"][name]
+        assert vjp.jacobian[2, k] == pytest.approx(d["mean"], rel=1e-9, abs=1e-15), name
+    # held photons: the probe's Jacobian is the derivative of its fluence
+    field = ["profiles[0].n0", "profiles[0].c2"]
+    theta = np.array([1.3, -0.25])
+    held = lp.render_vjp(config, field, theta=list(theta), photons=500, held=True, threads=2)
+    for k in range(2):
+        step = np.zeros(2)
+        step[k] = 1e-7
+        up, down = (
+            lp.render_vjp(config, field, theta=list(theta + s), photons=500, held=True,
+                          threads=2).value
+            for s in (step, -step)
+        )
+        fd = (up[2] - down[2]) / 2e-7
+        assert held.jacobian[2, k] == pytest.approx(fd, rel=1e-4), (k, held.jacobian, fd)
+
+
 STEP_DEG = 0.15
 PIXELS = 64
 PEAKS = [(32, 8), (32, 40)]

@@ -375,6 +375,12 @@ pub fn rendered(
             fluence,
             per_bin: (o..o + bins).map(|k| e.mean[k].re).collect(),
             per_bin_stderr: (o..o + bins).map(|k| e.stderr[k]).collect(),
+            derivatives: scene
+                .derivatives
+                .iter()
+                .enumerate()
+                .map(|(j, d)| (d.name(), measured(est.probe_derivative(i, j))))
+                .collect(),
         });
     }
     let mut cameras = Vec::new();

@@ -97,8 +97,8 @@ pub fn run(
         let plan = Plan::new(CHECK_SEED, verify, problem.chunk.min(verify));
         let e = estimate_until(&est, &plan, stop.get())?;
         let at = |i: usize| Measured {
-            mean: e.mean[est.power(i)].re,
-            stderr: e.stderr[est.power(i)],
+            mean: e.mean[est.objective(i)].re,
+            stderr: e.stderr[est.objective(i)],
         };
         Ok((at(problem.maximize), problem.relative_to.map(at)))
     };
@@ -125,7 +125,8 @@ pub fn run(
             "render design: no light reached the sensor maximised in the checking renders ({verify} photons): raise design.verify_photons"
         )));
     }
-    let name = |i: usize| problem.scene.sensors[i].name.clone();
+    let objectives = problem.scene.objectives();
+    let name = |i: usize| objectives[i].clone();
     Ok(RenderDesignFile {
         format_version: crate::io::results::FORMAT_VERSION,
         maximize: name(problem.maximize),

@@ -1006,23 +1006,25 @@ impl RenderConfig {
         let Some(d) = &self.design else {
             return Ok(None);
         };
-        // one output that follows the light continuously: a target's tracks or a spot's aperture
-        let designable =
-            |s: &Sensor| s.follows_light_continuously() && s.kind != SensorKind::Screen;
-        let target = |key: &str, name: &str| {
+        // one output that follows the light continuously: a target's tracks, a spot's aperture,
+        // a probe's connections
+        let objectives = scene.objectives();
+        let designable = |i: usize| {
             scene
                 .sensors
-                .iter()
-                .position(|s| s.name == name && designable(s))
+                .get(i)
+                .is_none_or(|s| s.follows_light_continuously() && s.kind != SensorKind::Screen)
+        };
+        let target = |key: &str, name: &str| {
+            (0..objectives.len())
+                .position(|i| objectives[i] == name && designable(i))
                 .ok_or_else(|| {
-                    let targets: Vec<&str> = scene
-                        .sensors
-                        .iter()
-                        .filter(|s| designable(s))
-                        .map(|s| s.name.as_str())
+                    let targets: Vec<&str> = (0..objectives.len())
+                        .filter(|&i| designable(i))
+                        .map(|i| objectives[i].as_str())
                         .collect();
                     ConfigError(format!(
-                        "{key} = {name:?}: not a target or spot of this scene; its targets (kind = \"target\") and spots (kind = \"spot\"): {targets:?}"
+                        "{key} = {name:?}: not a target, spot or fluence probe of this scene; its targets (kind = \"target\"), spots (kind = \"spot\") and probes (kind = \"fluence\"): {targets:?}"
                     ))
                 })
         };
@@ -1199,13 +1201,12 @@ impl RenderConfig {
         }
         for (i, s) in self.sensor.iter().enumerate() {
             let kind = match s {
-                SensorConfig::Fluence { .. } => "fluence",
                 SensorConfig::Camera { .. } => "camera",
                 SensorConfig::Pinhole { .. } => "pinhole",
                 _ => continue,
             };
             return err(format!(
-                "{key}: sensor[{i}].kind = \"{kind}\" is estimated by connections, whose index-field derivatives are not estimated; use a target (kind = \"target\") or a spot (kind = \"spot\")"
+                "{key}: sensor[{i}].kind = \"{kind}\" is estimated by connections leaving the volume, whose index-field derivatives are not estimated; use a target (kind = \"target\"), a fluence probe (kind = \"fluence\") or a spot (kind = \"spot\")"
             ));
         }
         let plane = |s: &&Sensor| s.region.is_none();
@@ -1213,9 +1214,19 @@ impl RenderConfig {
             let why = if s.kind == SensorKind::Screen {
                 "gives each crossing to the pixel it falls in, and which pixel jumps as the light moves with the field (that share of the derivative is not estimated); give it filter = \"tent\" (pixels share crossings bilinearly, continuously)"
             } else {
-                "has edges (its rectangle or acceptance cone, or the plane's own edge at grazing light), and which side of an edge light crosses jumps as the light moves with the field (that share of the derivative is not estimated); index-field derivatives are of targets (kind = \"target\"), spots (kind = \"spot\": a Gaussian aperture) and screens with filter = \"tent\""
+                "has edges (its rectangle or acceptance cone, or the plane's own edge at grazing light), and which side of an edge light crosses jumps as the light moves with the field (that share of the derivative is not estimated); index-field derivatives are of targets (kind = \"target\"), fluence probes (kind = \"fluence\"), spots (kind = \"spot\": a Gaussian aperture) and screens with filter = \"tent\""
             };
             return err(format!("{key}: sensor {:?} {why}", s.name));
+        }
+        if self.transient.is_some()
+            && let Some(p) = self.sensor.iter().find_map(|s| match s {
+                SensorConfig::Fluence { name, .. } => Some(name),
+                _ => None,
+            })
+        {
+            return err(format!(
+                "{key}: [transient] with fluence probe {p:?}: light arriving after the last time bin is not counted, an edge that moves with the field; index-field derivatives of a probe are of its time-integrated fluence: leave [transient] out"
+            ));
         }
         if self.transient.is_some()
             && let Some(s) = sensors.iter().find(plane)

@@ -1,4 +1,4 @@
-//! Rendered sensor powers (and targets' fluences) as a differentiable function of the medium's
+//! Rendered sensor powers (targets' and probes' fluences too) as a differentiable function of the medium's
 //! and the index field's parameters, for the burn bridge ([`super::bridge`]) and any other
 //! reverse-mode user.
 //!
@@ -18,7 +18,8 @@ use crate::rrte::{Derivative, FieldDerivative, ParticleTracer, RenderScene, Trac
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
-/// `θ ↦ (power of sensor 0, power of sensor 1, …)` of a render, with its score pullback.
+/// `θ ↦ (power of sensor 0, power of sensor 1, …, fluence of probe 0, …)` of a render (its
+/// [`RenderScene::objectives`]), with its score pullback.
 pub struct RenderOp {
     pub scene: RenderScene,
     pub params: Vec<Param>,
@@ -34,8 +35,8 @@ pub struct RenderOp {
     evaluations: AtomicU64,
 }
 
-/// The powers of one evaluation, their standard errors, `∂ power_i/∂θ_p` (rows: sensors) and
-/// its standard errors.
+/// The powers of one evaluation, their standard errors, `∂ power_i/∂θ_p` (rows: the scene's
+/// objectives) and its standard errors.
 #[derive(Clone, Debug)]
 pub struct RenderEvaluation {
     pub power: Vec<f64>,
@@ -73,9 +74,9 @@ impl RenderOp {
         if scene.volume.density.is_some() {
             return Err("a render's derivatives need a homogeneous medium (no density)".into());
         }
-        if scene.sensors.is_empty() {
+        if scene.objectives().is_empty() {
             return Err(
-                "a render operation's outputs are its sensors' powers: give a sensor".into(),
+                "a render operation's outputs are its sensors' powers and probes' fluences: give a sensor".into(),
             );
         }
         if params.len() > crate::rrte::MAX_DERIVATIVES {
@@ -254,22 +255,22 @@ impl RenderOp {
         let mut est = ParticleTracer::new(&scene);
         est.even_draws = self.held;
         let e = estimate_until(&est, &plan, self.stop.get())?;
-        let sensors = scene.sensors.len();
+        let outputs = scene.sensors.len() + scene.probes.len();
         // the derivative outputs scaled by each parameter's factor (errors by its size)
         let per_parameter = |value: &dyn Fn(usize, f64) -> f64| -> Vec<Vec<f64>> {
-            (0..sensors)
+            (0..outputs)
                 .map(|i| {
                     factor
                         .iter()
                         .enumerate()
-                        .map(|(p, &f)| value(est.power_derivative(i, p), f))
+                        .map(|(p, &f)| value(est.objective_derivative(i, p), f))
                         .collect()
                 })
                 .collect()
         };
         let out = RenderEvaluation {
-            power: (0..sensors).map(|i| e.mean[est.power(i)].re).collect(),
-            stderr: (0..sensors).map(|i| e.stderr[est.power(i)]).collect(),
+            power: (0..outputs).map(|i| e.mean[est.objective(i)].re).collect(),
+            stderr: (0..outputs).map(|i| e.stderr[est.objective(i)]).collect(),
             jacobian: per_parameter(&|k, f| e.mean[k].re * f),
             jacobian_stderr: per_parameter(&|k, f| e.stderr[k] * f.abs()),
         };

@@ -865,6 +865,9 @@ pub struct ProbeRecord {
     pub fluence: Measured,
     pub per_bin: Vec<f64>,
     pub per_bin_stderr: Vec<f64>,
+    /// `∂ fluence/∂θ` by parameter name, with standard errors (with `render.derivatives`).
+    #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    pub derivatives: std::collections::BTreeMap<String, Measured>,
 }
 
 /// A target of a render: the mean fluence rate over a region inside the volume (per unit

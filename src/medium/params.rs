@@ -169,6 +169,30 @@ impl Param {
         }
     }
 
+    /// `∂ log ρ(μ) / ∂θ` of the bulk phase function `ρ = Σ_c β_c ρ_c(μ)`, as a connection
+    /// evaluates it (rather than picking a particle type): a share's `ρ_c/ρ − 1` (the shares
+    /// stay normalised), a phase parameter's `β_c ρ_c ∂ log ρ_c / ρ`, 0 for the coefficients.
+    pub fn dlog_mixture(&self, scattering: &crate::medium::Scattering, mu: f64) -> f64 {
+        let rho = scattering.eval(mu);
+        if rho.is_nan() || rho <= 0.0 {
+            return 0.0;
+        }
+        let component = match *self {
+            Param::Weight(c) => c,
+            _ => match self.phase_component() {
+                Some(c) => c,
+                None => return 0.0,
+            },
+        };
+        let Some((beta, phase)) = scattering.components().get(component) else {
+            return 0.0;
+        };
+        match self {
+            Param::Weight(_) => phase.eval(mu) / rho - 1.0,
+            _ => beta * phase.eval(mu) * self.dlog_phase(component, phase, mu) / rho,
+        }
+    }
+
     /// Whether this is a phase-function parameter (enters at vertices, not through coefficients).
     pub fn is_phase(&self) -> bool {
         matches!(
@@ -386,6 +410,40 @@ pub fn medium_with(base: &Medium, params: &[FitParam], v: &[f64]) -> Medium {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The bulk phase function's log-derivative against central differences of `ln ρ(μ)` of a
+    /// two-type mixture, for a type's `g` and share (the shares renormalised).
+    #[test]
+    fn a_mixtures_log_derivative_is_its_difference_quotient() {
+        use crate::medium::Scattering;
+        let mixture = |g1: f64, w0: f64| {
+            Scattering::mixture(vec![
+                (w0, PhaseFunction::HenyeyGreenstein { g: 0.3 }),
+                (0.6, PhaseFunction::HenyeyGreenstein { g: g1 }),
+            ])
+        };
+        let s = mixture(0.8, 0.4);
+        let h = 1e-6;
+        for mu in [-0.9, -0.2, 0.4, 0.95] {
+            let log = |s: &Scattering| s.eval(mu).ln();
+            let fd_g = (log(&mixture(0.8 + h, 0.4)) - log(&mixture(0.8 - h, 0.4))) / (2.0 * h);
+            let fd_w = (log(&mixture(0.8, 0.4 + h)) - log(&mixture(0.8, 0.4 - h))) / (2.0 * h);
+            let (d_g, d_w) = (
+                Param::G(1).dlog_mixture(&s, mu),
+                Param::Weight(0).dlog_mixture(&s, mu),
+            );
+            assert!(
+                (d_g - fd_g).abs() < 1e-7 * fd_g.abs().max(1.0),
+                "μ {mu}: g {d_g} vs {fd_g}"
+            );
+            assert!(
+                (d_w - fd_w).abs() < 1e-7 * fd_w.abs().max(1.0),
+                "μ {mu}: share {d_w} vs {fd_w}"
+            );
+            assert_eq!(Param::SigmaS.dlog_mixture(&s, mu), 0.0);
+            assert_ne!(Param::G(0).dlog_mixture(&s, mu), 0.0);
+        }
+    }
 
     #[test]
     fn parameter_names_parse_back() {

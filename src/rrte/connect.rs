@@ -111,6 +111,8 @@ pub struct Connector<'v> {
     /// Largest perpendicular miss accepted as a hit.
     pub tolerance: f64,
     pub max_iterations: usize,
+    /// Take one more Newton step once within the tolerance ([`Self::polished`]).
+    polish: bool,
     /// Restarts at most, when estimating an inverse probability (beyond it the count so far is
     /// used: a bias only for paths drawn less often than once in this many tries).
     pub max_restarts: usize,
@@ -222,9 +224,31 @@ impl<'v> Connector<'v> {
             matched: volume.homogeneous() && volume.field.n(DVec3::ZERO) == volume.field.n_out,
             tolerance: 1e-9 * size,
             max_iterations: 40,
+            polish: false,
             max_restarts: 10_000,
             max_length,
         }
+    }
+
+    /// The same connector taking one more Newton step once a path is within the tolerance, which
+    /// leaves a residual at round-off (the step squares it): for central differences of a solved
+    /// path, where the tolerance's share of the residual would not cancel.
+    pub fn polished(mut self) -> Self {
+        self.polish = true;
+        self
+    }
+
+    /// Whether Newton's iteration ends at a residual of size `miss` (within `tolerance`): once
+    /// within it, a polishing connector steps once more first (`polished` records that it has).
+    fn converged(&self, miss: f64, tolerance: f64, polished: &mut bool) -> bool {
+        if miss > tolerance {
+            return false;
+        }
+        if self.polish && !*polished {
+            *polished = true;
+            return false;
+        }
+        true
     }
 
     /// Trace from `x` along unit `w` to the closest approach to `y`, carrying `∂x/∂v0`; `None` if
@@ -298,6 +322,7 @@ impl<'v> Connector<'v> {
         }
         let n_x = self.volume.field.n(x);
         let mut w = w0.normalize();
+        let mut polished = false;
         for iteration in 0..self.max_iterations {
             let (end, xv, length, optical_path) = self.shoot(x, w, y)?;
             let t = end.v.normalize();
@@ -309,7 +334,11 @@ impl<'v> Connector<'v> {
             let (c1, c2) = (xv * e1 * n_x, xv * e2 * n_x);
             let m = [[f1.dot(c1), f1.dot(c2)], [f2.dot(c1), f2.dot(c2)]];
             let det = m[0][0] * m[1][1] - m[0][1] * m[1][0];
-            if (r[0] * r[0] + r[1] * r[1]).sqrt() <= self.tolerance {
+            if self.converged(
+                (r[0] * r[0] + r[1] * r[1]).sqrt(),
+                self.tolerance,
+                &mut polished,
+            ) {
                 return (det.abs() > 0.0).then_some(Connection {
                     direction: w,
                     arrival: end,
@@ -712,6 +741,7 @@ impl<'v> Connector<'v> {
         let field = &self.volume.field;
         let mut w = w0.normalize();
         let mut last = None;
+        let mut polished = false;
         for iteration in 0..self.max_iterations {
             let traced = self.reflect_inside(x, w, bounces).and_then(|r| {
                 let (xv, vv) = r.sensitivities;
@@ -729,7 +759,11 @@ impl<'v> Connector<'v> {
             let (c1, c2) = (xv * r.dv0[0], xv * r.dv0[1]);
             let m = [[f1.dot(c1), f1.dot(c2)], [f2.dot(c1), f2.dot(c2)]];
             let det = m[0][0] * m[1][1] - m[0][1] * m[1][0];
-            if (miss[0] * miss[0] + miss[1] * miss[1]).sqrt() <= self.tolerance {
+            if self.converged(
+                (miss[0] * miss[0] + miss[1] * miss[1]).sqrt(),
+                self.tolerance,
+                &mut polished,
+            ) {
                 return (det.abs() > 0.0 && det.is_finite()).then_some(Connection {
                     direction: w,
                     arrival: end,
@@ -968,6 +1002,7 @@ impl<'v> Connector<'v> {
         let mut w = w0.normalize();
         // the last direction the map took, to step back towards when a step leaves its domain
         let mut last = None;
+        let mut polished = false;
         for iteration in 0..self.max_iterations {
             let Some((mut exit, dout, dsurf)) = map(w) else {
                 w = step_back(last?, w)?;
@@ -994,7 +1029,11 @@ impl<'v> Connector<'v> {
             let c2 = dsurf[1] + dout[1] * t;
             let m = [[f1.dot(c1), f1.dot(c2)], [f2.dot(c1), f2.dot(c2)]];
             let det = m[0][0] * m[1][1] - m[0][1] * m[1][0];
-            if (r[0] * r[0] + r[1] * r[1]).sqrt() <= self.tolerance {
+            if self.converged(
+                (r[0] * r[0] + r[1] * r[1]).sqrt(),
+                self.tolerance,
+                &mut polished,
+            ) {
                 exit.jacobian = det.abs();
                 exit.iterations = iteration + 1;
                 exit.optical_path += self.volume.field.n_out * t;
@@ -1147,6 +1186,7 @@ impl<'v> Connector<'v> {
         let (f1, f2) = orthonormal_basis(c);
         let mut w = w0.normalize();
         let mut last = None;
+        let mut polished = false;
         for iteration in 0..self.max_iterations {
             let Some((mut exit, [d1, d2], _)) = map(w) else {
                 w = step_back(last?, w)?;
@@ -1162,7 +1202,9 @@ impl<'v> Connector<'v> {
             let r = [f1.dot(out), f2.dot(out)];
             let m = [[f1.dot(d1), f1.dot(d2)], [f2.dot(d1), f2.dot(d2)]];
             let det = m[0][0] * m[1][1] - m[0][1] * m[1][0];
-            if (r[0] * r[0] + r[1] * r[1]).sqrt() <= 1e-10 && out.dot(c) > 0.0 {
+            if out.dot(c) > 0.0
+                && self.converged((r[0] * r[0] + r[1] * r[1]).sqrt(), 1e-10, &mut polished)
+            {
                 exit.jacobian = det.abs();
                 exit.iterations = iteration + 1;
                 return (det.abs() > 0.0 && det.is_finite()).then_some(exit);

@@ -15,10 +15,13 @@
 //!   joined every way and weighted by multiple importance sampling;
 //! - [`tangent`]: derivatives of particle tracing's outputs with respect to the index field's
 //!   parameters, by forward sensitivities of every photon's path;
+//! - `connection_slopes`: derivatives of what connections carry to fluence probes (the medium's
+//!   parameters in closed form, the index field's through the boundary-value problem);
 //! - [`spectrum`]: dispersive indices (Cauchy, Sellmeier, mixtures), wavelengths and colour.
 
 pub mod bidirectional;
 pub mod connect;
+mod connection_slopes;
 pub mod flight;
 pub mod particle;
 pub mod path;

@@ -16,15 +16,16 @@
 //! the conservation of basic radiance `L/n²` of the RRTE expresses.
 
 use super::bidirectional::Subpaths;
-use super::connect::{Aim, Connector, Exit, Sampled};
+use super::connect::{Aim, Connection, Connector, Exit, Sampled};
+use super::connection_slopes::{ShiftedFields, Vertex};
 use super::flight::{Flight, Flyer, fresnel, reflect};
 use super::scene::{
     Connections, Filter, MAX_DERIVATIVES, MAX_TARGETS, Modulation, Region, RenderScene, SensorKind,
     Tracing, Volume,
 };
 use super::spectrum::Delay;
-use crate::eikonal::Ray;
 use crate::eikonal::trace::refract;
+use crate::eikonal::{BoundedField, Ray};
 use crate::math::{C64, Rng, uniform};
 use crate::mc::Estimator;
 use crate::medium::params::Param;
@@ -289,6 +290,12 @@ pub struct ParticleTracer<'s> {
     /// Per differentiated parameter, sensor after sensor: the derivative of its power (the
     /// layout's total) and, for a screen, of each pixel's.
     derivative_images: Vec<ImageLayout>,
+    /// The first of the probes' derivatives: per differentiated parameter, probe after probe, the
+    /// derivative of its fluence rate (over all time bins).
+    probe_derivatives: usize,
+    /// The volume moved along each differentiated index-field parameter, for the derivatives of
+    /// connections.
+    pub(super) shifted: ShiftedFields,
     /// The sensors that are targets, with their regions.
     pub(super) targets: Vec<(usize, Region)>,
     /// Draw every scored choice of [`super::tangent`] with probability ½ (the weights take the
@@ -356,6 +363,8 @@ impl<'s> ParticleTracer<'s> {
                 at += 1 + pixels;
             }
         }
+        let probe_derivatives = at;
+        at += scene.derivatives.len() * scene.probes.len();
         ParticleTracer {
             scene,
             tools: Tools::new(&scene.volume, scene, [1.0; 3], Delay::NONE),
@@ -364,6 +373,8 @@ impl<'s> ParticleTracer<'s> {
             surface_offset,
             totals,
             derivative_images,
+            probe_derivatives,
+            shifted: ShiftedFields::new(scene),
             targets: scene
                 .sensors
                 .iter()
@@ -417,6 +428,30 @@ impl<'s> ParticleTracer<'s> {
     /// `scene.derivatives[j]`.
     pub fn power_derivative(&self, i: usize, j: usize) -> usize {
         self.derivative_image(i, j).total()
+    }
+
+    /// The output holding the derivative of probe `i`'s fluence rate (over all time bins) with
+    /// respect to `scene.derivatives[j]`.
+    pub fn probe_derivative(&self, i: usize, j: usize) -> usize {
+        self.probe_derivatives + j * self.scene.probes.len() + i
+    }
+
+    /// The output holding objective `i` of [`RenderScene::objectives`]: a sensor's power, then a
+    /// probe's fluence rate.
+    pub fn objective(&self, i: usize) -> usize {
+        match i.checked_sub(self.scene.sensors.len()) {
+            None => self.power(i),
+            Some(probe) => self.probe_total(probe),
+        }
+    }
+
+    /// The output holding the derivative of objective `i` with respect to
+    /// `scene.derivatives[j]`.
+    pub fn objective_derivative(&self, i: usize, j: usize) -> usize {
+        match i.checked_sub(self.scene.sensors.len()) {
+            None => self.power_derivative(i, j),
+            Some(probe) => self.probe_derivative(probe, j),
+        }
     }
 
     /// The image of sensor `i` (a flux sensor's: one pixel, one channel, its power per bin).
@@ -473,6 +508,48 @@ impl<'s> ParticleTracer<'s> {
         out: &mut [C64],
     ) {
         self.connect_probes(t, x, weight, opl, &emit, rng, out);
+        self.connect_cameras(t, x, weight, opl, emit, rng, out);
+    }
+
+    /// A photon's next-event connections from `v` (inside) with power `weight` after the optical
+    /// path `opl` ([`Self::connect`]); with derivatives, the probes' too (`score`: the path's so
+    /// far, `shifted`: the photon's volume moved along each index-field parameter).
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn connect_photon(
+        &self,
+        t: &Tools,
+        v: &Vertex,
+        (weight, opl): (f64, f64),
+        score: &[f64],
+        shifted: &[[Volume; 2]],
+        rng: &mut Rng,
+        out: &mut [C64],
+    ) {
+        let volume = t.flyer.volume;
+        let emit = |d: DVec3| match v.w_in {
+            Some(w) => volume.scattering.eval(w.dot(d)),
+            None => self.scene.light.intensity(d),
+        };
+        if self.scene.derivatives.is_empty() {
+            self.connect(t, v.x, weight, opl, emit, rng, out);
+            return;
+        }
+        self.connect_probes_scored(t, v, weight, opl, score, shifted, rng, out);
+        self.connect_cameras(t, v.x, weight, opl, emit, rng, out);
+    }
+
+    /// Next-event connections from `x` (inside) to every camera (see [`Self::connect`]).
+    #[allow(clippy::too_many_arguments)]
+    fn connect_cameras(
+        &self,
+        t: &Tools,
+        x: DVec3,
+        weight: f64,
+        opl: f64,
+        emit: impl Fn(DVec3) -> f64,
+        rng: &mut Rng,
+        out: &mut [C64],
+    ) {
         for i in 0..self.scene.cameras.len() + self.scene.pinholes.len() {
             for way in self.ways(t, false) {
                 let Some(link) = self.camera_link(t, x, i, way, rng, out) else {
@@ -496,29 +573,57 @@ impl<'s> ParticleTracer<'s> {
         rng: &mut Rng,
         out: &mut [C64],
     ) {
+        self.probe_paths(t, x, rng, out, |out, i, c, inverse_p, bounces, rng| {
+            let transmittance = self.transmittance(t, x, c.direction, (c.length, bounces), rng);
+            let value =
+                weight * emit(c.direction) * transmittance * c.reflectance / c.spread * inverse_p;
+            if value > 0.0 && value.is_finite() {
+                self.add_to_probe(t, i, c, value, opl, out);
+            }
+        });
+    }
+
+    /// Every stationary path drawn from `x` (inside) to each probe, after 0 … K reflections inside
+    /// the surface, to `visit(out, probe, path, inverse probability, reflections, rng)`.
+    pub(super) fn probe_paths(
+        &self,
+        t: &Tools,
+        x: DVec3,
+        rng: &mut Rng,
+        out: &mut [C64],
+        mut visit: impl FnMut(&mut [C64], usize, &Connection, f64, usize, &mut Rng),
+    ) {
         let first_only = self.scene.connections == Connections::First;
         for (i, probe) in self.scene.probes.iter().enumerate() {
             for bounces in 0..=self.most_bounces(t) {
                 let s = t
                     .connector
                     .sample_bounced(x, probe.position, bounces, first_only, rng);
-                let Some((c, inverse_p)) = self.tally(s, out) else {
-                    continue;
-                };
-                let transmittance = self.transmittance(t, x, c.direction, (c.length, bounces), rng);
-                let value = weight * emit(c.direction) * transmittance * c.reflectance / c.spread
-                    * inverse_p;
-                if !(value > 0.0 && value.is_finite()) {
-                    continue;
+                if let Some((c, inverse_p)) = self.tally(s, out) {
+                    visit(out, i, &c, inverse_p, bounces, rng);
                 }
-                let Some(bin) = self.bin(opl + t.delay.inside(c.optical_path, c.length)) else {
-                    continue;
-                };
-                let o = self.probe_offset(i);
-                out[o + bin].re += value;
-                out[o - 1].re += value;
             }
         }
+    }
+
+    /// Add `value` to probe `i`, reached along the path `c` after the optical path `opl`: `false`
+    /// if it arrives after the last time bin.
+    pub(super) fn add_to_probe(
+        &self,
+        t: &Tools,
+        i: usize,
+        c: &Connection,
+        value: f64,
+        opl: f64,
+        out: &mut [C64],
+    ) -> bool {
+        let Some(bin) = self.bin(opl + t.delay.inside(c.optical_path, c.length)) else {
+            return false;
+        };
+        let o = self.probe_offset(i);
+        out[o + bin].re += value;
+        out[o - 1].re += value;
+        true
     }
 
     /// Add the connection `link` to its camera's image, carrying `scale` times its unit
@@ -852,11 +957,19 @@ impl<'s> ParticleTracer<'s> {
         }
     }
 
-    /// One sample: a photon from the light, a path from each camera, or both joined.
-    fn sample(&self, t: &Tools, subpaths: &mut Subpaths, rng: &mut Rng, out: &mut [C64]) {
+    /// One sample: a photon from the light, a path from each camera, or both joined. `shifted`:
+    /// the photon's volume moved along each differentiated index-field parameter.
+    fn sample(
+        &self,
+        t: &Tools,
+        shifted: &[[Volume; 2]],
+        subpaths: &mut Subpaths,
+        rng: &mut Rng,
+        out: &mut [C64],
+    ) {
         match self.scene.tracing {
             Tracing::FromLight if self.scene.field_derivatives() || self.even_draws => {
-                self.photon_differentiated(t, rng, out)
+                self.photon_differentiated(t, shifted, rng, out)
             }
             Tracing::FromLight => self.photon(t, rng, out),
             Tracing::FromCameras => self.camera_paths(t, rng, out),
@@ -901,8 +1014,9 @@ impl<'s> ParticleTracer<'s> {
         };
         let mut leg = if t.flyer.volume.field.bounds.contains(x) {
             if self.connects() {
-                let light = &self.scene.light;
-                self.connect(t, x, 1.0, 0.0, |d| light.intensity(d), rng, out);
+                let v = Vertex::fixed(x, None);
+                let score = &p.score[..self.scene.derivatives.len()];
+                self.connect_photon(t, &v, (1.0, 0.0), score, &[], rng, out);
             }
             Leg::Inside(Ray {
                 x,
@@ -1202,8 +1316,9 @@ impl<'s> ParticleTracer<'s> {
                     }
                     let w_in = hit.v.normalize();
                     if self.connects() {
-                        let phase = |d: DVec3| volume.scattering.eval(w_in.dot(d));
-                        self.connect(t, hit.x, p.weight, p.opl, phase, rng, out);
+                        let v = Vertex::fixed(hit.x, Some(w_in));
+                        let score = &p.score[..derivatives.len()];
+                        self.connect_photon(t, &v, (p.weight, p.opl), score, &[], rng, out);
                     }
                     if !p.roulette(rng) {
                         return None;
@@ -1383,9 +1498,10 @@ pub(super) fn roulette_by(weight: &mut f64, u: f64) -> bool {
 }
 
 impl Estimator for ParticleTracer<'_> {
-    /// With a time-modulated or dispersive field, each thread's copy of the volume, set to each
-    /// photon's phase and wavelength; the subpaths of bidirectional samples.
-    type Scratch = (Option<Volume>, Subpaths);
+    /// With a time-modulated or dispersive field, each thread's copy of the volume and of the
+    /// shifted volumes, set to each photon's phase and wavelength; the subpaths of bidirectional
+    /// samples.
+    type Scratch = (Option<(Volume, Vec<[Volume; 2]>)>, Subpaths);
 
     fn outputs(&self) -> usize {
         self.outputs
@@ -1393,38 +1509,36 @@ impl Estimator for ParticleTracer<'_> {
 
     fn scratch(&self) -> Self::Scratch {
         let volume = (self.scene.modulation.is_some() || self.scene.spectrum.is_some())
-            .then(|| self.scene.volume.clone());
+            .then(|| (self.scene.volume.clone(), self.shifted.volumes.clone()));
         (volume, Subpaths::default())
     }
 
     fn run_chunk(&self, rng: &mut Rng, paths: u64, scratch: &mut Self::Scratch, out: &mut [C64]) {
-        let (volume, subpaths) = scratch;
+        use rand::{Rng as _, SeedableRng as _};
+        let (volumes, subpaths) = scratch;
         for _ in 0..paths {
             // with even draws every photon draws from its own stream, so a photon drawing more or
             // fewer numbers as θ moves leaves the next photons' numbers where they were
             let mut own;
             let rng: &mut Rng = if self.even_draws {
-                use rand::{Rng as _, SeedableRng as _};
                 own = Rng::seed_from_u64(rng.next_u64());
                 &mut own
             } else {
                 &mut *rng
             };
-            let Some(volume) = volume.as_mut() else {
-                self.sample(&self.tools, subpaths, rng, out);
+            let Some((volume, shifted)) = volumes.as_mut() else {
+                self.sample(&self.tools, &self.shifted.volumes, subpaths, rng, out);
                 continue;
             };
-            let base = &self.scene.volume.field;
             let mut instant = None;
             if let Some(Modulation::Sinusoidal) = self.scene.modulation {
                 // the photon meets the field at a uniformly random instant of the period
                 // (paper 002, App. C, Eq. 22)
-                let omega_t = std::f64::consts::TAU * (uniform(rng) - 0.5);
-                modulate(&mut volume.field, base, omega_t);
-                instant = Some(omega_t);
+                instant = Some(std::f64::consts::TAU * (uniform(rng) - 0.5));
             }
             let mut colour = [1.0; 3];
             let mut delay = Delay::NONE;
+            let mut wavelength = None;
             if let Some(spectrum) = &self.scene.spectrum {
                 // a single line draws nothing: its photons meet the random numbers of a render
                 // without a spectrum
@@ -1433,13 +1547,27 @@ impl Estimator for ParticleTracer<'_> {
                 } else {
                     spectrum.sample(uniform(rng))
                 };
-                spectrum.disperse(&mut volume.field, base, lambda);
                 colour = spectrum.colour(lambda);
                 delay = spectrum.delay(lambda);
+                wavelength = Some(lambda);
+            }
+            let at_photon = |field: &mut BoundedField, base: &BoundedField| {
+                if let Some(omega_t) = instant {
+                    modulate(field, base, omega_t);
+                }
+                if let (Some(spectrum), Some(lambda)) = (&self.scene.spectrum, wavelength) {
+                    spectrum.disperse(field, base, lambda);
+                }
+            };
+            at_photon(&mut volume.field, &self.scene.volume.field);
+            for (pair, base) in shifted.iter_mut().zip(&self.shifted.volumes) {
+                for (v, b) in pair.iter_mut().zip(base) {
+                    at_photon(&mut v.field, &b.field);
+                }
             }
             let mut tools = Tools::new(volume, self.scene, colour, delay);
             tools.instant = instant;
-            self.sample(&tools, subpaths, rng, out);
+            self.sample(&tools, shifted, subpaths, rng, out);
         }
     }
 

@@ -863,6 +863,15 @@ pub struct RenderScene {
 
 impl RenderScene {
     /// Whether any derivative is with respect to the index field.
+    /// The names of what a render operation outputs, in order: every sensor's power (a target's
+    /// fluence), then every probe's fluence rate.
+    pub fn objectives(&self) -> Vec<String> {
+        let sensors = self.sensors.iter().map(|s| s.name.clone());
+        sensors
+            .chain(self.probes.iter().map(|p| p.name.clone()))
+            .collect()
+    }
+
     pub fn field_derivatives(&self) -> bool {
         self.derivatives
             .iter()

@@ -22,6 +22,11 @@
 //! leaving) plus its value times
 //! the score of the choices made before it. Both parts are unbiased, so the sum is `∂E[f]/∂θ`.
 //!
+//! At each scattering event (and at a light inside the volume) the photon connects to the fluence
+//! probes; what the connections carry is differentiated from the event's position and incoming
+//! direction with their sensitivities, and through the boundary-value problem's dependence on the
+//! field, by `connection_slopes`.
+//!
 //! Sensors must not have edges that move with the light (a flux plane's rectangle or its
 //! grazing edge, box-filtered pixels, an acceptance cone: their crossings' share is not
 //! estimated), and photons leave the convex volume for good
@@ -32,10 +37,11 @@
 // the sensitivities are parallel arrays, one entry per field parameter, read together by index
 #![allow(clippy::needless_range_loop)]
 
+use super::connection_slopes::Vertex;
 use super::particle::{
     ParticleTracer, Tools, Total, albedo_score, flight_score, roulette, roulette_by,
 };
-use super::scene::{Derivative, MAX_DERIVATIVES, MAX_TARGETS};
+use super::scene::{Derivative, MAX_DERIVATIVES, MAX_TARGETS, Volume};
 use crate::eikonal::trace::{entry_parameter, jacobian_of, refract};
 use crate::eikonal::{BoundedField, IndexField, Profile, Ray, Tracer};
 use crate::math::{C64, Rng, direction_about_continuously, uniform};
@@ -439,7 +445,15 @@ struct Photon {
 impl ParticleTracer<'_> {
     /// Trace one photon with its sensitivities to the field parameters (see the module's
     /// documentation), adding its contributions and their derivatives to `out`.
-    pub(super) fn photon_differentiated(&self, t: &Tools, rng: &mut Rng, out: &mut [C64]) {
+    /// `shifted`: the photon's volume moved along each index-field parameter, for the
+    /// derivatives of its connections to probes.
+    pub(super) fn photon_differentiated(
+        &self,
+        t: &Tools,
+        shifted: &[[Volume; 2]],
+        rng: &mut Rng,
+        out: &mut [C64],
+    ) {
         let scene = self.scene;
         let sens = Sensitivity::new(t, &scene.derivatives, scene.step, scene.max_steps);
         let (x, d) = scene
@@ -454,6 +468,10 @@ impl ParticleTracer<'_> {
         };
         let field = &t.flyer.volume.field;
         let start = if field.bounds.contains(x) {
+            if !scene.probes.is_empty() {
+                let v = Vertex::fixed(x, None);
+                self.connect_differentiated(t, &v, &p, shifted, rng, out);
+            }
             let l = sens.at(x);
             let mut tan = Tangent::ZERO;
             for k in 0..sens.count {
@@ -464,7 +482,8 @@ impl ParticleTracer<'_> {
             self.enter(t, &sens, x, d, &mut p, rng, out)
         };
         if let Some((ray, tan)) = start
-            && let Some(leaving) = self.inside_differentiated(t, &sens, ray, tan, &mut p, rng, out)
+            && let Some(leaving) =
+                self.inside_differentiated(t, &sens, (ray, tan), shifted, &mut p, rng, out)
         {
             self.leave_for_good(t, &sens, &leaving, &p, out);
         }
@@ -536,6 +555,30 @@ impl ParticleTracer<'_> {
                 None
             }
         }
+    }
+
+    /// The connections from `v` to the probes, with their derivatives. With even draws they draw
+    /// from their own stream, so the photon's next numbers do not depend on how many Newton
+    /// restarts they took.
+    fn connect_differentiated(
+        &self,
+        t: &Tools,
+        v: &Vertex,
+        p: &Photon,
+        shifted: &[[Volume; 2]],
+        rng: &mut Rng,
+        out: &mut [C64],
+    ) {
+        let score = &p.score[..self.scene.derivatives.len()];
+        let mut own;
+        let rng: &mut Rng = if self.even_draws {
+            use rand::{Rng as _, SeedableRng as _};
+            own = Rng::seed_from_u64(rng.next_u64());
+            &mut own
+        } else {
+            rng
+        };
+        self.connect_probes_scored(t, v, p.weight, p.opl, score, shifted, rng, out);
     }
 
     /// The probability an outcome of probability `prob` (in (0, 1)) is drawn with.
@@ -623,8 +666,8 @@ impl ParticleTracer<'_> {
         &self,
         t: &Tools,
         sens: &Sensitivity,
-        mut ray: Ray,
-        mut tan: Tangent,
+        (mut ray, mut tan): (Ray, Tangent),
+        shifted: &[[Volume; 2]],
         p: &mut Photon,
         rng: &mut Rng,
         out: &mut [C64],
@@ -693,6 +736,16 @@ impl ParticleTracer<'_> {
             p.weight *= albedo;
             for (s, param) in p.score.iter_mut().zip(derivatives) {
                 *s += albedo_score(param.medium(), volume);
+            }
+            if !self.scene.probes.is_empty() {
+                let speed = ray.v.length();
+                let w_in = ray.v / speed;
+                let mut v = Vertex::fixed(ray.x, Some(w_in));
+                for k in 0..sens.count {
+                    v.dx[k] = tan.x[k];
+                    v.dw[k] = (tan.v[k] - w_in * w_in.dot(tan.v[k])) / speed;
+                }
+                self.connect_differentiated(t, &v, p, shifted, rng, out);
             }
             // with even draws the game's number is drawn always, so the photons' random numbers
             // stay where they were as θ moves

@@ -1,0 +1,236 @@
+//! Derivatives of what next-event connections carry to fluence probes, with respect to the
+//! medium's and the index field's parameters (particle tracing's `render.derivatives`).
+//!
+//! A probe receives `W ρ(w_in·d) e^{−σ_t L} R / (dA⊥/dω)` along each stationary path from a
+//! scattering event (power `W` arriving along `w_in`; see [`ParticleTracer::connect`]), times
+//! Alg. 3's inverse probability. Its derivative is that value times the score of the photon's path
+//! before the event, plus the derivative of the connection itself:
+//! - a medium parameter: `∂ log` of the phase function evaluated along the connection (the
+//!   mixture's, [`crate::medium::params::Param::dlog_mixture`]), and `−L` for σ_s and σ_a (the
+//!   transmittance);
+//! - an index-field parameter: the connection moves with the field — its direction, length and
+//!   ray-tube spread are implicit functions of `n` through the boundary-value problem (paper 002,
+//!   Sec. 4) — and with the event, which moves along the photon's forward sensitivities. The
+//!   derivative is the central difference of the connection solved again in the field moved by
+//!   `±h`, from the event moved by `±h δx` (its incoming direction by `±h δw`), Newton starting
+//!   from the path found: the same stationary path, polished by one more Newton step once within
+//!   the tolerance (its residual squared, at round-off). `h` moves `n` by at most 1e-5 of its
+//!   variation over the volume, so the quotient's truncation is about 1e-10 of the slope; its
+//!   round-off is that of the value (about 1e-12 of it where the path reflects inside the
+//!   surface, whose sensitivities are central differences of the mirror) over the step, some
+//!   1e-7 of the value. (In closed form the spread's derivative would need the ray's
+//!   second-order sensitivities, and so third derivatives of `n`.)
+//!
+//! The inverse probability multiplies a path's value and its derivative alike: the estimate of
+//! `Σ_k f(C_k)` differentiates into the estimate of `Σ_k ∂f(C_k)`.
+
+use super::connect::{Connection, Connector};
+use super::particle::{ParticleTracer, Tools};
+use super::scene::{Derivative, FieldDerivative, MAX_DERIVATIVES, RenderScene, Volume};
+use crate::eikonal::IndexField;
+use crate::math::{C64, Rng};
+use glam::DVec3;
+
+const P: usize = MAX_DERIVATIVES;
+
+/// The most `n` moves anywhere for the central differences of a connection, as a fraction of
+/// how much it varies over the volume (of `n` itself where it is constant).
+const INDEX_STEP: f64 = 1e-5;
+
+/// Points per axis of the grid over which the largest `|∂n/∂θ|` is found.
+const GRID: usize = 7;
+
+/// The volume with its index field moved a step each way along every differentiated field
+/// parameter, for the central differences of connections (none where nothing is connected).
+#[derive(Clone, Default)]
+pub(super) struct ShiftedFields {
+    /// Per index-field parameter, in the order of the scene's derivatives: its slot among them.
+    pub slots: Vec<usize>,
+    /// Its step `h` (0 where it does not move `n`).
+    pub steps: Vec<f64>,
+    /// The volume at `θ − h` and at `θ + h`.
+    pub volumes: Vec<[Volume; 2]>,
+}
+
+impl ShiftedFields {
+    pub fn new(scene: &RenderScene) -> Self {
+        let mut s = ShiftedFields::default();
+        if scene.probes.is_empty() {
+            return s;
+        }
+        for (slot, d) in scene.derivatives.iter().enumerate() {
+            let Derivative::Field(f) = d else { continue };
+            // a trial step finds how fast the parameter moves n, then the step that moves it by
+            // INDEX_STEP at most
+            let value = shifted(&scene.volume, f, 0.0)
+                .field
+                .profiles
+                .get_mut(f.param.profile)
+                .and_then(|p| p.param_mut(f.param.which).map(|x| *x));
+            let trial = 1e-6 * value.map_or(1.0, |v| (v / f.scale).abs().max(1.0));
+            let (change, variation) = largest_change(scene, &shifted(&scene.volume, f, trial));
+            let rate = change / trial;
+            let h = if rate > 0.0 && rate.is_finite() {
+                INDEX_STEP * variation / rate
+            } else {
+                0.0
+            };
+            s.slots.push(slot);
+            s.steps.push(h);
+            s.volumes
+                .push([shifted(&scene.volume, f, -h), shifted(&scene.volume, f, h)]);
+        }
+        s
+    }
+}
+
+/// `volume` with field parameter `f` moved by `by` (in the parameter's units).
+fn shifted(volume: &Volume, f: &FieldDerivative, by: f64) -> Volume {
+    let mut v = volume.clone();
+    if let Some(x) = v
+        .field
+        .profiles
+        .get_mut(f.param.profile)
+        .and_then(|p| p.param_mut(f.param.which))
+    {
+        *x += by * f.scale;
+    }
+    v
+}
+
+/// The largest change of `n` from the scene's field to `other` over a grid of points inside the
+/// volume, at several instants of the period under a modulation; and how much the scene's `n`
+/// varies over them (`n` itself where it is constant).
+fn largest_change(scene: &RenderScene, other: &Volume) -> (f64, f64) {
+    let (base, moved) = (&scene.volume.field, &other.field);
+    let half = base.bounds.half_extent().unwrap_or(DVec3::ONE);
+    let instants: Vec<Option<f64>> = match scene.modulation {
+        Some(_) => (0..8)
+            .map(|k| Some(std::f64::consts::TAU * (k as f64 + 0.5) / 8.0 - std::f64::consts::PI))
+            .collect(),
+        None => vec![None],
+    };
+    let (mut a, mut b) = (base.clone(), moved.clone());
+    let mut largest: f64 = 0.0;
+    let (mut lowest, mut highest) = (f64::INFINITY, f64::NEG_INFINITY);
+    for instant in instants {
+        if let Some(omega_t) = instant {
+            super::particle::modulate(&mut a, base, omega_t);
+            super::particle::modulate(&mut b, moved, omega_t);
+        }
+        for i in 0..GRID * GRID * GRID {
+            let at = |k: usize| ((k % GRID) as f64 + 0.5) / GRID as f64 * 2.0 - 1.0;
+            let x = half * DVec3::new(at(i), at(i / GRID), at(i / (GRID * GRID)));
+            if base.bounds.contains(x) {
+                let n = a.n(x);
+                largest = largest.max((b.n(x) - n).abs());
+                (lowest, highest) = (lowest.min(n), highest.max(n));
+            }
+        }
+    }
+    let variation = highest - lowest;
+    (
+        largest,
+        if variation > 0.0 {
+            variation
+        } else {
+            highest.abs()
+        },
+    )
+}
+
+/// Where connections leave from: a scattering event (`w_in`: the unit direction the light
+/// arrived along) or the light's own point inside the volume (`None`), with the sensitivities of
+/// its position and incoming direction to each index-field parameter (in the order of
+/// [`ShiftedFields`]; zero for the light's point).
+pub(super) struct Vertex {
+    pub x: DVec3,
+    pub w_in: Option<DVec3>,
+    pub dx: [DVec3; P],
+    pub dw: [DVec3; P],
+}
+
+impl Vertex {
+    /// A vertex that does not move with the field.
+    pub fn fixed(x: DVec3, w_in: Option<DVec3>) -> Self {
+        Vertex {
+            x,
+            w_in,
+            dx: [DVec3::ZERO; P],
+            dw: [DVec3::ZERO; P],
+        }
+    }
+}
+
+impl ParticleTracer<'_> {
+    /// What a vertex with incoming direction `w_in` and power `weight` sends along the path `c`
+    /// through `volume` (homogeneous): `weight · emit · e^{−σ_t L} · R / (dA⊥/dω)`.
+    fn carried(&self, volume: &Volume, w_in: Option<DVec3>, weight: f64, c: &Connection) -> f64 {
+        let emit = match w_in {
+            Some(w) => volume.scattering.eval(w.dot(c.direction)),
+            None => self.scene.light.intensity(c.direction),
+        };
+        weight * emit * (-volume.sigma_t() * c.length).exp() * c.reflectance / c.spread
+    }
+
+    /// Next-event connections from `v` (inside) to every probe, carrying `weight` after the
+    /// optical path `opl` (as [`Self::connect_probes`] in a homogeneous medium), with the
+    /// derivatives of what each probe receives (see the module's documentation): `score` is the
+    /// photon's path's so far per derivative, `shifted` the photon's volume moved along each
+    /// index-field parameter (empty without them).
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn connect_probes_scored(
+        &self,
+        t: &Tools,
+        v: &Vertex,
+        weight: f64,
+        opl: f64,
+        score: &[f64],
+        shifted: &[[Volume; 2]],
+        rng: &mut Rng,
+        out: &mut [C64],
+    ) {
+        let volume = t.flyer.volume;
+        let derivatives = &self.scene.derivatives;
+        self.probe_paths(t, v.x, rng, out, |out, i, c, inverse_p, bounces, _| {
+            let value = self.carried(volume, v.w_in, weight, c) * inverse_p;
+            if !(value > 0.0 && value.is_finite() && self.add_to_probe(t, i, c, value, opl, out)) {
+                return;
+            }
+            for (j, d) in derivatives.iter().enumerate() {
+                let own = match d {
+                    Derivative::Medium(m) => {
+                        let phase = v.w_in.map_or(0.0, |w| {
+                            m.dlog_mixture(&volume.scattering, w.dot(c.direction))
+                        });
+                        let attenuation = if m.is_phase() { 0.0 } else { -c.length };
+                        value * (phase + attenuation)
+                    }
+                    Derivative::Field(_) => 0.0,
+                };
+                out[self.probe_derivative(i, j)].re += value * score[j] + own;
+            }
+            let y = self.scene.probes[i].position;
+            for (k, volumes) in shifted.iter().enumerate() {
+                let h = self.shifted.steps[k];
+                if h == 0.0 {
+                    continue;
+                }
+                let mut moved = [0.0; 2];
+                for (side, sign) in [(0, -1.0), (1, 1.0)] {
+                    let volume = &volumes[side];
+                    let connector =
+                        Connector::new(volume, self.scene.step, self.scene.max_steps).polished();
+                    let x = v.x + v.dx[k] * (sign * h);
+                    let w_in = v.w_in.map(|w| (w + v.dw[k] * (sign * h)).normalize());
+                    let Some(c) = connector.solve_bounced(x, y, c.direction, bounces) else {
+                        return;
+                    };
+                    moved[side] = self.carried(volume, w_in, weight, &c);
+                }
+                let slope = (moved[1] - moved[0]) / (2.0 * h) * inverse_p;
+                out[self.probe_derivative(i, self.shifted.slots[k])].re += slope;
+            }
+        });
+    }
+}
