@@ -384,18 +384,42 @@ pub fn rendered(
         });
     }
     let mut cameras = Vec::new();
-    let mut camera_images = |name: &str, image: ImageLayout, size: [usize; 2]| {
+    // a camera's images (its derivatives' after it), the files' names, and its total's
+    // derivatives (times `scale`: the orthographic cameras' pixel area)
+    let mut camera_images = |name: &str, i: usize, size: [usize; 2], scale: f64| {
         let frames = Frames {
             e: &e,
-            image,
+            image: est.images_of_camera(i),
             size,
             scale: 1.0,
         };
         let image = frames.image(format!("camera_{name}"), "√radiance");
-        let names = image.exr_names();
+        let mut names = image.exr_names();
         images.push(image);
-        names
+        let mut derivatives = std::collections::BTreeMap::new();
+        for (j, p) in scene.derivatives.iter().enumerate() {
+            let layout = est.camera_derivative(i, j);
+            let frames = Frames {
+                image: layout,
+                ..frames
+            };
+            let mut image = frames.image(
+                format!("camera_{name}_d_{}", file_name(&p.name())),
+                "∂radiance",
+            );
+            image.signed = true;
+            names.extend(image.exr_names());
+            images.push(image);
+            let total = measured(layout.total());
+            let total = Measured {
+                mean: total.mean * scale,
+                stderr: total.stderr * scale,
+            };
+            derivatives.insert(p.name(), total);
+        }
+        (names, derivatives)
     };
+    let filter = |f: Filter| (f == Filter::Tent).then(|| "tent".to_string());
     for (i, c) in scene.cameras.iter().enumerate() {
         let image = est.camera_image(i);
         let intensity = Measured {
@@ -406,7 +430,7 @@ pub fn rendered(
             "{} intensity {:.4e} ± {:.1e}",
             c.name, intensity.mean, intensity.stderr
         ));
-        let names = camera_images(&c.name, image, c.pixels);
+        let (names, derivatives) = camera_images(&c.name, i, c.pixels, c.pixel_area());
         cameras.push(CameraRecord {
             name: c.name.clone(),
             kind: "orthographic".into(),
@@ -418,6 +442,8 @@ pub fn rendered(
             pixel_area: c.pixel_area(),
             pixel_noise: pixel_noise(&e, image),
             files: names,
+            filter: filter(c.filter),
+            derivatives,
         });
     }
     for (i, c) in scene.pinholes.iter().enumerate() {
@@ -427,7 +453,8 @@ pub fn rendered(
             "{} irradiance {:.4e} ± {:.1e}",
             c.name, irradiance.mean, irradiance.stderr
         ));
-        let names = camera_images(&c.name, image, c.pixels);
+        let camera = scene.cameras.len() + i;
+        let (names, derivatives) = camera_images(&c.name, camera, c.pixels, 1.0);
         cameras.push(CameraRecord {
             name: c.name.clone(),
             kind: "pinhole".into(),
@@ -439,6 +466,8 @@ pub fn rendered(
             pixel_area: c.pixel_area(),
             pixel_noise: pixel_noise(&e, image),
             files: names,
+            filter: filter(c.filter),
+            derivatives,
         });
     }
     // path tracing from the cameras follows no light to the surfaces; bidirectional tracing's

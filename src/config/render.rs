@@ -221,6 +221,8 @@ pub enum SensorConfig {
         direction: [f64; 3],
         size: [f64; 2],
         pixels: [u64; 2],
+        #[serde(default, skip_serializing_if = "FilterConfig::is_box")]
+        filter: FilterConfig,
     },
     /// A pinhole camera at `position` looking at `look_at` (`up`: the image's vertical), with a
     /// vertical field of view `fov_deg`: radiance through the pinhole, by connections through the
@@ -233,10 +235,13 @@ pub enum SensorConfig {
         up: [f64; 3],
         fov_deg: f64,
         pixels: [u64; 2],
+        #[serde(default, skip_serializing_if = "FilterConfig::is_box")]
+        filter: FilterConfig,
     },
 }
 
-/// `sensor.filter` of a screen.
+/// `sensor.filter` of a screen or a camera: each pixel takes what lands in it (`box`), or the
+/// pixels share it bilinearly (`tent`).
 #[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq, Default)]
 #[serde(rename_all = "snake_case")]
 pub enum FilterConfig {
@@ -248,6 +253,13 @@ pub enum FilterConfig {
 impl FilterConfig {
     fn is_box(&self) -> bool {
         *self == FilterConfig::Box
+    }
+
+    fn build(self) -> Filter {
+        match self {
+            FilterConfig::Box => Filter::Box,
+            FilterConfig::Tent => Filter::Tent,
+        }
     }
 }
 
@@ -754,6 +766,7 @@ impl RenderConfig {
                 up,
                 fov_deg,
                 pixels,
+                filter,
             } = s
             {
                 let key = |k: &str| format!("sensor[{i}].{k}");
@@ -788,13 +801,17 @@ impl RenderConfig {
                         key("look_at")
                     ))
                 })?;
-                pinholes.push(camera);
+                pinholes.push(crate::rrte::Pinhole {
+                    filter: filter.build(),
+                    ..camera
+                });
             } else if let SensorConfig::Camera {
                 name,
                 center,
                 direction,
                 size,
                 pixels,
+                filter,
             } = s
             {
                 let key = |k: &str| format!("sensor[{i}].{k}");
@@ -804,7 +821,10 @@ impl RenderConfig {
                     positive(&key(&format!("size[{a}]")), *v)?;
                 }
                 let pixels = check_pixels(i, *pixels)?;
-                cameras.push(Camera::new(name.clone(), direction, center, *size, pixels));
+                cameras.push(Camera {
+                    filter: filter.build(),
+                    ..Camera::new(name.clone(), direction, center, *size, pixels)
+                });
             } else if let SensorConfig::Fluence { name, position } = s {
                 let position = finite(&format!("sensor[{i}].position"), *position)?;
                 if !volume.field.bounds.contains(position) {
@@ -1201,12 +1221,12 @@ impl RenderConfig {
         }
         for (i, s) in self.sensor.iter().enumerate() {
             let kind = match s {
-                SensorConfig::Camera { .. } => "camera",
-                SensorConfig::Pinhole { .. } => "pinhole",
+                SensorConfig::Camera { filter, .. } if filter.is_box() => "camera",
+                SensorConfig::Pinhole { filter, .. } if filter.is_box() => "pinhole",
                 _ => continue,
             };
             return err(format!(
-                "{key}: sensor[{i}].kind = \"{kind}\" is estimated by connections leaving the volume, whose index-field derivatives are not estimated; use a target (kind = \"target\"), a fluence probe (kind = \"fluence\") or a spot (kind = \"spot\")"
+                "{key}: sensor[{i}] (kind = \"{kind}\") gives each connection to the pixel it lands in, and which pixel jumps as the light moves with the field (that share of the derivative is not estimated); give it filter = \"tent\" (pixels share what arrives bilinearly, continuously)"
             ));
         }
         let plane = |s: &&Sensor| s.region.is_none();
@@ -1248,7 +1268,14 @@ impl RenderConfig {
         };
         for (i, s) in self.sensor.iter().enumerate() {
             let kind = match s {
-                SensorConfig::Pinhole { .. } | SensorConfig::Camera { .. } => continue,
+                SensorConfig::Pinhole { filter, .. } | SensorConfig::Camera { filter, .. } => {
+                    if !filter.is_box() {
+                        return err(format!(
+                            "sensor[{i}].filter = \"tent\": render.estimator = \"{name}\" samples each pixel's own area (box filter); a tent-filtered camera is rendered by particle tracing (render.estimator = \"particle\")"
+                        ));
+                    }
+                    continue;
+                }
                 SensorConfig::Target { .. } => "target",
                 // the light subpaths record them, as particle tracing does
                 _ if scene.tracing == Tracing::Bidirectional => continue,
@@ -1442,9 +1469,7 @@ fn sensor(i: usize, s: &SensorConfig, volume: &Volume) -> Result<Sensor, ConfigE
             pixels,
             filter: f,
         } => {
-            if *f == FilterConfig::Tent {
-                filter = Filter::Tent;
-            }
+            filter = f.build();
             (
                 name,
                 SensorKind::Screen,

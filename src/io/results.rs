@@ -915,8 +915,15 @@ pub struct CameraRecord {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pixel_noise: Option<f64>,
     /// `camera_<name>.exr` (channels `Y`, radiance per unit emitted power, and `stderr`), then one
-    /// per time bin.
+    /// per time bin; with `render.derivatives`, `camera_<name>_d_<param>.exr` per parameter.
     pub files: Vec<String>,
+    /// `"tent"` when the pixels share what arrives bilinearly.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub filter: Option<String>,
+    /// The derivatives of its `intensity` or `irradiance` by parameter name, with standard errors
+    /// (with `render.derivatives`).
+    #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    pub derivatives: std::collections::BTreeMap<String, Measured>,
 }
 
 /// How the connections to probes and cameras went.

@@ -1,5 +1,5 @@
-//! Derivatives of what next-event connections carry to fluence probes, with respect to the
-//! medium's and the index field's parameters (particle tracing's `render.derivatives`).
+//! Derivatives of what next-event connections carry to fluence probes and cameras, with respect
+//! to the medium's and the index field's parameters (particle tracing's `render.derivatives`).
 //!
 //! A probe receives `W ρ(w_in·d) e^{−σ_t L} R / (dA⊥/dω)` along each stationary path from a
 //! scattering event (power `W` arriving along `w_in`; see [`ParticleTracer::connect`]), times
@@ -21,11 +21,16 @@
 //!   1e-7 of the value. (In closed form the spread's derivative would need the ray's
 //!   second-order sensitivities, and so third derivatives of `n`.)
 //!
+//! A camera's connection leaves the volume, refracted at the surface (`T (1 − R) / (dω_out/dω)`
+//! or `/ (dA⊥/dω)` for a pinhole), and lands where it lands in the image: solved again at `±h`
+//! it lands a little elsewhere, so a tent filter's shares, which move continuously with it, are
+//! what makes each pixel's central difference its derivative.
+//!
 //! The inverse probability multiplies a path's value and its derivative alike: the estimate of
 //! `Σ_k f(C_k)` differentiates into the estimate of `Σ_k ∂f(C_k)`.
 
 use super::connect::{Connection, Connector};
-use super::particle::{ParticleTracer, Tools};
+use super::particle::{CameraLink, ParticleTracer, Tools};
 use super::scene::{Derivative, FieldDerivative, MAX_DERIVATIVES, RenderScene, Volume};
 use crate::eikonal::IndexField;
 use crate::math::{C64, Rng};
@@ -41,7 +46,8 @@ const INDEX_STEP: f64 = 1e-5;
 const GRID: usize = 7;
 
 /// The volume with its index field moved a step each way along every differentiated field
-/// parameter, for the central differences of connections (none where nothing is connected).
+/// parameter, for the central differences of connections (none where nothing is connected: no
+/// probes or cameras).
 #[derive(Clone, Default)]
 pub(super) struct ShiftedFields {
     /// Per index-field parameter, in the order of the scene's derivatives: its slot among them.
@@ -55,7 +61,7 @@ pub(super) struct ShiftedFields {
 impl ShiftedFields {
     pub fn new(scene: &RenderScene) -> Self {
         let mut s = ShiftedFields::default();
-        if scene.probes.is_empty() {
+        if scene.probes.is_empty() && scene.cameras.is_empty() && scene.pinholes.is_empty() {
             return s;
         }
         for (slot, d) in scene.derivatives.iter().enumerate() {
@@ -232,5 +238,125 @@ impl ParticleTracer<'_> {
                 out[self.probe_derivative(i, self.shifted.slots[k])].re += slope;
             }
         });
+    }
+}
+
+impl ParticleTracer<'_> {
+    /// Next-event connections from `v` (inside) to every camera, carrying `weight` after the
+    /// optical path `opl` (as [`Self::connect`] in a homogeneous medium), with the derivatives of
+    /// each camera's image: as the probes' ([`Self::connect_probes_scored`]), the index field's
+    /// by the paths solved again in the shifted fields, each landing in its own pixels (a tent
+    /// filter's shares move continuously with it).
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn connect_cameras_scored(
+        &self,
+        t: &Tools,
+        v: &Vertex,
+        weight: f64,
+        opl: f64,
+        score: &[f64],
+        shifted: &[[Volume; 2]],
+        rng: &mut Rng,
+        out: &mut [C64],
+    ) {
+        let volume = t.flyer.volume;
+        let emit = |volume: &Volume, w_in: Option<DVec3>, d: DVec3| match w_in {
+            Some(w) => volume.scattering.eval(w.dot(d)),
+            None => self.scene.light.intensity(d),
+        };
+        for i in 0..self.scene.cameras.len() + self.scene.pinholes.len() {
+            for way in self.ways(t, false) {
+                let Some((e, inverse_p, bounces)) = self.camera_exit(t, v.x, i, way, rng, out)
+                else {
+                    continue;
+                };
+                let carried = |volume: &Volume, e: &super::connect::Exit| {
+                    (-volume.sigma_t() * e.length).exp() * e.transmission / e.jacobian * inverse_p
+                };
+                let Some(link) = self.link_to_camera(t, i, &e, || carried(volume, &e)) else {
+                    continue;
+                };
+                let scale = weight * emit(volume, v.w_in, link.direction);
+                if !self.record_link_scored(t, &link, (scale, opl), score, v.w_in, out) {
+                    continue;
+                }
+                for (k, volumes) in shifted.iter().enumerate() {
+                    let h = self.shifted.steps[k];
+                    if h == 0.0 {
+                        continue;
+                    }
+                    let moved = [-1.0, 1.0].map(|sign| {
+                        let volume = &volumes[usize::from(sign > 0.0)];
+                        let tools = Tools {
+                            connector: Connector::new(
+                                volume,
+                                self.scene.step,
+                                self.scene.max_steps,
+                            )
+                            .polished(),
+                            ..Tools::new(volume, self.scene, t.colour, t.delay)
+                        };
+                        let x = v.x + v.dx[k] * (sign * h);
+                        let w_in = v.w_in.map(|w| (w + v.dw[k] * (sign * h)).normalize());
+                        let e =
+                            self.camera_exit_from(&tools.connector, x, i, e.direction, bounces)?;
+                        let link = self.link_to_camera(&tools, i, &e, || carried(volume, &e))?;
+                        let scale = weight * emit(volume, w_in, link.direction);
+                        Some((link, scale))
+                    });
+                    let [Some((down, s_down)), Some((up, s_up))] = moved else {
+                        continue;
+                    };
+                    let slot = self.shifted.slots[k];
+                    self.add_link_slope(&up, s_up / (2.0 * h), slot, out);
+                    self.add_link_slope(&down, -s_down / (2.0 * h), slot, out);
+                }
+            }
+        }
+    }
+
+    /// Record `link` carrying `scale` after the optical path `opl` ([`Self::record_link`]) and,
+    /// with derivatives, its value times the path's `score` plus its own medium derivatives: `∂
+    /// log` of the phase function at a scattering event (`w_in`: the incoming direction; none
+    /// from the light or a surface), `−L` inside the volume for σ_s and σ_a. `false` if it adds
+    /// nothing.
+    pub(super) fn record_link_scored(
+        &self,
+        t: &Tools,
+        link: &CameraLink,
+        (scale, opl): (f64, f64),
+        score: &[f64],
+        w_in: Option<DVec3>,
+        out: &mut [C64],
+    ) -> bool {
+        if !self.record_link(t, link, scale, opl, out) {
+            return false;
+        }
+        let scattering = &t.flyer.volume.scattering;
+        for (j, d) in self.scene.derivatives.iter().enumerate() {
+            let own = match d {
+                Derivative::Medium(m) => {
+                    let phase =
+                        w_in.map_or(0.0, |w| m.dlog_mixture(scattering, w.dot(link.direction)));
+                    phase + if m.is_phase() { 0.0 } else { -link.inside }
+                }
+                Derivative::Field(_) => 0.0,
+            };
+            self.add_link_slope(link, scale * (score[j] + own), j, out);
+        }
+        true
+    }
+
+    /// Add `coef` times `link`'s unit values to its camera's derivative image in
+    /// `scene.derivatives[j]`: each pixel's share of its radiance, and the total's.
+    fn add_link_slope(&self, link: &CameraLink, coef: f64, j: usize, out: &mut [C64]) {
+        if !coef.is_finite() {
+            return;
+        }
+        let image = self.camera_derivative(link.camera, j);
+        for &(pixel, share) in &link.pixels.0[..link.pixels.1] {
+            out[image.first + pixel].re += coef * link.radiance * share;
+            out[image.total()].re += coef * link.total * share;
+        }
     }
 }

@@ -21,7 +21,7 @@ use super::connection_slopes::{ShiftedFields, Vertex};
 use super::flight::{Flight, Flyer, fresnel, reflect};
 use super::scene::{
     Connections, Filter, MAX_DERIVATIVES, MAX_TARGETS, Modulation, Region, RenderScene, SensorKind,
-    Tracing, Volume,
+    Shares, Tracing, Volume, shares,
 };
 use super::spectrum::Delay;
 use crate::eikonal::trace::refract;
@@ -79,7 +79,12 @@ pub(super) struct Tools<'v> {
 }
 
 impl<'v> Tools<'v> {
-    fn new(volume: &'v Volume, scene: &RenderScene, colour: [f64; 3], delay: Delay) -> Self {
+    pub(super) fn new(
+        volume: &'v Volume,
+        scene: &RenderScene,
+        colour: [f64; 3],
+        delay: Delay,
+    ) -> Self {
         Tools {
             flyer: Flyer::new(volume, scene.step, scene.max_steps),
             connector: Connector::new(volume, scene.step, scene.max_steps),
@@ -205,9 +210,10 @@ impl Travelled {
 /// [`ParticleTracer::camera_link`]): what it carries per unit intensity leaving the event, and
 /// what multiple importance sampling needs of it.
 pub(super) struct CameraLink {
-    /// The camera (orthographic ones first, then pinholes) and the pixel it lands in.
+    /// The camera (orthographic ones first, then pinholes) and the pixels it adds to, with their
+    /// shares (the one it lands in, or a tent filter's four).
     pub(super) camera: usize,
-    pub(super) pixel: usize,
+    pub(super) pixels: Shares,
     /// Unit direction leaving the event.
     pub(super) direction: DVec3,
     /// The pixel's radiance, and the camera total's share (the irradiance at a pinhole).
@@ -293,6 +299,9 @@ pub struct ParticleTracer<'s> {
     /// The first of the probes' derivatives: per differentiated parameter, probe after probe, the
     /// derivative of its fluence rate (over all time bins).
     probe_derivatives: usize,
+    /// Per differentiated parameter, camera after camera (the orthographic ones first): the
+    /// derivative of its image (its total and pixels, time-integrated).
+    camera_derivatives: Vec<ImageLayout>,
     /// The volume moved along each differentiated index-field parameter, for the derivatives of
     /// connections.
     pub(super) shifted: ShiftedFields,
@@ -365,6 +374,19 @@ impl<'s> ParticleTracer<'s> {
         }
         let probe_derivatives = at;
         at += scene.derivatives.len() * scene.probes.len();
+        let mut camera_derivatives = Vec::new();
+        for _ in &scene.derivatives {
+            let counts = scene.cameras.iter().map(|c| c.pixel_count());
+            for pixels in counts.chain(scene.pinholes.iter().map(|c| c.pixel_count())) {
+                camera_derivatives.push(ImageLayout {
+                    first: at + 1,
+                    pixels,
+                    channels: 1,
+                    bins: 1,
+                });
+                at += 1 + pixels;
+            }
+        }
         ParticleTracer {
             scene,
             tools: Tools::new(&scene.volume, scene, [1.0; 3], Delay::NONE),
@@ -374,6 +396,7 @@ impl<'s> ParticleTracer<'s> {
             totals,
             derivative_images,
             probe_derivatives,
+            camera_derivatives,
             shifted: ShiftedFields::new(scene),
             targets: scene
                 .sensors
@@ -436,6 +459,13 @@ impl<'s> ParticleTracer<'s> {
         self.probe_derivatives + j * self.scene.probes.len() + i
     }
 
+    /// The derivative of camera `i`'s image (the orthographic cameras first, then the pinholes)
+    /// with respect to `scene.derivatives[j]`: its total and pixels, time-integrated.
+    pub fn camera_derivative(&self, i: usize, j: usize) -> ImageLayout {
+        let cameras = self.scene.cameras.len() + self.scene.pinholes.len();
+        self.camera_derivatives[j * cameras + i]
+    }
+
     /// The output holding objective `i` of [`RenderScene::objectives`]: a sensor's power, then a
     /// probe's fluence rate.
     pub fn objective(&self, i: usize) -> usize {
@@ -464,6 +494,11 @@ impl<'s> ParticleTracer<'s> {
         self.images[self.scene.sensors.len() + i]
     }
 
+    /// The image of camera `i` (the orthographic cameras first, then the pinholes).
+    pub fn images_of_camera(&self, i: usize) -> ImageLayout {
+        self.images[self.scene.sensors.len() + i]
+    }
+
     /// The image of pinhole camera `i`; its total is the irradiance at the pinhole from its field
     /// of view.
     pub fn pinhole_image(&self, i: usize) -> ImageLayout {
@@ -486,7 +521,7 @@ impl<'s> ParticleTracer<'s> {
     }
 
     /// Whether scattering events are connected to probes or cameras.
-    fn connects(&self) -> bool {
+    pub(super) fn connects(&self) -> bool {
         !self.scene.probes.is_empty()
             || !self.scene.cameras.is_empty()
             || !self.scene.pinholes.is_empty()
@@ -535,7 +570,7 @@ impl<'s> ParticleTracer<'s> {
             return;
         }
         self.connect_probes_scored(t, v, weight, opl, score, shifted, rng, out);
-        self.connect_cameras(t, v.x, weight, opl, emit, rng, out);
+        self.connect_cameras_scored(t, v, weight, opl, score, shifted, rng, out);
     }
 
     /// Next-event connections from `x` (inside) to every camera (see [`Self::connect`]).
@@ -627,7 +662,8 @@ impl<'s> ParticleTracer<'s> {
     }
 
     /// Add the connection `link` to its camera's image, carrying `scale` times its unit
-    /// intensity, reached after the optical path `opl`.
+    /// intensity, reached after the optical path `opl`: `false` if it adds nothing (no light, or
+    /// after the last time bin).
     pub(super) fn record_link(
         &self,
         t: &Tools,
@@ -635,17 +671,20 @@ impl<'s> ParticleTracer<'s> {
         scale: f64,
         opl: f64,
         out: &mut [C64],
-    ) {
+    ) -> bool {
         let radiance = scale * link.radiance;
         if !(radiance > 0.0 && radiance.is_finite()) {
-            return;
+            return false;
         }
         let Some(bin) = self.bin(opl + link.delay) else {
-            return;
+            return false;
         };
         let image = self.images[self.scene.sensors.len() + link.camera];
-        image.add(out, bin, link.pixel, radiance, &t.colour);
-        out[image.total()].re += scale * link.total;
+        for &(pixel, share) in &link.pixels.0[..link.pixels.1] {
+            image.add(out, bin, pixel, radiance * share, &t.colour);
+            out[image.total()].re += scale * link.total * share;
+        }
+        true
     }
 
     /// The connection from `x` (inside) to camera `i` (the orthographic cameras first, then the
@@ -663,6 +702,24 @@ impl<'s> ParticleTracer<'s> {
         rng: &mut Rng,
         out: &mut [C64],
     ) -> Option<CameraLink> {
+        let (e, inverse_p, bounces) = self.camera_exit(t, x, i, way, rng, out)?;
+        self.link_to_camera(t, i, &e, || {
+            let transmittance = self.transmittance(t, x, e.direction, (e.length, bounces), rng);
+            transmittance * e.transmission / e.jacobian * inverse_p
+        })
+    }
+
+    /// The path from `x` (inside) out of the volume to camera `i` that [`Self::camera_link`]
+    /// draws, with its inverse probability and its reflections inside the surface.
+    pub(super) fn camera_exit(
+        &self,
+        t: &Tools,
+        x: DVec3,
+        i: usize,
+        way: Way,
+        rng: &mut Rng,
+        out: &mut [C64],
+    ) -> Option<(Exit, f64, usize)> {
         let Way::Bounces(bounces) = way else {
             return None;
         };
@@ -677,18 +734,34 @@ impl<'s> ParticleTracer<'s> {
                     .sample_through(x, cam.position, bounces, first_only, rng)
             }
         };
-        let (e, inverse_p) = self.tally(s, out)?;
-        self.link_to_camera(t, i, &e, || {
-            let transmittance = self.transmittance(t, x, e.direction, (e.length, bounces), rng);
-            transmittance * e.transmission / e.jacobian * inverse_p
-        })
+        self.tally(s, out)
+            .map(|(e, inverse_p)| (e, inverse_p, bounces))
+    }
+
+    /// [`Self::camera_exit`] solved by Newton from the direction `w0` (polished: for central
+    /// differences) with `connector`.
+    pub(super) fn camera_exit_from(
+        &self,
+        connector: &Connector,
+        x: DVec3,
+        i: usize,
+        w0: DVec3,
+        bounces: usize,
+    ) -> Option<Exit> {
+        match self.scene.cameras.get(i) {
+            Some(cam) => connector.solve_exit(x, cam.direction, w0, bounces),
+            None => {
+                let cam = &self.scene.pinholes[i - self.scene.cameras.len()];
+                connector.solve_through(x, cam.position, w0, bounces)
+            }
+        }
     }
 
     /// The link to camera `i` of the path `e` that has left the volume towards it, if it meets
     /// no surface (nor the volume again) on its way there and lands in a pixel: `carried()` is
     /// what the path carries per unit intensity at its start (`dω_out/dω` or `dA⊥/dω` with the
     /// rest), asked for only then.
-    fn link_to_camera(
+    pub(super) fn link_to_camera(
         &self,
         t: &Tools,
         i: usize,
@@ -698,7 +771,11 @@ impl<'s> ParticleTracer<'s> {
         let n_out = t.flyer.volume.field.n_out;
         let before = n_out * e.before;
         if let Some(cam) = self.scene.cameras.get(i) {
-            let pixel = cam.pixel(e.surface)?;
+            let (a, b) = cam.fractions(e.surface);
+            let pixels = shares(cam.filter, a, b, cam.pixels);
+            if pixels.1 == 0 {
+                return None;
+            }
             let to_plane = (cam.center - e.surface).dot(cam.direction).max(0.0);
             if self
                 .scene
@@ -709,7 +786,7 @@ impl<'s> ParticleTracer<'s> {
             let radiance = carried() / cam.pixel_area();
             return Some(CameraLink {
                 camera: i,
-                pixel,
+                pixels,
                 direction: e.direction,
                 radiance,
                 total: radiance,
@@ -722,7 +799,11 @@ impl<'s> ParticleTracer<'s> {
             });
         }
         let cam = &self.scene.pinholes[i - self.scene.cameras.len()];
-        let (pixel, cos) = cam.pixel(e.outgoing)?;
+        let (a, b, cos) = cam.fractions(e.outgoing)?;
+        let pixels = shares(cam.filter, a, b, cam.pixels);
+        if pixels.1 == 0 {
+            return None;
+        }
         let to_pinhole = (cam.position - e.surface).dot(e.outgoing);
         if self
             .scene
@@ -735,7 +816,7 @@ impl<'s> ParticleTracer<'s> {
         let outside = n_out * (e.before + to_pinhole);
         Some(CameraLink {
             camera: i,
-            pixel,
+            pixels,
             direction: e.direction,
             radiance: irradiance / (cos * cos * cos * cam.pixel_area()),
             total: irradiance,
@@ -1128,7 +1209,15 @@ impl<'s> ParticleTracer<'s> {
                 if let Some(link) = self.surface_camera_link(t, y, facing, i, way, rng, out) {
                     // Lambertian: intensity cos θ / π per unit power
                     let lambert = facing.dot(link.direction) / std::f64::consts::PI;
-                    self.record_link(t, &link, p.weight * lambert, p.opl, out);
+                    let score = &p.score[..self.scene.derivatives.len()];
+                    self.record_link_scored(
+                        t,
+                        &link,
+                        (p.weight * lambert, p.opl),
+                        score,
+                        None,
+                        out,
+                    );
                 }
             }
         }
@@ -1214,7 +1303,11 @@ impl<'s> ParticleTracer<'s> {
         }
         if let Some(cam) = self.scene.cameras.get(i) {
             let w = cam.direction;
-            let pixel = cam.pixel(y)?;
+            let (a, b) = cam.fractions(y);
+            let pixels = shares(cam.filter, a, b, cam.pixels);
+            if pixels.1 == 0 {
+                return None;
+            }
             let to_plane = (cam.center - y).dot(w).max(0.0);
             if w.dot(facing) <= 0.0 || self.scene.blocked(y, w, to_plane) {
                 return None;
@@ -1223,7 +1316,7 @@ impl<'s> ParticleTracer<'s> {
             let radiance = transmittance / cam.pixel_area();
             return Some(CameraLink {
                 camera: i,
-                pixel,
+                pixels,
                 direction: w,
                 radiance,
                 total: radiance,
@@ -1237,7 +1330,11 @@ impl<'s> ParticleTracer<'s> {
         let v = cam.position - y;
         let distance = v.length();
         let w = v / distance;
-        let (pixel, cos) = cam.pixel(w)?;
+        let (a, b, cos) = cam.fractions(w)?;
+        let pixels = shares(cam.filter, a, b, cam.pixels);
+        if pixels.1 == 0 {
+            return None;
+        }
         if distance <= 0.0 || w.dot(facing) <= 0.0 || self.scene.blocked(y, w, distance) {
             return None;
         }
@@ -1245,7 +1342,7 @@ impl<'s> ParticleTracer<'s> {
         let irradiance = transmittance / (distance * distance);
         Some(CameraLink {
             camera: i,
-            pixel,
+            pixels,
             direction: w,
             radiance: irradiance / (cos * cos * cos * cam.pixel_area()),
             total: irradiance,

@@ -117,6 +117,60 @@ pub fn grid_pixel(a: f64, b: f64, pixels: [usize; 2]) -> usize {
     j * pixels[0] + i
 }
 
+/// The pixels a point at fractions `(a, b)` of an image adds to, with their shares.
+pub type Shares = ([(usize, f64); 4], usize);
+
+/// Per axis, the two pixels whose centres surround the fraction `f` of `pixels` (where they
+/// exist): each one's index, tent weight and the weight's slope in `f`.
+#[inline]
+fn tent_axis(f: f64, pixels: usize) -> [Option<(usize, f64, f64)>; 2] {
+    let u = f * pixels as f64 - 0.5;
+    let lower = u.floor();
+    let frac = u - lower;
+    let count = pixels as f64;
+    [(lower, 1.0 - frac, -count), (lower + 1.0, frac, count)]
+        .map(|(k, w, g)| (k >= 0.0 && k < count).then_some((k as usize, w, g)))
+}
+
+/// The pixels a point at fractions `(a, b)` of an image of `pixels` adds to, with their shares
+/// and the shares' slopes in `(a, b)`: bilinearly to the (up to) four whose centres surround it.
+#[inline]
+fn tent(a: f64, b: f64, pixels: [usize; 2]) -> ([(usize, f64, [f64; 2]); 4], usize) {
+    let mut out = ([(0, 0.0, [0.0; 2]); 4], 0);
+    let xs = tent_axis(a, pixels[0]);
+    for &(j, wy, gy) in tent_axis(b, pixels[1]).iter().flatten() {
+        for &(i, wx, gx) in xs.iter().flatten() {
+            if wx * wy > 0.0 {
+                out.0[out.1] = (j * pixels[0] + i, wx * wy, [gx * wy, gy * wx]);
+                out.1 += 1;
+            }
+        }
+    }
+    out
+}
+
+/// The pixels a point at fractions `(a, b)` of an image of `pixels` adds to under `filter`, with
+/// their shares: the one it falls in, or bilinearly the (up to) four whose centres surround it.
+pub fn shares(filter: Filter, a: f64, b: f64, pixels: [usize; 2]) -> Shares {
+    let mut out = ([(0, 0.0); 4], 0);
+    match filter {
+        Filter::Box => {
+            if (0.0..1.0).contains(&a) && (0.0..1.0).contains(&b) {
+                out.0[0] = (grid_pixel(a, b, pixels), 1.0);
+                out.1 = 1;
+            }
+        }
+        Filter::Tent => {
+            let (t, count) = tent(a, b, pixels);
+            for (o, &(pixel, share, _)) in out.0.iter_mut().zip(&t[..count]) {
+                *o = (pixel, share);
+            }
+            out.1 = count;
+        }
+    }
+    out
+}
+
 /// Where light comes from; power 1 in total (results are fractions of the emitted power).
 #[derive(Clone, Debug, PartialEq)]
 pub enum Light {
@@ -255,6 +309,8 @@ pub struct Camera {
     pub up: DVec3,
     pub size: [f64; 2],
     pub pixels: [usize; 2],
+    /// How the pixels share what arrives (box unless asked).
+    pub filter: Filter,
 }
 
 impl Camera {
@@ -274,7 +330,18 @@ impl Camera {
             up,
             size,
             pixels,
+            filter: Filter::Box,
         }
+    }
+
+    /// Where light leaving the volume at `x` along the camera's direction lands on its image, as
+    /// fractions of the rectangle's sides from its lower left corner (inside it within [0, 1)).
+    pub fn fractions(&self, x: DVec3) -> (f64, f64) {
+        let rel = x - self.center;
+        (
+            rel.dot(self.right) / self.size[0] + 0.5,
+            rel.dot(self.up) / self.size[1] + 0.5,
+        )
     }
 
     pub fn pixel_count(&self) -> usize {
@@ -293,9 +360,7 @@ impl Camera {
     /// The pixel (row-major from the lower left, `right` fastest) that light leaving the volume
     /// at `x` along the camera's direction lands in.
     pub fn pixel(&self, x: DVec3) -> Option<usize> {
-        let rel = x - self.center;
-        let a = rel.dot(self.right) / self.size[0] + 0.5;
-        let b = rel.dot(self.up) / self.size[1] + 0.5;
+        let (a, b) = self.fractions(x);
         if !(0.0..1.0).contains(&a) || !(0.0..1.0).contains(&b) {
             return None;
         }
@@ -317,6 +382,8 @@ pub struct Pinhole {
     pub right: DVec3,
     pub tan_half: [f64; 2],
     pub pixels: [usize; 2],
+    /// How the pixels share what arrives (box unless asked).
+    pub filter: Filter,
 }
 
 impl Pinhole {
@@ -342,6 +409,7 @@ impl Pinhole {
             right,
             tan_half: [th * pixels[0] as f64 / pixels[1] as f64, th],
             pixels,
+            filter: Filter::Box,
         })
     }
 
@@ -363,6 +431,17 @@ impl Pinhole {
     /// The pixel seeing light that arrives travelling along unit `d`, and the cosine of its angle
     /// to the axis.
     pub fn pixel(&self, d: DVec3) -> Option<(usize, f64)> {
+        let (a, b, cos) = self.fractions(d)?;
+        if !(0.0..1.0).contains(&a) || !(0.0..1.0).contains(&b) {
+            return None;
+        }
+        Some((grid_pixel(a, b, self.pixels), cos))
+    }
+
+    /// Where light arriving along unit `d` lands on the image, as fractions of its sides from
+    /// the lower left corner (inside it within [0, 1)), and the cosine of its angle to the axis;
+    /// `None` from behind.
+    pub fn fractions(&self, d: DVec3) -> Option<(f64, f64, f64)> {
         let v = -d;
         let cos = v.dot(self.forward);
         if cos <= 0.0 {
@@ -370,10 +449,7 @@ impl Pinhole {
         }
         let a = (v.dot(self.right) / cos / self.tan_half[0] + 1.0) * 0.5;
         let b = (v.dot(self.up) / cos / self.tan_half[1] + 1.0) * 0.5;
-        if !(0.0..1.0).contains(&a) || !(0.0..1.0).contains(&b) {
-            return None;
-        }
-        Some((grid_pixel(a, b, self.pixels), cos))
+        Some((a, b, cos))
     }
 }
 
@@ -734,26 +810,15 @@ impl Sensor {
         let (Some((a, b)), Some(size)) = (self.fractions(p), self.size) else {
             return splat;
         };
-        // per axis: the two pixels whose centres surround the crossing, their weights and the
-        // weights' slopes along the plane
-        let axis = |f: f64, pixels: usize, side: f64, along: DVec3| {
-            let u = f * pixels as f64 - 0.5;
-            let lower = u.floor();
-            let frac = u - lower;
-            let slope = along * (pixels as f64 / side);
-            [(lower, 1.0 - frac, -slope), (lower + 1.0, frac, slope)]
-                .map(|(k, w, g)| (k >= 0.0 && k < pixels as f64).then_some((k as usize, w, g)))
-        };
-        let xs = axis(a, self.pixels[0], size[0], self.right);
-        let ys = axis(b, self.pixels[1], size[1], self.up);
-        for &(j, wy, gy) in ys.iter().flatten() {
-            for &(i, wx, gx) in xs.iter().flatten() {
-                if wx * wy > 0.0 {
-                    splat.0[splat.1] = (j * self.pixels[0] + i, wx * wy, gx * wy + gy * wx);
-                    splat.1 += 1;
-                }
-            }
+        let (t, count) = tent(a, b, self.pixels);
+        for (o, &(pixel, share, [ga, gb])) in splat.0.iter_mut().zip(&t[..count]) {
+            *o = (
+                pixel,
+                share,
+                self.right * (ga / size[0]) + self.up * (gb / size[1]),
+            );
         }
+        splat.1 = count;
         splat
     }
 

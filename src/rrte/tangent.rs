@@ -468,7 +468,7 @@ impl ParticleTracer<'_> {
         };
         let field = &t.flyer.volume.field;
         let start = if field.bounds.contains(x) {
-            if !scene.probes.is_empty() {
+            if self.connects() {
                 let v = Vertex::fixed(x, None);
                 self.connect_differentiated(t, &v, &p, shifted, rng, out);
             }
@@ -557,7 +557,7 @@ impl ParticleTracer<'_> {
         }
     }
 
-    /// The connections from `v` to the probes, with their derivatives. With even draws they draw
+    /// The connections from `v` to the probes and cameras, with their derivatives. With even draws they draw
     /// from their own stream, so the photon's next numbers do not depend on how many Newton
     /// restarts they took.
     fn connect_differentiated(
@@ -579,6 +579,7 @@ impl ParticleTracer<'_> {
             rng
         };
         self.connect_probes_scored(t, v, p.weight, p.opl, score, shifted, rng, out);
+        self.connect_cameras_scored(t, v, p.weight, p.opl, score, shifted, rng, out);
     }
 
     /// The probability an outcome of probability `prob` (in (0, 1)) is drawn with.
@@ -737,7 +738,7 @@ impl ParticleTracer<'_> {
             for (s, param) in p.score.iter_mut().zip(derivatives) {
                 *s += albedo_score(param.medium(), volume);
             }
-            if !self.scene.probes.is_empty() {
+            if self.connects() {
                 let speed = ray.v.length();
                 let w_in = ray.v / speed;
                 let mut v = Vertex::fixed(ray.x, Some(w_in));
