@@ -166,16 +166,34 @@ impl Vertex {
             dw: [DVec3::ZERO; P],
         }
     }
+
+    /// Its position and incoming direction moved by `by` along index-field parameter `k`.
+    fn moved(&self, k: usize, by: f64) -> (DVec3, Option<DVec3>) {
+        let w_in = self.w_in.map(|w| (w + self.dw[k] * by).normalize());
+        (self.x + self.dx[k] * by, w_in)
+    }
+}
+
+/// The intensity per unit power a vertex with incoming direction `w_in` (`None`: the light's own
+/// point) sends along unit `d`: the bulk phase function of `volume`, or the light's intensity.
+pub(super) fn emitted(scene: &RenderScene, volume: &Volume, w_in: Option<DVec3>, d: DVec3) -> f64 {
+    match w_in {
+        Some(w) => volume.scattering.eval(w.dot(d)),
+        None => scene.light.intensity(d),
+    }
+}
+
+/// A connector of `volume` for central differences of paths already found: polished to
+/// round-off ([`Connector::polished`]).
+fn polished<'v>(scene: &RenderScene, volume: &'v Volume) -> Connector<'v> {
+    Connector::new(volume, scene.step, scene.max_steps).polished()
 }
 
 impl ParticleTracer<'_> {
     /// What a vertex with incoming direction `w_in` and power `weight` sends along the path `c`
     /// through `volume` (homogeneous): `weight · emit · e^{−σ_t L} · R / (dA⊥/dω)`.
     fn carried(&self, volume: &Volume, w_in: Option<DVec3>, weight: f64, c: &Connection) -> f64 {
-        let emit = match w_in {
-            Some(w) => volume.scattering.eval(w.dot(c.direction)),
-            None => self.scene.light.intensity(c.direction),
-        };
+        let emit = emitted(self.scene, volume, w_in, c.direction);
         weight * emit * (-volume.sigma_t() * c.length).exp() * c.reflectance / c.spread
     }
 
@@ -222,20 +240,17 @@ impl ParticleTracer<'_> {
                 if h == 0.0 {
                     continue;
                 }
-                let mut moved = [0.0; 2];
-                for (side, sign) in [(0, -1.0), (1, 1.0)] {
+                let moved = [(0, -h), (1, h)].map(|(side, by)| {
+                    let (x, w_in) = v.moved(k, by);
                     let volume = &volumes[side];
-                    let connector =
-                        Connector::new(volume, self.scene.step, self.scene.max_steps).polished();
-                    let x = v.x + v.dx[k] * (sign * h);
-                    let w_in = v.w_in.map(|w| (w + v.dw[k] * (sign * h)).normalize());
-                    let Some(c) = connector.solve_bounced(x, y, c.direction, bounces) else {
-                        return;
-                    };
-                    moved[side] = self.carried(volume, w_in, weight, &c);
+                    let path =
+                        polished(self.scene, volume).solve_bounced(x, y, c.direction, bounces)?;
+                    Some(self.carried(volume, w_in, weight, &path))
+                });
+                if let [Some(down), Some(up)] = moved {
+                    let slope = (up - down) / (2.0 * h) * inverse_p;
+                    out[self.probe_derivative(i, self.shifted.slots[k])].re += slope;
                 }
-                let slope = (moved[1] - moved[0]) / (2.0 * h) * inverse_p;
-                out[self.probe_derivative(i, self.shifted.slots[k])].re += slope;
             }
         });
     }
@@ -260,10 +275,7 @@ impl ParticleTracer<'_> {
         out: &mut [C64],
     ) {
         let volume = t.flyer.volume;
-        let emit = |volume: &Volume, w_in: Option<DVec3>, d: DVec3| match w_in {
-            Some(w) => volume.scattering.eval(w.dot(d)),
-            None => self.scene.light.intensity(d),
-        };
+        let emit = |volume, w_in, d| emitted(self.scene, volume, w_in, d);
         for i in 0..self.scene.cameras.len() + self.scene.pinholes.len() {
             for way in self.ways(t, false) {
                 let Some((e, inverse_p, bounces)) = self.camera_exit(t, v.x, i, way, rng, out)
@@ -285,19 +297,13 @@ impl ParticleTracer<'_> {
                     if h == 0.0 {
                         continue;
                     }
-                    let moved = [-1.0, 1.0].map(|sign| {
-                        let volume = &volumes[usize::from(sign > 0.0)];
+                    let moved = [(0, -h), (1, h)].map(|(side, by)| {
+                        let (x, w_in) = v.moved(k, by);
+                        let volume = &volumes[side];
                         let tools = Tools {
-                            connector: Connector::new(
-                                volume,
-                                self.scene.step,
-                                self.scene.max_steps,
-                            )
-                            .polished(),
+                            connector: polished(self.scene, volume),
                             ..Tools::new(volume, self.scene, t.colour, t.delay)
                         };
-                        let x = v.x + v.dx[k] * (sign * h);
-                        let w_in = v.w_in.map(|w| (w + v.dw[k] * (sign * h)).normalize());
                         let e =
                             self.camera_exit_from(&tools.connector, x, i, e.direction, bounces)?;
                         let link = self.link_to_camera(&tools, i, &e, || carried(volume, &e))?;

@@ -17,7 +17,7 @@
 
 use super::bidirectional::Subpaths;
 use super::connect::{Aim, Connection, Connector, Exit, Sampled};
-use super::connection_slopes::{ShiftedFields, Vertex};
+use super::connection_slopes::{ShiftedFields, Vertex, emitted};
 use super::flight::{Flight, Flyer, fresnel, reflect};
 use super::scene::{
     Connections, Filter, MAX_DERIVATIVES, MAX_TARGETS, Modulation, Region, RenderScene, SensorKind,
@@ -547,8 +547,8 @@ impl<'s> ParticleTracer<'s> {
     }
 
     /// A photon's next-event connections from `v` (inside) with power `weight` after the optical
-    /// path `opl` ([`Self::connect`]); with derivatives, the probes' too (`score`: the path's so
-    /// far, `shifted`: the photon's volume moved along each index-field parameter).
+    /// path `opl` ([`Self::connect`]); with derivatives, the probes' and cameras' too (`score`:
+    /// the path's so far, `shifted`: the photon's volume moved along each index-field parameter).
     #[allow(clippy::too_many_arguments)]
     pub(super) fn connect_photon(
         &self,
@@ -560,12 +560,8 @@ impl<'s> ParticleTracer<'s> {
         rng: &mut Rng,
         out: &mut [C64],
     ) {
-        let volume = t.flyer.volume;
-        let emit = |d: DVec3| match v.w_in {
-            Some(w) => volume.scattering.eval(w.dot(d)),
-            None => self.scene.light.intensity(d),
-        };
         if self.scene.derivatives.is_empty() {
+            let emit = |d| emitted(self.scene, t.flyer.volume, v.w_in, d);
             self.connect(t, v.x, weight, opl, emit, rng, out);
             return;
         }
