@@ -557,9 +557,9 @@ impl ParticleTracer<'_> {
         }
     }
 
-    /// The connections from `v` to the probes and cameras, with their derivatives. With even draws they draw
-    /// from their own stream, so the photon's next numbers do not depend on how many Newton
-    /// restarts they took.
+    /// The photon's connections from `v` to the probes and cameras, with their derivatives
+    /// ([`ParticleTracer::connect_photon`]). With even draws they draw from their own stream, so
+    /// the photon's next numbers do not depend on how many Newton restarts they took.
     fn connect_differentiated(
         &self,
         t: &Tools,
@@ -578,8 +578,7 @@ impl ParticleTracer<'_> {
         } else {
             rng
         };
-        self.connect_probes_scored(t, v, p.weight, p.opl, score, shifted, rng, out);
-        self.connect_cameras_scored(t, v, p.weight, p.opl, score, shifted, rng, out);
+        self.connect_photon(t, v, (p.weight, p.opl), score, shifted, rng, out);
     }
 
     /// The probability an outcome of probability `prob` (in (0, 1)) is drawn with.
