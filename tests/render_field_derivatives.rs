@@ -72,7 +72,8 @@ derivatives = [{derivatives}]
 }
 
 /// Every output the tests compare, with the output holding its derivative in parameter `j`
-/// (0 without one): each sensor's power, and each screen's pixels (time-integrated).
+/// (0 without one): each sensor's power, and each screen's pixels (time-integrated); each
+/// probe's fluence rate; each camera's total, pixels and windows.
 fn outputs(s: &RenderScene, est: &ParticleTracer, j: Option<usize>) -> Vec<(String, usize, usize)> {
     let mut all = Vec::new();
     for (i, sensor) in s.sensors.iter().enumerate() {
@@ -112,6 +113,13 @@ fn outputs(s: &RenderScene, est: &ParticleTracer, j: Option<usize>) -> Vec<(Stri
                 format!("{name} pixel {p}"),
                 image.plane(Some(0), 0) + p,
                 d.map_or(0, |d| d.first + p),
+            ));
+        }
+        for (k, w) in s.camera_windows(i).iter().enumerate() {
+            all.push((
+                w.name.clone(),
+                est.window_total(i, k),
+                j.map_or(0, |j| est.window_derivative(i, k, j)),
             ));
         }
     }
@@ -279,8 +287,9 @@ fn probes_differentiate_as_their_differences() {
 }
 
 /// A pinhole camera above the ball looking down at it, and an orthographic camera recording the
-/// light leaving upwards, both 4 × 4 pixels sharing what arrives bilinearly.
-const CAMERAS: &str = "[[sensor]]\nkind = \"pinhole\"\nname = \"eye\"\nposition = [0.3, 0.2, 3.0]\nlook_at = [0.0, 0.0, 0.0]\nfov_deg = 40.0\npixels = [4, 4]\nfilter = \"tent\"\n[[sensor]]\nkind = \"camera\"\nname = \"above\"\ncenter = [0.0, 0.0, 2.0]\ndirection = [0.0, 0.0, 1.0]\nsize = [1.6, 1.6]\npixels = [4, 4]\nfilter = \"tent\"\n[render]";
+/// light leaving upwards, both 4 × 4 pixels sharing what arrives bilinearly, each with a window
+/// of a few pixels.
+const CAMERAS: &str = "[[sensor]]\nkind = \"pinhole\"\nname = \"eye\"\nposition = [0.3, 0.2, 3.0]\nlook_at = [0.0, 0.0, 0.0]\nfov_deg = 40.0\npixels = [4, 4]\nfilter = \"tent\"\n[[sensor.window]]\nname = \"eye_window\"\ncolumns = [1, 2]\nrows = [0, 1]\n[[sensor]]\nkind = \"camera\"\nname = \"above\"\ncenter = [0.0, 0.0, 2.0]\ndirection = [0.0, 0.0, 1.0]\nsize = [1.6, 1.6]\npixels = [4, 4]\nfilter = \"tent\"\n[[sensor.window]]\nname = \"above_window\"\ncolumns = [0, 1]\nrows = [1, 3]\n[render]";
 
 /// `text` with the cameras added.
 fn with_cameras(text: &str) -> String {

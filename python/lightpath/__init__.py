@@ -566,7 +566,8 @@ def render_vjp(
     ``params`` names what ``render.derivatives`` accepts: the medium's ``sigma_s``, ``sigma_a``,
     ``g``, … and the index field's ``"profiles[i].name"`` (a phased array's ``frequency``,
     ``amplitude_j``, ``phase_j``, ``x_j``, ``y_j``; an ultrasonic profile's ``n_max``; any
-    analytic profile's coefficients; with index-field parameters every sensor must be a target).
+    analytic profile's coefficients; with index-field parameters every sensor must follow the
+    light continuously: a target, a fluence probe, a spot, or a tent-filtered screen or camera).
     ``theta`` defaults to the config's values, ``photons`` and ``seed`` to ``[render]``'s.
 
     Fresh photons (a new ``seed`` per call) give unbiased stochastic gradients of the expected
@@ -575,8 +576,9 @@ def render_vjp(
     derivative (L-BFGS; index-field parameters only).
 
     Returns a :class:`RenderVjp`: ``value`` and ``stderr`` (float64 ``[S]``, the sensors in the
-    config's order, ``sensors`` their names), ``jacobian`` and ``jacobian_stderr`` (``[S, P]``),
-    ``params``, ``theta``; calling it with ``∂L/∂value`` (``[S]``) returns ``∂L/∂θ`` (``[P]``).
+    config's order, then the fluence probes, then the cameras' windows; ``sensors`` their
+    names), ``jacobian`` and ``jacobian_stderr`` (``[S, P]``), ``params``, ``theta``; calling it
+    with ``∂L/∂value`` (``[S]``) returns ``∂L/∂θ`` (``[P]``).
     """
     return _lightpath.render_vjp(
         load(config),

@@ -151,7 +151,7 @@ pub(crate) fn render(
 }
 
 /// A render's sensor outputs (powers of flux sensors, screens and spots, targets' and fluence
-/// probes' fluences) at
+/// probes' fluences, camera windows' sums) at
 /// `theta` with their Jacobian, from one particle-tracing run (`render_vjp`); calling it with
 /// `∂L/∂outputs` gives `∂L/∂θ`.
 #[pyclass(frozen, module = "lightpath")]

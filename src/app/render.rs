@@ -10,7 +10,7 @@ use crate::error::{Error, Result};
 use crate::io::ResultFile;
 use crate::io::results::{
     CameraRecord, ConnectionStatistics, Measured, ProbeRecord, RenderFile, RenderStatistics,
-    SensorRecord, SurfaceRecord, TargetRecord,
+    SensorRecord, SurfaceRecord, TargetRecord, WindowRecord,
 };
 use crate::mc::{Block, Checkpoint, Estimate, Plan, merge, resume};
 use crate::medium::{Geometry, Medium};
@@ -420,6 +420,36 @@ pub fn rendered(
         (names, derivatives)
     };
     let filter = |f: Filter| (f == Filter::Tent).then(|| "tent".to_string());
+    // camera `i`'s windows, their sums times `scale` (as its total's)
+    let windows = |i: usize, scale: f64, orthographic: bool| -> Vec<WindowRecord> {
+        let height = scene.camera_pixels(i)[1];
+        let scaled = |k: usize| {
+            let m = measured(k);
+            Measured {
+                mean: m.mean * scale,
+                stderr: m.stderr * scale,
+            }
+        };
+        let windows = scene.camera_windows(i).iter().enumerate();
+        windows
+            .map(|(k, w)| {
+                let sum = scaled(est.window_total(i, k));
+                WindowRecord {
+                    name: w.name.clone(),
+                    columns: w.columns,
+                    rows: [height - 1 - w.rows[1], height - 1 - w.rows[0]],
+                    intensity: orthographic.then_some(sum),
+                    irradiance: (!orthographic).then_some(sum),
+                    derivatives: scene
+                        .derivatives
+                        .iter()
+                        .enumerate()
+                        .map(|(j, p)| (p.name(), scaled(est.window_derivative(i, k, j))))
+                        .collect(),
+                }
+            })
+            .collect()
+    };
     for (i, c) in scene.cameras.iter().enumerate() {
         let image = est.camera_image(i);
         let intensity = Measured {
@@ -431,6 +461,14 @@ pub fn rendered(
             c.name, intensity.mean, intensity.stderr
         ));
         let (names, derivatives) = camera_images(&c.name, i, c.pixels, c.pixel_area());
+        let windows = windows(i, c.pixel_area(), true);
+        for w in &windows {
+            let sum = w.intensity.unwrap_or(intensity);
+            summary.push(format!(
+                "  window {} {:.4e} ± {:.1e}",
+                w.name, sum.mean, sum.stderr
+            ));
+        }
         cameras.push(CameraRecord {
             name: c.name.clone(),
             kind: "orthographic".into(),
@@ -444,6 +482,7 @@ pub fn rendered(
             files: names,
             filter: filter(c.filter),
             derivatives,
+            windows,
         });
     }
     for (i, c) in scene.pinholes.iter().enumerate() {
@@ -455,6 +494,14 @@ pub fn rendered(
         ));
         let camera = scene.cameras.len() + i;
         let (names, derivatives) = camera_images(&c.name, camera, c.pixels, 1.0);
+        let windows = windows(camera, 1.0, false);
+        for w in &windows {
+            let sum = w.irradiance.unwrap_or(irradiance);
+            summary.push(format!(
+                "  window {} {:.4e} ± {:.1e}",
+                w.name, sum.mean, sum.stderr
+            ));
+        }
         cameras.push(CameraRecord {
             name: c.name.clone(),
             kind: "pinhole".into(),
@@ -468,6 +515,7 @@ pub fn rendered(
             files: names,
             filter: filter(c.filter),
             derivatives,
+            windows,
         });
     }
     // path tracing from the cameras follows no light to the surfaces; bidirectional tracing's

@@ -56,11 +56,10 @@ pub struct RenderConfig {
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct RenderDesignConfig {
-    /// The target or spot (a sensor of kind "target" or "spot", by name) whose output is
-    /// maximised.
+    /// The target, spot, fluence probe or camera window (by name) whose output is maximised.
     pub maximize: String,
-    /// A target or spot the output is taken relative to (the objective is then the ratio: a
-    /// spot's contrast against a wider one, say).
+    /// An output the maximised one is taken relative to (the objective is then the ratio: a
+    /// spot's contrast against a wider one, a window's against the camera's whole image).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub relative_to: Option<String>,
     pub parameters: Vec<DesignParameterConfig>,
@@ -223,6 +222,8 @@ pub enum SensorConfig {
         pixels: [u64; 2],
         #[serde(default, skip_serializing_if = "FilterConfig::is_box")]
         filter: FilterConfig,
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        window: Vec<WindowConfig>,
     },
     /// A pinhole camera at `position` looking at `look_at` (`up`: the image's vertical), with a
     /// vertical field of view `fov_deg`: radiance through the pinhole, by connections through the
@@ -237,7 +238,21 @@ pub enum SensorConfig {
         pixels: [u64; 2],
         #[serde(default, skip_serializing_if = "FilterConfig::is_box")]
         filter: FilterConfig,
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        window: Vec<WindowConfig>,
     },
+}
+
+/// `[[sensor.window]]` of a camera: a named window of its pixels whose sum is an output of its
+/// own (`render.json`, a design objective).
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct WindowConfig {
+    pub name: String,
+    /// First and last column (0-based), from the image's left.
+    pub columns: [u64; 2],
+    /// First and last row (0-based), from the image's top as the files show it.
+    pub rows: [u64; 2],
 }
 
 /// `sensor.filter` of a screen or a camera: each pixel takes what lands in it (`box`), or the
@@ -755,7 +770,7 @@ impl RenderConfig {
             check_name(&format!("sensor[{i}].name"), name)?;
             if names.contains(&name.as_str()) {
                 return err(format!(
-                    "sensor[{i}].name = {name:?}: another sensor has this name"
+                    "sensor[{i}].name = {name:?}: another sensor or a camera's window has this name"
                 ));
             }
             names.push(name);
@@ -767,6 +782,7 @@ impl RenderConfig {
                 fov_deg,
                 pixels,
                 filter,
+                window,
             } = s
             {
                 let key = |k: &str| format!("sensor[{i}].{k}");
@@ -803,6 +819,7 @@ impl RenderConfig {
                 })?;
                 pinholes.push(crate::rrte::Pinhole {
                     filter: filter.build(),
+                    windows: pixel_windows(i, window, pixels, &mut names)?,
                     ..camera
                 });
             } else if let SensorConfig::Camera {
@@ -812,6 +829,7 @@ impl RenderConfig {
                 size,
                 pixels,
                 filter,
+                window,
             } = s
             {
                 let key = |k: &str| format!("sensor[{i}].{k}");
@@ -823,6 +841,7 @@ impl RenderConfig {
                 let pixels = check_pixels(i, *pixels)?;
                 cameras.push(Camera {
                     filter: filter.build(),
+                    windows: pixel_windows(i, window, pixels, &mut names)?,
                     ..Camera::new(name.clone(), direction, center, *size, pixels)
                 });
             } else if let SensorConfig::Fluence { name, position } = s {
@@ -1044,7 +1063,7 @@ impl RenderConfig {
                         .map(|i| objectives[i].as_str())
                         .collect();
                     ConfigError(format!(
-                        "{key} = {name:?}: not a target, spot or fluence probe of this scene; its targets (kind = \"target\"), spots (kind = \"spot\") and probes (kind = \"fluence\"): {targets:?}"
+                        "{key} = {name:?}: not a target, spot, fluence probe or camera window of this scene; its targets (kind = \"target\"), spots (kind = \"spot\"), probes (kind = \"fluence\") and cameras' windows ([[sensor.window]]): {targets:?}"
                     ))
                 })
         };
@@ -1052,7 +1071,7 @@ impl RenderConfig {
         let relative_to = match &d.relative_to {
             Some(r) if *r == d.maximize => {
                 return err(format!(
-                    "design.relative_to = {r:?}: the sensor maximised; name another target or spot, or leave it out"
+                    "design.relative_to = {r:?}: the output maximised; name another target, spot, probe or window, or leave it out"
                 ));
             }
             Some(r) => Some(target("design.relative_to", r)?),
@@ -1581,6 +1600,54 @@ fn check_pixels(i: usize, pixels: [u64; 2]) -> Result<[usize; 2], ConfigError> {
         }
     }
     Ok([pixels[0] as usize, pixels[1] as usize])
+}
+
+/// Camera `i`'s windows (`sensor[i].window`) on its image of `pixels`, each name new among
+/// `names` (the sensors' and windows' so far, which it joins): rows counted from the top in the
+/// config, from the bottom in the estimate.
+fn pixel_windows<'a>(
+    i: usize,
+    windows: &'a [WindowConfig],
+    pixels: [usize; 2],
+    names: &mut Vec<&'a str>,
+) -> Result<Vec<crate::rrte::PixelWindow>, ConfigError> {
+    let mut out = Vec::with_capacity(windows.len());
+    for (k, w) in windows.iter().enumerate() {
+        let key = |f: &str| format!("sensor[{i}].window[{k}].{f}");
+        check_name(&key("name"), &w.name)?;
+        if names.contains(&w.name.as_str()) {
+            return err(format!(
+                "{} = {:?}: a sensor or another window has this name (windows are named among the sensors: a design names them)",
+                key("name"),
+                w.name
+            ));
+        }
+        names.push(&w.name);
+        let mut ranges = [[0; 2]; 2];
+        for (a, (field, [first, last])) in [("columns", w.columns), ("rows", w.rows)]
+            .into_iter()
+            .enumerate()
+        {
+            let n = pixels[a] as u64;
+            if !(first <= last && last < n) {
+                return err(format!(
+                    "{} = [{first}, {last}]: give the first and last {} (0-based) with first <= last < {n}, the image's {}",
+                    key(field),
+                    &field[..field.len() - 1],
+                    ["width", "height"][a]
+                ));
+            }
+            ranges[a] = [first as usize, last as usize];
+        }
+        let height = pixels[1];
+        let [columns, [top, bottom]] = ranges;
+        out.push(crate::rrte::PixelWindow {
+            name: w.name.clone(),
+            columns,
+            rows: [height - 1 - bottom, height - 1 - top],
+        });
+    }
+    Ok(out)
 }
 
 /// A sensor's name: it names files.

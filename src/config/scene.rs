@@ -500,7 +500,7 @@ fn default_paths() -> u64 {
 }
 
 /// Keys that hold whole numbers; everything else numeric is read as a float.
-const INTEGER_KEYS: [&str; 20] = [
+const INTEGER_KEYS: [&str; 22] = [
     "samples",
     "reflections",
     "aperture_directions",
@@ -509,6 +509,8 @@ const INTEGER_KEYS: [&str; 20] = [
     "chunk",
     "count",
     "pixels",
+    "columns",
+    "rows",
     "realisations",
     "paths",
     "taus",

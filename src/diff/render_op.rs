@@ -255,7 +255,7 @@ impl RenderOp {
         let mut est = ParticleTracer::new(&scene);
         est.even_draws = self.held;
         let e = estimate_until(&est, &plan, self.stop.get())?;
-        let outputs = scene.sensors.len() + scene.probes.len();
+        let outputs = scene.objectives().len();
         // the derivative outputs scaled by each parameter's factor (errors by its size)
         let per_parameter = |value: &dyn Fn(usize, f64) -> f64| -> Vec<Vec<f64>> {
             (0..outputs)

@@ -7,6 +7,9 @@
 //! **evaluated** (a feasible point with its loss and gradient), never a point it did not evaluate,
 //! and says why it stopped: the projected gradient is below tolerance (a KKT point), the cost no
 //! longer changes, the iteration limit, or the line search gave up. Observers see every evaluation.
+//! Proposals beyond a bound often project to a point already evaluated (an optimum in a corner of
+//! the box draws the line search there again and again): the recent evaluations are kept and
+//! reused, so each feasible point costs the objective once.
 
 use argmin::core::{
     CostFunction, Error as ArgminError, Executor, Gradient, State, TerminationReason,
@@ -197,11 +200,16 @@ pub fn minimise(
     })
 }
 
+/// Feasible evaluations kept for reuse (besides the best).
+const RECENT: usize = 16;
+
 #[derive(Clone, Debug)]
 struct Best {
     x: Vec<f64>,
     loss: f64,
+    /// The projected gradient, and the objective's own.
     grad: Vec<f64>,
+    raw: Vec<f64>,
     grad_norm: f64,
 }
 
@@ -212,6 +220,8 @@ struct Record {
     /// The last point asked for, with the wrapped cost and gradient (argmin asks for the cost and
     /// the gradient of one point separately).
     last: Option<(Vec<f64>, f64, Vec<f64>)>,
+    /// The latest feasible points evaluated, with the objective's loss and gradient there.
+    recent: std::collections::VecDeque<(Vec<f64>, f64, Vec<f64>)>,
     /// An error of the objective (argmin would otherwise report it as a line-search failure).
     error: Option<crate::Error>,
 }
@@ -256,33 +266,50 @@ impl Wrapped<'_> {
             return Ok((*l, g.clone()));
         }
         let p = self.project(x);
-        let (loss, grad) = match self.objective.eval(&p) {
-            Ok(r) => r,
-            Err(e) => {
-                let message = ArgminError::msg(e.to_string());
-                st.error.get_or_insert(e);
-                return Err(message);
+        let best = st.best.as_ref().filter(|b| b.x == p);
+        let seen = best.map(|b| (b.loss, b.raw.clone())).or_else(|| {
+            let recent = st.recent.iter().find(|(q, ..)| *q == p);
+            recent.map(|(_, loss, grad)| (*loss, grad.clone()))
+        });
+        let (loss, grad) = match seen {
+            Some(known) => known,
+            None => {
+                let (loss, grad) = match self.objective.eval(&p) {
+                    Ok(r) => r,
+                    Err(e) => {
+                        let message = ArgminError::msg(e.to_string());
+                        st.error.get_or_insert(e);
+                        return Err(message);
+                    }
+                };
+                let pg = self.projected(&p, &grad);
+                let grad_norm = pg.iter().map(|g| g * g).sum::<f64>().sqrt();
+                let index = st.evaluations;
+                st.evaluations += 1;
+                (self.observe)(&Evaluation {
+                    index,
+                    x: p.clone(),
+                    loss,
+                    grad_norm,
+                });
+                let finite = loss.is_finite() && grad.iter().all(|g| g.is_finite());
+                if finite && st.best.as_ref().is_none_or(|b| loss < b.loss) {
+                    st.best = Some(Best {
+                        x: p.clone(),
+                        loss,
+                        grad: pg,
+                        raw: grad.clone(),
+                        grad_norm,
+                    });
+                }
+                if st.recent.len() == RECENT {
+                    st.recent.pop_front();
+                }
+                st.recent.push_back((p.clone(), loss, grad.clone()));
+                (loss, grad)
             }
         };
         let finite = loss.is_finite() && grad.iter().all(|g| g.is_finite());
-        let pg = self.projected(&p, &grad);
-        let grad_norm = pg.iter().map(|g| g * g).sum::<f64>().sqrt();
-        let index = st.evaluations;
-        st.evaluations += 1;
-        (self.observe)(&Evaluation {
-            index,
-            x: p.clone(),
-            loss,
-            grad_norm,
-        });
-        if finite && st.best.as_ref().is_none_or(|b| loss < b.loss) {
-            st.best = Some(Best {
-                x: p.clone(),
-                loss,
-                grad: pg,
-                grad_norm,
-            });
-        }
         // outside the box: f(P(x)) + κ/2 |x − P(x)|², whose gradient is ∇f at P(x) with the clamped
         // components replaced by the restoring force κ (x − P(x))
         let out: f64 = x.iter().zip(&p).map(|(a, b)| (a - b) * (a - b)).sum();
@@ -389,6 +416,36 @@ mod tests {
         let seen = seen.into_inner().unwrap();
         assert!(seen.iter().any(|(x, l)| *x == o.x && *l == o.loss));
         assert!(seen.iter().all(|(x, _)| x[0] <= 0.5 && x[0] >= -2.0));
+    }
+
+    /// `f = x + y` in the unit box: the optimum is the corner (0, 0), where the line search keeps
+    /// proposing points beyond both bounds. Each feasible point is evaluated once.
+    #[test]
+    fn a_corner_optimum_is_evaluated_once() {
+        struct Plane(Mutex<Vec<Vec<f64>>>);
+        impl Objective for Plane {
+            fn eval(&self, x: &[f64]) -> crate::Result<(f64, Vec<f64>)> {
+                self.0.lock().unwrap().push(x.to_vec());
+                Ok((x[0] + x[1], vec![1.0, 1.0]))
+            }
+        }
+        let plane = Plane(Mutex::new(Vec::new()));
+        let s = Settings {
+            max_iters: 30,
+            grad_tol: 1e-8,
+            cost_tol: 0.0,
+            bounds: Some(Bounds {
+                lower: vec![0.0, 0.0],
+                upper: vec![1.0, 1.0],
+            }),
+        };
+        let o = minimise(&plane, &[0.7, 0.4], &s, &|_| {}).unwrap();
+        assert_eq!(o.x, vec![0.0, 0.0]);
+        assert_eq!(o.stop, Stop::GradientTolerance);
+        let asked = plane.0.into_inner().unwrap();
+        assert_eq!(o.evaluations, asked.len());
+        let corner = asked.iter().filter(|x| **x == [0.0, 0.0]).count();
+        assert_eq!(corner, 1, "{asked:?}");
     }
 
     #[test]

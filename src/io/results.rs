@@ -924,6 +924,26 @@ pub struct CameraRecord {
     /// (with `render.derivatives`).
     #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
     pub derivatives: std::collections::BTreeMap<String, Measured>,
+    /// Its pixel windows (`[[sensor.window]]`), each summed with its own standard error.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub windows: Vec<WindowRecord>,
+}
+
+/// A camera's pixel window: the part of the camera's `intensity` (orthographic) or `irradiance`
+/// (pinhole) that its pixels hold.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct WindowRecord {
+    pub name: String,
+    /// First and last column, from the image's left, and row, from its top, as configured.
+    pub columns: [usize; 2],
+    pub rows: [usize; 2],
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub intensity: Option<Measured>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub irradiance: Option<Measured>,
+    /// Its derivatives by parameter name, with standard errors (with `render.derivatives`).
+    #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    pub derivatives: std::collections::BTreeMap<String, Measured>,
 }
 
 /// How the connections to probes and cameras went.

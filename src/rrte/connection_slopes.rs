@@ -354,15 +354,18 @@ impl ParticleTracer<'_> {
     }
 
     /// Add `coef` times `link`'s unit values to its camera's derivative image in
-    /// `scene.derivatives[j]`: each pixel's share of its radiance, and the total's.
+    /// `scene.derivatives[j]`: each pixel's share of its radiance, and the total's and windows'.
     fn add_link_slope(&self, link: &CameraLink, coef: f64, j: usize, out: &mut [C64]) {
         if !coef.is_finite() {
             return;
         }
         let image = self.camera_derivative(link.camera, j);
+        let windows = self.window_slopes(j);
         for &(pixel, share) in &link.pixels.0[..link.pixels.1] {
             out[image.first + pixel].re += coef * link.radiance * share;
-            out[image.total()].re += coef * link.total * share;
+            let total = coef * link.total * share;
+            out[image.total()].re += total;
+            self.add_to_windows(link.camera, pixel, total, windows, out);
         }
     }
 }

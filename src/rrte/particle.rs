@@ -302,6 +302,13 @@ pub struct ParticleTracer<'s> {
     /// Per differentiated parameter, camera after camera (the orthographic ones first): the
     /// derivative of its image (its total and pixels, time-integrated).
     camera_derivatives: Vec<ImageLayout>,
+    /// The first output of the cameras' pixel windows (camera after camera, each one's windows
+    /// in order): each window's sum over its pixels, time-integrated, without colour weights.
+    pub(super) windows: usize,
+    /// Per camera, the index of its first window among all.
+    first_window: Vec<usize>,
+    /// The first of the windows' derivatives: per differentiated parameter, window after window.
+    window_derivatives: usize,
     /// The volume moved along each differentiated index-field parameter, for the derivatives of
     /// connections.
     pub(super) shifted: ShiftedFields,
@@ -387,6 +394,16 @@ impl<'s> ParticleTracer<'s> {
                 at += 1 + pixels;
             }
         }
+        let windows = at;
+        let mut first_window = Vec::new();
+        let mut count = 0;
+        for c in 0..scene.cameras.len() + scene.pinholes.len() {
+            first_window.push(count);
+            count += scene.camera_windows(c).len();
+        }
+        at += count;
+        let window_derivatives = at;
+        at += scene.derivatives.len() * count;
         ParticleTracer {
             scene,
             tools: Tools::new(&scene.volume, scene, [1.0; 3], Delay::NONE),
@@ -397,6 +414,9 @@ impl<'s> ParticleTracer<'s> {
             derivative_images,
             probe_derivatives,
             camera_derivatives,
+            windows,
+            first_window,
+            window_derivatives,
             shifted: ShiftedFields::new(scene),
             targets: scene
                 .sensors
@@ -466,21 +486,63 @@ impl<'s> ParticleTracer<'s> {
         self.camera_derivatives[j * cameras + i]
     }
 
-    /// The output holding objective `i` of [`RenderScene::objectives`]: a sensor's power, then a
-    /// probe's fluence rate.
+    /// The output holding the sum over window `k` of camera `i` (the orthographic cameras first,
+    /// then the pinholes): what its image's total takes from those pixels.
+    pub fn window_total(&self, i: usize, k: usize) -> usize {
+        self.windows + self.first_window[i] + k
+    }
+
+    /// The output holding the derivative of [`Self::window_total`] with respect to
+    /// `scene.derivatives[j]`.
+    pub fn window_derivative(&self, i: usize, k: usize, j: usize) -> usize {
+        self.window_slopes(j) + self.first_window[i] + k
+    }
+
+    /// The first output of the windows' derivatives with respect to `scene.derivatives[j]`.
+    pub(super) fn window_slopes(&self, j: usize) -> usize {
+        let windows = self.window_derivatives - self.windows;
+        self.window_derivatives + j * windows
+    }
+
+    /// Add `value` to output `base + w` for every window `w` (counted over all cameras) of camera
+    /// `camera` that holds `pixel`.
+    #[inline]
+    pub(super) fn add_to_windows(
+        &self,
+        camera: usize,
+        pixel: usize,
+        value: f64,
+        base: usize,
+        out: &mut [C64],
+    ) {
+        let width = self.scene.camera_pixels(camera)[0];
+        let first = self.first_window[camera];
+        for (k, w) in self.scene.camera_windows(camera).iter().enumerate() {
+            if w.contains(pixel, width) {
+                out[base + first + k].re += value;
+            }
+        }
+    }
+
+    /// The output holding objective `i` of [`RenderScene::objectives`]: a sensor's power, a
+    /// probe's fluence rate, then a camera window's sum.
     pub fn objective(&self, i: usize) -> usize {
-        match i.checked_sub(self.scene.sensors.len()) {
-            None => self.power(i),
-            Some(probe) => self.probe_total(probe),
+        let sensors = self.scene.sensors.len();
+        match i.checked_sub(sensors + self.scene.probes.len()) {
+            Some(window) => self.windows + window,
+            None if i < sensors => self.power(i),
+            None => self.probe_total(i - sensors),
         }
     }
 
     /// The output holding the derivative of objective `i` with respect to
     /// `scene.derivatives[j]`.
     pub fn objective_derivative(&self, i: usize, j: usize) -> usize {
-        match i.checked_sub(self.scene.sensors.len()) {
-            None => self.power_derivative(i, j),
-            Some(probe) => self.probe_derivative(probe, j),
+        let sensors = self.scene.sensors.len();
+        match i.checked_sub(sensors + self.scene.probes.len()) {
+            Some(window) => self.window_slopes(j) + window,
+            None if i < sensors => self.power_derivative(i, j),
+            None => self.probe_derivative(i - sensors, j),
         }
     }
 
@@ -678,7 +740,9 @@ impl<'s> ParticleTracer<'s> {
         let image = self.images[self.scene.sensors.len() + link.camera];
         for &(pixel, share) in &link.pixels.0[..link.pixels.1] {
             image.add(out, bin, pixel, radiance * share, &t.colour);
-            out[image.total()].re += scale * link.total * share;
+            let total = scale * link.total * share;
+            out[image.total()].re += total;
+            self.add_to_windows(link.camera, pixel, total, self.windows, out);
         }
         true
     }

@@ -52,6 +52,8 @@ impl Walk {
 
 /// What a camera path adds to its pixel: radiance samples in their time bins.
 pub(super) struct Pixel {
+    /// The camera (the orthographic cameras first, then the pinholes).
+    camera: usize,
     image: super::ImageLayout,
     pixel: usize,
     /// Pixels of the camera: a uniformly drawn pixel's sample counts this many times.
@@ -115,6 +117,7 @@ impl ParticleTracer<'_> {
                 + cam.up * ((b - 0.5) * cam.size[1]);
             let count = cam.pixel_count() as f64;
             let pixel = Pixel {
+                camera,
                 image: self.camera_image(camera),
                 pixel: grid_pixel(a, b, cam.pixels),
                 count,
@@ -132,6 +135,7 @@ impl ParticleTracer<'_> {
         let cos = d.dot(cam.forward);
         let image_area = cam.image_area(cos);
         let pixel = Pixel {
+            camera,
             image: self.pinhole_image(i),
             pixel: grid_pixel(a, b, cam.pixels),
             count: cam.pixel_count() as f64,
@@ -158,7 +162,9 @@ impl ParticleTracer<'_> {
         };
         p.image
             .add(out, bin, p.pixel, radiance * p.count, &t.colour);
-        out[p.image.total()].re += radiance * p.to_total;
+        let total = radiance * p.to_total;
+        out[p.image.total()].re += total;
+        self.add_to_windows(p.camera, p.pixel, total, self.windows, out);
     }
 
     /// Trace the camera path leaving `x` along unit `d` (outside the volume).

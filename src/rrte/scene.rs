@@ -171,6 +171,30 @@ pub fn shares(filter: Filter, a: f64, b: f64, pixels: [usize; 2]) -> Shares {
     out
 }
 
+/// A named window of a camera's pixels whose sum is an output of its own, with its own standard
+/// error and derivatives: the light reaching a spot of the image (a relay's focus, a guided
+/// spot's core), which a design can maximise.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PixelWindow {
+    pub name: String,
+    /// First and last column, counted from the image's left.
+    pub columns: [usize; 2],
+    /// First and last row, counted from the image's bottom as the estimate holds them (the files
+    /// show the top row first).
+    pub rows: [usize; 2],
+}
+
+impl PixelWindow {
+    /// Whether pixel `p` (row-major from the lower left) of an image `width` pixels wide lies in
+    /// the window.
+    #[inline]
+    pub fn contains(&self, p: usize, width: usize) -> bool {
+        let (i, j) = (p % width, p / width);
+        (self.columns[0]..=self.columns[1]).contains(&i)
+            && (self.rows[0]..=self.rows[1]).contains(&j)
+    }
+}
+
 /// Where light comes from; power 1 in total (results are fractions of the emitted power).
 #[derive(Clone, Debug, PartialEq)]
 pub enum Light {
@@ -311,6 +335,8 @@ pub struct Camera {
     pub pixels: [usize; 2],
     /// How the pixels share what arrives (box unless asked).
     pub filter: Filter,
+    /// Windows of pixels summed as outputs of their own.
+    pub windows: Vec<PixelWindow>,
 }
 
 impl Camera {
@@ -331,6 +357,7 @@ impl Camera {
             size,
             pixels,
             filter: Filter::Box,
+            windows: Vec::new(),
         }
     }
 
@@ -384,6 +411,8 @@ pub struct Pinhole {
     pub pixels: [usize; 2],
     /// How the pixels share what arrives (box unless asked).
     pub filter: Filter,
+    /// Windows of pixels summed as outputs of their own.
+    pub windows: Vec<PixelWindow>,
 }
 
 impl Pinhole {
@@ -410,6 +439,7 @@ impl Pinhole {
             tan_half: [th * pixels[0] as f64 / pixels[1] as f64, th],
             pixels,
             filter: Filter::Box,
+            windows: Vec::new(),
         })
     }
 
@@ -927,16 +957,35 @@ pub struct RenderScene {
 }
 
 impl RenderScene {
-    /// Whether any derivative is with respect to the index field.
     /// The names of what a render operation outputs, in order: every sensor's power (a target's
-    /// fluence), then every probe's fluence rate.
+    /// fluence), every probe's fluence rate, then every camera window's sum.
     pub fn objectives(&self) -> Vec<String> {
         let sensors = self.sensors.iter().map(|s| s.name.clone());
+        let windows = (0..self.cameras.len() + self.pinholes.len())
+            .flat_map(|c| self.camera_windows(c).iter().map(|w| w.name.clone()));
         sensors
             .chain(self.probes.iter().map(|p| p.name.clone()))
+            .chain(windows)
             .collect()
     }
 
+    /// The pixel windows of camera `i` (the orthographic cameras first, then the pinholes).
+    pub fn camera_windows(&self, i: usize) -> &[PixelWindow] {
+        match self.cameras.get(i) {
+            Some(c) => &c.windows,
+            None => &self.pinholes[i - self.cameras.len()].windows,
+        }
+    }
+
+    /// The width and height in pixels of camera `i`'s image (the orthographic cameras first).
+    pub fn camera_pixels(&self, i: usize) -> [usize; 2] {
+        match self.cameras.get(i) {
+            Some(c) => c.pixels,
+            None => self.pinholes[i - self.cameras.len()].pixels,
+        }
+    }
+
+    /// Whether any derivative is with respect to the index field.
     pub fn field_derivatives(&self) -> bool {
         self.derivatives
             .iter()
