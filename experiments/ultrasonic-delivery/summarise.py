@@ -1,20 +1,43 @@
-"""Delivered fluence vs depth for the three drives, and the gains, from out/*/render.json."""
+"""Delivered fluence vs depth for every case, and the gains, from out/*/render.json."""
 import json
 
-cases = ["none", "default", "designed"]
+cases = {
+    "none": "no waveguide",
+    "lens": "external lens",
+    "default": "default waveguide",
+    "drive": "drive designed",
+    "full": "drive, phases, placement designed",
+}
 runs = {c: json.load(open(f"out/{c}/render.json")) for c in cases}
-design = json.load(open("out/design/render_design.json"))
-print("designed drive:")
-for p in design["parameters"]:
-    print(f"  {p['name']}: {p['start']:.4g} -> {p['designed']:.4g}")
+for name in ["drive", "full"]:
+    design = json.load(open(f"out/{name}_design/render_design.json"))
+    gain = design["verification"]["gain"]
+    print(f"{name} design (its own check: gain {gain['mean']:.3f} ± {gain['stderr']:.3f}):")
+    for p in design["parameters"]:
+        print(f"  {p['name']}: {p['start']:.4g} -> {p['designed']:.4g}")
 print()
-print("| depth | no waveguide | default waveguide | designed | designed / none | designed / default |")
-print("| --- | --- | --- | --- | --- | --- |")
-for i, t in enumerate(runs["none"]["targets"]):
-    f = {c: runs[c]["targets"][i]["fluence"] for c in cases}
-    def ratio(a, b):
-        r = f[a]["mean"] / f[b]["mean"]
-        e = r * ((f[a]["stderr"] / f[a]["mean"]) ** 2 + (f[b]["stderr"] / f[b]["mean"]) ** 2) ** 0.5
-        return f"{r:.3f} ± {e:.3f}"
-    cells = " | ".join(f"{f[c]['mean']:.4e} ± {f[c]['stderr']:.1e}" for c in cases)
-    print(f"| {t['name'].removeprefix('depth_')} | {cells} | {ratio('designed', 'none')} | {ratio('designed', 'default')} |")
+
+
+def fluence(c, i):
+    return runs[c]["targets"][i]["fluence"]
+
+
+def ratio(a, b, i):
+    fa, fb = fluence(a, i), fluence(b, i)
+    r = fa["mean"] / fb["mean"]
+    e = r * ((fa["stderr"] / fa["mean"]) ** 2 + (fb["stderr"] / fb["mean"]) ** 2) ** 0.5
+    return f"{r:.3f} ± {e:.3f}"
+
+
+print("| depth | " + " | ".join(cases.values()) + " |")
+print("| --- |" + " --- |" * len(cases))
+names = [t["name"].removeprefix("depth_") for t in runs["none"]["targets"]]
+for i, name in enumerate(names):
+    cells = " | ".join(f"{fluence(c, i)['mean']:.4e} ± {fluence(c, i)['stderr']:.1e}" for c in cases)
+    print(f"| {name} | {cells} |")
+print()
+pairs = [("full", "none"), ("full", "lens"), ("full", "default"), ("full", "drive"), ("drive", "default"), ("lens", "none")]
+print("| depth | " + " | ".join(f"{a} / {b}" for a, b in pairs) + " |")
+print("| --- |" + " --- |" * len(pairs))
+for i, name in enumerate(names):
+    print(f"| {name} | " + " | ".join(ratio(a, b, i) for a, b in pairs) + " |")
