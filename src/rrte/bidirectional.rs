@@ -456,20 +456,18 @@ impl ParticleTracer<'_> {
                 let (cos_y, cos_z) = (-facing_y.dot(e.outgoing), facing_z.dot(e.direction));
                 if cos_y <= 0.0
                     || cos_z <= 0.0
-                    || self
-                        .scene
-                        .blocked_after_exit(e.surface, e.outgoing, to_y * SHORT)
+                    || self.scene.blocked(e.surface, e.outgoing, to_y * SHORT)
                 {
                     return None;
                 }
-                let outside = n_out * (e.before + to_y);
+                let outside = n_out * (e.outside() + to_y);
                 Some(Joint {
                     leave_y: -e.outgoing,
                     leave_z: e.direction,
                     carried: carried * cos_z,
                     delay: t.delay.inside(e.optical_path - outside, e.length)
                         + t.delay.outside(outside),
-                    segment: Segment::new(volume, e.length, e.before + to_y, false, true)
+                    segment: Segment::new(volume, e.length, e.outside() + to_y, false, true)
                         .with_cos(cos_y, cos_z),
                 })
             }
@@ -564,18 +562,18 @@ impl ParticleTracer<'_> {
         if cos <= 0.0
             || self
                 .scene
-                .blocked_after_exit(exit.surface, exit.outgoing, to_p * (1.0 - 1e-9))
+                .blocked(exit.surface, exit.outgoing, to_p * (1.0 - 1e-9))
         {
             return None;
         }
-        let transmittance = self.transmittance(t, x, exit.direction, (exit.length, bounces), rng);
-        let outside = volume.field.n_out * to_p;
+        let transmittance = self.exit_transmittance(t, &exit, bounces, rng);
+        let outside = volume.field.n_out * (exit.outside() + to_p);
         Some(OutToSurface {
             carried: transmittance * exit.transmission / exit.jacobian * inverse_p,
             delay: t.delay.inside(exit.optical_path - outside, exit.length)
                 + t.delay.outside(outside),
-            segment: Segment::new(volume, exit.length, to_p, false, true),
-            outside: to_p,
+            segment: Segment::new(volume, exit.length, exit.outside() + to_p, false, true),
+            outside: exit.outside() + to_p,
             cos,
             exit,
         })

@@ -22,7 +22,7 @@
 //! al. 2020): `Σ_k f(C_k)` is then estimated without bias by `f(C)/p(C)`.
 
 use super::flight::{fresnel, reflect};
-use super::scene::Volume;
+use super::scene::{Surface, Volume};
 use crate::eikonal::trace::{entry_parameter, jacobian_of, refract};
 use crate::eikonal::{BoundedField, IndexField, Ray, Tracer};
 use crate::math::{Rng, orthonormal_basis, uniform, uniform_sphere};
@@ -63,11 +63,17 @@ pub struct Exit {
     pub inside_from: DVec3,
     pub inside_along: DVec3,
     pub before: f64,
-    /// Geometric length inside, and the optical path (to the point, for a path through one).
+    /// Geometric length inside (all parts), and the optical path (to the point, for a path
+    /// through one).
     pub length: f64,
     pub optical_path: f64,
-    /// `1 − R` of the Fresnel reflectance at the exit (times that at the entry, from outside).
+    /// `1 − R` of the Fresnel reflectance at the exit (times that at the entry, from outside,
+    /// and the transmittances of every part entered again).
     pub transmission: f64,
+    /// The parts of a non-convex volume the path enters again after it first leaves (seen
+    /// through another part of the shape), and the geometric length outside between them.
+    pub again: Again,
+    pub between: f64,
     /// For [`Connector::solve_exit`], `dω_out/dω_x`: how the solid angle of directions leaving
     /// `x` maps onto outgoing directions (1 for straight rays through a matched surface); a source
     /// of intensity `I` at `x` has intensity `I · transmission / jacobian` along the outgoing
@@ -76,6 +82,46 @@ pub struct Exit {
     pub jacobian: f64,
     pub iterations: usize,
 }
+
+impl Exit {
+    /// The geometric length outside the volume up to where the path last leaves it.
+    pub fn outside(&self) -> f64 {
+        self.before + self.between
+    }
+
+    /// The length inside of the path's first part: from `inside_from` along `inside_along` (and
+    /// its reflections inside the surface) to where it first leaves.
+    pub fn first_length(&self) -> f64 {
+        self.length - self.again.parts().iter().map(|p| p.2).sum::<f64>()
+    }
+}
+
+/// Parts of a non-convex volume that a path through its surface enters again: each part's entry
+/// point (just inside), unit direction there and geometric length across.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Again {
+    parts: [(DVec3, DVec3, f64); MAX_AGAIN],
+    count: usize,
+}
+
+impl Again {
+    pub fn parts(&self) -> &[(DVec3, DVec3, f64)] {
+        &self.parts[..self.count]
+    }
+
+    /// Add a part; `false` if there are [`MAX_AGAIN`] already.
+    fn push(&mut self, part: (DVec3, DVec3, f64)) -> bool {
+        if self.count == MAX_AGAIN {
+            return false;
+        }
+        self.parts[self.count] = part;
+        self.count += 1;
+        true
+    }
+}
+
+/// The most parts of a volume a path through its surface enters again after it first leaves.
+pub const MAX_AGAIN: usize = 4;
 
 /// How a [`Connector::sample`] went: the path (if the solver converged) with its inverse
 /// probability, and the work done.
@@ -120,6 +166,8 @@ pub struct Connector<'v> {
     /// can hold rays in orbits that never reach the surface): where it would be attenuated below
     /// `e^−30`, and at most [`TRAPPED_CROSSINGS`] widths of the volume.
     max_length: f64,
+    /// Surfaces outside that block a path between the parts of a non-convex volume.
+    surfaces: &'v [Surface],
 }
 
 /// Optical depth beyond which a connection's transmittance (`< e^−30`) is dropped.
@@ -221,13 +269,23 @@ impl<'v> Connector<'v> {
                 max_steps,
             },
             straight: volume.homogeneous(),
-            matched: volume.homogeneous() && volume.field.n(DVec3::ZERO) == volume.field.n_out,
+            // the constant inside, read without the bounds (which need not hold the origin)
+            matched: volume.homogeneous()
+                && volume.field.eval_inside(DVec3::ZERO).0 == volume.field.n_out,
             tolerance: 1e-9 * size,
             max_iterations: 40,
             polish: false,
             max_restarts: 10_000,
             max_length,
+            surfaces: &[],
         }
+    }
+
+    /// The same connector with `surfaces` blocking the stretches outside between the parts of a
+    /// non-convex volume.
+    pub fn blocked_by(mut self, surfaces: &'v [Surface]) -> Self {
+        self.surfaces = surfaces;
+        self
     }
 
     /// The same connector taking one more Newton step once a path is within the tolerance, which
@@ -425,15 +483,41 @@ impl<'v> Connector<'v> {
 
     /// The straight path from `x` inside an index-matched volume along unit `w`, leaving it (and
     /// reaching the point `to_point` away): its exit, with `jacobian` the spread `s²` at that
-    /// point (1 for a direction).
+    /// point (1 for a direction), through every part of a non-convex volume it enters again on
+    /// the way.
     fn straight_exit(&self, x: DVec3, w: DVec3, to_point: Option<f64>) -> Sampled<Exit> {
         let n = self.volume.field.n_out;
-        let path = self.volume.field.bounds.exit(x, w).and_then(|t1| {
-            let exit = t1.max(0.0);
+        let bounds = &self.volume.field.bounds;
+        let path = bounds.exit(x, w).and_then(|t1| {
+            let mut exit = t1.max(0.0);
             let (optical_path, jacobian) = match to_point {
                 Some(s) if s > exit => (n * s, s * s),
                 Some(_) => return None,
                 None => (n * exit, 1.0),
+            };
+            let (mut again, mut between, mut length) = (Again::default(), 0.0, exit);
+            let end = to_point.unwrap_or(f64::INFINITY);
+            while let Some(t0) = bounds.reentry(x + w * exit, w) {
+                let entry = exit + t0;
+                if entry >= end {
+                    break;
+                }
+                let inside = x + w * (exit + entry_parameter(t0));
+                let chord = bounds.exit(inside, w)?.max(0.0);
+                let chord = chord.min(end - entry);
+                if !again.push((inside, w, chord)) {
+                    return None;
+                }
+                between += t0;
+                length += chord;
+                exit = entry + chord;
+                if exit >= end {
+                    break;
+                }
+            }
+            let optical_path = match to_point {
+                Some(_) => optical_path,
+                None => n * exit,
             };
             Some((
                 Exit {
@@ -443,11 +527,13 @@ impl<'v> Connector<'v> {
                     inside_from: x,
                     inside_along: w,
                     before: 0.0,
-                    length: exit,
+                    length,
                     optical_path,
                     transmission: 1.0,
                     jacobian,
                     iterations: 0,
+                    again,
+                    between,
                 },
                 1.0,
             ))
@@ -651,6 +737,8 @@ impl<'v> Connector<'v> {
                 transmission: transmission * reflected,
                 jacobian: 0.0,
                 iterations: 0,
+                again: Again::default(),
+                between: 0.0,
             },
             deriv,
             moved,
@@ -915,6 +1003,8 @@ impl<'v> Connector<'v> {
                 transmission: transmission * (1.0 - fresnel(nw, eta)),
                 jacobian: 0.0,
                 iterations: 0,
+                again: Again::default(),
+                between: 0.0,
             },
             deriv,
             moved,
@@ -963,10 +1053,94 @@ impl<'v> Connector<'v> {
                 transmission: reflectance,
                 jacobian: 0.0,
                 iterations: 0,
+                again: Again::default(),
+                between: 0.0,
             },
             dout,
             dx,
         ))
+    }
+
+    /// A path that has left the volume (its exit, and the derivatives of its outgoing direction
+    /// and exit point along the two angles of its start) followed through every part of a
+    /// non-convex volume it enters again before it has run `until` outside: straight to the
+    /// part (the entry point sliding along the surface as the exit point moves and the direction
+    /// turns), refracted in, across, refracted out — the derivatives chained through each, the
+    /// refractions' by central differences of their closed forms. `None` if it is reflected
+    /// totally, trapped, blocked by a surface between the parts, or enters more than
+    /// [`MAX_AGAIN`] parts.
+    #[allow(clippy::type_complexity)]
+    fn onwards(
+        &self,
+        left: Option<(Exit, [DVec3; 2], [DVec3; 2])>,
+        until: impl Fn(&Exit) -> f64,
+    ) -> Option<(Exit, [DVec3; 2], [DVec3; 2])> {
+        let (mut exit, mut dout, mut moved) = left?;
+        let field = &self.volume.field;
+        let bounds = &field.bounds;
+        loop {
+            let o = exit.outgoing;
+            let Some(t0) = bounds.reentry(exit.surface, o) else {
+                return Some((exit, dout, moved));
+            };
+            if t0 >= until(&exit) {
+                return Some((exit, dout, moved));
+            }
+            if self
+                .surfaces
+                .iter()
+                .any(|s| s.hit(exit.surface, o).is_some_and(|t| t < t0))
+            {
+                return None;
+            }
+            let at = exit.surface + o * t0;
+            let normal = bounds.normal(at)?;
+            let cos = normal.dot(o);
+            if cos >= 0.0 {
+                return None;
+            }
+            let slide = [0, 1].map(|k| {
+                let d = moved[k] + dout[k] * t0;
+                d - o * (normal.dot(d) / cos)
+            });
+            let inside = exit.surface + o * entry_parameter(t0);
+            let (n_in, grad) = field.value_grad(inside);
+            let eta = field.n_out / n_in;
+            let inward = |d: DVec3, at: DVec3| -> Option<DVec3> {
+                let nrm = bounds.normal(at)?;
+                refract(d, nrm, eta).ok()
+            };
+            let d_in = inward(o, at)?;
+            let mut dv = [DVec3::ZERO; 2];
+            for k in 0..2 {
+                let plus = inward(
+                    (o + dout[k] * DIFF_STEP).normalize(),
+                    at + slide[k] * DIFF_STEP,
+                )?;
+                let minus = inward(
+                    (o - dout[k] * DIFF_STEP).normalize(),
+                    at - slide[k] * DIFF_STEP,
+                )?;
+                dv[k] = (plus - minus) * (n_in / (2.0 * DIFF_STEP)) + d_in * grad.dot(slide[k]);
+            }
+            let sensitivities = (
+                DMat3::from_cols(slide[0], slide[1], DVec3::ZERO),
+                DMat3::from_cols(dv[0], dv[1], DVec3::ZERO),
+            );
+            let (end, xv, vv, length, opl, n_end) = self.shoot_out(inside, d_in, sensitivities)?;
+            let (outgoing, transmission, deriv, surface_moved) =
+                self.refract_out(end, (xv, vv), [DVec3::X, DVec3::Y], n_end)?;
+            if !exit.again.push((inside, d_in, length)) {
+                return None;
+            }
+            exit.between += t0;
+            exit.length += length;
+            exit.optical_path += field.n_out * t0 + opl;
+            exit.transmission *= transmission * (1.0 - fresnel(cos, eta));
+            exit.surface = end.x;
+            exit.outgoing = outgoing;
+            (dout, moved) = (deriv, surface_moved);
+        }
     }
 
     /// The path Newton's method reaches from `w0` that leaves the volume and passes through the
@@ -1003,8 +1177,10 @@ impl<'v> Connector<'v> {
         // the last direction the map took, to step back towards when a step leaves its domain
         let mut last = None;
         let mut polished = false;
+        // the path ends at p: a part of the volume beyond it is not entered
+        let until = |e: &Exit| (p - e.surface).dot(e.outgoing);
         for iteration in 0..self.max_iterations {
-            let Some((mut exit, dout, dsurf)) = map(w) else {
+            let Some((mut exit, dout, dsurf)) = self.onwards(map(w), until) else {
                 w = step_back(last?, w)?;
                 continue;
             };
@@ -1188,7 +1364,7 @@ impl<'v> Connector<'v> {
         let mut last = None;
         let mut polished = false;
         for iteration in 0..self.max_iterations {
-            let Some((mut exit, [d1, d2], _)) = map(w) else {
+            let Some((mut exit, [d1, d2], _)) = self.onwards(map(w), |_| f64::INFINITY) else {
                 w = step_back(last?, w)?;
                 continue;
             };

@@ -185,8 +185,10 @@ pub(super) fn emitted(scene: &RenderScene, volume: &Volume, w_in: Option<DVec3>,
 
 /// A connector of `volume` for central differences of paths already found: polished to
 /// round-off ([`Connector::polished`]).
-fn polished<'v>(scene: &RenderScene, volume: &'v Volume) -> Connector<'v> {
-    Connector::new(volume, scene.step, scene.max_steps).polished()
+fn polished<'v>(scene: &'v RenderScene, volume: &'v Volume) -> Connector<'v> {
+    Connector::new(volume, scene.step, scene.max_steps)
+        .blocked_by(&scene.surfaces)
+        .polished()
 }
 
 impl ParticleTracer<'_> {

@@ -81,13 +81,14 @@ pub(super) struct Tools<'v> {
 impl<'v> Tools<'v> {
     pub(super) fn new(
         volume: &'v Volume,
-        scene: &RenderScene,
+        scene: &'v RenderScene,
         colour: [f64; 3],
         delay: Delay,
     ) -> Self {
         Tools {
             flyer: Flyer::new(volume, scene.step, scene.max_steps),
-            connector: Connector::new(volume, scene.step, scene.max_steps),
+            connector: Connector::new(volume, scene.step, scene.max_steps)
+                .blocked_by(&scene.surfaces),
             colour,
             delay,
             instant: None,
@@ -764,7 +765,7 @@ impl<'s> ParticleTracer<'s> {
     ) -> Option<CameraLink> {
         let (e, inverse_p, bounces) = self.camera_exit(t, x, i, way, rng, out)?;
         self.link_to_camera(t, i, &e, || {
-            let transmittance = self.transmittance(t, x, e.direction, (e.length, bounces), rng);
+            let transmittance = self.exit_transmittance(t, &e, bounces, rng);
             transmittance * e.transmission / e.jacobian * inverse_p
         })
     }
@@ -829,7 +830,7 @@ impl<'s> ParticleTracer<'s> {
         carried: impl FnOnce() -> f64,
     ) -> Option<CameraLink> {
         let n_out = t.flyer.volume.field.n_out;
-        let before = n_out * e.before;
+        let before = n_out * e.outside();
         if let Some(cam) = self.scene.cameras.get(i) {
             let (a, b) = cam.fractions(e.surface);
             let pixels = shares(cam.filter, a, b, cam.pixels);
@@ -837,10 +838,7 @@ impl<'s> ParticleTracer<'s> {
                 return None;
             }
             let to_plane = (cam.center - e.surface).dot(cam.direction).max(0.0);
-            if self
-                .scene
-                .blocked_after_exit(e.surface, cam.direction, to_plane)
-            {
+            if self.scene.blocked(e.surface, cam.direction, to_plane) {
                 return None;
             }
             let radiance = carried() / cam.pixel_area();
@@ -854,7 +852,7 @@ impl<'s> ParticleTracer<'s> {
                     + t.delay.inside(e.optical_path - before, e.length)
                     + t.delay.outside(n_out * to_plane),
                 inside: e.length,
-                outside: e.before + to_plane,
+                outside: e.outside() + to_plane,
                 pdf: 1.0 / cam.area(),
             });
         }
@@ -865,15 +863,12 @@ impl<'s> ParticleTracer<'s> {
             return None;
         }
         let to_pinhole = (cam.position - e.surface).dot(e.outgoing);
-        if self
-            .scene
-            .blocked_after_exit(e.surface, e.outgoing, to_pinhole)
-        {
+        if self.scene.blocked(e.surface, e.outgoing, to_pinhole) {
             return None;
         }
         let irradiance = carried();
         // the path's optical length holds its straight stretches outside
-        let outside = n_out * (e.before + to_pinhole);
+        let outside = n_out * (e.outside() + to_pinhole);
         Some(CameraLink {
             camera: i,
             pixels,
@@ -882,7 +877,7 @@ impl<'s> ParticleTracer<'s> {
             total: irradiance,
             delay: t.delay.inside(e.optical_path - outside, e.length) + t.delay.outside(outside),
             inside: e.length,
-            outside: e.before + to_pinhole,
+            outside: e.outside() + to_pinhole,
             pdf: 1.0 / cam.image_area(cos),
         })
     }
@@ -915,6 +910,25 @@ impl<'s> ParticleTracer<'s> {
                 kept *= self.ratio_tracking(t, from, along, stretch, rng);
             });
         if whole { kept } else { 0.0 }
+    }
+
+    /// The transmittance along a connection through the surface (`bounces`: its reflections
+    /// inside before it first leaves): its first part from `inside_from` along `inside_along`,
+    /// then each part of a non-convex volume it enters again ([`Self::transmittance`] of each;
+    /// the product of independent unbiased estimates is unbiased).
+    pub(super) fn exit_transmittance(
+        &self,
+        t: &Tools,
+        e: &Exit,
+        bounces: usize,
+        rng: &mut Rng,
+    ) -> f64 {
+        let first = (e.first_length(), bounces);
+        let mut kept = self.transmittance(t, e.inside_from, e.inside_along, first, rng);
+        for &(y, d, length) in e.again.parts() {
+            kept *= self.ratio_tracking(t, y, d, length, rng);
+        }
+        kept
     }
 
     /// Ratio tracking along the curved ray from `x` (inside) along unit `w` for geometric length
@@ -1331,8 +1345,7 @@ impl<'s> ParticleTracer<'s> {
         if self.scene.blocked(y, e.direction, e.before) {
             return None;
         }
-        let transmittance =
-            self.transmittance(t, e.inside_from, e.inside_along, (e.length, 0), rng);
+        let transmittance = self.exit_transmittance(t, &e, 0, rng);
         Some((e, transmittance * e.transmission / e.jacobian * inverse_p))
     }
 

@@ -306,18 +306,18 @@ impl ParticleTracer<'_> {
             let (e, carried) = self.across(t, y, Aim::Point(q), way, rng, out)?;
             let cos = e.direction.dot(facing);
             let to_q = (q - e.surface).dot(e.outgoing);
-            if cos <= 0.0 || self.scene.blocked_after_exit(e.surface, e.outgoing, to_q) {
+            if cos <= 0.0 || self.scene.blocked(e.surface, e.outgoing, to_q) {
                 return None;
             }
             let intensity = light.intensity(-e.outgoing);
-            let outside = n_out * (e.before + to_q);
+            let outside = n_out * (e.outside() + to_q);
             return Some(LightLink {
                 direction: e.direction,
                 radiance: intensity * cos * carried,
                 delay: t.delay.inside(e.optical_path - outside, e.length)
                     + t.delay.outside(outside),
                 inside: e.length,
-                outside: e.before + to_q,
+                outside: e.outside() + to_q,
                 pdf: intensity,
             });
         }
@@ -443,21 +443,21 @@ impl ParticleTracer<'_> {
             let s = t.connector.sample_through(x, q, bounces, first_only, rng);
             let (e, inverse_p) = self.tally(s, out)?;
             let to_q = (q - e.surface).dot(e.outgoing);
-            if self.scene.blocked_after_exit(e.surface, e.outgoing, to_q) {
+            if self.scene.blocked(e.surface, e.outgoing, to_q) {
                 return None;
             }
-            let transmittance = self.transmittance(t, x, e.direction, (e.length, bounces), rng);
+            let transmittance = self.exit_transmittance(t, &e, bounces, rng);
             // n_q = n_out: the camera's n_out² cancels it
             let intensity = light.intensity(-e.outgoing);
             // the path's optical length holds the straight stretch to the light
-            let outside = n_out * to_q;
+            let outside = n_out * (e.outside() + to_q);
             Some(LightLink {
                 direction: e.direction,
                 radiance: intensity * transmittance * e.transmission / e.jacobian * inverse_p,
                 delay: t.delay.inside(e.optical_path - outside, e.length)
                     + t.delay.outside(outside),
                 inside: e.length,
-                outside: to_q,
+                outside: e.outside() + to_q,
                 pdf: intensity,
             })
         }

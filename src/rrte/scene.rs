@@ -1014,19 +1014,6 @@ impl RenderScene {
             .any(|s| s.hit(x, d).is_some_and(|t| t < length))
     }
 
-    /// Whether the straight segment of `length` from `x`, where a path has just left the volume,
-    /// along unit `d` is blocked by a surface or (a non-convex volume) by the volume itself: a
-    /// view through the volume again would refract twice more, which connections do not follow.
-    pub fn blocked_after_exit(&self, x: DVec3, d: DVec3, length: f64) -> bool {
-        self.blocked(x, d, length)
-            || self
-                .volume
-                .field
-                .bounds
-                .reentry(x, d)
-                .is_some_and(|t| t < length)
-    }
-
     /// Colour channels of screen and camera images (3 for a white spectrum, else 1).
     pub fn channels(&self) -> usize {
         self.spectrum.as_ref().map_or(1, |s| s.channels())
