@@ -959,55 +959,32 @@ impl<'v> Connector<'v> {
     /// it misses the volume or is reflected totally.
     #[allow(clippy::type_complexity)]
     fn across_map(&self, y: DVec3, w: DVec3) -> Option<(Exit, [DVec3; 2], [DVec3; 2])> {
-        let field = &self.volume.field;
-        let bounds = &field.bounds;
         let Meet {
             t0,
             at,
-            cos: nw,
             frame,
-            slide: dx,
+            slide,
+            ..
         } = self.meet(y, w)?;
-        let inside = y + w * entry_parameter(t0);
-        let (n_in, grad) = field.value_grad(inside);
-        let eta = field.n_out / n_in;
-        let inward = |d: DVec3, at: DVec3| -> Option<DVec3> {
-            let nrm = bounds.normal(at)?;
-            refract(d, nrm, eta).ok()
-        };
-        let d_in = inward(w, at)?;
-        let mut dv = [DVec3::ZERO; 2];
-        for (k, e) in frame.into_iter().enumerate() {
-            let plus = inward((w + e * DIFF_STEP).normalize(), at + dx[k] * DIFF_STEP)?;
-            let minus = inward((w - e * DIFF_STEP).normalize(), at - dx[k] * DIFF_STEP)?;
-            // v = n d: the direction turns, and |v| follows n along the move
-            dv[k] = (plus - minus) * (n_in / (2.0 * DIFF_STEP)) + d_in * grad.dot(dx[k]);
-        }
-        let sensitivities = (
-            DMat3::from_cols(dx[0], dx[1], DVec3::ZERO),
-            DMat3::from_cols(dv[0], dv[1], DVec3::ZERO),
-        );
-        let (end, xv, vv, length, opl, n_end) = self.shoot_out(inside, d_in, sensitivities)?;
-        let (outgoing, transmission, deriv, moved) =
-            self.refract_out(end, (xv, vv), [DVec3::X, DVec3::Y], n_end)?;
+        let c = self.cross(y + w * entry_parameter(t0), at, w, frame, slide)?;
         Some((
             Exit {
                 direction: w,
-                surface: end.x,
-                outgoing,
-                inside_from: inside,
-                inside_along: d_in,
+                surface: c.end,
+                outgoing: c.outgoing,
+                inside_from: c.inside,
+                inside_along: c.along,
                 before: t0,
-                length,
-                optical_path: field.n_out * t0 + opl,
-                transmission: transmission * (1.0 - fresnel(nw, eta)),
+                length: c.length,
+                optical_path: self.volume.field.n_out * t0 + c.optical_path,
+                transmission: c.transmission,
                 jacobian: 0.0,
                 iterations: 0,
                 again: Again::default(),
                 between: 0.0,
             },
-            deriv,
-            moved,
+            c.turn,
+            c.moved,
         ))
     }
 
@@ -1061,6 +1038,57 @@ impl<'v> Connector<'v> {
         ))
     }
 
+    /// The straight ray along unit `w` entering the volume at `at` (`inside`: a point just past
+    /// it) refracted in, across and refracted out, with the derivatives along two perturbations
+    /// of the ray — `turn` of its direction and `slide` of the entry point along the surface —
+    /// carried through: the refraction in by central differences of its closed form (`v = n d`:
+    /// `|v|` follows `n` along the slide), the crossing by the forward sensitivities, the exit
+    /// as [`Self::refract_out`]. `None` if it is reflected totally or trapped.
+    fn cross(
+        &self,
+        inside: DVec3,
+        at: DVec3,
+        w: DVec3,
+        turn: [DVec3; 2],
+        slide: [DVec3; 2],
+    ) -> Option<Crossing> {
+        let field = &self.volume.field;
+        let (n_in, grad) = field.value_grad(inside);
+        let eta = field.n_out / n_in;
+        let inward = |d: DVec3, at: DVec3| -> Option<DVec3> {
+            let nrm = field.bounds.normal(at)?;
+            refract(d, nrm, eta).ok()
+        };
+        let along = inward(w, at)?;
+        let mut dv = [DVec3::ZERO; 2];
+        for k in 0..2 {
+            let (dw, dx) = (turn[k] * DIFF_STEP, slide[k] * DIFF_STEP);
+            let plus = inward((w + dw).normalize(), at + dx)?;
+            let minus = inward((w - dw).normalize(), at - dx)?;
+            dv[k] = (plus - minus) * (n_in / (2.0 * DIFF_STEP)) + along * grad.dot(slide[k]);
+        }
+        let sensitivities = (
+            DMat3::from_cols(slide[0], slide[1], DVec3::ZERO),
+            DMat3::from_cols(dv[0], dv[1], DVec3::ZERO),
+        );
+        let (end, xv, vv, length, optical_path, n_end) =
+            self.shoot_out(inside, along, sensitivities)?;
+        let (outgoing, out, turn, moved) =
+            self.refract_out(end, (xv, vv), [DVec3::X, DVec3::Y], n_end)?;
+        let cos = field.bounds.normal(at)?.dot(w);
+        Some(Crossing {
+            inside,
+            along,
+            end: end.x,
+            outgoing,
+            length,
+            optical_path,
+            transmission: (1.0 - fresnel(cos, eta)) * out,
+            turn,
+            moved,
+        })
+    }
+
     /// A path that has left the volume (its exit, and the derivatives of its outgoing direction
     /// and exit point along the two angles of its start) followed through every part of a
     /// non-convex volume it enters again before it has run `until` outside: straight to the
@@ -1103,43 +1131,17 @@ impl<'v> Connector<'v> {
                 let d = moved[k] + dout[k] * t0;
                 d - o * (normal.dot(d) / cos)
             });
-            let inside = exit.surface + o * entry_parameter(t0);
-            let (n_in, grad) = field.value_grad(inside);
-            let eta = field.n_out / n_in;
-            let inward = |d: DVec3, at: DVec3| -> Option<DVec3> {
-                let nrm = bounds.normal(at)?;
-                refract(d, nrm, eta).ok()
-            };
-            let d_in = inward(o, at)?;
-            let mut dv = [DVec3::ZERO; 2];
-            for k in 0..2 {
-                let plus = inward(
-                    (o + dout[k] * DIFF_STEP).normalize(),
-                    at + slide[k] * DIFF_STEP,
-                )?;
-                let minus = inward(
-                    (o - dout[k] * DIFF_STEP).normalize(),
-                    at - slide[k] * DIFF_STEP,
-                )?;
-                dv[k] = (plus - minus) * (n_in / (2.0 * DIFF_STEP)) + d_in * grad.dot(slide[k]);
-            }
-            let sensitivities = (
-                DMat3::from_cols(slide[0], slide[1], DVec3::ZERO),
-                DMat3::from_cols(dv[0], dv[1], DVec3::ZERO),
-            );
-            let (end, xv, vv, length, opl, n_end) = self.shoot_out(inside, d_in, sensitivities)?;
-            let (outgoing, transmission, deriv, surface_moved) =
-                self.refract_out(end, (xv, vv), [DVec3::X, DVec3::Y], n_end)?;
-            if !exit.again.push((inside, d_in, length)) {
+            let c = self.cross(exit.surface + o * entry_parameter(t0), at, o, dout, slide)?;
+            if !exit.again.push((c.inside, c.along, c.length)) {
                 return None;
             }
             exit.between += t0;
-            exit.length += length;
-            exit.optical_path += field.n_out * t0 + opl;
-            exit.transmission *= transmission * (1.0 - fresnel(cos, eta));
-            exit.surface = end.x;
-            exit.outgoing = outgoing;
-            (dout, moved) = (deriv, surface_moved);
+            exit.length += c.length;
+            exit.optical_path += field.n_out * t0 + c.optical_path;
+            exit.transmission *= c.transmission;
+            exit.surface = c.end;
+            exit.outgoing = c.outgoing;
+            (dout, moved) = (c.turn, c.moved);
         }
     }
 
@@ -1389,6 +1391,23 @@ impl<'v> Connector<'v> {
         }
         None
     }
+}
+
+/// A ray across the volume from outside ([`Connector::cross`]).
+struct Crossing {
+    /// Where it starts inside (just past the entry) and its unit direction there.
+    inside: DVec3,
+    along: DVec3,
+    /// Where it leaves, and its direction after refraction there.
+    end: DVec3,
+    outgoing: DVec3,
+    /// Geometric length and optical path inside, and `(1 − R)` of the entry and the exit.
+    length: f64,
+    optical_path: f64,
+    transmission: f64,
+    /// The derivatives of the outgoing direction and of the exit point along the perturbations.
+    turn: [DVec3; 2],
+    moved: [DVec3; 2],
 }
 
 /// Where a straight ray from outside meets the volume's surface ([`Connector::meet`]).
