@@ -4,6 +4,8 @@
 
 use std::process::Command;
 
+mod common;
+
 const SCENE: &str = r#"
 wavelength = 1.0
 [medium]
@@ -57,23 +59,11 @@ fn speckle_exr_matches_json() {
     assert_eq!(re.as_array().unwrap().len(), 2);
     for r in 0..2 {
         for l in 0..2 {
-            let img = exr::prelude::read_first_flat_layer_from_file(
-                out.join(format!("speckle_{r:04}_l{l}.exr")),
-            )
-            .unwrap();
-            assert_eq!((img.layer_data.size.0, img.layer_data.size.1), (6, 4));
+            let file = out.join(format!("speckle_{r:04}_l{l}.exr"));
             let chan = |name: &str| -> Vec<f32> {
-                let c = img
-                    .layer_data
-                    .channel_data
-                    .list
-                    .iter()
-                    .find(|c| c.name.to_string() == name)
-                    .unwrap();
-                match &c.sample_data {
-                    exr::prelude::FlatSamples::F32(v) => v.clone(),
-                    _ => panic!("{name} is not f32"),
-                }
+                let (size, values) = common::exr_channel(&file, name);
+                assert_eq!(size, (6, 4));
+                values
             };
             let (cr, ci, cint) = (chan("re"), chan("im"), chan("I"));
             for p in 0..24 {

@@ -4,6 +4,8 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+mod common;
+
 fn lightpath(args: &[&str]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_lightpath"))
         .args(args)
@@ -491,17 +493,6 @@ fn path_tracing_is_checked_and_runs() {
 /// windows (a corner, and the whole image), and a window over the whole of the pinhole's image.
 const WINDOWS: &str = "[[sensor.window]]\nname = \"whole_view\"\ncolumns = [0, 63]\nrows = [0, 63]\n\n[[sensor]]\nkind = \"camera\"\nname = \"side\"\ncenter = [2.0, 0.0, 0.0]\ndirection = [1.0, 0.0, 0.0]\nsize = [2.2, 2.2]\npixels = [16, 12]\n[[sensor.window]]\nname = \"corner\"\ncolumns = [2, 9]\nrows = [1, 5]\n[[sensor.window]]\nname = \"whole_side\"\ncolumns = [0, 15]\nrows = [0, 11]\n\n[render]";
 
-/// The `Y` channel of an EXR file, top row first.
-fn exr_luminance(path: &Path) -> Vec<f32> {
-    let img = exr::prelude::read_first_flat_layer_from_file(path).unwrap();
-    let c = img.layer_data.channel_data.list.iter();
-    let y = c.clone().find(|c| c.name.to_string() == "Y").unwrap();
-    match &y.sample_data {
-        exr::prelude::FlatSamples::F32(v) => v.clone(),
-        _ => panic!("Y is not f32"),
-    }
-}
-
 /// A camera's windows in every estimator: a window over the whole image reads the camera's own
 /// total, mean and standard error; a window over a corner of the orthographic camera reads the
 /// sum of those pixels of its EXR (columns from the left, rows from the top, as the file shows
@@ -537,7 +528,7 @@ fn camera_windows_read_their_pixels_in_every_estimator() {
         assert_eq!(corner["name"], "corner");
         assert_eq!(corner["columns"], serde_json::json!([2, 9]));
         assert_eq!(corner["rows"], serde_json::json!([1, 5]));
-        let y = exr_luminance(&out.join("camera_side.exr"));
+        let y = common::exr_channel(&out.join("camera_side.exr"), "Y").1;
         assert_eq!(y.len(), 16 * 12);
         let mut sum = 0.0;
         for row in 1..=5 {
@@ -921,7 +912,6 @@ fn design_grading_and_index(
 ) -> (i32, serde_json::Value) {
     let dir = tmp(name);
     std::fs::create_dir_all(&dir).unwrap();
-    let config = dir.join("design.toml");
     let from =
         "parameters = [{ name = \"profiles[0].c2\", min = -0.3, max = 0.3 }]\niterations = 12";
     assert!(DESIGN.contains(from));
@@ -931,7 +921,14 @@ fn design_grading_and_index(
     let seeded = DESIGN
         .replace(from, &to)
         .replace("step = 0.01\n", &format!("step = 0.01\nseed = {seed}\n"));
-    std::fs::write(&config, seeded).unwrap();
+    run_design(&dir, &seeded)
+}
+
+/// `lightpath design` on the config `text` written into `dir`: the exit status (0, or 3 when
+/// the gain was not confirmed) and render_design.json's content.
+fn run_design(dir: &Path, text: &str) -> (i32, serde_json::Value) {
+    let config = dir.join("design.toml");
+    std::fs::write(&config, text).unwrap();
     let out = dir.join("out");
     let o = lightpath(&[
         "design",
@@ -1043,24 +1040,7 @@ fn a_render_design_brightens_a_camera_window_and_checks_it() {
         )
         .replacen("verify_photons = 30000", "verify_photons = 20000", 1);
     assert!(text.contains("maximize = \"centre\"") && text.contains("photons = 2000"));
-    let config = dir.join("design.toml");
-    std::fs::write(&config, text).unwrap();
-    let out = dir.join("out");
-    let o = lightpath(&[
-        "design",
-        &config.display().to_string(),
-        "--out",
-        &out.display().to_string(),
-        "--quiet",
-    ]);
-    let code = o.status.code().unwrap_or(-1);
-    assert!(
-        matches!(code, 0 | 3),
-        "{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    let v: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out.join("render_design.json")).unwrap()).unwrap();
+    let (_, v) = run_design(&dir, &text);
     assert_eq!(v["maximize"], "centre");
     gains(&v);
     let _ = std::fs::remove_dir_all(dir);

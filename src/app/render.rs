@@ -420,8 +420,12 @@ pub fn rendered(
         (names, derivatives)
     };
     let filter = |f: Filter| (f == Filter::Tent).then(|| "tent".to_string());
-    // camera `i`'s windows, their sums times `scale` (as its total's)
-    let windows = |i: usize, scale: f64, orthographic: bool| -> Vec<WindowRecord> {
+    // camera `i`'s windows, their sums times `scale` (as its total's), each with a summary line
+    let windows = |i: usize,
+                   scale: f64,
+                   orthographic: bool,
+                   summary: &mut Vec<String>|
+     -> Vec<WindowRecord> {
         let height = scene.camera_pixels(i)[1];
         let scaled = |k: usize| {
             let m = measured(k);
@@ -434,6 +438,10 @@ pub fn rendered(
         windows
             .map(|(k, w)| {
                 let sum = scaled(est.window_total(i, k));
+                summary.push(format!(
+                    "  window {} {:.4e} ± {:.1e}",
+                    w.name, sum.mean, sum.stderr
+                ));
                 WindowRecord {
                     name: w.name.clone(),
                     columns: w.columns,
@@ -461,14 +469,7 @@ pub fn rendered(
             c.name, intensity.mean, intensity.stderr
         ));
         let (names, derivatives) = camera_images(&c.name, i, c.pixels, c.pixel_area());
-        let windows = windows(i, c.pixel_area(), true);
-        for w in &windows {
-            let sum = w.intensity.unwrap_or(intensity);
-            summary.push(format!(
-                "  window {} {:.4e} ± {:.1e}",
-                w.name, sum.mean, sum.stderr
-            ));
-        }
+        let windows = windows(i, c.pixel_area(), true, &mut summary);
         cameras.push(CameraRecord {
             name: c.name.clone(),
             kind: "orthographic".into(),
@@ -494,14 +495,7 @@ pub fn rendered(
         ));
         let camera = scene.cameras.len() + i;
         let (names, derivatives) = camera_images(&c.name, camera, c.pixels, 1.0);
-        let windows = windows(camera, 1.0, false);
-        for w in &windows {
-            let sum = w.irradiance.unwrap_or(irradiance);
-            summary.push(format!(
-                "  window {} {:.4e} ± {:.1e}",
-                w.name, sum.mean, sum.stderr
-            ));
-        }
+        let windows = windows(camera, 1.0, false, &mut summary);
         cameras.push(CameraRecord {
             name: c.name.clone(),
             kind: "pinhole".into(),

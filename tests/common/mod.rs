@@ -92,3 +92,15 @@ pub fn render(
     let e = estimate(&est, &Plan::new(seed, samples, samples / 64));
     (e, est)
 }
+
+/// Channel `name` of an EXR file's first layer (top row first) and the image's (width, height).
+pub fn exr_channel(path: &std::path::Path, name: &str) -> ((usize, usize), Vec<f32>) {
+    let img = exr::prelude::read_first_flat_layer_from_file(path).unwrap();
+    let size = (img.layer_data.size.0, img.layer_data.size.1);
+    let c = img.layer_data.channel_data.list.iter();
+    let c = c.clone().find(|c| c.name.to_string() == name).unwrap();
+    match &c.sample_data {
+        exr::prelude::FlatSamples::F32(v) => (size, v.clone()),
+        _ => panic!("{name} is not f32"),
+    }
+}
