@@ -2,6 +2,7 @@
 //! so that it interpolates the samples; paper 002 Eq. 13), with analytic gradients and Hessians.
 //! Outside the grid the nearest coefficients are repeated (clamped).
 
+use crate::math::simd::Width;
 use glam::{DMat3, DVec3};
 
 /// Interpolation of a grid field.
@@ -368,12 +369,20 @@ impl GridField {
 
     /// Value, gradient and Hessian at `x`.
     pub fn eval(&self, x: DVec3) -> (f64, DVec3, DMat3) {
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU has AVX2 (checked just above).
-            return unsafe { self.eval_avx2(x) };
+        self.eval_at(Width::widest(), x)
+    }
+
+    /// [`Self::eval`] with vectors of `width` (which the CPU must offer): the same bits at every
+    /// width.
+    pub fn eval_at(&self, width: Width, x: DVec3) -> (f64, DVec3, DMat3) {
+        match width {
+            // SAFETY: the width is one the CPU offers.
+            #[cfg(target_arch = "x86_64")]
+            Width::Avx512 => unsafe { self.eval_avx512(x) },
+            #[cfg(target_arch = "x86_64")]
+            Width::Avx2 => unsafe { self.eval_avx2(x) },
+            _ => self.eval_portable(x),
         }
-        self.eval_portable(x)
     }
 
     #[inline(always)]
@@ -391,15 +400,29 @@ impl GridField {
         self.eval_portable(x)
     }
 
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    fn eval_avx512(&self, x: DVec3) -> (f64, DVec3, DMat3) {
+        self.eval_portable(x)
+    }
+
     /// Value and gradient at `x` (the same bits as [`Self::eval`]'s, without the Hessian): what
     /// ray tracing needs.
     pub fn value_grad(&self, x: DVec3) -> (f64, DVec3) {
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU has AVX2 (checked just above).
-            return unsafe { self.value_grad_avx2(x) };
+        self.value_grad_at(Width::widest(), x)
+    }
+
+    /// [`Self::value_grad`] with vectors of `width` (which the CPU must offer): the same bits at every
+    /// width.
+    pub fn value_grad_at(&self, width: Width, x: DVec3) -> (f64, DVec3) {
+        match width {
+            // SAFETY: the width is one the CPU offers.
+            #[cfg(target_arch = "x86_64")]
+            Width::Avx512 => unsafe { self.value_grad_avx512(x) },
+            #[cfg(target_arch = "x86_64")]
+            Width::Avx2 => unsafe { self.value_grad_avx2(x) },
+            _ => self.value_grad_portable(x),
         }
-        self.value_grad_portable(x)
     }
 
     #[inline(always)]
@@ -417,16 +440,30 @@ impl GridField {
         self.value_grad_portable(x)
     }
 
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    fn value_grad_avx512(&self, x: DVec3) -> (f64, DVec3) {
+        self.value_grad_portable(x)
+    }
+
     /// `grad[i] += a·w_i(x) + b·∇w_i(x)` for every tap `i` at `x` (`w_i = ∂n/∂c_i`; clamped taps
     /// repeat an index and add): the adjoint's sparse accumulation into every coefficient, one
     /// axis at a time.
     pub fn scatter(&self, x: DVec3, a: f64, b: DVec3, grad: &mut [f64]) {
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU has AVX2 (checked just above).
-            return unsafe { self.scatter_avx2(x, a, b, grad) };
+        self.scatter_at(Width::widest(), x, a, b, grad)
+    }
+
+    /// [`Self::scatter`] with vectors of `width` (which the CPU must offer): the same bits at every
+    /// width.
+    pub fn scatter_at(&self, width: Width, x: DVec3, a: f64, b: DVec3, grad: &mut [f64]) {
+        match width {
+            // SAFETY: the width is one the CPU offers.
+            #[cfg(target_arch = "x86_64")]
+            Width::Avx512 => unsafe { self.scatter_avx512(x, a, b, grad) },
+            #[cfg(target_arch = "x86_64")]
+            Width::Avx2 => unsafe { self.scatter_avx2(x, a, b, grad) },
+            _ => self.scatter_portable(x, a, b, grad),
         }
-        self.scatter_portable(x, a, b, grad)
     }
 
     #[inline(always)]
@@ -440,6 +477,12 @@ impl GridField {
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     fn scatter_avx2(&self, x: DVec3, a: f64, b: DVec3, grad: &mut [f64]) {
+        self.scatter_portable(x, a, b, grad)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    fn scatter_avx512(&self, x: DVec3, a: f64, b: DVec3, grad: &mut [f64]) {
         self.scatter_portable(x, a, b, grad)
     }
 
@@ -593,23 +636,22 @@ mod tests {
         }
     }
 
-    /// The vectorised (AVX2) kernels give the portable kernels' bits: the same operations in the
-    /// same order, in wider registers.
+    /// The vectorised kernels (AVX2, AVX-512, as the CPU offers) give the portable kernels' bits:
+    /// the same operations in the same order, in wider registers.
     #[test]
     fn vector_kernels_equal_the_portable_ones() {
         for interp in [Interp::Tricubic, Interp::Trilinear] {
             let g = test_grid(interp);
-            for x in POINTS {
-                assert_eq!(g.eval(x), g.eval_portable(x), "{interp:?} at {x}");
-                assert_eq!(
-                    g.value_grad(x),
-                    g.value_grad_portable(x),
-                    "{interp:?} at {x}"
-                );
-                let (mut a, mut b) = (vec![0.0; g.coef.len()], vec![0.0; g.coef.len()]);
-                g.scatter(x, 0.7, DVec3::new(-0.3, 1.1, 0.4), &mut a);
-                g.scatter_portable(x, 0.7, DVec3::new(-0.3, 1.1, 0.4), &mut b);
-                assert_eq!(a, b, "{interp:?} at {x}");
+            for width in Width::available() {
+                for x in POINTS {
+                    let at = format!("{interp:?} {width:?} at {x}");
+                    assert_eq!(g.eval_at(width, x), g.eval_portable(x), "{at}");
+                    assert_eq!(g.value_grad_at(width, x), g.value_grad_portable(x), "{at}");
+                    let (mut a, mut b) = (vec![0.0; g.coef.len()], vec![0.0; g.coef.len()]);
+                    g.scatter_at(width, x, 0.7, DVec3::new(-0.3, 1.1, 0.4), &mut a);
+                    g.scatter_portable(x, 0.7, DVec3::new(-0.3, 1.1, 0.4), &mut b);
+                    assert_eq!(a, b, "{at}");
+                }
             }
         }
     }

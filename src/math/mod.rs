@@ -3,6 +3,7 @@
 
 pub mod elementary;
 pub mod polytope;
+pub mod simd;
 pub mod vmf;
 
 use glam::DVec3;

@@ -2,6 +2,7 @@
 //! connection from a vertex inside the medium (paper 001, Eqs. 13 and 19), and for focused lights
 //! and views the aperture integrals `Υ` of paper 000 (Eqs. 15–18) in closed form.
 
+use crate::math::simd::Width;
 use crate::math::vmf::{
     Vmf, csqrt, log_sinhc_slope, log_sinhc_slope_derivative, log_sphere_integral,
 };
@@ -284,7 +285,7 @@ fn sphere_integral_special(c: f64, q2: C64) -> C64 {
 }
 
 /// Many lobes' terms `e^{c} 4π sinh(q)/q` (Eq. 29, real `c`) at once, laid out by component so
-/// the loop vectorises (with AVX2 where the CPU has it: the same operations in the same order,
+/// the loop vectorises (with AVX2 or AVX-512 where the CPU has them: the same operations in the same order,
 /// so the same bits as [`sphere_integral_scaled`] and [`Seen::amplitude`]); the rare lanes the
 /// kernels do not cover are redone one by one. A vertex's connections to every focused light and
 /// view go through one batch.
@@ -313,20 +314,25 @@ impl SphereBatch {
         self.c.len() - 1
     }
 
-    /// Evaluates every queued term.
+    /// Evaluates every queued term, with the widest vectors the CPU offers.
     pub fn evaluate(&mut self) {
+        self.evaluate_at(Width::widest());
+    }
+
+    /// [`Self::evaluate`] with vectors of `width` (which the CPU must offer): the same bits at
+    /// every width.
+    pub fn evaluate_at(&mut self, width: Width) {
         let n = self.c.len();
         self.re.resize(n, 0.0);
         self.im.resize(n, 0.0);
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU has AVX2 (checked just above).
-            unsafe { self.lanes_avx2() };
-        } else {
-            self.lanes();
+        match width {
+            // SAFETY: the width is one the CPU offers (`Width::widest`, `Width::available`).
+            #[cfg(target_arch = "x86_64")]
+            Width::Avx512 => unsafe { self.lanes_avx512() },
+            #[cfg(target_arch = "x86_64")]
+            Width::Avx2 => unsafe { self.lanes_avx2() },
+            _ => self.lanes(),
         }
-        #[cfg(not(target_arch = "x86_64"))]
-        self.lanes();
         for i in 0..n {
             if self.re[i].is_nan() {
                 let v = sphere_integral_special(self.c[i], C64::new(self.a[i], self.b[i]));
@@ -358,6 +364,13 @@ impl SphereBatch {
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     fn lanes_avx2(&mut self) {
+        self.lanes();
+    }
+
+    /// The same with 512-bit vectors: the same bits.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    fn lanes_avx512(&mut self) {
         self.lanes();
     }
 }
@@ -597,65 +610,171 @@ pub fn lens_pair_lobe(
 #[inline]
 pub fn lens_pair_term(c: &ConvolvedLobe, av: &Vmf, view_bound: f64) -> C64 {
     let p = c.vmf.product(av);
-    lens_pair_kept(
-        c,
-        sphere_integral_scaled(p.log_scale, p.mu.dot_self()),
-        view_bound,
-    )
+    let value = sphere_integral_scaled(C64::new(p.log_scale.re, 0.0), p.mu.dot_self());
+    c.weight * kept(value, p.log_scale.im, c.bound + view_bound)
 }
 
-/// [`lens_pair_term`] in two steps: its sphere integral queued in `batch` (index and the phase
-/// `Im c` to turn it by returned), then [`lens_pair_from`] once the batch is evaluated.
+/// [`lens_pair_term`] in two steps: its sphere integral queued in `batch` (its index returned),
+/// then [`lens_pair_from`] once the batch is evaluated.
 #[inline]
-pub fn lens_pair_queue(c: &ConvolvedLobe, av: &Vmf, batch: &mut SphereBatch) -> (usize, f64) {
-    let p = c.vmf.product(av);
-    (batch.push(p.log_scale.re, p.mu.dot_self()), p.log_scale.im)
-}
-
-/// The term [`lens_pair_queue`] queued: the same bits as [`lens_pair_term`].
-#[inline]
-pub fn lens_pair_from(
+pub fn lens_pair_queue(
     c: &ConvolvedLobe,
-    (i, turn): (usize, f64),
-    batch: &SphereBatch,
+    av: &Vmf,
     view_bound: f64,
-) -> C64 {
-    let value = turned(batch.value(i), turn);
-    lens_pair_kept(c, value, view_bound)
+    batch: &mut PairBatch,
+) -> usize {
+    let p = c.vmf.product(av);
+    batch.turn.push(p.log_scale.im);
+    batch.bound.push(c.bound + view_bound);
+    batch.sphere.push(p.log_scale.re, p.mu.dot_self())
 }
 
-/// A two-lens term `value` weighted, or zero outside the window below its magnitude bound.
+/// The term [`lens_pair_queue`] queued at `i`: the same bits as [`lens_pair_term`].
 #[inline]
-fn lens_pair_kept(c: &ConvolvedLobe, value: C64, view_bound: f64) -> C64 {
-    let bound = c.bound + view_bound;
-    // the window's test on ln|value| from the exponent bits (within 0.06 of the logarithm), the
-    // logarithm itself only near an edge
-    let squared = value.norm_sqr();
-    let rough = 0.5 * rough_ln(squared);
-    let inside = if rough < bound - 0.1 && rough > bound - 59.9 {
-        true
-    } else if rough > bound + 0.1 || rough < bound - 60.1 {
-        false
-    } else {
-        let log = 0.5 * squared.ln();
-        log <= bound && log >= bound - 60.0
-    };
-    if !inside {
-        return C64::default();
+pub fn lens_pair_from(c: &ConvolvedLobe, i: usize, batch: &PairBatch) -> C64 {
+    c.weight * C64::new(batch.re[i], batch.im[i])
+}
+
+/// Two-lens terms (Eq. 18) in one batch: their sphere integrals ([`SphereBatch`]), then each turned
+/// by its phase and kept within the window below its magnitude bound, in a loop the compiler
+/// vectorises as well; terms near the window's edges are decided one by one.
+#[derive(Clone, Debug, Default)]
+pub struct PairBatch {
+    sphere: SphereBatch,
+    turn: Vec<f64>,
+    bound: Vec<f64>,
+    re: Vec<f64>,
+    im: Vec<f64>,
+}
+
+impl PairBatch {
+    pub fn clear(&mut self) {
+        self.sphere.clear();
+        self.turn.clear();
+        self.bound.clear();
     }
-    c.weight * value
+
+    /// Evaluates every queued term, with the widest vectors the CPU offers.
+    pub fn evaluate(&mut self) {
+        self.evaluate_at(Width::widest());
+    }
+
+    /// [`Self::evaluate`] with vectors of `width` (which the CPU must offer): the same bits at
+    /// every width.
+    pub fn evaluate_at(&mut self, width: Width) {
+        self.sphere.evaluate_at(width);
+        self.keep_at(width);
+    }
+
+    /// The second pass of [`Self::evaluate_at`], on the sphere integrals.
+    fn keep_at(&mut self, width: Width) {
+        let n = self.turn.len();
+        self.re.resize(n, 0.0);
+        self.im.resize(n, 0.0);
+        match width {
+            // SAFETY: the width is one the CPU offers (`Width::widest`, `Width::available`).
+            #[cfg(target_arch = "x86_64")]
+            Width::Avx512 => unsafe { self.keep_avx512() },
+            #[cfg(target_arch = "x86_64")]
+            Width::Avx2 => unsafe { self.keep_avx2() },
+            _ => self.keep(),
+        }
+        for i in 0..n {
+            if self.re[i].is_nan() {
+                let v = kept_special(self.sphere.value(i), self.turn[i], self.bound[i]);
+                (self.re[i], self.im[i]) = (v.re, v.im);
+            }
+        }
+    }
+
+    /// Every term turned and kept, undecided terms marked NaN.
+    #[inline(always)]
+    fn keep(&mut self) {
+        let n = self.turn.len();
+        let (vr, vi) = (&self.sphere.re[..n], &self.sphere.im[..n]);
+        let (turn, bound) = (&self.turn[..n], &self.bound[..n]);
+        let (re, im) = (&mut self.re[..n], &mut self.im[..n]);
+        for i in 0..n {
+            let (r, j, decided) = kept_lane(vr[i], vi[i], turn[i], bound[i]);
+            re[i] = if decided { r } else { f64::NAN };
+            im[i] = j;
+        }
+    }
+
+    /// The same operations in the same order with 256-bit vectors: the same bits.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn keep_avx2(&mut self) {
+        self.keep();
+    }
+
+    /// The same with 512-bit vectors: the same bits.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    fn keep_avx512(&mut self) {
+        self.keep();
+    }
+}
+
+/// A two-lens term's sphere integral `value` turned by `angle` (`Im c`) and kept if `ln|value|`
+/// lies in `[bound − 60, bound]`, zero otherwise.
+#[inline]
+fn kept(value: C64, angle: f64, bound: f64) -> C64 {
+    match kept_lane(value.re, value.im, angle, bound) {
+        (re, im, true) => C64::new(re, im),
+        _ => kept_special(value, angle, bound),
+    }
+}
+
+/// [`kept`] without a branch: the window's test on `ln|value|` from the exponent bits (within
+/// 0.06 of the logarithm), so it decides as the logarithm would except within 0.1 of an edge;
+/// the flag is false there, for angles beyond the sine's kernel, and for a zero, subnormal or
+/// non-finite magnitude: [`kept_special`] redoes those.
+#[inline(always)]
+fn kept_lane(re: f64, im: f64, angle: f64, bound: f64) -> (f64, f64, bool) {
+    let (sin, cos) = crate::math::elementary::sin_cos_in_range(angle);
+    // `value · cis(angle)` as the complex product computes it, untouched at angle 0
+    let (tr, ti) = if angle == 0.0 {
+        (re, im)
+    } else {
+        (re * cos - im * sin, re * sin + im * cos)
+    };
+    let squared = tr * tr + ti * ti;
+    let rough = 0.5 * rough_ln(squared);
+    let inside = rough < bound - 0.1 && rough > bound - 59.9;
+    let outside = rough > bound + 0.1 || rough < bound - 60.1;
+    let normal = (f64::MIN_POSITIVE..f64::INFINITY).contains(&squared);
+    let decided = (inside || outside) && normal && angle.abs() <= 1_048_576.0;
+    if inside {
+        (tr, ti, decided)
+    } else {
+        (0.0, 0.0, decided)
+    }
+}
+
+/// [`kept`] by the logarithm itself.
+#[cold]
+fn kept_special(value: C64, angle: f64, bound: f64) -> C64 {
+    let value = turned(value, angle);
+    let log = 0.5 * value.norm_sqr().ln();
+    if log <= bound && log >= bound - 60.0 {
+        value
+    } else {
+        C64::default()
+    }
 }
 
 /// `ln x` for a positive normal `x` to within 0.06, from its bits read as a linear interpolant of
-/// `log₂` (exponent plus mantissa fraction); NaN, zero, infinite and subnormal `x` come out far
-/// outside any window [`lens_pair_term`] keeps, or NaN.
-#[inline]
+/// `log₂` (exponent plus mantissa fraction), with bit operations only so loops over it vectorise;
+/// meaningless for other `x`.
+#[inline(always)]
 fn rough_ln(x: f64) -> f64 {
-    if !(f64::MIN_POSITIVE..f64::INFINITY).contains(&x) {
-        return x.ln();
-    }
-    let log2 = x.to_bits() as f64 / (1u64 << 52) as f64 - 1023.0;
-    log2 * std::f64::consts::LN_2
+    // 1.5·2⁵² with the exponent's bits in its low mantissa bits reads 1.5·2⁵² + exponent
+    const ROUND: f64 = 6_755_399_441_055_744.0;
+    let bits = x.to_bits();
+    let exponent = f64::from_bits(ROUND.to_bits() | (bits >> 52)) - ROUND;
+    let fraction = f64::from_bits((bits & ((1u64 << 52) - 1)) | 1f64.to_bits()) - 1.0;
+    (exponent - 1023.0 + fraction) * std::f64::consts::LN_2
 }
 
 #[cfg(test)]
@@ -665,8 +784,9 @@ mod tests {
 
     /// The batched sphere integrals (Eq. 29) equal `e^{c + ln(4π sinh q/q)}` by the logarithmic
     /// form to 1e-12, over small, moderate and large `|q²|` in every direction of the complex
-    /// plane, phases beyond the sine's kernel and `q² = 0`; and a lens's amplitude through the
-    /// batch is bit for bit [`Seen::amplitude`].
+    /// plane, phases beyond the sine's kernel and `q² = 0`, bit for bit the scalar form at every
+    /// vector width the CPU offers; and a lens's amplitude through the batch is bit for bit
+    /// [`Seen::amplitude`].
     #[test]
     fn batched_sphere_integrals_match() {
         let mut batch = SphereBatch::default();
@@ -679,19 +799,22 @@ mod tests {
                 batch.push(c, z);
             }
         }
-        batch.evaluate();
-        for (i, (c, z)) in cases.iter().enumerate() {
-            let want = (log_sphere_integral(*z) + c).exp();
-            let got = batch.value(i);
-            assert!(
-                (got - want).norm() <= 1e-12 * want.norm() + 1e-300,
-                "c {c}, q² {z}: {got} vs {want}"
-            );
-            let scalar = sphere_integral_scaled(C64::new(*c, 0.0), *z);
-            assert_eq!(
-                (got.re.to_bits(), got.im.to_bits()),
-                (scalar.re.to_bits(), scalar.im.to_bits())
-            );
+        for width in Width::available() {
+            batch.evaluate_at(width);
+            for (i, (c, z)) in cases.iter().enumerate() {
+                let want = (log_sphere_integral(*z) + c).exp();
+                let got = batch.value(i);
+                assert!(
+                    (got - want).norm() <= 1e-12 * want.norm() + 1e-300,
+                    "c {c}, q² {z}: {got} vs {want}"
+                );
+                let scalar = sphere_integral_scaled(C64::new(*c, 0.0), *z);
+                assert_eq!(
+                    (got.re.to_bits(), got.im.to_bits()),
+                    (scalar.re.to_bits(), scalar.im.to_bits()),
+                    "{width:?}"
+                );
+            }
         }
         let medium = Medium {
             geometry: Geometry::boxed([6.0, 6.0, 4.0]),
@@ -750,8 +873,120 @@ mod tests {
             worst > 0.05,
             "{worst}: the interpolant's known error is about 0.0597"
         );
-        assert_eq!(rough_ln(0.0), f64::NEG_INFINITY);
-        assert!(rough_ln(f64::NAN).is_nan());
+    }
+
+    /// The window's vectorised decision is the logarithm's, bit for bit, at the edges too:
+    /// magnitudes over the whole range (zero, subnormal, infinite and NaN included), phases zero,
+    /// ordinary and beyond the sine's kernel, bounds on, near and across both edges; alone and in
+    /// a batch's second pass at every vector width.
+    #[test]
+    fn the_two_lens_window_decides_as_the_logarithm() {
+        let mut rng = crate::math::stream_rng(3, 0);
+        let mut cases = Vec::new();
+        for log in [-700.0, -300.0, -40.0, -1.0, 0.0, 3.0, 80.0, 700.0] {
+            for angle in [0.0, 0.3, -2.5, 1e4, 3e6] {
+                let phase = 2.0 * std::f64::consts::PI * crate::math::uniform(&mut rng);
+                let value = C64::from_polar(f64::exp(log), phase);
+                let ln = 0.5 * value.norm_sqr().ln();
+                for edge in [0.0, 60.0] {
+                    for off in [
+                        0.0, 1e-12, -1e-12, 0.05, -0.05, 0.099, -0.099, 0.11, -0.11, 3.0,
+                    ] {
+                        cases.push((value, angle, ln + edge + off));
+                    }
+                }
+            }
+        }
+        for value in [
+            C64::default(),
+            C64::new(1e-310, 0.0),
+            C64::new(f64::INFINITY, 0.0),
+        ] {
+            cases.push((value, 0.5, 0.0));
+        }
+        cases.push((C64::new(f64::NAN, 1.0), 0.5, 0.0));
+        let same = |a: C64, b: C64| {
+            (a.re.to_bits(), a.im.to_bits()) == (b.re.to_bits(), b.im.to_bits())
+                || (a.re.is_nan() && b.re.is_nan())
+        };
+        let mut batch = PairBatch::default();
+        for (value, angle, bound) in &cases {
+            let (got, want) = (
+                kept(*value, *angle, *bound),
+                kept_special(*value, *angle, *bound),
+            );
+            assert!(same(got, want), "{value} {angle} {bound}: {got} vs {want}");
+            batch.turn.push(*angle);
+            batch.bound.push(*bound);
+        }
+        batch.sphere.re = cases.iter().map(|c| c.0.re).collect();
+        batch.sphere.im = cases.iter().map(|c| c.0.im).collect();
+        for width in Width::available() {
+            batch.keep_at(width);
+            for (i, (value, angle, bound)) in cases.iter().enumerate() {
+                let got = C64::new(batch.re[i], batch.im[i]);
+                assert!(
+                    same(got, kept(*value, *angle, *bound)),
+                    "{width:?} {value} {angle} {bound}"
+                );
+            }
+        }
+    }
+
+    /// Two-lens terms through the batch are [`lens_pair_term`] bit for bit at every vector width:
+    /// a light and views focused about a box's back face, seen from vertices on and off the beams.
+    #[test]
+    fn batched_two_lens_terms_match() {
+        let medium = Medium {
+            geometry: Geometry::boxed([25.0, 25.0, 10.0]),
+            sigma_s: 0.1,
+            sigma_a: 0.0,
+            scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g: 0.8 }),
+        };
+        let lobes = Lobes::of(medium.scattering.phase(0));
+        let k = 2.0 * std::f64::consts::PI;
+        let light = lens(DVec3::new(0.0, 0.0, 5.0), DVec3::Z, 0.25, 1.0);
+        let views: Vec<Lens> = (0..9)
+            .map(|i| {
+                lens(
+                    DVec3::new(0.5 * i as f64 - 2.0, 0.3, 5.0),
+                    DVec3::Z,
+                    0.25,
+                    -1.0,
+                )
+            })
+            .collect();
+        let mut batch = PairBatch::default();
+        let mut terms = Vec::new();
+        for x in [
+            DVec3::new(0.1, 0.0, 4.0),
+            DVec3::new(3.0, -2.0, 0.0),
+            DVec3::new(-11.0, 9.0, -4.5),
+            DVec3::new(0.0, 0.2, 4.99),
+        ] {
+            let al = light.aperture(x, &medium, k);
+            for view in &views {
+                let av = view.aperture(x, &medium, k);
+                let view_bound = log_aperture_mass(&av);
+                for lobe in &lobes.lobes {
+                    let c = convolve_lobe(&al, lobe, DVec3::Z);
+                    let i = lens_pair_queue(&c, &av, view_bound, &mut batch);
+                    terms.push((c, i, lens_pair_term(&c, &av, view_bound)));
+                }
+            }
+        }
+        assert!(terms.iter().all(|t| t.2 != C64::default()));
+        for width in Width::available() {
+            batch.evaluate_at(width);
+            for (c, i, want) in &terms {
+                let got = lens_pair_from(c, *i, &batch);
+                assert_eq!(
+                    (got.re.to_bits(), got.im.to_bits()),
+                    (want.re.to_bits(), want.im.to_bits()),
+                    "{width:?}"
+                );
+            }
+        }
     }
 
     fn lens(focus: DVec3, axis: DVec3, sigma: f64, sign: f64) -> Lens {

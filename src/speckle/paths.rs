@@ -18,7 +18,7 @@ use crate::speckle::aperture_quadrature::{
     weighted_aperture,
 };
 use crate::speckle::endpoint::{
-    ConvolvedLobe, Lens, Seen, SphereBatch, Terminal, convolve_lobe, lens_pair_from,
+    ConvolvedLobe, Lens, PairBatch, Seen, SphereBatch, Terminal, convolve_lobe, lens_pair_from,
     lens_pair_queue, log_aperture_mass,
 };
 use crate::speckle::first_vertex::FirstVertex;
@@ -242,9 +242,9 @@ struct Here {
     /// Every focused terminal's lobes (closed forms), and where each terminal's terms start.
     batch: SphereBatch,
     starts: Vec<Option<usize>>,
-    /// Where each pair's two-lens terms start in the batch (single scattering), and their phases.
+    /// Every pair's two-lens terms (single scattering), and where each pair's start.
+    pairs: PairBatch,
     pair_starts: Vec<Option<usize>>,
-    turns: Vec<(usize, f64)>,
 }
 
 /// One estimate of a subpath's event vectors.
@@ -438,27 +438,26 @@ impl<'a> SubpathSampler<'a> {
         }
         // two lenses about a shared view axis: every pair's lobes evaluated in one batch
         let here = &mut sc.here;
-        here.batch.clear();
-        here.turns.clear();
+        here.pairs.clear();
         for (n, &(l, v)) in self.pairs.iter().enumerate() {
             here.pair_starts[n] = match (&sc.first_l[l], &sc.first_v[v], self.view_axis) {
                 (Seen::Aperture { .. }, Seen::Aperture { vmf: av, .. }, Some(_)) => {
-                    let first = here.turns.len();
-                    for c in &sc.convolved[l * self.max_lobes..l * self.max_lobes + nlobes] {
-                        here.turns.push(lens_pair_queue(c, av, &mut here.batch));
-                    }
-                    Some(first)
+                    let convolved = &sc.convolved[l * self.max_lobes..l * self.max_lobes + nlobes];
+                    let starts = convolved
+                        .iter()
+                        .map(|c| lens_pair_queue(c, av, sc.view_bound[v], &mut here.pairs));
+                    starts.min() // the first
                 }
                 _ => None,
             };
         }
-        here.batch.evaluate();
+        here.pairs.evaluate();
         for (n, (a, &(l, v))) in sc.sides[side].a.iter_mut().zip(&self.pairs).enumerate() {
             *a = match here.pair_starts[n] {
                 Some(first) => sc.convolved[l * self.max_lobes..l * self.max_lobes + nlobes]
                     .iter()
-                    .zip(&here.turns[first..first + nlobes])
-                    .map(|(c, &t)| lens_pair_from(c, t, &here.batch, sc.view_bound[v]))
+                    .enumerate()
+                    .map(|(m, c)| lens_pair_from(c, first + m, &here.pairs))
                     .sum(),
                 None => sc.first_l[l].single(&sc.first_v[v], phase1, lobes1),
             };
