@@ -233,7 +233,7 @@ pub fn run(quick: bool) -> crate::Result<String> {
     let batch = batch_rate(j, if quick { 2_000 } else { 40_000 });
     let cov_flops = cov_updates * 8.0 / 1e9;
     Ok(format!(
-        "reference scene: box 10×10×10 λ, mfp 5 λ, isotropic, 4 plane-wave lights × 72 far-field views (J = {j}), reversed paths; {threads} thread(s)\n\
+        "reference scene: box 10×10×10 λ, mfp 5 λ, isotropic, 4 plane-wave lights × 72 far-field views (J = {j}), reversed paths; {threads} thread(s), {} vectors\n\
          events (rank-1 updates) per path: {events:.3}\n\
          covariance: {cov_paths:.0} paths/s ({:.0} per thread), {:.3e} entry-updates/s = {cov_flops:.2} GFLOP/s\n\
          fields:     {field_paths:.0} paths/s ({:.0} per thread), {:.3e} pixel-updates/s\n\
@@ -244,6 +244,7 @@ pub fn run(quick: bool) -> crate::Result<String> {
          batched rank-1 update alone (push + real products + drain): {batch:.2} GFLOP/s of the multiplications done = {:.0} % of dgemm\n\
          gradient (σ_s, σ_a) of a loss over all J² entries: {:.2}× the cost of the forward covariance estimate ({} paths: {:.2} s vs {:.2} s)\n\
          gradient (σ_s, σ_a, 16 phase-table nodes), tabulated medium: {:.2}× its forward estimate ({:.2} s vs {:.2} s)",
+        crate::math::simd::Width::widest().name(),
         cov_paths / threads as f64,
         cov_updates,
         field_paths / threads as f64,
@@ -578,9 +579,10 @@ pub fn design_iteration() -> crate::Result<String> {
             ray_steps * back_flops / backward * 1e-9,
         );
         out += &format!(
-            "design iteration, {interp:?} 128³ grid, 128² × 10 rays × 400 steps: forward {forward:.2} s + \
+            "design iteration, {interp:?} 128³ grid, 128² × 10 rays × 400 steps, {} vectors: forward {forward:.2} s + \
              backward (every coefficient) {backward:.2} s = {:.2} s; {:.2e} ray-steps/s forward, {:.2e} backward; \
              ~{fwd_rate:.1} and ~{back_rate:.1} GFLOP/s ({:.0} % and {:.0} % of dgemm's {dgemm:.1} GFLOP/s)\n",
+            crate::math::simd::Width::widest().name(),
             forward + backward,
             ray_steps / forward,
             ray_steps / backward,

@@ -31,6 +31,15 @@ impl Width {
         Width::Baseline
     }
 
+    /// Its name as the docs write it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Width::Baseline => "baseline (no AVX2)",
+            Width::Avx2 => "AVX2",
+            Width::Avx512 => "AVX-512",
+        }
+    }
+
     /// Every width this CPU can run, narrowest first (for the tests that compare them).
     pub fn available() -> Vec<Width> {
         let mut all = vec![Width::Baseline];
