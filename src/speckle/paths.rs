@@ -242,7 +242,7 @@ struct Here {
     /// Every focused terminal's lobes (closed forms), and where each terminal's terms start.
     batch: SphereBatch,
     starts: Vec<Option<usize>>,
-    /// Every pair's two-lens terms (single scattering), and where each pair's start.
+    /// Every pair's two-lens terms (single scattering), and where each pair's terms start.
     pairs: PairBatch,
     pair_starts: Vec<Option<usize>>,
 }
@@ -443,10 +443,12 @@ impl<'a> SubpathSampler<'a> {
             here.pair_starts[n] = match (&sc.first_l[l], &sc.first_v[v], self.view_axis) {
                 (Seen::Aperture { .. }, Seen::Aperture { vmf: av, .. }, Some(_)) => {
                     let convolved = &sc.convolved[l * self.max_lobes..l * self.max_lobes + nlobes];
-                    let starts = convolved
-                        .iter()
-                        .map(|c| lens_pair_queue(c, av, sc.view_bound[v], &mut here.pairs));
-                    starts.min() // the first
+                    let mut first = None;
+                    for c in convolved {
+                        let i = lens_pair_queue(c, av, sc.view_bound[v], &mut here.pairs);
+                        first.get_or_insert(i);
+                    }
+                    first
                 }
                 _ => None,
             };
