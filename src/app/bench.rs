@@ -121,9 +121,10 @@ fn gemm_rates(n: usize, reps: usize) -> (f64, f64) {
 
 /// GFLOP/s of the batched covariance update alone: `events` vectors of `j` fields pushed into a
 /// [`Batch`](crate::speckle::covariance::Batch) and drained, on every thread at once, counting
-/// the multiplications it performs (tiles on or above the diagonal; best of three).
+/// the multiplications it performs ([`flops_per_event`](crate::speckle::covariance::flops_per_event);
+/// best of three).
 fn batch_rate(j: usize, events: usize) -> f64 {
-    use crate::speckle::covariance::{Batch, tile_fraction};
+    use crate::speckle::covariance::{Batch, flops_per_event};
     let threads = rayon::current_num_threads();
     let mut rng = stream_rng(5, 0);
     let vectors: Vec<Vec<C64>> = (0..256)
@@ -152,7 +153,7 @@ fn batch_rate(j: usize, events: usize) -> f64 {
         t0.elapsed().as_secs_f64()
     };
     let best = (0..3).map(|_| time()).fold(f64::INFINITY, f64::min);
-    (threads * events) as f64 * 8.0 * (j * j) as f64 * tile_fraction(j) / best / 1e9
+    (threads * events) as f64 * flops_per_event(j) / best / 1e9
 }
 
 /// Run the benchmark and describe the figures.
@@ -232,15 +233,18 @@ pub fn run(quick: bool) -> crate::Result<String> {
     let (dgemm, zgemm) = gemm_rates(2 * j, if quick { 2 } else { 8 });
     let batch = batch_rate(j, if quick { 2_000 } else { 40_000 });
     let cov_flops = cov_updates * 8.0 / 1e9;
+    // the share of the complex updates' arithmetic the real products actually do
+    let done = crate::speckle::covariance::flops_per_event(j) / (8.0 * (j * j) as f64);
     Ok(format!(
         "reference scene: box 10×10×10 λ, mfp 5 λ, isotropic, 4 plane-wave lights × 72 far-field views (J = {j}), reversed paths; {threads} thread(s), {} vectors\n\
          events (rank-1 updates) per path: {events:.3}\n\
          covariance: {cov_paths:.0} paths/s ({:.0} per thread), {:.3e} entry-updates/s = {cov_flops:.2} GFLOP/s\n\
          fields:     {field_paths:.0} paths/s ({:.0} per thread), {:.3e} pixel-updates/s\n\
          GEMM ({}², all threads): real dgemm {dgemm:.2} GFLOP/s, complex zgemm {zgemm:.2} GFLOP/s\n\
-         covariance estimate: {:.0} % of dgemm counting all J² entries; only tiles on or above the diagonal \
-         are multiplied ({:.0} % of them, in real products), so the multiplications run at {:.0} % of dgemm over the \
-         whole estimate, path sampling included\n\
+         covariance estimate: {:.0} % of dgemm counting all J² entries as complex updates; the real products do \
+         {:.0} % of that arithmetic (the real part's tiles on or above the diagonal, the imaginary part from one \
+         product of half the depth), so the multiplications run at {:.0} % of dgemm over the whole estimate, path \
+         sampling included\n\
          batched rank-1 update alone (push + real products + drain): {batch:.2} GFLOP/s of the multiplications done = {:.0} % of dgemm\n\
          gradient (σ_s, σ_a) of a loss over all J² entries: {:.2}× the cost of the forward covariance estimate ({} paths: {:.2} s vs {:.2} s)\n\
          gradient (σ_s, σ_a, 16 phase-table nodes), tabulated medium: {:.2}× its forward estimate ({:.2} s vs {:.2} s)",
@@ -251,8 +255,8 @@ pub fn run(quick: bool) -> crate::Result<String> {
         field_updates,
         2 * j,
         100.0 * cov_flops / dgemm,
-        100.0 * crate::speckle::covariance::tile_fraction(j),
-        100.0 * cov_flops * crate::speckle::covariance::tile_fraction(j) / dgemm,
+        100.0 * done,
+        100.0 * cov_flops * done / dgemm,
         100.0 * batch / dgemm,
         t_grad / t_plain,
         plan_g.samples(),

@@ -46,8 +46,9 @@ pub fn working_bytes(
     let c = std::mem::size_of::<C64>() as f64;
     let outputs = outputs as f64;
     let blocks = 2.0 + (chunks.max(1) as f64).log2();
-    WAVE as f64 * outputs * c
-        + blocks * outputs * (c + 8.0)
+    // a wave's chunk buffers and the reducer's blocks (sums and squares); the spare buffers are
+    // those of absorbed blocks, allocated only when none is spare, so they add nothing
+    (WAVE as f64 + blocks) * outputs * (c + 8.0)
         + chunks as f64 * kept as f64 * c
         + threads as f64 * scratch_bytes as f64
 }
@@ -97,27 +98,39 @@ pub struct Block {
 }
 
 impl Block {
-    fn leaf(chunk: u64, out: &[C64], paths: u64, keep: &[usize]) -> Self {
+    /// The block of one chunk whose summed outputs are `sum`; `sq` is overwritten (any length).
+    fn leaf(chunk: u64, sum: Vec<C64>, mut sq: Vec<f64>, paths: u64, keep: &[usize]) -> Self {
         let inv = 1.0 / paths as f64;
+        sq.clear();
+        sq.extend(sum.iter().map(|z| (z * inv).norm_sqr()));
         Block {
             start: chunk,
             len: 1,
-            sum: out.to_vec(),
-            sq: out.iter().map(|z| (z * inv).norm_sqr()).collect(),
-            kept: keep.iter().map(|&i| out[i] * inv).collect(),
+            kept: keep.iter().map(|&i| sum[i] * inv).collect(),
+            sum,
+            sq,
         }
     }
 
-    fn absorb(&mut self, right: Block) {
+    /// Add the next block's sums to this one; returns the right block's buffers for reuse. Large
+    /// blocks are added on every thread: each entry is one addition, so the bits do not depend on
+    /// how the entries are split.
+    fn absorb(&mut self, right: Block) -> (Vec<C64>, Vec<f64>) {
         debug_assert_eq!(self.start + self.len, right.start);
-        for (a, b) in self.sum.iter_mut().zip(&right.sum) {
-            *a += b;
-        }
-        for (a, b) in self.sq.iter_mut().zip(&right.sq) {
-            *a += b;
-        }
+        const PIECE: usize = 1 << 14;
+        self.sum
+            .par_iter_mut()
+            .with_min_len(PIECE)
+            .zip(right.sum.par_iter().with_min_len(PIECE))
+            .for_each(|(a, b)| *a += b);
+        self.sq
+            .par_iter_mut()
+            .with_min_len(PIECE)
+            .zip(right.sq.par_iter().with_min_len(PIECE))
+            .for_each(|(a, b)| *a += b);
         self.kept.extend_from_slice(&right.kept);
         self.len += right.len;
+        (right.sum, right.sq)
     }
 
     fn is_left_sibling_of(&self, right: &Block) -> bool {
@@ -131,6 +144,9 @@ impl Block {
 #[derive(Default, Debug)]
 pub struct Reducer {
     stack: Vec<Block>,
+    /// Buffers of absorbed blocks, for the next leaves (a run of large outputs would otherwise
+    /// allocate, and fault in, two output-sized vectors per chunk).
+    spare: Vec<(Vec<C64>, Vec<f64>)>,
 }
 
 impl Reducer {
@@ -142,7 +158,19 @@ impl Reducer {
                 break;
             }
             let right = self.stack.pop().expect("two blocks");
-            self.stack.last_mut().expect("one block").absorb(right);
+            let buffers = self.stack.last_mut().expect("one block").absorb(right);
+            if self.spare.len() < WAVE {
+                self.spare.push(buffers);
+            }
+        }
+    }
+
+    /// Buffers for a leaf of `n` outputs: an absorbed block's, else new ones. Their contents are
+    /// arbitrary.
+    fn spare(&mut self, n: usize) -> (Vec<C64>, Vec<f64>) {
+        match self.spare.pop() {
+            Some((sum, sq)) if sum.len() == n => (sum, sq),
+            _ => (vec![C64::default(); n], Vec::with_capacity(n)),
         }
     }
 
@@ -163,6 +191,15 @@ impl Reducer {
         }
         Some(acc)
     }
+}
+
+/// Where one chunk of a wave runs: its sums and the buffer for their squares (handed to the chunk's
+/// block, then refilled from the reducer's spare buffers), and a thread's scratch. The block is
+/// built on the thread that ran the chunk; only the ordered reduction waits for the wave.
+struct Slot<S> {
+    sum: Vec<C64>,
+    sq: Vec<f64>,
+    scratch: Option<S>,
 }
 
 /// Chunks traced at once between two ordered reductions; fixed so that results do not depend on the
@@ -284,8 +321,13 @@ pub fn resume<E: Estimator>(
             range.end
         )));
     }
-    let mut bufs: Vec<(Vec<C64>, Option<E::Scratch>)> =
-        (0..WAVE).map(|_| (vec![C64::default(); n], None)).collect();
+    let mut slots: Vec<Slot<E::Scratch>> = (0..WAVE)
+        .map(|_| Slot {
+            sum: vec![C64::default(); n],
+            sq: Vec::with_capacity(n),
+            scratch: None,
+        })
+        .collect();
     if let Some(c) = checkpoint.as_mut() {
         c.start(next);
     }
@@ -294,26 +336,30 @@ pub fn resume<E: Estimator>(
     progress(next - range.start);
     while next < range.end {
         let count = ((range.end - next) as usize).min(WAVE);
-        bufs[..count]
+        let leaves = slots[..count]
             .par_iter_mut()
             .enumerate()
-            .for_each(|(i, (out, scratch))| {
+            .map(|(i, slot)| {
                 // once asked to stop, chunks not yet begun are skipped: the wave is discarded
                 // below, so a stop waits for one chunk, not a whole wave
                 if stopped() {
-                    return;
+                    return None;
                 }
                 let chunk = next + i as u64;
-                out.iter_mut().for_each(|z| *z = C64::default());
-                let s = scratch.get_or_insert_with(|| est.scratch());
+                slot.sum.iter_mut().for_each(|z| *z = C64::default());
+                let s = slot.scratch.get_or_insert_with(|| est.scratch());
                 let mut rng = stream_rng(plan.seed, chunk);
-                est.run_chunk(&mut rng, plan.chunk_paths, s, out);
-            });
+                est.run_chunk(&mut rng, plan.chunk_paths, s, &mut slot.sum);
+                let (sum, sq) = (std::mem::take(&mut slot.sum), std::mem::take(&mut slot.sq));
+                Some(Block::leaf(chunk, sum, sq, plan.chunk_paths, keep))
+            })
+            .collect::<Vec<_>>();
         if stopped() {
             return Err(crate::Error::Interrupted);
         }
-        for (i, (out, _)) in bufs[..count].iter().enumerate() {
-            reducer.push(Block::leaf(next + i as u64, out, plan.chunk_paths, keep));
+        for (leaf, slot) in leaves.into_iter().zip(&mut slots) {
+            reducer.push(leaf.expect("every chunk of the wave ran"));
+            (slot.sum, slot.sq) = reducer.spare(n);
         }
         next += count as u64;
         progress(next - range.start);

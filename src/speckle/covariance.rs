@@ -16,9 +16,16 @@ const BATCH: usize = 64;
 /// Row blocks of the Hermitian accumulator: only blocks on or above the diagonal are multiplied.
 const TILES: usize = 4;
 
-/// Fraction of the `J×J` entries the batched update actually multiplies (tiles on or above the
-/// diagonal); the rest follow by Hermitian symmetry.
-pub fn tile_fraction(j: usize) -> f64 {
+/// Real floating-point operations the batched update spends on one event of `j` fields: its two
+/// columns of `X Xᵀ` on the tiles on or above the diagonal, and its column of `M` over all `J²`
+/// entries (see [`Batch`]). A complex rank-1 update of every entry would cost `8 J²`.
+pub fn flops_per_event(j: usize) -> f64 {
+    (4.0 * tile_fraction(j) + 2.0) * (j * j) as f64
+}
+
+/// Fraction of the `J×J` entries of the real part the batched update multiplies (tiles on or
+/// above the diagonal); the rest follow by symmetry.
+fn tile_fraction(j: usize) -> f64 {
     let tile = j.div_ceil(TILES);
     let n = j.div_ceil(tile);
     let mut done = 0;
@@ -92,15 +99,17 @@ impl EventSink for CovSink {
 /// A batch of event vectors `a_e` and the accumulator `acc += Σ_e a_e a_eᴴ` (J × J), computed in
 /// real arithmetic, whose matrix products run at about twice the rate of complex ones: with
 /// `X = [Re a_e, Im a_e]_e` (J × 2n, the two columns of each event side by side),
-/// `Re acc += X Xᵀ` and `Im acc += Im A · Re Aᵀ − Re A · Im Aᵀ` (the same columns read with a
-/// stride). The real part is symmetric and the imaginary part antisymmetric, so only tiles on or
-/// above the diagonal are multiplied.
+/// `Re acc += X Xᵀ`, and `Im acc = M − Mᵀ` with `M += Im A · Re Aᵀ` (the same columns read with a
+/// stride). The real part is symmetric, so only its tiles on or above the diagonal are
+/// multiplied; the antisymmetric imaginary part comes from the whole of `M`, one product of half
+/// the depth, formed once when the batch is drained.
 pub struct Batch {
     j: usize,
     cols: usize,
     x: Vec<f64>,
     re: Vec<f64>,
-    im: Vec<f64>,
+    /// `M = Σ Im a_e · Re a_eᵀ`, all of it.
+    m: Vec<f64>,
 }
 
 impl Batch {
@@ -110,7 +119,7 @@ impl Batch {
             cols: 0,
             x: vec![0.0; 2 * j * BATCH],
             re: vec![0.0; j * j],
-            im: vec![0.0; j * j],
+            m: vec![0.0; j * j],
         }
     }
 
@@ -133,36 +142,50 @@ impl Batch {
         }
         let (j, n) = (self.j, self.cols);
         let tile = j.div_ceil(TILES);
+        // SAFETY (both products): X is j × 2n column-major (element (r, e) at e·j + r); the
+        // operands start at offsets below 2j, and k columns at their stride stay within 2n·j; the
+        // accumulators are j × j row-major.
         for r0 in (0..j).step_by(tile) {
-            // each row block times every column from its own diagonal tile on: one product per
-            // term (the row block packed once), only tiles on or above the diagonal
-            let block = |left, right, k, stride, sign, acc: &mut [f64]| {
-                // SAFETY: X is j × 2n column-major (element (r, e) at e·j + r): the operands
-                // start at offsets below 2j and k columns at `stride` stay within 2n·j; acc is
-                // j × j row-major.
-                unsafe {
-                    matrixmultiply::dgemm(
-                        tile.min(j - r0),
-                        k,
-                        j - r0,
-                        sign,
-                        self.x.as_ptr().add(left + r0),
-                        1,
-                        stride as isize,
-                        self.x.as_ptr().add(right + r0),
-                        stride as isize,
-                        1,
-                        1.0,
-                        acc.as_mut_ptr().add(r0 * j + r0),
-                        j as isize,
-                        1,
-                    );
-                }
-            };
-            // Re: X Xᵀ over all 2n columns; Im: Im A · Re Aᵀ − Re A · Im Aᵀ (every other column)
-            block(0, 0, 2 * n, j, 1.0, &mut self.re);
-            block(j, 0, n, 2 * j, 1.0, &mut self.im);
-            block(0, j, n, 2 * j, -1.0, &mut self.im);
+            // Re += X Xᵀ over all 2n columns, each row block times every column from its own
+            // diagonal tile on: one product (the row block packed once), tiles on or above the
+            // diagonal only
+            unsafe {
+                matrixmultiply::dgemm(
+                    tile.min(j - r0),
+                    2 * n,
+                    j - r0,
+                    1.0,
+                    self.x.as_ptr().add(r0),
+                    1,
+                    j as isize,
+                    self.x.as_ptr().add(r0),
+                    j as isize,
+                    1,
+                    1.0,
+                    self.re.as_mut_ptr().add(r0 * j + r0),
+                    j as isize,
+                    1,
+                );
+            }
+        }
+        // M += Im A · Re Aᵀ (every other column of X, from the second and the first)
+        unsafe {
+            matrixmultiply::dgemm(
+                j,
+                n,
+                j,
+                1.0,
+                self.x.as_ptr().add(j),
+                1,
+                2 * j as isize,
+                self.x.as_ptr(),
+                2 * j as isize,
+                1,
+                1.0,
+                self.m.as_mut_ptr(),
+                j as isize,
+                1,
+            );
         }
         self.cols = 0;
     }
@@ -179,16 +202,17 @@ impl Batch {
         let tile = j.div_ceil(TILES);
         for a in 0..j {
             for b in 0..j {
-                let z = if b / tile >= a / tile {
-                    C64::new(self.re[a * j + b], self.im[a * j + b])
+                let re = if b / tile >= a / tile {
+                    self.re[a * j + b]
                 } else {
-                    C64::new(self.re[b * j + a], -self.im[b * j + a])
+                    self.re[b * j + a]
                 };
-                out[a * j + b] += z * sign;
+                let im = self.m[a * j + b] - self.m[b * j + a];
+                out[a * j + b] += C64::new(re, im) * sign;
             }
         }
         self.re.iter_mut().for_each(|v| *v = 0.0);
-        self.im.iter_mut().for_each(|v| *v = 0.0);
+        self.m.iter_mut().for_each(|v| *v = 0.0);
     }
 }
 
