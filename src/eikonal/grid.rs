@@ -519,7 +519,7 @@ impl GridField {
     /// The value alone at `x` (no derivatives): the inside–outside test of a signed-distance grid.
     pub fn value(&self, x: DVec3) -> f64 {
         let u = (x - self.origin) / self.spacing;
-        let base = u.floor();
+        let base = DVec3::new(floor(u.x), floor(u.y), floor(u.z));
         let t = u - base;
         let (weights, taps, off): ([[f64; 4]; 3], usize, isize) = match self.interp {
             Interp::Tricubic => ([bspline(t.x).0, bspline(t.y).0, bspline(t.z).0], 4, -1),
@@ -555,6 +555,14 @@ impl GridField {
         });
         (v, g / self.spacing)
     }
+}
+
+/// `x.floor()` without a call into libm, which the baseline x86-64 build makes (it has no rounding
+/// instruction): exact for `|x| < 2⁶³`, where grid coordinates lie.
+#[inline(always)]
+pub(crate) fn floor(x: f64) -> f64 {
+    let t = x as i64 as f64;
+    if t > x { t - 1.0 } else { t }
 }
 
 #[cfg(test)]
