@@ -13,7 +13,8 @@ use crate::speckle::paths::{EventSink, PathScratch, SubpathSampler};
 /// Events gathered before one batched update.
 const BATCH: usize = 64;
 
-/// Row blocks of the Hermitian accumulator: only blocks on or above the diagonal are multiplied.
+/// Row blocks of the real part's accumulator: only blocks on or above the diagonal are multiplied
+/// (the imaginary part's product covers every entry).
 const TILES: usize = 4;
 
 /// Real floating-point operations the batched update spends on one event of `j` fields: its two
