@@ -301,12 +301,8 @@ fn bump(p: &Profile, which: usize, d: f64) -> Profile {
     p
 }
 
-/// Grid fields (tricubic and trilinear): the adjoint gradient with respect to coefficients the ray
-/// passes equals the tape gradient and central differences.
-#[test]
-fn grid_coefficient_gradients() {
-    use lightpath::eikonal::FieldParam;
-    use lightpath::eikonal::grid::{GridField, Interp};
+/// An 8×8×10 grid of a weak parabolic lens, spacing 0.5, from (−1.75, −1.75, −0.5).
+fn lens_grid(interp: lightpath::eikonal::grid::Interp) -> lightpath::eikonal::grid::GridField {
     let dims = [8, 8, 10];
     let (origin, spacing) = (DVec3::new(-1.75, -1.75, -0.5), 0.5);
     let mut samples = Vec::new();
@@ -318,8 +314,79 @@ fn grid_coefficient_gradients() {
             }
         }
     }
+    lightpath::eikonal::grid::GridField::from_samples(origin, spacing, dims, samples, interp)
+        .unwrap()
+}
+
+fn grid_of(g: &mut [f64]) -> Option<GridAdjoint<'_>> {
+    Some(GridAdjoint {
+        profile: 0,
+        grad: g,
+    })
+}
+
+/// Rays stepped and reversed together (interleaved, a trilinear grid's evaluations side by side
+/// in vector lanes) get the bits each gets alone, forward and reverse; the coefficient gradient
+/// they share is the sum of theirs to round-off.
+#[test]
+fn rays_stepped_and_reversed_together_equal_rays_alone() {
+    use lightpath::eikonal::grid::Interp;
     for interp in [Interp::Tricubic, Interp::Trilinear] {
-        let grid = GridField::from_samples(origin, spacing, dims, samples.clone(), interp).unwrap();
+        let grid = lens_grid(interp);
+        let field = BoundedField::single(Profile::Grid(grid.clone()), Bounds::Everywhere, 1.0);
+        let t = Tracer {
+            field: &field,
+            step: 0.01,
+            max_steps: 0,
+        };
+        let (steps, h) = (250, 0.01);
+        let rays: [Ray; 8] = std::array::from_fn(|k| {
+            let x = DVec3::new(0.3 - 0.09 * k as f64, -0.1 + 0.05 * k as f64, 0.013);
+            Ray {
+                x,
+                v: DVec3::new(0.05, 0.02 * k as f64, 1.0).normalize() * f_n(&field, x),
+            }
+        });
+        let ends = t.steps_interleaved(rays, steps, h);
+        for k in 0..8 {
+            assert_eq!(ends[k], t.steps(rays[k], steps, h), "{interp:?} ray {k}");
+        }
+        let target = DVec3::new(0.0, 0.0, 3.0);
+        let seed = |r: Ray| ((r.x - target) * 2.0, r.v * 0.5);
+        let mut together = vec![0.0; grid.coef.len()];
+        let first = t
+            .adjoint_from_ends(
+                ends.map(|e| (e, seed(e).0, seed(e).1)),
+                steps,
+                h,
+                &[],
+                grid_of(&mut together),
+            )
+            .unwrap();
+        let mut alone = vec![0.0; grid.coef.len()];
+        for k in 0..8 {
+            let g = t
+                .adjoint_from_end(ends[k], steps, h, &[], grid_of(&mut alone), seed)
+                .unwrap();
+            assert_eq!((g.dx0, g.dv0), first[k], "{interp:?} ray {k}");
+        }
+        let scale = alone.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+        assert!(scale > 0.1, "{interp:?}: gradient {scale}");
+        for (a, b) in together.iter().zip(&alone) {
+            assert!((a - b).abs() <= 1e-13 * scale, "{interp:?}: {a} vs {b}");
+        }
+    }
+}
+
+/// Grid fields (tricubic and trilinear): the adjoint gradient with respect to coefficients the ray
+/// passes equals the tape gradient and central differences.
+#[test]
+fn grid_coefficient_gradients() {
+    use lightpath::eikonal::FieldParam;
+    use lightpath::eikonal::grid::Interp;
+    for interp in [Interp::Tricubic, Interp::Trilinear] {
+        let grid = lens_grid(interp);
+        let dims = grid.dims;
         let field = BoundedField::single(Profile::Grid(grid.clone()), Bounds::Everywhere, 1.0);
         let t = Tracer {
             field: &field,
@@ -363,12 +430,6 @@ fn grid_coefficient_gradients() {
         let mut sparse = vec![0.0; grid.coef.len()];
         let mut sparse_tape = vec![0.0; grid.coef.len()];
         let lg = |r: Ray| ((r.x - target) * 2.0, DVec3::ZERO);
-        fn grid_of(g: &mut [f64]) -> Option<GridAdjoint<'_>> {
-            Some(GridAdjoint {
-                profile: 0,
-                grad: g,
-            })
-        }
         t.adjoint_with_grid(r0, steps, 0.01, &[], grid_of(&mut sparse), lg)
             .unwrap();
         t.adjoint_tape_with_grid(r0, steps, 0.01, &[], grid_of(&mut sparse_tape), lg)

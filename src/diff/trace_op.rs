@@ -33,6 +33,10 @@ const GROUPS: usize = 16;
 /// evaluations, several chains overlap in the processor.
 const INTERLEAVED: usize = 4;
 
+/// Rays whose reverse steps the backward pass interleaves (their field evaluations side by side
+/// in vector lanes for trilinear grids, their scatters one after the other).
+const REVERSED_TOGETHER: usize = 8;
+
 struct TracePullback {
     field: BoundedField,
     profile: usize,
@@ -152,6 +156,16 @@ impl Differentiable for TraceOp {
     }
 }
 
+impl TracePullback {
+    /// The accumulator of the grid profile's coefficient gradient.
+    fn grid<'a>(&self, grad: &'a mut [f64]) -> Option<GridAdjoint<'a>> {
+        Some(GridAdjoint {
+            profile: self.profile,
+            grad,
+        })
+    }
+}
+
 impl Pullback for TracePullback {
     fn pullback(&self, dy: &[f64]) -> Vec<f64> {
         let tracer = Tracer {
@@ -169,29 +183,46 @@ impl Pullback for TracePullback {
             .map(|g| {
                 let mut acc = vec![0.0; n];
                 let rays = g * per..((g + 1) * per).min(self.rays.len());
-                for i in rays {
+                let seed = |i: usize| {
+                    let d = &dy[6 * i..6 * i + 6];
+                    (DVec3::new(d[0], d[1], d[2]), DVec3::new(d[3], d[4], d[5]))
+                };
+                let end = |i: usize| {
+                    let (lx, lv) = seed(i);
+                    (self.ends[i], lx, lv)
+                };
+                // fixed-step rays REVERSED_TOGETHER at a time, their reverse steps interleaved
+                let ids: Vec<usize> = rays.collect();
+                let together = if self.to_exit { 1 } else { REVERSED_TOGETHER };
+                let mut ok = true;
+                for batch in ids.chunks(together) {
                     if self.stop.is_set() {
                         // the caller reports the stop; this gradient is not used
                         break;
                     }
-                    let d = &dy[6 * i..6 * i + 6];
-                    let seed = (DVec3::new(d[0], d[1], d[2]), DVec3::new(d[3], d[4], d[5]));
-                    let grid = Some(GridAdjoint {
-                        profile: self.profile,
-                        grad: &mut acc,
-                    });
-                    let r = self.rays[i];
-                    let ok = if self.to_exit {
-                        tracer.exit_adjoint(r.x, r.v, &[], grid, |_| seed).is_ok()
-                    } else {
-                        let end = self.ends[i];
+                    let (steps, h) = (self.steps, self.step);
+                    ok &= if self.to_exit {
+                        let (i, r) = (batch[0], self.rays[batch[0]]);
+                        let grid = self.grid(&mut acc);
                         tracer
-                            .adjoint_from_end(end, self.steps, self.step, &[], grid, |_| seed)
+                            .exit_adjoint(r.x, r.v, &[], grid, |_| seed(i))
                             .is_ok()
+                    } else if let Ok(b) = <[usize; REVERSED_TOGETHER]>::try_from(batch) {
+                        let grid = self.grid(&mut acc);
+                        tracer
+                            .adjoint_from_ends(b.map(end), steps, h, &[], grid)
+                            .is_ok()
+                    } else {
+                        batch.iter().all(|&i| {
+                            let grid = self.grid(&mut acc);
+                            tracer
+                                .adjoint_from_ends([end(i)], steps, h, &[], grid)
+                                .is_ok()
+                        })
                     };
-                    if !ok {
-                        acc.iter_mut().for_each(|x| *x = f64::NAN);
-                    }
+                }
+                if !ok {
+                    acc.iter_mut().for_each(|x| *x = f64::NAN);
                 }
                 acc
             })

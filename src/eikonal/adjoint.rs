@@ -180,6 +180,26 @@ impl Tracer<'_> {
         })
     }
 
+    /// [`Self::adjoint_from_end`] for `K` rays at once (their reverse steps interleaved), each
+    /// with the adjoints `(∂L/∂x, ∂L/∂v)` of its final state: the same per-ray bits as one by
+    /// one, the parameter and grid sums accumulated in another order (a round-off difference).
+    pub fn adjoint_from_ends<const K: usize>(
+        &self,
+        ends: [(Ray, DVec3, DVec3); K],
+        steps: usize,
+        h: f64,
+        params: &[FieldParam],
+        grid: Option<GridAdjoint>,
+    ) -> crate::Result<[(DVec3, DVec3); K]> {
+        let mut acc = Accumulators {
+            params,
+            dp: vec![0.0; params.len()],
+            grid,
+        };
+        let first = self.reverse_steps_interleaved(ends, steps, h, &mut acc)?;
+        Ok(first.map(|(_, lx, lv)| (lx, lv)))
+    }
+
     /// The adjoint of `steps` full leapfrog steps of `h` that ended in `r`, given the adjoints
     /// `(lx, lv)` of the state after them, reconstructing the states by reversing the integrator;
     /// returns the first state and its adjoints. The same map as repeated [`Self::adjoint_step`]
@@ -190,44 +210,71 @@ impl Tracer<'_> {
     /// are accumulated together (they are linear in the adjoint).
     fn reverse_steps(
         &self,
-        mut r: Ray,
+        r: Ray,
         steps: usize,
         h: f64,
-        mut lx: DVec3,
-        mut lv: DVec3,
+        lx: DVec3,
+        lv: DVec3,
         acc: &mut Accumulators,
     ) -> crate::Result<(Ray, DVec3, DVec3)> {
+        let [(r, lx, lv)] = self.reverse_steps_interleaved([(r, lx, lv)], steps, h, acc)?;
+        Ok((r, lx, lv))
+    }
+
+    /// [`Self::reverse_steps`] for `K` rays at once, their steps interleaved so that the
+    /// independent field evaluations overlap in the processor (one ray's reverse steps form a
+    /// chain of dependent evaluations, as its forward steps do). Each ray's states and adjoints
+    /// are the same bits as alone; the accumulations alternate between the rays step by step.
+    fn reverse_steps_interleaved<const K: usize>(
+        &self,
+        start: [(Ray, DVec3, DVec3); K],
+        steps: usize,
+        h: f64,
+        acc: &mut Accumulators,
+    ) -> crate::Result<[(Ray, DVec3, DVec3); K]> {
         if steps == 0 {
-            return Ok((r, lx, lv));
+            return Ok(start);
         }
         let f = self.field;
-        let (mut n1, mut g1, hess) = f.eval(r.x);
-        let mut j1 = super::trace::jacobian_of(n1, g1, hess);
-        // the adjoint vector waiting to be accumulated at `r` (from the step after it)
-        let mut pending = DVec3::ZERO;
-        for _ in 0..steps {
-            // reverse the step: exactly `leapfrog(r, -h)`, its force at r from the last evaluation
-            let back = -h;
-            let v_half = r.v + g1 * n1 * (0.5 * back);
-            let x0 = r.x + v_half * back;
-            let (n0, g0, hess) = f.eval(x0);
-            let prev = Ray {
-                x: x0,
-                v: v_half + g0 * n0 * (0.5 * back),
-            };
-            let j0 = super::trace::jacobian_of(n0, g0, hess);
-            // v' = v½ + h/2 F(x'): x' collects J_F(x') λ_v' h/2 on top of λ_x'
-            let lx1 = lx + j1 * lv * (0.5 * h);
-            self.accumulate_force(r.x, (n1, g1), pending + lv * (0.5 * h), acc)?;
-            // x' = x + h v½ and v½ = v + h/2 F(x)
-            let l_half = lv + lx1 * h;
-            lx = lx1 + j0 * l_half * (0.5 * h);
-            lv = l_half;
-            pending = l_half * (0.5 * h);
-            (r, n1, g1, j1) = (prev, n0, g0, j0);
+        let mut r = start.map(|s| s.0);
+        let (mut lx, mut lv) = (start.map(|s| s.1), start.map(|s| s.2));
+        let (mut n1, mut g1, mut j1) = ([0.0; K], [DVec3::ZERO; K], [glam::DMat3::ZERO; K]);
+        for (k, (n, g, hess)) in f.eval_lanes(r.map(|r| r.x)).into_iter().enumerate() {
+            (n1[k], g1[k], j1[k]) = (n, g, super::trace::jacobian_of(n, g, hess));
         }
-        self.accumulate_force(r.x, (n1, g1), pending, acc)?;
-        Ok((r, lx, lv))
+        // the adjoint vector waiting to be accumulated at `r` (from the step after it)
+        let mut pending = [DVec3::ZERO; K];
+        let back = -h;
+        for _ in 0..steps {
+            // reverse the steps: exactly `leapfrog(r, -h)`, the force at r from the last
+            // evaluation
+            let v_half: [DVec3; K] = std::array::from_fn(|k| r[k].v + g1[k] * n1[k] * (0.5 * back));
+            let x0: [DVec3; K] = std::array::from_fn(|k| r[k].x + v_half[k] * back);
+            let at_x0 = f.eval_lanes(x0);
+            let (x1, n_g1) = (r.map(|r| r.x), std::array::from_fn(|k| (n1[k], g1[k])));
+            let mut force_adjoint = [DVec3::ZERO; K];
+            for k in 0..K {
+                let (n0, g0, hess) = at_x0[k];
+                let prev = Ray {
+                    x: x0[k],
+                    v: v_half[k] + g0 * n0 * (0.5 * back),
+                };
+                let j0 = super::trace::jacobian_of(n0, g0, hess);
+                // v' = v½ + h/2 F(x'): x' collects J_F(x') λ_v' h/2 on top of λ_x'
+                let lx1 = lx[k] + j1[k] * lv[k] * (0.5 * h);
+                force_adjoint[k] = pending[k] + lv[k] * (0.5 * h);
+                // x' = x + h v½ and v½ = v + h/2 F(x)
+                let l_half = lv[k] + lx1 * h;
+                lx[k] = lx1 + j0 * l_half * (0.5 * h);
+                lv[k] = l_half;
+                pending[k] = l_half * (0.5 * h);
+                (r[k], n1[k], g1[k], j1[k]) = (prev, n0, g0, j0);
+            }
+            self.accumulate_forces(x1, n_g1, force_adjoint, acc)?;
+        }
+        let n_g1 = std::array::from_fn(|k| (n1[k], g1[k]));
+        self.accumulate_forces(r.map(|r| r.x), n_g1, pending, acc)?;
+        Ok(std::array::from_fn(|k| (r[k], lx[k], lv[k])))
     }
 
     /// `λ·∂F/∂θ` at `x` into the accumulators (analytic parameters and grid taps), given
@@ -244,6 +291,32 @@ impl Tracer<'_> {
             *d += dforce(self.field, x, n, g, p)?.dot(a);
         }
         accumulate_grid(self.field, x, (n, g), a, grid);
+        Ok(())
+    }
+
+    /// [`Self::accumulate_force`] at `K` points in turn, a single grid's taps weighted side by
+    /// side in vector lanes ([`super::grid::GridField::scatter_lanes`]).
+    fn accumulate_forces<const K: usize>(
+        &self,
+        x: [DVec3; K],
+        n_g: [(f64, DVec3); K],
+        a: [DVec3; K],
+        acc: &mut Accumulators,
+    ) -> crate::Result<()> {
+        let f = self.field;
+        if K > 1
+            && let Some(GridAdjoint { profile, grad }) = &mut acc.grid
+            && acc.params.is_empty()
+            && let Some(super::field::Profile::Grid(g)) = f.profiles.get(*profile)
+            && x.iter().all(|&x| f.bounds.contains(x))
+        {
+            let dot = std::array::from_fn(|k| n_g[k].1.dot(a[k]));
+            g.scatter_lanes(x, dot, std::array::from_fn(|k| a[k] * n_g[k].0), grad);
+            return Ok(());
+        }
+        for k in 0..K {
+            self.accumulate_force(x[k], n_g[k], a[k], acc)?;
+        }
         Ok(())
     }
 

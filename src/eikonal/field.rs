@@ -531,6 +531,39 @@ impl BoundedField {
         self.value_grad_inside(x)
     }
 
+    /// [`Self::value_grad`] at `L` points at once: a single grid profile evaluates them side by
+    /// side in vector lanes ([`GridField::value_grad_lanes`]); each point gets the bits of
+    /// [`Self::value_grad`].
+    #[inline(always)]
+    pub fn value_grad_lanes<const L: usize>(&self, x: [DVec3; L]) -> [(f64, DVec3); L] {
+        if L == 1 {
+            // one point: the scalar path (the same bits, and faster alone)
+            return [self.value_grad(x[0]); L];
+        }
+        if let ([Profile::Grid(grid)], 1.0, 0.0) =
+            (self.profiles.as_slice(), self.scale, self.offset)
+            && x.iter().all(|&x| self.bounds.contains(x))
+        {
+            return grid.value_grad_lanes(x);
+        }
+        x.map(|x| self.value_grad(x))
+    }
+
+    /// [`IndexField::eval`] at `L` points at once, as [`Self::value_grad_lanes`].
+    #[inline(always)]
+    pub fn eval_lanes<const L: usize>(&self, x: [DVec3; L]) -> [(f64, DVec3, DMat3); L] {
+        if L == 1 {
+            return [self.eval(x[0]); L];
+        }
+        if let ([Profile::Grid(grid)], 1.0, 0.0) =
+            (self.profiles.as_slice(), self.scale, self.offset)
+            && x.iter().all(|&x| self.bounds.contains(x))
+        {
+            return grid.eval_lanes(x);
+        }
+        x.map(|x| self.eval(x))
+    }
+
     /// [`Self::value_grad`] at `x` known to be inside the bounds.
     #[inline(always)]
     pub fn value_grad_inside(&self, x: DVec3) -> (f64, DVec3) {

@@ -70,17 +70,16 @@ impl Tracer<'_> {
     pub fn steps_interleaved<const K: usize>(&self, mut r: [Ray; K], n: usize, h: f64) -> [Ray; K] {
         // the force at the end of a step starts the next: one field evaluation per step,
         // bit-identical to repeated `leapfrog`
-        let mut f: [DVec3; K] = std::array::from_fn(|k| self.force(r[k].x));
+        let forces = |x: [DVec3; K]| self.field.value_grad_lanes(x).map(|(n, g)| g * n);
+        let mut f = forces(r.map(|r| r.x));
         for _ in 0..n {
-            for k in 0..K {
-                let v_half = r[k].v + f[k] * (0.5 * h);
-                let x = r[k].x + v_half * h;
-                f[k] = self.force(x);
-                r[k] = Ray {
-                    x,
-                    v: v_half + f[k] * (0.5 * h),
-                };
-            }
+            let v_half: [DVec3; K] = std::array::from_fn(|k| r[k].v + f[k] * (0.5 * h));
+            let x: [DVec3; K] = std::array::from_fn(|k| r[k].x + v_half[k] * h);
+            f = forces(x);
+            r = std::array::from_fn(|k| Ray {
+                x: x[k],
+                v: v_half[k] + f[k] * (0.5 * h),
+            });
         }
         r
     }
