@@ -583,6 +583,8 @@ fn bidirectional_tracing_is_checked_and_runs() {
         assert!(camera["irradiance"]["mean"].as_f64().unwrap() > 0.0);
         let noise = camera["pixel_noise"].as_f64().unwrap();
         assert!(noise > 0.0 && noise <= 1.0, "pixel noise {noise}");
+        let bright = camera["bright_pixel_noise"].as_f64().unwrap();
+        assert!(bright > 0.0 && bright <= 1.0, "bright pixel noise {bright}");
         assert_eq!(r["sensors"][0]["name"], "beside");
         assert!(r["sensors"][0]["power"]["mean"].as_f64().unwrap() > 0.0);
         assert_eq!(r["surfaces"][0]["name"], "floor");

@@ -80,10 +80,40 @@ pub fn evaluate(
 /// The median of `stderr/mean` over the pixels of `image`'s time-integrated first channel that
 /// received light (`None` if none did).
 fn pixel_noise(e: &Estimate, image: ImageLayout) -> Option<f64> {
+    median_noise(&lit_pixels(e, image), 0.0)
+}
+
+/// [`pixel_noise`] over the bright pixels: those at least [`BRIGHT`] of the mean of the image's
+/// brightest one per cent (unlit pixels counted). Faint pixels that more samples keep lighting (a
+/// halo of light scattered once out of a beam) neither enter it nor move its threshold, so its
+/// pixel set settles as the image converges.
+fn bright_pixel_noise(e: &Estimate, image: ImageLayout) -> Option<f64> {
+    let lit = lit_pixels(e, image);
+    let mut means: Vec<f64> = lit.iter().map(|p| p.0).collect();
+    means.sort_by(|a, b| b.total_cmp(a));
+    let top = image.pixels.div_ceil(100);
+    let reference = means.iter().take(top).sum::<f64>() / top as f64;
+    median_noise(&lit, BRIGHT * reference)
+}
+
+/// The fraction of the brightest pixels' mean from which [`bright_pixel_noise`] counts.
+const BRIGHT: f64 = 0.01;
+
+/// `(mean, stderr)` of the pixels of `image`'s time-integrated first channel that received light.
+fn lit_pixels(e: &Estimate, image: ImageLayout) -> Vec<(f64, f64)> {
     let first = image.plane(None, 0);
-    let mut noise: Vec<f64> = (first..first + image.pixels)
+    (first..first + image.pixels)
         .filter(|&k| e.mean[k].re > 0.0)
-        .map(|k| e.stderr[k] / e.mean[k].re)
+        .map(|k| (e.mean[k].re, e.stderr[k]))
+        .collect()
+}
+
+/// The median of `stderr/mean` over the pixels whose mean is at least `floor`.
+fn median_noise(pixels: &[(f64, f64)], floor: f64) -> Option<f64> {
+    let mut noise: Vec<f64> = pixels
+        .iter()
+        .filter(|p| p.0 >= floor)
+        .map(|&(mean, stderr)| stderr / mean)
         .collect();
     if noise.is_empty() {
         return None;
@@ -322,12 +352,14 @@ pub fn rendered(
             pixels: None,
             pixel_area: None,
             pixel_noise: None,
+            bright_pixel_noise: None,
             files: vec![],
             derivatives: derivatives_of(i),
         };
         match (s.kind, s.pixel_area()) {
             (SensorKind::Screen, Some(area)) => {
                 record.pixel_noise = pixel_noise(&e, image);
+                record.bright_pixel_noise = bright_pixel_noise(&e, image);
                 let frames = Frames {
                     e: &e,
                     image,
@@ -480,6 +512,7 @@ pub fn rendered(
             pixels: c.pixels,
             pixel_area: c.pixel_area(),
             pixel_noise: pixel_noise(&e, image),
+            bright_pixel_noise: bright_pixel_noise(&e, image),
             files: names,
             filter: filter(c.filter),
             derivatives,
@@ -506,6 +539,7 @@ pub fn rendered(
             pixels: c.pixels,
             pixel_area: c.pixel_area(),
             pixel_noise: pixel_noise(&e, image),
+            bright_pixel_noise: bright_pixel_noise(&e, image),
             files: names,
             filter: filter(c.filter),
             derivatives,
@@ -790,5 +824,54 @@ impl Image {
         }
         files.push(png);
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::math::C64;
+
+    #[test]
+    fn pixel_noise_over_lit_and_over_bright_pixels() {
+        // 200 pixels: three bright (relative errors 1 %, 2 %, 5 %), two faint (100 %), the rest
+        // unlit; then a halo of 100 faint pixels lit as well
+        let image = ImageLayout {
+            first: 0,
+            pixels: 200,
+            channels: 1,
+            bins: 1,
+        };
+        let estimate = |pixels: &[(f64, f64)]| {
+            let mut e = Estimate {
+                mean: vec![C64::new(0.0, 0.0); 200],
+                stderr: vec![0.0; 200],
+                samples: 1,
+                chunks: 1,
+            };
+            for (k, &(mean, stderr)) in pixels.iter().enumerate() {
+                (e.mean[k], e.stderr[k]) = (C64::new(mean, 0.0), stderr);
+            }
+            e
+        };
+        let mut pixels = vec![
+            (100.0, 1.0),
+            (90.0, 1.8),
+            (80.0, 4.0),
+            (0.5, 0.5),
+            (0.2, 0.2),
+        ];
+        let e = estimate(&pixels);
+        assert_eq!(pixel_noise(&e, image), Some(0.05));
+        assert_eq!(bright_pixel_noise(&e, image), Some(0.02));
+        pixels.extend([(0.01, 0.01); 100]);
+        let halo = estimate(&pixels);
+        assert_eq!(pixel_noise(&halo, image), Some(1.0));
+        assert_eq!(bright_pixel_noise(&halo, image), Some(0.02));
+        let dark = estimate(&[]);
+        assert_eq!(
+            (pixel_noise(&dark, image), bright_pixel_noise(&dark, image)),
+            (None, None)
+        );
     }
 }

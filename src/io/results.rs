@@ -839,6 +839,10 @@ pub struct SensorRecord {
     /// Screens: the median relative standard error of the image's lit pixels.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pixel_noise: Option<f64>,
+    /// Screens: the same over the bright pixels (at least a hundredth of the 99th-percentile
+    /// lit pixel), a set that settles as samples grow.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bright_pixel_noise: Option<f64>,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub files: Vec<String>,
     /// `∂ power / ∂θ` for each parameter of `render.derivatives`, by name.
@@ -914,6 +918,10 @@ pub struct CameraRecord {
     /// first channel): how noisy the image is, to compare estimators and sample counts.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pixel_noise: Option<f64>,
+    /// The same over the bright pixels (at least a hundredth of the 99th-percentile lit pixel):
+    /// faint pixels that more samples keep lighting do not enter it, so it falls as 1/√samples.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bright_pixel_noise: Option<f64>,
     /// `camera_<name>.exr` (channels `Y`, radiance per unit emitted power, and `stderr`), then one
     /// per time bin; with `render.derivatives`, `camera_<name>_d_<param>.exr` per parameter.
     pub files: Vec<String>,
