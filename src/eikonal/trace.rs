@@ -66,7 +66,8 @@ impl Tracer<'_> {
 
     /// [`Self::steps`] for `K` rays at once, their steps interleaved so that the independent field
     /// evaluations overlap in the processor (one ray's steps form a chain of dependent
-    /// evaluations); each ray gets the same bits as alone.
+    /// evaluations), side by side in vector lanes for a trilinear grid
+    /// ([`BoundedField::value_grad_lanes`]); each ray gets the same bits as alone.
     pub fn steps_interleaved<const K: usize>(&self, mut r: [Ray; K], n: usize, h: f64) -> [Ray; K] {
         // the force at the end of a step starts the next: one field evaluation per step,
         // bit-identical to repeated `leapfrog`
