@@ -15,7 +15,8 @@
 //! `render.reflections` times; between an event inside and one on a surface it
 //! leaves the volume through its surface, refracted once; between two surfaces it is straight,
 //! past the volume only where it is index-matched, runs across the volume, refracted in and
-//! out, or reflects off its outside. Unscattered light from a light inside the
+//! out, or reflects off its outside. Leaving or across, it also crosses every part of a shape
+//! that is not convex it meets again on the way (refracted in and out of each). Unscattered light from a light inside the
 //! volume is connected to the cameras directly (the one way to make it). Flux sensors, screens,
 //! fluence probes and the light reaching each surface are estimated by the light subpaths
 //! alone, as in particle tracing: the sensor planes they cross, their events connected to the
@@ -24,9 +25,11 @@
 //! The estimates are weighted by the balance heuristic over the strategies that can make the path:
 //! `w_s = p_s / Σ_j p_j`, with `p_j` the density strategy `j` gives the path's vertices. A
 //! connection reflects inside the surface at most `render.reflections` times, between two points
-//! inside or on its way between a point inside and one outside (refracted once there), where it
-//! meets the surface no other way; between two points outside a
-//! volume that is not index-matched it refracts never or twice, or reflects once off its outside. A
+//! inside or on its way between a point inside and one outside (refracted once there, then in and
+//! out of each part it meets again), where it meets the surface no other way; between two points
+//! outside a volume that is not index-matched it refracts never, or in and out of each part it
+//! crosses, or reflects once off its outside (and no more). Which segments a connection makes is
+//! read from the surface events met while tracing them, in order ([`Meetings`]). A
 //! segment that no connection makes is made only by tracing: the strategies that would connect
 //! across it are left out of the sum, as is the light's own (`s = 0`) for a beam, whose directions
 //! are a delta. The weights use the straight-ray density of each segment — `ρ σ_t e^{−σ_t ℓ}/ℓ²`
@@ -41,7 +44,7 @@
 //! What no strategy makes: paths on which every segment reflects at the surface, or refracts
 //! there, more often than a connection does (with an index-matched surface there are none).
 
-use super::connect::Aim;
+use super::connect::{Aim, MAX_AGAIN};
 use super::particle::{Leg, MAX_EVENTS, ParticleTracer, Stop, Tools, Way, roulette};
 use super::scene::{Connections, Light, Volume};
 use crate::eikonal::Ray;
@@ -93,6 +96,13 @@ fn lambert(n: DVec3, d: DVec3) -> f64 {
     n.dot(d).max(0.0) / std::f64::consts::PI
 }
 
+/// Whether a connection reflected off the volume's outside (`way`) then runs `inside` through
+/// parts of it (a shape that is not convex): no strategy's weight counts it as a connection
+/// ([`Meetings::connectible`]), so it is made by tracing alone.
+fn crosses_after_mirror(way: Way, inside: f64) -> bool {
+    way == Way::Mirror && inside > 0.0
+}
+
 /// A segment of a path as the weights see it.
 #[derive(Clone, Copy, Debug)]
 struct Segment {
@@ -134,6 +144,86 @@ impl Segment {
             cos_start: self.cos_end,
             cos_end: self.cos_start,
             ..self
+        }
+    }
+}
+
+/// The surface events of a traced segment, as far as a connection's reach needs them.
+#[derive(Clone, Copy, Debug, Default)]
+struct Meetings {
+    /// Every meeting with the volume's surface: refractions in and out, reflections inside
+    /// (`bounces`) and off the outside (`glances`).
+    all: usize,
+    bounces: usize,
+    glances: usize,
+    /// Whether the segment has left the volume, the reflections inside before it first did (all
+    /// of them while it has not), and those since it last entered.
+    left: bool,
+    bounces_before_leaving: usize,
+    bounces_since_entry: usize,
+}
+
+impl Meetings {
+    /// The segment met the surface from outside: entered, or reflected off it (`glanced`).
+    fn met_outside(&mut self, glanced: bool) {
+        self.all += 1;
+        if glanced {
+            self.glances += 1;
+        } else {
+            self.bounces_since_entry = 0;
+        }
+    }
+
+    /// The segment met the surface from inside: left, or reflected inside (`bounced`).
+    fn met_inside(&mut self, bounced: bool) {
+        self.all += 1;
+        if !bounced {
+            self.left = true;
+            return;
+        }
+        self.bounces += 1;
+        self.bounces_since_entry += 1;
+        if !self.left {
+            self.bounces_before_leaving += 1;
+        }
+    }
+
+    /// Whether a connection makes the segment, from a point inside or outside the volume
+    /// (`began_inside`) to one inside or outside (`ends_inside`), given the most reflections
+    /// inside it follows and whether the volume is index-matched. Between a point inside and one
+    /// outside a connection reflects inside the part it starts from (up to `most_bounces` times)
+    /// and then refracts out, into and out of up to [`MAX_AGAIN`] parts of a shape that is not
+    /// convex, reflecting nowhere else; between two points inside it only reflects inside, as
+    /// often; between two points outside it either never meets the surface (straight, also
+    /// across an index-matched volume), refracts into and out of up to `1 + MAX_AGAIN` parts, or
+    /// only reflects once off the outside. (A path off the outside that then crosses parts is
+    /// made by particle and path tracing, not here: its reflection would have to come first
+    /// from whichever end the connection starts.)
+    fn connectible(
+        &self,
+        began_inside: bool,
+        ends_inside: bool,
+        most_bounces: usize,
+        matched: bool,
+    ) -> bool {
+        let refractions = self.all - self.bounces - self.glances;
+        if began_inside != ends_inside {
+            let first_part = if began_inside {
+                self.bounces_before_leaving
+            } else {
+                self.bounces_since_entry
+            };
+            self.glances == 0
+                && self.bounces == first_part
+                && self.bounces <= most_bounces
+                && refractions <= 1 + 2 * MAX_AGAIN
+        } else if ends_inside {
+            self.all == self.bounces && self.bounces <= most_bounces
+        } else {
+            self.all == 0
+                || matched
+                || (self.bounces + self.glances == 0 && refractions <= 2 * (1 + MAX_AGAIN))
+                || (self.all == 1 && self.glances == 1)
         }
     }
 }
@@ -327,7 +417,7 @@ impl ParticleTracer<'_> {
                 None => self.light_link(t, z.x, way, rng, out),
                 Some(n) => self.surface_light_link(t, z.x, n, way, rng, out),
             };
-            let Some(link) = link else {
+            let Some(link) = link.filter(|l| !crosses_after_mirror(way, l.inside)) else {
                 continue;
             };
             let volume = t.flyer.volume;
@@ -369,7 +459,7 @@ impl ParticleTracer<'_> {
                 None => self.camera_link(t, y.x, camera, way, rng, out),
                 Some(n) => self.surface_camera_link(t, y.x, n, camera, way, rng, out),
             };
-            let Some(link) = link else {
+            let Some(link) = link.filter(|l| !crosses_after_mirror(way, l.inside)) else {
                 continue;
             };
             let volume = t.flyer.volume;
@@ -452,6 +542,9 @@ impl ParticleTracer<'_> {
                 // irradiance `T (1 − R_in)(1 − R_out) cos θ_z / (dA⊥/dω)` (`R cos θ_z / (dA⊥/dω)`
                 // off the outside; reciprocity: both ends in n_out)
                 let (e, carried) = self.across(t, z.x, Aim::Point(y.x), way, rng, out)?;
+                if crosses_after_mirror(way, e.length) {
+                    return None;
+                }
                 let to_y = (y.x - e.surface).dot(e.outgoing);
                 let (cos_y, cos_z) = (-facing_y.dot(e.outgoing), facing_z.dot(e.direction));
                 if cos_y <= 0.0
@@ -596,30 +689,15 @@ impl ParticleTracer<'_> {
         let n_out = volume.field.n_out;
         let matched = t.connector.matched();
         let (mut beta, mut opl, mut steps) = (1.0, 0.0, 0);
-        // the segment so far: geometric length inside and outside, surface crossings, whether
-        // it began inside the volume, the cosine where it left a surface
-        // reflections at the surface inside (bounces) and outside (glances)
-        let (mut inside, mut outside, mut crossings) = (0.0, 0.0, 0);
-        let (mut bounces, mut glances) = (0, 0);
+        // the segment so far: geometric length inside and outside, its meetings with the
+        // surface, whether it began inside the volume, the cosine where it left a surface
+        let (mut inside, mut outside) = (0.0, 0.0);
+        let mut met = Meetings::default();
         let most_bounces = self.most_bounces(t);
         let mut began_inside = volume.field.bounds.contains(start.x);
         let mut cos_start = 1.0;
-        // a connection refracts once between a point inside and one outside, after up to
-        // `render.reflections` reflections inside the surface; only reflects inside it, as
-        // often, between two points inside; and between two points outside either never meets
-        // it (straight, also across an index-matched volume), refracts twice (in and out again),
-        // or reflects once off the outside
-        let connectible = |began_inside: bool, ends_inside: bool, crossings, (bounces, glances)| {
-            if began_inside != ends_inside {
-                crossings == 1 + bounces && glances == 0 && bounces <= most_bounces
-            } else if ends_inside {
-                crossings == bounces && bounces <= most_bounces
-            } else {
-                crossings == 0
-                    || matched
-                    || (crossings == 2 && bounces + glances == 0)
-                    || (crossings == 1 && glances == 1)
-            }
+        let connectible = |met: &Meetings, began_inside: bool, ends_inside: bool| {
+            met.connectible(began_inside, ends_inside, most_bounces, matched)
         };
         let mut leg = if began_inside {
             Leg::Inside(Ray {
@@ -645,9 +723,8 @@ impl ParticleTracer<'_> {
                         (Some(t0), _) if t0 == end => {
                             opl += t.delay.outside(n_out * t0);
                             outside += t0;
-                            crossings += 1;
                             leg = Leg::enter(t, x, d, t0, rng);
-                            glances += usize::from(matches!(leg, Leg::Outside { .. }));
+                            met.met_outside(matches!(leg, Leg::Outside { .. }));
                             continue;
                         }
                         (_, Some((i, distance))) => {
@@ -672,7 +749,7 @@ impl ParticleTracer<'_> {
                                 inside,
                                 outside,
                                 first && start.parallel,
-                                connectible(began_inside, false, crossings, (bounces, glances)),
+                                connectible(&met, began_inside, false),
                             );
                             vertices.push(Vertex {
                                 x: x + d * distance,
@@ -683,8 +760,7 @@ impl ParticleTracer<'_> {
                                 segment: segment.with_cos(cos_start, -facing.dot(d)),
                                 facing: Some(facing),
                             });
-                            (inside, outside, crossings) = (0.0, 0.0, 0);
-                            (bounces, glances) = (0, 0);
+                            (inside, outside, met) = (0.0, 0.0, Meetings::default());
                             began_inside = false;
                             if !roulette(&mut beta, rng) || vertices.len() >= MAX_EVENTS {
                                 break;
@@ -726,7 +802,7 @@ impl ParticleTracer<'_> {
                         inside,
                         outside,
                         first && start.parallel,
-                        connectible(began_inside, true, crossings, (bounces, glances)),
+                        connectible(&met, began_inside, true),
                     );
                     vertices.push(Vertex {
                         x: hit.x,
@@ -737,8 +813,7 @@ impl ParticleTracer<'_> {
                         segment: segment.with_cos(cos_start, 1.0),
                         facing: None,
                     });
-                    (inside, outside, crossings) = (0.0, 0.0, 0);
-                    (bounces, glances) = (0, 0);
+                    (inside, outside, met) = (0.0, 0.0, Meetings::default());
                     (began_inside, cos_start) = (true, 1.0);
                     if start.photon {
                         let phase = |d: DVec3| volume.scattering.eval(u.dot(d));
@@ -755,9 +830,8 @@ impl ParticleTracer<'_> {
                     leg = Leg::Inside(next);
                 }
                 Stop::Boundary(end) => {
-                    crossings += 1;
                     leg = Leg::leave(t, end, rng);
-                    bounces += usize::from(matches!(leg, Leg::Inside(_)));
+                    met.met_inside(matches!(leg, Leg::Inside(_)));
                 }
                 Stop::Stuck => break,
             }
@@ -994,5 +1068,66 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// The surface events of a traced segment, in order: `E` enters, `L` leaves, `B` reflects
+    /// inside, `G` reflects off the outside.
+    fn met(events: &str) -> Meetings {
+        let mut m = Meetings::default();
+        for e in events.chars() {
+            match e {
+                'E' => m.met_outside(false),
+                'G' => m.met_outside(true),
+                'L' => m.met_inside(false),
+                'B' => m.met_inside(true),
+                _ => unreachable!(),
+            }
+        }
+        m
+    }
+
+    /// A connection leaves the part it starts in after its reflections there, crossing parts
+    /// met again after; the same segment traced from outside in is the same path. Reflections
+    /// anywhere else, or one off the outside, are made by tracing alone.
+    #[test]
+    fn segments_are_connectible_as_the_connections_run() {
+        let io = |events: &str, began_inside: bool| {
+            met(events).connectible(began_inside, !began_inside, 2, false)
+        };
+        // from a point inside to one outside, and the other way
+        for (events, made) in [
+            ("L", true),
+            ("BBL", true),
+            ("BBBL", false),
+            ("BLEL", true),
+            ("LEBL", false),
+            ("LELELELEL", true),
+            ("LELELELELEL", false),
+            ("LGEL", false),
+        ] {
+            assert_eq!(io(events, true), made, "{events} from inside");
+        }
+        for (events, made) in [
+            ("E", true),
+            ("EBB", true),
+            ("EBBB", false),
+            ("ELEB", true),
+            ("EBLE", false),
+            ("ELELELELE", true),
+            ("ELELELELELE", false),
+            ("GE", false),
+        ] {
+            assert_eq!(io(events, false), made, "{events} from outside");
+        }
+        let inside = |events: &str| met(events).connectible(true, true, 2, false);
+        assert!(inside("") && inside("BB") && !inside("BBB") && !inside("LE"));
+        let outside = |events: &str, matched| met(events).connectible(false, false, 2, matched);
+        for events in ["", "EL", "ELEL", "ELELELELEL", "G"] {
+            assert!(outside(events, false), "{events}");
+        }
+        for events in ["ELELELELELEL", "EBL", "GEL", "ELG", "GG"] {
+            assert!(!outside(events, false), "{events}");
+        }
+        assert!(outside("ELELELELELEL", true));
     }
 }

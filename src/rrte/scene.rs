@@ -520,8 +520,8 @@ pub enum Tracing {
     /// Path tracing: paths from the pinhole cameras, connected to the light.
     FromCameras,
     /// Bidirectional path tracing: a subpath from the light and one from each camera, joined
-    /// every way, weighted by multiple importance sampling (no surfaces; sensor planes and
-    /// probes from the light subpaths alone).
+    /// every way, weighted by multiple importance sampling (sensor planes, probes and the light
+    /// reaching surfaces from the light subpaths alone).
     Bidirectional,
 }
 
