@@ -5,7 +5,8 @@ every run. A median over each run's own bright set can rise with more photons, a
 rare large contribution had lit join the set; over a fixed set it falls as 1/sqrt(photons) once
 every pixel's estimate has settled.
 
-    python3 converge.py RUN [RUN ...]     runs in out/, fewest photons first (camera "view")
+    python3 converge.py RUN [RUN ...]     runs in out/, fewest photons first (camera "view"; of a colour image, its red channel as
+                                          render.json's noise figures)
 """
 import json
 import math
@@ -78,7 +79,7 @@ def median(values):
 
 
 def bright(y):
-    top = sorted(y, reverse=True)[: max(1, len(y) // 100)]
+    top = sorted(y, reverse=True)[: -(-len(y) // 100)]
     threshold = 0.01 * sum(top) / len(top)
     return [i for i, v in enumerate(y) if v > 0 and v >= threshold]
 
@@ -93,7 +94,9 @@ if not runs:
 images, photons = {}, {}
 for run in runs:
     exr = read_exr(f"out/{run}/camera_view.exr")
-    images[run] = (exr["Y"], exr["stderr"])
+    # render.json's noise figures read the first channel: Y, or R of a colour image
+    channel, error = ("Y", "stderr") if "Y" in exr else ("R", "stderr.R")
+    images[run] = (exr[channel], exr[error])
     photons[run] = json.load(open(f"out/{run}/render.json"))["samples"]
 fixed = bright(images[runs[-1]][0])
 print(f"fixed set: the {len(fixed)} bright pixels of {runs[-1]}")

@@ -16,8 +16,9 @@
 //! leaves the volume through its surface, refracted once; between two surfaces it is straight,
 //! past the volume only where it is index-matched, runs across the volume, refracted in and
 //! out, or reflects off its outside. Leaving or across, it also crosses every part of a shape
-//! that is not convex it meets again on the way (refracted in and out of each). Unscattered light from a light inside the
-//! volume is connected to the cameras directly (the one way to make it). Flux sensors, screens,
+//! that is not convex it meets again on the way (refracted in and out of each). Unscattered
+//! light from a light inside the volume is connected to the cameras directly (the one way to
+//! make it). Flux sensors, screens,
 //! fluence probes and the light reaching each surface are estimated by the light subpaths
 //! alone, as in particle tracing: the sensor planes they cross, their events connected to the
 //! probes, the surfaces they meet.
