@@ -166,6 +166,47 @@ fn every_photon_is_absorbed_escapes_or_is_reported() {
     );
 }
 
+/// A lamp inside a clear glass cube (n = 1.5, nothing scattering or absorbing): a direction whose
+/// cosine with some axis exceeds `c = √(1 − 1/n²)` reaches that pair of faces within the escape
+/// cone, keeps its cosines' sizes at every reflection and leaves in the end; every other
+/// direction is held by total internal reflection for ever. With `c > 1/√2` the six cones do
+/// not overlap, so `3 (1 − c)` of the light escapes and the rest is trapped. The trapped photons
+/// are given up after `MAX_REFLECTIONS` reflections and counted as unfinished (without the
+/// limit the render does not end), and the two add up to 1.
+#[test]
+fn light_trapped_in_a_clear_glass_cube_is_given_up_as_unfinished() {
+    let n = 1.5;
+    let scene = RenderScene {
+        volume: Volume {
+            field: BoundedField::single(
+                Profile::Constant { n },
+                Bounds::Box {
+                    half: DVec3::splat(0.5),
+                },
+                1.0,
+            ),
+            sigma_s: 0.0,
+            sigma_a: 0.0,
+            scattering: Scattering::single(PhaseFunction::Isotropic),
+            density: None,
+        },
+        light: Light::Point {
+            position: DVec3::new(0.1, 0.05, -0.02),
+        },
+        ..bare_scene(0.01)
+    };
+    let (e, est) = render(&scene, 2_000, 5);
+    let (x, sx) = value(&e, est.total(Total::Escaped));
+    let (u, su) = value(&e, est.total(Total::Unfinished));
+    let c = (1.0 - 1.0 / (n * n)).sqrt();
+    let escapes = 3.0 * (1.0 - c);
+    assert!(
+        (x - escapes).abs() < 4.0 * sx && (u - (1.0 - escapes)).abs() < 4.0 * su,
+        "escaped {x} ± {sx}, unfinished {u} ± {su}; closed form {escapes}"
+    );
+    assert!((x + u - 1.0).abs() < 1e-12, "{x} + {u}");
+}
+
 /// A plain slab tracer independent of the renderer: analog absorption, straight flights in `μ`
 /// only, Fresnel by the textbook amplitude formulas; returns (R, T) per photon as 0/1 tallies.
 fn plain_slab(n: f64, tau: f64, albedo: f64, g: f64, photons: u64, rng: &mut Rng) -> (f64, f64) {

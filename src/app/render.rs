@@ -14,7 +14,9 @@ use crate::io::results::{
 };
 use crate::mc::{Block, Checkpoint, Estimate, Plan, merge, resume};
 use crate::medium::{Geometry, Medium};
-use crate::rrte::{Filter, ImageLayout, ParticleTracer, Region, SensorKind, Total};
+use crate::rrte::{
+    Filter, ImageLayout, MAX_REFLECTIONS, ParticleTracer, Region, SensorKind, Total,
+};
 use std::path::Path;
 
 /// The files a render writes (screens add `screen_<name>.exr`, `screen_<name>.png` and, with time
@@ -643,7 +645,7 @@ pub fn rendered(
     let unfinished = file.unfinished.map_or(0.0, |u| u.mean);
     let warning = (unfinished > 1e-3).then(|| {
         format!(
-            "warning: {unfinished:.2e} of the power was given up (photons trapped past render.max_steps steps in one flight); raise render.max_steps or check the field"
+            "warning: {unfinished:.2e} of the power was given up (photons trapped past render.max_steps steps in one flight, or reflected inside the surface {MAX_REFLECTIONS} times between two events: light held by total internal reflection in a nearly clear volume); raise render.max_steps, check the field, or give the medium some absorption"
         )
     });
     let summary = format!(

@@ -46,7 +46,9 @@
 //! there, more often than a connection does (with an index-matched surface there are none).
 
 use super::connect::{Aim, MAX_AGAIN};
-use super::particle::{Leg, MAX_EVENTS, ParticleTracer, Stop, Tools, Way, roulette};
+use super::particle::{
+    Leg, MAX_EVENTS, MAX_REFLECTIONS, ParticleTracer, Stop, Tools, Way, roulette,
+};
 use super::scene::{Connections, Light, Volume};
 use crate::eikonal::Ray;
 use crate::math::{C64, Rng, uniform};
@@ -833,6 +835,10 @@ impl ParticleTracer<'_> {
                 Stop::Boundary(end) => {
                     leg = Leg::leave(t, end, rng);
                     met.met_inside(matches!(leg, Leg::Inside(_)));
+                    if met.bounces > MAX_REFLECTIONS {
+                        // given up, as a flight out of steps
+                        break;
+                    }
                 }
                 Stop::Stuck => break,
             }

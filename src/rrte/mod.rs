@@ -29,7 +29,7 @@ pub mod scene;
 pub mod spectrum;
 pub mod tangent;
 
-pub use particle::{ImageLayout, ParticleTracer, Total};
+pub use particle::{ImageLayout, MAX_REFLECTIONS, ParticleTracer, Total};
 pub use scene::{
     Camera, Connections, Density, Derivative, FieldDerivative, Filter, Light, MAX_DERIVATIVES,
     MAX_TARGETS, Modulation, Pinhole, PixelWindow, Probe, Region, RenderScene, Sensor, SensorKind,

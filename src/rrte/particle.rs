@@ -35,6 +35,12 @@ use glam::DVec3;
 /// Scattering events after which a photon is given up (counted as unfinished).
 pub const MAX_EVENTS: usize = 1_000_000;
 
+/// Reflections inside the surface a photon or path makes between two events (or before its
+/// first) before it is given up: light trapped by total internal reflection in a nearly clear
+/// volume would otherwise bounce for `1/σ_t` of length, and a ray held at one point of a surface
+/// by round-off for ever. A photon given up counts as unfinished.
+pub const MAX_REFLECTIONS: usize = 100_000;
+
 /// Track lengths through each target during one flight.
 pub(super) type Tracks = [f64; MAX_TARGETS];
 
@@ -45,7 +51,8 @@ pub enum Total {
     Absorbed = 0,
     /// Power that left the scene for good (recorded by a sensor or not).
     Escaped = 1,
-    /// Power of photons given up: trapped beyond the step budget or [`MAX_EVENTS`].
+    /// Power of photons given up: trapped beyond the step budget, [`MAX_EVENTS`] or
+    /// [`MAX_REFLECTIONS`].
     Unfinished = 2,
     /// Scattering events (a count per photon, for statistics).
     Events = 3,
@@ -1463,6 +1470,7 @@ impl<'s> ParticleTracer<'s> {
         let albedo = volume.albedo();
         let derivatives = &self.scene.derivatives;
         let mut tracks: Tracks = [0.0; MAX_TARGETS];
+        let mut reflections = 0;
         loop {
             tracks.fill(0.0);
             let (stop, travelled) =
@@ -1484,6 +1492,7 @@ impl<'s> ParticleTracer<'s> {
                     for (s, param) in p.score.iter_mut().zip(derivatives) {
                         *s += albedo_score(param.medium(), volume);
                     }
+                    reflections = 0;
                     let w_in = hit.v.normalize();
                     if self.connects() {
                         let v = Vertex::fixed(hit.x, Some(w_in));
@@ -1510,7 +1519,14 @@ impl<'s> ParticleTracer<'s> {
                     }
                 }
                 Stop::Boundary(end) => match Leg::leave(t, end, rng) {
-                    Leg::Inside(reflected) => ray = reflected,
+                    Leg::Inside(_) if reflections == MAX_REFLECTIONS => {
+                        out[self.total(Total::Unfinished)].re += p.weight;
+                        return None;
+                    }
+                    Leg::Inside(reflected) => {
+                        reflections += 1;
+                        ray = reflected;
+                    }
                     out => return Some(out),
                 },
                 Stop::Stuck => {

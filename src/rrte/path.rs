@@ -475,6 +475,7 @@ impl ParticleTracer<'_> {
         out: &mut [C64],
     ) -> Option<Leg> {
         let albedo = t.flyer.volume.albedo();
+        let mut reflections = 0;
         loop {
             let (stop, travelled) = t.next_event(ray, rng);
             w.steps += travelled.steps;
@@ -483,6 +484,7 @@ impl ParticleTracer<'_> {
                 Stop::Collision(hit) => {
                     w.events += 1;
                     w.beta *= albedo;
+                    reflections = 0;
                     let u = hit.v.normalize();
                     self.light_to_event(t, hit.x, u, w, pixel, rng, out);
                     if !w.roulette(rng) || w.events >= super::particle::MAX_EVENTS {
@@ -491,7 +493,14 @@ impl ParticleTracer<'_> {
                     ray = t.scatter(hit.x, u, rng);
                 }
                 Stop::Boundary(end) => match Leg::leave(t, end, rng) {
-                    Leg::Inside(reflected) => ray = reflected,
+                    // given up (see `MAX_REFLECTIONS`)
+                    Leg::Inside(_) if reflections == super::particle::MAX_REFLECTIONS => {
+                        return None;
+                    }
+                    Leg::Inside(reflected) => {
+                        reflections += 1;
+                        ray = reflected;
+                    }
                     out => return Some(out),
                 },
                 Stop::Stuck => return None,

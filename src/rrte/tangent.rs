@@ -678,6 +678,7 @@ impl ParticleTracer<'_> {
         let derivatives = &self.scene.derivatives;
         let mut tracks = [0.0; MAX_TARGETS];
         let mut slopes: TrackSlopes = [[0.0; P]; MAX_TARGETS];
+        let mut reflections = 0;
         loop {
             let u = uniform(rng);
             tracks.fill(0.0);
@@ -728,9 +729,17 @@ impl ParticleTracer<'_> {
             if !collided {
                 match self.leave(t, sens, &mut ray, &mut tan, p, rng) {
                     Some(out_leg) => return Some(out_leg),
-                    None => continue,
+                    None if reflections == super::particle::MAX_REFLECTIONS => {
+                        out[self.total(Total::Unfinished)].re += p.weight;
+                        return None;
+                    }
+                    None => {
+                        reflections += 1;
+                        continue;
+                    }
                 }
             }
+            reflections = 0;
             p.events += 1;
             out[self.total(Total::Absorbed)].re += p.weight * (1.0 - albedo);
             p.weight *= albedo;
