@@ -467,7 +467,7 @@ fn light_reflected_inside_a_ball_before_its_first_event_agrees() {
 /// reflection inside the part a connection leaves; light reflected inside the plate reaches the
 /// cameras again only after two reflections (R² ≈ 0.2 %), which the connections through it leave
 /// out. Bidirectional tracing joins the ball's events to the cameras through the plate, and the
-/// cameras' rays traced through the plate to the lamp; its weights count both as connections.
+/// lamp to the events of camera rays traced through it; its weights count both as connections.
 /// The totals of a pinhole and an orthographic camera agree within 4 combined standard
 /// errors (about 4 % each). Particle tracing that dropped the connections meeting the shape again
 /// reads a tenth of them, and a connector that took the shape for index-matched (it once read `n`

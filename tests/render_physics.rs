@@ -176,24 +176,17 @@ fn every_photon_is_absorbed_escapes_or_is_reported() {
 #[test]
 fn light_trapped_in_a_clear_glass_cube_is_given_up_as_unfinished() {
     let n = 1.5;
-    let scene = RenderScene {
-        volume: Volume {
-            field: BoundedField::single(
-                Profile::Constant { n },
-                Bounds::Box {
-                    half: DVec3::splat(0.5),
-                },
-                1.0,
-            ),
-            sigma_s: 0.0,
-            sigma_a: 0.0,
-            scattering: Scattering::single(PhaseFunction::Isotropic),
-            density: None,
+    // the bare scene's clear volume, made a glass cube
+    let mut scene = bare_scene(0.01);
+    scene.volume.field = BoundedField::single(
+        Profile::Constant { n },
+        Bounds::Box {
+            half: DVec3::splat(0.5),
         },
-        light: Light::Point {
-            position: DVec3::new(0.1, 0.05, -0.02),
-        },
-        ..bare_scene(0.01)
+        1.0,
+    );
+    scene.light = Light::Point {
+        position: DVec3::new(0.1, 0.05, -0.02),
     };
     let (e, est) = render(&scene, 2_000, 5);
     let (x, sx) = value(&e, est.total(Total::Escaped));
