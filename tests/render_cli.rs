@@ -1188,3 +1188,69 @@ fn a_render_design_beyond_the_time_budget_is_refused() {
     }
     assert!(!dir.join("out").join("render_design.json").exists());
 }
+
+/// Several volumes: bad keys of a volume are named with its index, overlaps and what a scene of
+/// several volumes does not take are refused by key, and the example renders with its volumes
+/// echoed in `render.json`.
+#[test]
+fn several_volumes_are_checked_by_key_and_render() {
+    let dir = tmp("volumes");
+    std::fs::create_dir_all(&dir).unwrap();
+    let base = std::fs::read_to_string(config("render_volumes.toml")).unwrap();
+    let cases: &[(&str, &str, &str)] = &[
+        (
+            "radius = 0.6 }",
+            "radius = -0.6 }",
+            "volume[0].bounds.radius",
+        ),
+        (
+            "sigma_s = 0.4,",
+            "sigma_s = -0.4,",
+            "volume[2].medium.sigma_s",
+        ),
+        ("n = 1.33 }]", "n = -1.33 }]", "volume[2]"),
+        (
+            "center = [0.2, 0.0, 0.0]",
+            "center = [-0.9, 0.0, 0.0]",
+            "overlap",
+        ),
+        (
+            "center = [0.2, 0.0, 0.0]",
+            "center = [0.2, 0.0, nan]",
+            "volume[1].center",
+        ),
+        (
+            "n_out = 1.0 ",
+            "n_out = 1.0\nprofiles = [{ kind = \"constant\", n = 1.2 }] ",
+            "field",
+        ),
+        ("[light]", "[medium]\nsigma_s = 1.0\n\n[light]", "medium"),
+        (
+            "[light]",
+            "[modulation]\nkind = \"sinusoidal\"\n\n[light]",
+            "modulation",
+        ),
+        (
+            "reflections = 1",
+            "reflections = 1\nderivatives = [\"sigma_s\"]",
+            "render.derivatives",
+        ),
+        (
+            "kind = \"pinhole\"",
+            "kind = \"fluence\"\nname = \"p\"\nposition = [0.2, 0.0, 0.0]\n\n[[sensor]]\nkind = \"pinhole\"",
+            "sensor[0].kind",
+        ),
+        (
+            "kind = \"spot\"\nposition = [-0.8, -3.0, 1.2]",
+            "kind = \"spot\"\nposition = [-1.3, 0.0, 0.0]",
+            "light.position",
+        ),
+    ];
+    refused_all(&dir, &base, cases);
+    let out = dir.join("run");
+    render_ok(&config("render_volumes.toml"), &out, 300);
+    let r = results(&out);
+    assert_eq!(r["config"]["volume"].as_array().unwrap().len(), 3);
+    assert!(r["cameras"][0]["irradiance"]["mean"].as_f64().unwrap() > 0.0);
+    let _ = std::fs::remove_dir_all(dir);
+}

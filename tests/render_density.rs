@@ -60,6 +60,7 @@ fn slab(profile: Profile, sigma_s: f64, sigma_a: f64, g: f64) -> RenderScene {
             sigma_a,
             scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g }),
             density: Some(linear_density()),
+            parts: Vec::new(),
         },
         light: Light::Beam {
             center: DVec3::new(0.0, 0.0, -1.0),
@@ -283,6 +284,7 @@ fn a_uniform_density_renders_as_the_homogeneous_medium_with_reflections() {
             sigma_a: 0.1,
             scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g: 0.5 }),
             density: None,
+            parts: Vec::new(),
         },
         light: Light::Point {
             position: DVec3::new(0.1, -0.05, 0.15),

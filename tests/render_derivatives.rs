@@ -29,6 +29,7 @@ fn slab(n: f64, sigma_s: f64, sigma_a: f64, g: f64, derivatives: Vec<Param>) -> 
             sigma_a,
             scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g }),
             density: None,
+            parts: Vec::new(),
         },
         light: Light::Beam {
             center: DVec3::new(0.0, 0.0, -1.0),

@@ -28,6 +28,7 @@ fn scene(profile: Profile, light: Light, camera: Pinhole) -> RenderScene {
             sigma_a: 0.1,
             scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g: 0.5 }),
             density: None,
+            parts: Vec::new(),
         },
         light,
         pinholes: vec![camera],
@@ -225,6 +226,7 @@ fn fresnel_faces_agree() {
         sigma_a: 0.1,
         scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g: 0.5 }),
         density: None,
+        parts: Vec::new(),
     };
     let side = |direction: DVec3| {
         Camera::new(

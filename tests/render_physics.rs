@@ -35,6 +35,7 @@ fn slab_volume(
         sigma_a,
         scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g }),
         density: None,
+        parts: Vec::new(),
     }
 }
 
@@ -142,6 +143,7 @@ fn every_photon_is_absorbed_escapes_or_is_reported() {
         sigma_a: 0.0,
         scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g: 0.7 }),
         density: None,
+        parts: Vec::new(),
     };
     let scene = RenderScene {
         volume,
@@ -340,6 +342,7 @@ fn a_scattering_luneburg_lens_focuses_a_beam_on_its_antipode() {
         sigma_a: 0.0,
         scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g: 0.9 }),
         density: None,
+        parts: Vec::new(),
     };
     let screen = Sensor::new(
         "screen".into(),
@@ -387,6 +390,7 @@ fn a_beam_in_a_linear_gradient_tank_follows_the_closed_form_ray() {
         sigma_a: 0.01,
         scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g: 0.95 }),
         density: None,
+        parts: Vec::new(),
     };
     let y_exit = n0 / a * ((a * length / n0).cosh() - 1.0);
     let screen = Sensor::new(
@@ -423,6 +427,7 @@ fn probe_scene(profile: Profile, sigma_s: f64, g: f64, light: Light, probe: DVec
             sigma_a: 0.1 * sigma_s,
             scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g }),
             density: None,
+            parts: Vec::new(),
         },
         light,
         sensors: vec![],
@@ -671,6 +676,7 @@ fn orthographic_and_pinhole_cameras_see_the_intensity_a_collimated_detector_coun
         sigma_a: 0.1,
         scattering: Scattering::single(PhaseFunction::Isotropic),
         density: None,
+        parts: Vec::new(),
     };
     let mut detector = flux("collimated", 0.0);
     detector = Sensor::new(
@@ -780,6 +786,7 @@ fn ultrasonic_lens(n_max: f64) -> RenderScene {
             sigma_a: 0.0,
             scattering: Scattering::single(PhaseFunction::Isotropic),
             density: None,
+            parts: Vec::new(),
         },
         light: beam(-6.0, 0.4),
         sensors: vec![window],

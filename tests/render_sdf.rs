@@ -50,6 +50,7 @@ fn a_beam_crosses_both_arms_of_a_ring() {
                 sigma_a: 1.0,
                 scattering: Scattering::single(PhaseFunction::Isotropic),
                 density: None,
+                parts: Vec::new(),
             },
             light: Light::Beam {
                 center: DVec3::new(-2.0, 0.0, 0.0),
@@ -94,6 +95,7 @@ fn a_sampled_luneburg_sphere_renders_as_the_analytic_one() {
             sigma_a: 0.2,
             scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g: 0.5 }),
             density: None,
+            parts: Vec::new(),
         },
         light: Light::Beam {
             center: DVec3::new(0.0, 0.0, -2.0),
@@ -181,6 +183,7 @@ fn skipped_tests_change_no_flight() {
             sigma_a: 0.0,
             scattering: Scattering::single(PhaseFunction::Isotropic),
             density: None,
+            parts: Vec::new(),
         };
         let skipping = Flyer::new(&volume, 0.01, 100_000);
         let testing = Flyer::new(&volume, 0.01, 100_000).skipping_tests(false);
@@ -316,6 +319,7 @@ fn a_mesh_ball_renders_as_the_analytic_one() {
             sigma_a: 0.1,
             scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g: 0.5 }),
             density: None,
+            parts: Vec::new(),
         },
         light: Light::Beam {
             center: DVec3::new(0.0, 0.0, -2.0),

@@ -50,6 +50,7 @@ fn plate(spectrum: Spectrum) -> RenderScene {
             sigma_a: 0.0,
             scattering: Scattering::single(PhaseFunction::Isotropic),
             density: None,
+            parts: Vec::new(),
         },
         light: Light::Beam {
             center: DVec3::new(-5.0 * s / c, 0.0, -10.0),
@@ -224,6 +225,7 @@ fn a_mixture_at_one_line_is_the_field_at_that_line() {
             sigma_a: 0.05,
             scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g: 0.6 }),
             density: None,
+            parts: Vec::new(),
         },
         light: Light::Beam {
             center: DVec3::new(0.0, 0.0, -2.0),

@@ -32,6 +32,7 @@ fn scene(n: f64, sigma_s: f64, albedo: f64, x: f64) -> RenderScene {
             sigma_a: 0.1 * sigma_s,
             scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g: 0.5 }),
             density: None,
+            parts: Vec::new(),
         },
         light: Light::Beam {
             center: DVec3::new(x, 0.0, 2.0),

@@ -394,6 +394,7 @@ fn flight_rates(quick: bool) -> String {
         sigma_a: 0.0,
         scattering: Scattering::single(PhaseFunction::Isotropic),
         density: None,
+        parts: Vec::new(),
     };
     let volumes = [
         (

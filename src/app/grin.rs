@@ -106,6 +106,7 @@ pub fn run_design(
             let (lo, hi) = g.corners();
             lo.abs().min(hi.abs()).min_element()
         }
+        crate::eikonal::Bounds::Parts(_) => res.field.bounds.clearance(glam::DVec3::ZERO).abs(),
     };
     let profile = radial_profile(&res.field, r_max * 0.999, 41);
     let g = &res.grid;

@@ -185,6 +185,22 @@ fn bounds_text(bounds: &crate::eikonal::Bounds) -> String {
             2.0 * half_length
         ),
         Bounds::Box { half } => format!("a box of {:?}", (*half * 2.0).to_array()),
+        Bounds::Parts(parts) => {
+            let each: Vec<String> = parts
+                .iter()
+                .map(|p| {
+                    let c = p.center;
+                    format!(
+                        "{} at [{:.3}, {:.3}, {:.3}]",
+                        bounds_text(&p.shape),
+                        c.x,
+                        c.y,
+                        c.z
+                    )
+                })
+                .collect();
+            format!("{} volumes: {}", parts.len(), each.join("; "))
+        }
         Bounds::Sdf(sdf) => {
             let g = sdf.grid();
             let (lo, hi) = sdf.corners();

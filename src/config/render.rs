@@ -3,12 +3,13 @@
 //! settings → [`RenderScene`].
 
 use super::scene::{MediumConfig, finite, positive, unit};
+use super::trace::BoundsConfig;
 use super::trace::{FieldConfig, check_positive};
 use super::{ConfigError, err};
-use crate::eikonal::Bounds;
+use crate::eikonal::{Bounds, Part};
 use crate::medium::{PhaseFunction, Scattering};
 use crate::rrte::{
-    Camera, Connections, Density, Derivative, Dispersion, FieldDerivative, Filter, Light,
+    Bulk, Camera, Connections, Density, Derivative, Dispersion, FieldDerivative, Filter, Light,
     MAX_DERIVATIVES, MAX_TARGETS, Material, Modulation, Probe, Region, RenderScene, Sensor,
     SensorKind, Spectrum, Surface, Tracing, Transient, Volume,
 };
@@ -22,6 +23,10 @@ pub struct RenderConfig {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub wavelength: Option<f64>,
     pub field: FieldConfig,
+    /// Several disjoint volumes instead of one (`[field]` then gives `n_out` alone, and
+    /// `[medium]` is left out): each its own shape, index profiles and bulk, placed at its centre.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub volume: Vec<VolumeConfig>,
     /// Bulk scattering inside the field's bounds (absent: a clear volume).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub medium: Option<MediumConfig>,
@@ -80,6 +85,89 @@ pub struct RenderDesignConfig {
     /// Photons of the renders at a fresh seed that check the design against the start.
     #[serde(default = "default_verify_photons")]
     pub verify_photons: u64,
+}
+
+/// `[[volume]]`: one of several disjoint volumes of a scene. Its bounds and profiles are given as
+/// if it sat at the origin, and moved to `center`.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct VolumeConfig {
+    #[serde(default)]
+    pub center: [f64; 3],
+    pub bounds: super::trace::BoundsConfig,
+    /// Profiles summed inside the bounds.
+    pub profiles: Vec<super::trace::ProfileConfig>,
+    /// Bulk scattering inside (absent: clear).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub medium: Option<MediumConfig>,
+}
+
+/// The coefficients and scattering law of a render's `[medium]` keys (at `wavelength`, NaN if
+/// none is given).
+fn medium_bulk(m: &MediumConfig, wavelength: f64) -> Result<(f64, f64, Scattering), ConfigError> {
+    for (key, given) in [
+        ("box", m.box_size.is_some()),
+        ("slab", m.slab.is_some()),
+        ("slab_window", m.slab_window.is_some()),
+    ] {
+        if given {
+            return err(format!(
+                "medium.{key}: a render's volume is the field's bounds (field.bounds); leave {key} out"
+            ));
+        }
+    }
+    let bulk = m.bulk(wavelength)?;
+    if !(bulk.0.is_finite() && bulk.1.is_finite()) {
+        return err(
+            "wavelength: missing; Mie spheres need the wavelength (in the scene's length unit)",
+        );
+    }
+    Ok(bulk)
+}
+
+/// Volumes must not overlap: no sample of one (on a grid over its bounding box) lies in another.
+fn check_apart(parts: &[Part]) -> Result<(), ConfigError> {
+    let m = 24;
+    for (i, a) in parts.iter().enumerate() {
+        let Some(half) = a.shape.half_extent() else {
+            continue;
+        };
+        for u in 0..=m {
+            for v in 0..=m {
+                for w in 0..=m {
+                    let f = DVec3::new(u as f64, v as f64, w as f64) / m as f64 * 2.0 - DVec3::ONE;
+                    let local = f * half;
+                    if !a.shape.contains(local) {
+                        continue;
+                    }
+                    let x = a.center + local;
+                    if let Some(j) = (0..parts.len())
+                        .find(|&j| j != i && parts[j].shape.contains(x - parts[j].center))
+                    {
+                        return err(format!(
+                            "volume[{i}] and volume[{j}] overlap (both hold {:?}): volumes must lie apart",
+                            x.to_array()
+                        ));
+                    }
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The most volumes a scene holds (each is asked which holds a point at every step).
+const MAX_VOLUMES: usize = 16;
+
+/// An error of `[field]` or `[medium]` keys, told of `[[volume]]` entry `i`.
+fn of_volume(i: usize, e: ConfigError) -> ConfigError {
+    let key = format!("volume[{i}]");
+    ConfigError(
+        e.0.replace("field.", &format!("{key}."))
+            .replace("field:", &format!("{key}:"))
+            .replace("medium.", &format!("{key}.medium."))
+            .replace("medium:", &format!("{key}.medium:")),
+    )
 }
 
 /// A designed transducer position keeps its element's line outside the volume over its whole
@@ -652,98 +740,10 @@ const MAX_BINS: u64 = 10_000;
 impl RenderConfig {
     /// The scene these keys describe, every value checked.
     pub fn build(&self) -> Result<RenderScene, ConfigError> {
-        let mut field = self.field.build()?;
-        if field.profiles.is_empty() {
-            return err("field.profiles = []: give at least one profile");
-        }
-        if field.bounds == Bounds::Everywhere {
-            return err(
-                "field.bounds: a render needs a bounded volume (kind = \"sphere\", \"box\" or \"cylinder\") for light to leave",
-            );
-        }
-        let modulation = match &self.modulation {
-            None => None,
-            Some(m) => {
-                let base = field.clone();
-                let ultrasonic = field.profiles.iter().any(|p| {
-                    matches!(
-                        p,
-                        crate::eikonal::Profile::Ultrasonic { .. }
-                            | crate::eikonal::Profile::PhasedArray { .. }
-                    )
-                });
-                if !ultrasonic {
-                    return err(
-                        "modulation: the field has no ultrasonic profile or phased array whose index could oscillate",
-                    );
-                }
-                match *m {
-                    ModulationConfig::Sinusoidal {} => {
-                        // every instant must give a valid field: check a period's worth of them
-                        for i in 0..8 {
-                            let omega_t = std::f64::consts::TAU * i as f64 / 8.0;
-                            crate::rrte::particle::modulate(&mut field, &base, omega_t);
-                            check_positive(&field)?;
-                        }
-                        field = base;
-                        Some(Modulation::Sinusoidal)
-                    }
-                    ModulationConfig::Strobed { phase_deg } => {
-                        if !phase_deg.is_finite() || phase_deg.abs() > 360.0 {
-                            return err(format!(
-                                "modulation.phase_deg = {phase_deg}: must be within [-360, 360]"
-                            ));
-                        }
-                        crate::rrte::particle::modulate(&mut field, &base, phase_deg.to_radians());
-                        None
-                    }
-                }
-            }
-        };
-        check_positive(&field)?;
-        field.n_out = positive("field.n_out", field.n_out)?;
-        let (sigma_s, sigma_a, scattering) = match &self.medium {
-            None => (0.0, 0.0, Scattering::single(PhaseFunction::Isotropic)),
-            Some(m) => {
-                for (key, given) in [
-                    ("box", m.box_size.is_some()),
-                    ("slab", m.slab.is_some()),
-                    ("slab_window", m.slab_window.is_some()),
-                ] {
-                    if given {
-                        return err(format!(
-                            "medium.{key}: a render's volume is the field's bounds (field.bounds); leave {key} out"
-                        ));
-                    }
-                }
-                let wavelength = match self.wavelength {
-                    Some(w) => positive("wavelength", w)?,
-                    None => f64::NAN,
-                };
-                let bulk = m.bulk(wavelength)?;
-                if !(bulk.0.is_finite() && bulk.1.is_finite()) {
-                    return err(
-                        "wavelength: missing; Mie spheres need the wavelength (in the scene's length unit)",
-                    );
-                }
-                bulk
-            }
-        };
-        let density = match &self.density {
-            None => None,
-            Some(_) if self.medium.is_none() => {
-                return err(
-                    "density: the volume has no [medium] whose coefficients it could scale",
-                );
-            }
-            Some(d) => Some(d.build(&field)?),
-        };
-        let volume = Volume {
-            field,
-            sigma_s,
-            sigma_a,
-            scattering,
-            density,
+        let (volume, modulation) = if self.volume.is_empty() {
+            self.one_volume()?
+        } else {
+            (self.several_volumes()?, None)
         };
         let light = self.light()?;
         if self.sensor.len() > MAX_SENSORS {
@@ -845,6 +845,11 @@ impl RenderConfig {
                     ..Camera::new(name.clone(), direction, center, *size, pixels)
                 });
             } else if let SensorConfig::Fluence { name, position } = s {
+                if !volume.parts.is_empty() {
+                    return err(format!(
+                        "sensor[{i}].kind = \"fluence\": not with [[volume]]: a probe's connections run inside its own volume and would miss the light reaching it from the others; use a target (kind = \"target\") instead"
+                    ));
+                }
                 let position = finite(&format!("sensor[{i}].position"), *position)?;
                 if !volume.field.bounds.contains(position) {
                     return err(format!(
@@ -962,6 +967,192 @@ impl RenderConfig {
             self.check_path_tracing(&scene)?;
         }
         Ok(scene)
+    }
+
+    /// The volume of `[field]`, `[medium]` and `[density]`, and how its field is modulated.
+    fn one_volume(&self) -> Result<(Volume, Option<Modulation>), ConfigError> {
+        let mut field = self.field.build()?;
+        if field.profiles.is_empty() {
+            return err("field.profiles = []: give at least one profile");
+        }
+        if field.bounds == Bounds::Everywhere {
+            return err(
+                "field.bounds: a render needs a bounded volume (kind = \"sphere\", \"box\" or \"cylinder\") for light to leave",
+            );
+        }
+        let modulation = match &self.modulation {
+            None => None,
+            Some(m) => {
+                let base = field.clone();
+                let ultrasonic = field.profiles.iter().any(|p| {
+                    matches!(
+                        p,
+                        crate::eikonal::Profile::Ultrasonic { .. }
+                            | crate::eikonal::Profile::PhasedArray { .. }
+                    )
+                });
+                if !ultrasonic {
+                    return err(
+                        "modulation: the field has no ultrasonic profile or phased array whose index could oscillate",
+                    );
+                }
+                match *m {
+                    ModulationConfig::Sinusoidal {} => {
+                        // every instant must give a valid field: check a period's worth of them
+                        for i in 0..8 {
+                            let omega_t = std::f64::consts::TAU * i as f64 / 8.0;
+                            crate::rrte::particle::modulate(&mut field, &base, omega_t);
+                            check_positive(&field)?;
+                        }
+                        field = base;
+                        Some(Modulation::Sinusoidal)
+                    }
+                    ModulationConfig::Strobed { phase_deg } => {
+                        if !phase_deg.is_finite() || phase_deg.abs() > 360.0 {
+                            return err(format!(
+                                "modulation.phase_deg = {phase_deg}: must be within [-360, 360]"
+                            ));
+                        }
+                        crate::rrte::particle::modulate(&mut field, &base, phase_deg.to_radians());
+                        None
+                    }
+                }
+            }
+        };
+        check_positive(&field)?;
+        field.n_out = positive("field.n_out", field.n_out)?;
+        let (sigma_s, sigma_a, scattering) = match &self.medium {
+            None => (0.0, 0.0, Scattering::single(PhaseFunction::Isotropic)),
+            Some(m) => {
+                let wavelength = match self.wavelength {
+                    Some(w) => positive("wavelength", w)?,
+                    None => f64::NAN,
+                };
+                medium_bulk(m, wavelength)?
+            }
+        };
+        let density = match &self.density {
+            None => None,
+            Some(_) if self.medium.is_none() => {
+                return err(
+                    "density: the volume has no [medium] whose coefficients it could scale",
+                );
+            }
+            Some(d) => Some(d.build(&field)?),
+        };
+        let volume = Volume {
+            field,
+            sigma_s,
+            sigma_a,
+            scattering,
+            density,
+            parts: Vec::new(),
+        };
+        Ok((volume, modulation))
+    }
+
+    /// The volumes of `[[volume]]`, as one volume of several parts.
+    fn several_volumes(&self) -> Result<Volume, ConfigError> {
+        let n = self.volume.len();
+        if n > MAX_VOLUMES {
+            return err(format!("volume: {n} volumes; at most {MAX_VOLUMES}"));
+        }
+        if !self.field.profiles.is_empty() || self.field.bounds != BoundsConfig::Everywhere {
+            return err(
+                "field: with [[volume]], each volume gives its own bounds and profiles; [field] gives n_out alone",
+            );
+        }
+        let refused = [
+            (
+                "medium",
+                self.medium.is_some(),
+                "each [[volume]] gives its own medium",
+            ),
+            (
+                "modulation",
+                self.modulation.is_some(),
+                "an ultrasonic field is modulated in a scene of one volume ([field])",
+            ),
+            (
+                "spectrum",
+                self.spectrum.is_some(),
+                "dispersion is rendered in a scene of one volume ([field])",
+            ),
+            (
+                "design",
+                self.design.is_some(),
+                "a design moves the field of a scene of one volume ([field])",
+            ),
+            (
+                "render.derivatives",
+                !self.render.derivatives.is_empty(),
+                "derivatives are estimated in a scene of one volume ([field])",
+            ),
+        ];
+        for (key, given, why) in refused {
+            if given {
+                return err(format!("{key}: not with [[volume]]: {why}"));
+            }
+        }
+        let wavelength = self
+            .wavelength
+            .map_or(Ok(f64::NAN), |w| positive("wavelength", w))?;
+        let mut parts = Vec::with_capacity(n);
+        let mut bulks = Vec::with_capacity(n);
+        for (i, v) in self.volume.iter().enumerate() {
+            let center = finite(&format!("volume[{i}].center"), v.center)?;
+            if v.profiles.is_empty() {
+                return err(format!(
+                    "volume[{i}].profiles = []: give at least one profile"
+                ));
+            }
+            if v.bounds == BoundsConfig::Everywhere {
+                return err(format!(
+                    "volume[{i}].bounds: a volume needs bounds (kind = \"sphere\", \"box\", \"cylinder\" or \"sdf\")"
+                ));
+            }
+            let keys = FieldConfig {
+                profiles: v.profiles.clone(),
+                bounds: v.bounds.clone(),
+                n_out: self.field.n_out,
+            };
+            let field = keys.build().map_err(|e| of_volume(i, e))?;
+            check_positive(&field).map_err(|e| of_volume(i, e))?;
+            parts.push(Part {
+                shape: field.bounds,
+                center,
+                profiles: field.profiles,
+            });
+            bulks.push(match &v.medium {
+                None => Bulk {
+                    sigma_s: 0.0,
+                    sigma_a: 0.0,
+                    scattering: Scattering::single(PhaseFunction::Isotropic),
+                },
+                Some(m) => {
+                    let (sigma_s, sigma_a, scattering) =
+                        medium_bulk(m, wavelength).map_err(|e| of_volume(i, e))?;
+                    Bulk {
+                        sigma_s,
+                        sigma_a,
+                        scattering,
+                    }
+                }
+            });
+        }
+        check_apart(&parts)?;
+        let n_out = positive("field.n_out", self.field.n_out)?;
+        let mut volume = Volume::several(parts.into_iter().zip(bulks).collect(), n_out);
+        volume.density = match &self.density {
+            None => None,
+            Some(_) if volume.parts.iter().all(|b| b.sigma_t() == 0.0) => {
+                return err(
+                    "density: no [[volume]] has a medium whose coefficients it could scale",
+                );
+            }
+            Some(d) => Some(d.build(&volume.field)?),
+        };
+        Ok(volume)
     }
 
     /// The parameters `render.derivatives` names, checked: medium parameters (`sigma_s`, `g`, …)
@@ -1315,6 +1506,15 @@ impl RenderConfig {
         if matches!(scene.light, Light::FocusedBeam { .. }) {
             return err(format!(
                 "light.focus: a focused beam's directions are a delta and its rays converge, which render.estimator = \"{name}\" does not connect; use render.estimator = \"particle\""
+            ));
+        }
+        if let Light::Point { position } | Light::Spot { position, .. } = scene.light
+            && !scene.volume.parts.is_empty()
+            && scene.volume.field.bounds.contains(position)
+        {
+            return err(format!(
+                "light.position = {:?}: inside one of several volumes, where render.estimator = \"{name}\" reaches it only from that volume; use render.estimator = \"particle\"",
+                position.to_array()
             ));
         }
         if scene.tracing == Tracing::Bidirectional {

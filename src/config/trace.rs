@@ -19,6 +19,7 @@ pub struct TraceConfig {
 #[serde(deny_unknown_fields)]
 pub struct FieldConfig {
     /// Profiles summed inside the bounds.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub profiles: Vec<ProfileConfig>,
     #[serde(default)]
     pub bounds: BoundsConfig,
@@ -953,7 +954,7 @@ impl FieldConfig {
             Bounds::Everywhere => None,
             Bounds::Sphere { radius } | Bounds::Cylinder { radius, .. } => Some(radius),
             Bounds::Box { half } => Some(half.x.hypot(half.y)),
-            Bounds::Sdf(_) => bounds.half_extent().map(|h| h.x.hypot(h.y)),
+            Bounds::Sdf(_) | Bounds::Parts(_) => bounds.half_extent().map(|h| h.x.hypot(h.y)),
         };
         if let Some(r_max) = r_max {
             for (i, p) in profiles.iter().enumerate() {

@@ -87,6 +87,68 @@ pub enum Profile {
         n_core: f64,
         depth: f64,
     },
+    /// Several disjoint volumes, each with its own profiles (summed, in its own frame: at
+    /// `x − center`): the index of whichever part holds `x` (the nearest where round-off puts `x`
+    /// just outside them all). The same parts bound the field ([`Bounds::Parts`]).
+    Parts(Arc<[Part]>),
+}
+
+/// One of several disjoint volumes of a field: its shape and index profiles, both centred on
+/// `center` (each is given as if the part sat at the origin).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Part {
+    /// A sphere, box, cylinder or signed-distance shape (not `Everywhere`, not `Parts`).
+    pub shape: Bounds,
+    pub center: DVec3,
+    pub profiles: Vec<Profile>,
+}
+
+impl Part {
+    /// How deep `x` lies inside the part's shape: positive inside (a lower bound on the distance
+    /// to its surface), negative outside; the part holding a point, or the nearest, has the
+    /// largest depth among disjoint parts.
+    #[inline]
+    fn depth(&self, x: DVec3) -> f64 {
+        let local = x - self.center;
+        match self.shape {
+            Bounds::Sdf(ref g) => {
+                let (lo, hi) = g.corners();
+                let off_grid = (lo - local).max(local - hi).max(DVec3::ZERO).length();
+                -g.grid().value(local.clamp(lo, hi)) - off_grid
+            }
+            ref shape => shape.clearance(local),
+        }
+    }
+
+    /// The sum of the part's profiles at `x` (scene coordinates).
+    pub fn index(&self, x: DVec3) -> f64 {
+        self.eval(x).0
+    }
+
+    /// `(n, ∇n, ∇²n)` of the part's profiles at `x` (scene coordinates).
+    #[inline]
+    fn eval(&self, x: DVec3) -> (f64, DVec3, DMat3) {
+        let local = x - self.center;
+        self.profiles
+            .iter()
+            .fold((0.0, DVec3::ZERO, DMat3::ZERO), |(n, g, h), p| {
+                let (pn, pg, ph) = p.eval(local);
+                (n + pn, g + pg, h + ph)
+            })
+    }
+}
+
+/// The index of the part of `parts` that holds `x`, or the nearest one.
+#[inline]
+pub fn part_at(parts: &[Part], x: DVec3) -> usize {
+    let mut best = (0, f64::NEG_INFINITY);
+    for (k, p) in parts.iter().enumerate() {
+        let depth = p.depth(x);
+        if depth > best.1 {
+            best = (k, depth);
+        }
+    }
+    best.0
 }
 
 /// `(u, q(u) = 2u − u², q'(u), q''(u))` of [`Profile::SdfLuneburg`] at signed distance `d`.
@@ -129,6 +191,19 @@ impl Profile {
             Profile::SphericalPolynomial { .. } => "spherical_polynomial",
             Profile::Grid(_) => "grid",
             Profile::SdfLuneburg { .. } => "sdf_luneburg",
+            Profile::Parts(_) => "parts",
+        }
+    }
+
+    /// Whether `n` is constant wherever the profile applies (in each part, for parts): rays are
+    /// straight there.
+    pub fn is_constant(&self) -> bool {
+        match self {
+            Profile::Constant { .. } => true,
+            Profile::Parts(parts) => parts
+                .iter()
+                .all(|p| p.profiles.iter().all(Profile::is_constant)),
+            _ => false,
         }
     }
 
@@ -191,6 +266,7 @@ impl Profile {
                 (n0 + n_max * h.u, h.grad * n_max, h.hessian * n_max)
             }
             Profile::PhasedArray { ref array, omega_t } => array.eval(x, omega_t),
+            Profile::Parts(ref parts) => parts[part_at(parts, x)].eval(x),
             Profile::RadialPolynomial {
                 n0,
                 ref coefficients,
@@ -271,6 +347,9 @@ pub enum Bounds {
     },
     /// Any closed shape, by its signed distance on a grid (paper 002, Sec. 5).
     Sdf(Arc<SdfGrid>),
+    /// Several disjoint volumes, each placed at its centre: the region is their union (not
+    /// convex: a ray leaving one part may enter another).
+    Parts(Arc<[Part]>),
 }
 
 impl Bounds {
@@ -284,6 +363,7 @@ impl Bounds {
             } => x.x * x.x + x.y * x.y <= radius * radius && x.z.abs() <= half_length,
             Bounds::Box { half } => x.abs().cmple(half).all(),
             Bounds::Sdf(ref g) => g.contains(x),
+            Bounds::Parts(ref parts) => parts.iter().any(|p| p.shape.contains(x - p.center)),
         }
     }
 
@@ -293,6 +373,9 @@ impl Bounds {
     pub fn inside_clearance(&self, x: DVec3) -> Option<f64> {
         match *self {
             Bounds::Sdf(ref g) => g.inside_clearance(x),
+            Bounds::Parts(ref parts) => parts
+                .iter()
+                .find_map(|p| p.shape.inside_clearance(x - p.center)),
             _ => self.contains(x).then(|| self.clearance(x)),
         }
     }
@@ -310,19 +393,40 @@ impl Bounds {
             } => (radius - x.x.hypot(x.y)).min(half_length - x.z.abs()),
             Bounds::Box { half } => (half - x.abs()).min_element(),
             Bounds::Sdf(ref g) => g.clearance(x),
+            // the parts are disjoint: the surface nearest a point inside one is that part's
+            Bounds::Parts(ref parts) => {
+                let p = &parts[part_at(parts, x)];
+                p.shape.clearance(x - p.center)
+            }
         }
     }
 
     /// Whether a straight line meets the region in one stretch at most (all but signed-distance
     /// shapes): a ray that has left it cannot come back.
     pub fn is_convex(&self) -> bool {
-        !matches!(self, Bounds::Sdf(_))
+        match self {
+            Bounds::Sdf(_) => false,
+            Bounds::Parts(parts) => parts.len() == 1 && parts[0].shape.is_convex(),
+            _ => true,
+        }
+    }
+
+    /// The parts of a region made of several ([`Bounds::Parts`]).
+    pub fn parts(&self) -> Option<&[Part]> {
+        match self {
+            Bounds::Parts(parts) => Some(parts),
+            _ => None,
+        }
     }
 
     /// The parameter where `o + t w` (unit `w`, `o` inside) leaves the region.
     pub fn exit(&self, o: DVec3, w: DVec3) -> Option<f64> {
         match self {
             Bounds::Sdf(g) => g.exit(o, w),
+            Bounds::Parts(parts) => {
+                let p = &parts[part_at(parts, o)];
+                p.shape.exit(o - p.center, w)
+            }
             _ => self.interval(o, w).map(|(_, t1)| t1),
         }
     }
@@ -330,6 +434,24 @@ impl Bounds {
     /// Where the straight ray from `x` along unit `d`, which has just left the region at `x`,
     /// enters it again (never for convex regions).
     pub fn reentry(&self, x: DVec3, d: DVec3) -> Option<f64> {
+        if let Bounds::Parts(parts) = self {
+            // the nearest part ahead: a convex one only if it starts past round-off of the
+            // surface just left (which a convex part left has behind it or at the start)
+            return parts
+                .iter()
+                .filter_map(|p| {
+                    let local = x - p.center;
+                    if !p.shape.is_convex() {
+                        return p.shape.reentry(local, d);
+                    }
+                    let size = p.shape.half_extent().map_or(1.0, |h| h.max_element());
+                    let skip = 1e-9 * (size + local.length());
+                    p.shape
+                        .interval(local, d)
+                        .and_then(|(t0, _)| (t0 > skip).then_some(t0))
+                })
+                .min_by(f64::total_cmp);
+        }
         let Bounds::Sdf(g) = self else {
             return None;
         };
@@ -355,6 +477,10 @@ impl Bounds {
                 let (lo, hi) = g.corners();
                 Some(lo.abs().max(hi.abs()))
             }
+            Bounds::Parts(ref parts) => parts
+                .iter()
+                .map(|p| p.shape.half_extent().map(|h| p.center.abs() + h))
+                .try_fold(DVec3::ZERO, |acc, h| h.map(|h| acc.max(h))),
         }
     }
 
@@ -385,6 +511,10 @@ impl Bounds {
                 Some(n)
             }
             Bounds::Sdf(ref g) => Some(g.normal(x)),
+            Bounds::Parts(ref parts) => {
+                let p = &parts[part_at(parts, x)];
+                p.shape.normal(x - p.center)
+            }
         }
     }
 
@@ -430,6 +560,12 @@ impl Bounds {
                 (t0 < t1).then_some((t0, t1))
             }
             Bounds::Sdf(ref g) => g.interval(o, w),
+            // the part the ray is in, or the first it meets
+            Bounds::Parts(ref parts) => parts
+                .iter()
+                .filter_map(|p| p.shape.interval(o - p.center, w))
+                .filter(|&(_, t1)| t1 > 0.0)
+                .min_by(|a, b| a.0.total_cmp(&b.0)),
         }
     }
 }
@@ -471,22 +607,35 @@ impl BoundedField {
             .bounds
             .half_extent()
             .map_or(0.0, |h| (h.x * h.x + h.y * h.y).sqrt());
-        self.profiles
-            .iter()
-            .map(|p| match p {
-                Profile::Ultrasonic { k_r, m, .. } => {
-                    super::bessel::nodes(k_r.abs() * radius, *m) as f64
-                }
-                // an element's four Bessel functions cost a few simple profiles
-                Profile::PhasedArray { array, .. } => 4.0 * array.elements.len() as f64,
-                Profile::Grid(g) => match g.interp {
-                    super::grid::Interp::Tricubic => 64.0,
-                    super::grid::Interp::Trilinear => 8.0,
-                },
-                _ => 1.0,
-            })
-            .sum()
+        profiles_cost(&self.profiles, radius)
     }
+}
+
+/// [`BoundedField::evaluation_cost`] of `profiles` within `radius` of the axis.
+fn profiles_cost(profiles: &[Profile], radius: f64) -> f64 {
+    profiles
+        .iter()
+        .map(|p| match p {
+            Profile::Ultrasonic { k_r, m, .. } => {
+                super::bessel::nodes(k_r.abs() * radius, *m) as f64
+            }
+            // an element's four Bessel functions cost a few simple profiles
+            Profile::PhasedArray { array, .. } => 4.0 * array.elements.len() as f64,
+            Profile::Grid(g) => match g.interp {
+                super::grid::Interp::Tricubic => 64.0,
+                super::grid::Interp::Trilinear => 8.0,
+            },
+            // finding the part, then its own profiles
+            Profile::Parts(parts) => parts
+                .iter()
+                .map(|part| {
+                    let r = part.shape.half_extent().map_or(0.0, |h| h.x.hypot(h.y));
+                    parts.len() as f64 * 0.5 + profiles_cost(&part.profiles, r)
+                })
+                .fold(0.0, f64::max),
+            _ => 1.0,
+        })
+        .sum()
 }
 
 impl IndexField for BoundedField {
@@ -663,6 +812,7 @@ impl Profile {
             Profile::Grid(_) => &[],
             Profile::PhasedArray { array, .. } => return array.param_index(name),
             Profile::SdfLuneburg { .. } => &["n_surface", "n_core", "depth"],
+            Profile::Parts(_) => &[],
         };
         names.iter().position(|n| *n == name)
     }

@@ -88,7 +88,7 @@ impl Vertex {
     fn rho_towards(&self, volume: &Volume, d: DVec3) -> f64 {
         match self.facing {
             Some(n) => lambert(n, d),
-            None => volume.scattering.eval(self.arrive.dot(d)),
+            None => volume.scattering_at(self.x).eval(self.arrive.dot(d)),
         }
     }
 }
@@ -110,7 +110,9 @@ fn crosses_after_mirror(way: Way, inside: f64) -> bool {
 #[derive(Clone, Copy, Debug)]
 struct Segment {
     /// `e^{−σ_t ℓ}/ℓ²` over its geometric length (inside; `ℓ` counts the straight stretch
-    /// outside too), without the `1/ℓ²` from a beam or an orthographic camera.
+    /// outside too), without the `1/ℓ²` from a beam or an orthographic camera. Through several
+    /// volumes, `σ_t` is the smallest of theirs ([`Volume::sigma_t`]): the weights stay unbiased
+    /// as long as every strategy sees the same densities.
     g: f64,
     /// `|cos θ|` at its start and at its end where they lie on a surface (1 elsewhere): the
     /// density per unit area there is the solid angle's times `g` times it.
@@ -688,7 +690,6 @@ impl ParticleTracer<'_> {
     ) {
         vertices.clear();
         let volume = t.flyer.volume;
-        let albedo = volume.albedo();
         let n_out = volume.field.n_out;
         let matched = t.connector.matched();
         let (mut beta, mut opl, mut steps) = (1.0, 0.0, 0);
@@ -797,7 +798,7 @@ impl ParticleTracer<'_> {
             inside += travelled.length;
             match stop {
                 Stop::Collision(hit) => {
-                    beta *= albedo;
+                    beta *= volume.albedo_at(hit.x);
                     let first = vertices.is_empty();
                     let u = hit.v.normalize();
                     let segment = Segment::new(
@@ -819,14 +820,14 @@ impl ParticleTracer<'_> {
                     (inside, outside, met) = (0.0, 0.0, Meetings::default());
                     (began_inside, cos_start) = (true, 1.0);
                     if start.photon {
-                        let phase = |d: DVec3| volume.scattering.eval(u.dot(d));
+                        let phase = |d: DVec3| volume.scattering_at(hit.x).eval(u.dot(d));
                         self.connect_probes(t, hit.x, beta, opl, phase, rng, out);
                     }
                     if !roulette(&mut beta, rng) || vertices.len() >= MAX_EVENTS {
                         break;
                     }
                     let next = t.scatter(hit.x, u, rng);
-                    let rho = volume.scattering.eval(u.dot(next.v.normalize()));
+                    let rho = volume.scattering_at(hit.x).eval(u.dot(next.v.normalize()));
                     if let Some(last) = vertices.last_mut() {
                         last.rho = rho;
                     }

@@ -94,6 +94,20 @@ impl Exit {
     pub fn first_length(&self) -> f64 {
         self.length - self.again.parts().iter().map(|p| p.2).sum::<f64>()
     }
+
+    /// `e^{−∫σ_t}` along the path in a homogeneous `volume`: `e^{−σ_t L}`, or where the bounds
+    /// are several volumes, each stretch inside at its own part's `σ_t`.
+    pub fn attenuation(&self, volume: &Volume) -> f64 {
+        if volume.parts.is_empty() {
+            return (-volume.sigma_t() * self.length).exp();
+        }
+        let first = volume.sigma_t_at(self.inside_from) * self.first_length();
+        let again = self.again.parts().iter();
+        (-again.fold(first, |depth, &(y, _, length)| {
+            depth + volume.sigma_t_at(y) * length
+        }))
+        .exp()
+    }
 }
 
 /// Parts of a non-convex volume that a path through its surface enters again: each part's entry
@@ -269,9 +283,7 @@ impl<'v> Connector<'v> {
                 max_steps,
             },
             straight: volume.homogeneous(),
-            // the constant inside, read without the bounds (which need not hold the origin)
-            matched: volume.homogeneous()
-                && volume.field.eval_inside(DVec3::ZERO).0 == volume.field.n_out,
+            matched: volume.homogeneous() && volume.index_matched(),
             tolerance: 1e-9 * size,
             max_iterations: 40,
             polish: false,
@@ -1578,6 +1590,7 @@ mod tests {
             sigma_a: 0.0,
             scattering: Scattering::single(PhaseFunction::Isotropic),
             density: None,
+            parts: Vec::new(),
         }
     }
 

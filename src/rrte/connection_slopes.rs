@@ -174,11 +174,17 @@ impl Vertex {
     }
 }
 
-/// The intensity per unit power a vertex with incoming direction `w_in` (`None`: the light's own
-/// point) sends along unit `d`: the bulk phase function of `volume`, or the light's intensity.
-pub(super) fn emitted(scene: &RenderScene, volume: &Volume, w_in: Option<DVec3>, d: DVec3) -> f64 {
+/// The intensity per unit power a vertex at `x` with incoming direction `w_in` (`None`: the
+/// light's own point) sends along unit `d`: the bulk phase function of `volume` there, or the
+/// light's intensity.
+pub(super) fn emitted(
+    scene: &RenderScene,
+    volume: &Volume,
+    (x, w_in): (DVec3, Option<DVec3>),
+    d: DVec3,
+) -> f64 {
     match w_in {
-        Some(w) => volume.scattering.eval(w.dot(d)),
+        Some(w) => volume.scattering_at(x).eval(w.dot(d)),
         None => scene.light.intensity(d),
     }
 }
@@ -192,11 +198,17 @@ fn polished<'v>(scene: &'v RenderScene, volume: &'v Volume) -> Connector<'v> {
 }
 
 impl ParticleTracer<'_> {
-    /// What a vertex with incoming direction `w_in` and power `weight` sends along the path `c`
-    /// through `volume` (homogeneous): `weight · emit · e^{−σ_t L} · R / (dA⊥/dω)`.
-    fn carried(&self, volume: &Volume, w_in: Option<DVec3>, weight: f64, c: &Connection) -> f64 {
-        let emit = emitted(self.scene, volume, w_in, c.direction);
-        weight * emit * (-volume.sigma_t() * c.length).exp() * c.reflectance / c.spread
+    /// What a vertex at `x` with incoming direction `w_in` and power `weight` sends along the
+    /// path `c` through `volume` (homogeneous): `weight · emit · e^{−σ_t L} · R / (dA⊥/dω)`.
+    fn carried(
+        &self,
+        volume: &Volume,
+        (x, w_in): (DVec3, Option<DVec3>),
+        weight: f64,
+        c: &Connection,
+    ) -> f64 {
+        let emit = emitted(self.scene, volume, (x, w_in), c.direction);
+        weight * emit * (-volume.sigma_t_at(x) * c.length).exp() * c.reflectance / c.spread
     }
 
     /// Next-event connections from `v` (inside) to every probe, carrying `weight` after the
@@ -219,7 +231,7 @@ impl ParticleTracer<'_> {
         let volume = t.flyer.volume;
         let derivatives = &self.scene.derivatives;
         self.probe_paths(t, v.x, rng, out, |out, i, c, inverse_p, bounces, _| {
-            let value = self.carried(volume, v.w_in, weight, c) * inverse_p;
+            let value = self.carried(volume, (v.x, v.w_in), weight, c) * inverse_p;
             if !(value > 0.0 && value.is_finite() && self.add_to_probe(t, i, c, value, opl, out)) {
                 return;
             }
@@ -227,7 +239,7 @@ impl ParticleTracer<'_> {
                 let own = match d {
                     Derivative::Medium(m) => {
                         let phase = v.w_in.map_or(0.0, |w| {
-                            m.dlog_mixture(&volume.scattering, w.dot(c.direction))
+                            m.dlog_mixture(volume.scattering_at(v.x), w.dot(c.direction))
                         });
                         let attenuation = if m.is_phase() { 0.0 } else { -c.length };
                         value * (phase + attenuation)
@@ -247,7 +259,7 @@ impl ParticleTracer<'_> {
                     let volume = &volumes[side];
                     let path =
                         polished(self.scene, volume).solve_bounced(x, y, c.direction, bounces)?;
-                    Some(self.carried(volume, w_in, weight, &path))
+                    Some(self.carried(volume, (x, w_in), weight, &path))
                 });
                 if let [Some(down), Some(up)] = moved {
                     let slope = (up - down) / (2.0 * h) * inverse_p;
@@ -277,7 +289,7 @@ impl ParticleTracer<'_> {
         out: &mut [C64],
     ) {
         let volume = t.flyer.volume;
-        let emit = |volume, w_in, d| emitted(self.scene, volume, w_in, d);
+        let emit = |volume, at, d| emitted(self.scene, volume, at, d);
         for i in 0..self.scene.cameras.len() + self.scene.pinholes.len() {
             for way in self.ways(t, false) {
                 let Some((e, inverse_p, bounces)) = self.camera_exit(t, v.x, i, way, rng, out)
@@ -285,12 +297,12 @@ impl ParticleTracer<'_> {
                     continue;
                 };
                 let carried = |volume: &Volume, e: &super::connect::Exit| {
-                    (-volume.sigma_t() * e.length).exp() * e.transmission / e.jacobian * inverse_p
+                    e.attenuation(volume) * e.transmission / e.jacobian * inverse_p
                 };
                 let Some(link) = self.link_to_camera(t, i, &e, || carried(volume, &e)) else {
                     continue;
                 };
-                let scale = weight * emit(volume, v.w_in, link.direction);
+                let scale = weight * emit(volume, (v.x, v.w_in), link.direction);
                 if !self.record_link_scored(t, &link, (scale, opl), score, v.w_in, out) {
                     continue;
                 }
@@ -309,7 +321,7 @@ impl ParticleTracer<'_> {
                         let e =
                             self.camera_exit_from(&tools.connector, x, i, e.direction, bounces)?;
                         let link = self.link_to_camera(&tools, i, &e, || carried(volume, &e))?;
-                        let scale = weight * emit(volume, w_in, link.direction);
+                        let scale = weight * emit(volume, (x, w_in), link.direction);
                         Some((link, scale))
                     });
                     let [Some((down, s_down)), Some((up, s_up))] = moved else {

@@ -104,10 +104,10 @@ impl<'v> Tools<'v> {
 }
 
 impl Tools<'_> {
-    /// A free-flight distance over geometric length, against the majorant (infinite in a clear
-    /// volume).
-    pub(super) fn free_path(&self, rng: &mut Rng) -> f64 {
-        let majorant = self.flyer.volume.majorant();
+    /// A free-flight distance from `x` over geometric length, against the majorant there
+    /// (infinite in a clear volume).
+    pub(super) fn free_path(&self, x: DVec3, rng: &mut Rng) -> f64 {
+        let majorant = self.flyer.volume.majorant_at(x);
         if majorant > 0.0 {
             -(1.0 - uniform(rng)).ln() / majorant
         } else {
@@ -143,7 +143,7 @@ impl Tools<'_> {
         loop {
             let (flight, k) = self
                 .flyer
-                .fly_visiting(ray, self.free_path(rng), &mut chord);
+                .fly_visiting(ray, self.free_path(ray.x, rng), &mut chord);
             travelled.steps += k;
             match flight {
                 Flight::Collision {
@@ -178,7 +178,7 @@ impl Tools<'_> {
 
     /// [`Self::scatter`], and the particle type whose phase function drew the direction.
     fn scatter_by(&self, x: DVec3, u: DVec3, rng: &mut Rng) -> (Ray, usize) {
-        let scattering = &self.flyer.volume.scattering;
+        let scattering = self.flyer.volume.scattering_at(x);
         let kind = scattering.pick(|| uniform(rng));
         let w = scattering.phase(kind).sample(u, uniform(rng), uniform(rng));
         let ray = Ray {
@@ -631,7 +631,7 @@ impl<'s> ParticleTracer<'s> {
         out: &mut [C64],
     ) {
         if self.scene.derivatives.is_empty() {
-            let emit = |d| emitted(self.scene, t.flyer.volume, v.w_in, d);
+            let emit = |d| emitted(self.scene, t.flyer.volume, (v.x, v.w_in), d);
             self.connect(t, v.x, weight, opl, emit, rng, out);
             return;
         }
@@ -905,7 +905,7 @@ impl<'s> ParticleTracer<'s> {
     ) -> f64 {
         let volume = t.flyer.volume;
         if volume.density.is_none() {
-            return (-volume.sigma_t() * length).exp();
+            return (-volume.sigma_t_at(x) * length).exp();
         }
         if bounces == 0 {
             return self.ratio_tracking(t, x, w, length, rng);
@@ -943,9 +943,9 @@ impl<'s> ParticleTracer<'s> {
     fn ratio_tracking(&self, t: &Tools, x: DVec3, w: DVec3, length: f64, rng: &mut Rng) -> f64 {
         let volume = t.flyer.volume;
         let Some(density) = &volume.density else {
-            return (-volume.sigma_t() * length).exp();
+            return (-volume.sigma_t_at(x) * length).exp();
         };
-        let majorant = volume.majorant();
+        let majorant = volume.majorant_at(x);
         if majorant <= 0.0 {
             return 1.0;
         }
@@ -1467,7 +1467,6 @@ impl<'s> ParticleTracer<'s> {
         out: &mut [C64],
     ) -> Option<Leg> {
         let volume = t.flyer.volume;
-        let albedo = volume.albedo();
         let derivatives = &self.scene.derivatives;
         let mut tracks: Tracks = [0.0; MAX_TARGETS];
         let mut reflections = 0;
@@ -1487,6 +1486,7 @@ impl<'s> ParticleTracer<'s> {
             match stop {
                 Stop::Collision(hit) => {
                     p.events += 1;
+                    let albedo = volume.albedo_at(hit.x);
                     out[self.total(Total::Absorbed)].re += p.weight * (1.0 - albedo);
                     p.weight *= albedo;
                     for (s, param) in p.score.iter_mut().zip(derivatives) {

@@ -390,7 +390,7 @@ impl ParticleTracer<'_> {
             let Some(link) = self.light_link(t, x, way, rng, out) else {
                 continue;
             };
-            let phase = t.flyer.volume.scattering.eval(link.direction.dot(u));
+            let phase = t.flyer.volume.scattering_at(x).eval(link.direction.dot(u));
             self.record_sample(
                 t,
                 pixel,
@@ -474,7 +474,6 @@ impl ParticleTracer<'_> {
         rng: &mut Rng,
         out: &mut [C64],
     ) -> Option<Leg> {
-        let albedo = t.flyer.volume.albedo();
         let mut reflections = 0;
         loop {
             let (stop, travelled) = t.next_event(ray, rng);
@@ -483,7 +482,7 @@ impl ParticleTracer<'_> {
             match stop {
                 Stop::Collision(hit) => {
                     w.events += 1;
-                    w.beta *= albedo;
+                    w.beta *= t.flyer.volume.albedo_at(hit.x);
                     reflections = 0;
                     let u = hit.v.normalize();
                     self.light_to_event(t, hit.x, u, w, pixel, rng, out);

@@ -2,7 +2,7 @@
 //! outside the volume that record the light leaving it.
 
 use crate::eikonal::grid::{GridField, Interp};
-use crate::eikonal::{BoundedField, Bounds, Profile};
+use crate::eikonal::{BoundedField, Bounds, Part, Profile};
 use crate::math::{orthonormal_basis, uniform_sphere};
 use crate::medium::Scattering;
 use glam::DVec3;
@@ -21,6 +21,24 @@ pub struct Volume {
     pub scattering: Scattering,
     /// `None`: homogeneous; else `σ_s ρ(x)` and `σ_a ρ(x)` (the albedo stays constant).
     pub density: Option<Density>,
+    /// Where the bounds are several volumes ([`Bounds::Parts`]), each one's bulk, in their
+    /// order (`sigma_s`, `sigma_a` and `scattering` above are then unused); empty for one volume.
+    /// A density scales every part's coefficients.
+    pub parts: Vec<Bulk>,
+}
+
+/// The bulk scattering of one of several volumes: coefficients (at density 1) and phase function.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Bulk {
+    pub sigma_s: f64,
+    pub sigma_a: f64,
+    pub scattering: Scattering,
+}
+
+impl Bulk {
+    pub fn sigma_t(&self) -> f64 {
+        self.sigma_s + self.sigma_a
+    }
 }
 
 /// A density `ρ(x) ≥ 0` scaling both coefficients (a heterogeneous medium), sampled on a grid:
@@ -61,50 +79,136 @@ impl Density {
 }
 
 impl Volume {
-    /// Extinction `σ_t = σ_s + σ_a` (at density 1).
-    pub fn sigma_t(&self) -> f64 {
-        self.sigma_s + self.sigma_a
-    }
-
-    /// The extinction free flights are drawn against: `σ_t` times the density's bound.
-    pub fn majorant(&self) -> f64 {
-        self.sigma_t() * self.density.as_ref().map_or(1.0, |d| d.max)
-    }
-
-    /// Single-scattering albedo (1 when nothing interacts).
-    pub fn albedo(&self) -> f64 {
-        if self.sigma_t() > 0.0 {
-            self.sigma_s / self.sigma_t()
-        } else {
-            1.0
+    /// Several disjoint volumes, each with its bulk, in surroundings of index `n_out`, as one
+    /// volume of parts (homogeneous: no density).
+    pub fn several(parts: Vec<(Part, Bulk)>, n_out: f64) -> Self {
+        let (shapes, bulks): (Vec<Part>, Vec<Bulk>) = parts.into_iter().unzip();
+        let shapes: std::sync::Arc<[Part]> = shapes.into();
+        Volume {
+            field: BoundedField::single(
+                Profile::Parts(shapes.clone()),
+                Bounds::Parts(shapes),
+                n_out,
+            ),
+            sigma_s: 0.0,
+            sigma_a: 0.0,
+            scattering: Scattering::single(crate::medium::PhaseFunction::Isotropic),
+            density: None,
+            parts: bulks,
         }
+    }
+
+    /// Extinction `σ_t = σ_s + σ_a` (at density 1); of several volumes, the smallest (what
+    /// bounds a path's attenuation from below, and what estimates of work take).
+    pub fn sigma_t(&self) -> f64 {
+        if self.parts.is_empty() {
+            return self.sigma_s + self.sigma_a;
+        }
+        self.parts
+            .iter()
+            .map(Bulk::sigma_t)
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    /// Single-scattering albedo (1 when nothing interacts) of one volume (not of several: see
+    /// [`Self::albedo_at`]).
+    pub fn albedo(&self) -> f64 {
+        albedo(self.sigma_s, self.sigma_a)
+    }
+
+    /// The bulk of the part holding `x` (or the nearest), where the bounds are several volumes.
+    #[inline]
+    fn part(&self, x: DVec3) -> Option<&Bulk> {
+        let parts = self
+            .field
+            .bounds
+            .parts()
+            .filter(|_| !self.parts.is_empty())?;
+        Some(&self.parts[crate::eikonal::part_at(parts, x)])
+    }
+
+    /// Extinction at density 1 at `x` (inside).
+    #[inline]
+    pub fn sigma_t_at(&self, x: DVec3) -> f64 {
+        self.part(x)
+            .map_or(self.sigma_s + self.sigma_a, Bulk::sigma_t)
+    }
+
+    /// Single-scattering albedo at `x` (inside).
+    #[inline]
+    pub fn albedo_at(&self, x: DVec3) -> f64 {
+        match self.part(x) {
+            Some(b) => albedo(b.sigma_s, b.sigma_a),
+            None => self.albedo(),
+        }
+    }
+
+    /// The phase function at `x` (inside).
+    #[inline]
+    pub fn scattering_at(&self, x: DVec3) -> &Scattering {
+        self.part(x).map_or(&self.scattering, |b| &b.scattering)
+    }
+
+    /// The extinction free flights from `x` (inside) are drawn against: `σ_t` of the part
+    /// holding `x` (a flight stays in it) times the density's bound.
+    #[inline]
+    pub fn majorant_at(&self, x: DVec3) -> f64 {
+        self.sigma_t_at(x) * self.density.as_ref().map_or(1.0, |d| d.max)
     }
 
     /// Whether `n` is constant inside (every profile constant): rays are then straight lines,
     /// traced in closed form instead of stepped.
     pub fn homogeneous(&self) -> bool {
-        self.field
-            .profiles
-            .iter()
-            .all(|p| matches!(p, Profile::Constant { .. }))
+        self.field.profiles.iter().all(Profile::is_constant)
+    }
+
+    /// Whether `n` inside (constant: see [`Self::homogeneous`]) equals `n_out` in every part.
+    pub fn index_matched(&self) -> bool {
+        let field = &self.field;
+        let n_out = field.n_out;
+        match field.bounds.parts() {
+            Some(parts) => parts
+                .iter()
+                .all(|p| field.offset + field.scale * p.index(p.center) == n_out),
+            // the constant inside, read without the bounds (which need not hold the origin)
+            None => field.eval_inside(DVec3::ZERO).0 == n_out,
+        }
     }
 
     /// The largest distance from the origin to the volume's surface `h(d)` along unit `d` (the
     /// support function of the bounds): the volume lies within `x·d ≤ h(d)`.
     pub fn support(&self, d: DVec3) -> f64 {
-        match self.field.bounds {
-            Bounds::Everywhere => f64::INFINITY,
-            Bounds::Sphere { radius } => radius,
-            Bounds::Box { half } => (half * d.abs()).element_sum(),
-            Bounds::Cylinder {
-                radius,
-                half_length,
-            } => radius * (d.x * d.x + d.y * d.y).sqrt() + half_length * d.z.abs(),
-            Bounds::Sdf(ref g) => {
-                let (lo, hi) = g.corners();
-                (lo * d).max(hi * d).element_sum()
-            }
+        support(&self.field.bounds, d)
+    }
+}
+
+/// The support function `h(d)` of `bounds` along unit `d`: they lie within `x·d ≤ h(d)`.
+fn support(bounds: &Bounds, d: DVec3) -> f64 {
+    match *bounds {
+        Bounds::Everywhere => f64::INFINITY,
+        Bounds::Sphere { radius } => radius,
+        Bounds::Box { half } => (half * d.abs()).element_sum(),
+        Bounds::Cylinder {
+            radius,
+            half_length,
+        } => radius * (d.x * d.x + d.y * d.y).sqrt() + half_length * d.z.abs(),
+        Bounds::Sdf(ref g) => {
+            let (lo, hi) = g.corners();
+            (lo * d).max(hi * d).element_sum()
         }
+        Bounds::Parts(ref parts) => parts
+            .iter()
+            .map(|p| p.center.dot(d) + support(&p.shape, d))
+            .fold(f64::NEG_INFINITY, f64::max),
+    }
+}
+
+/// `σ_s / σ_t` (1 when nothing interacts).
+fn albedo(sigma_s: f64, sigma_a: f64) -> f64 {
+    if sigma_s + sigma_a > 0.0 {
+        sigma_s / (sigma_s + sigma_a)
+    } else {
+        1.0
     }
 }
 

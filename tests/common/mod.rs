@@ -49,6 +49,7 @@ pub fn bare_scene(step: f64) -> lightpath::rrte::RenderScene {
             sigma_a: 0.0,
             scattering: Scattering::single(PhaseFunction::Isotropic),
             density: None,
+            parts: Vec::new(),
         },
         light: Light::Point {
             position: DVec3::ZERO,

@@ -1,0 +1,442 @@
+//! Several volumes in one scene, each its own shape, index and bulk: two slabs apart against a
+//! plain layered tracer written here (Fresnel at all four faces, the gap between them), particle,
+//! path and bidirectional tracing on the same images of a glass ball beside a glass cube, and a
+//! volume placed away from the origin against the same volume at the origin with the rest of the
+//! scene moved.
+
+mod common;
+
+use common::{bare_scene, flux, render};
+use glam::DVec3;
+use lightpath::eikonal::{BoundedField, Bounds, Part, Profile};
+use lightpath::math::{Rng, stream_rng, uniform};
+use lightpath::medium::{PhaseFunction, Scattering};
+use lightpath::rrte::{Bulk, Light, Pinhole, RenderScene, Sensor, Total, Tracing, Volume};
+
+/// A layer of the plain tracer: its faces `z0 < z1`, index, coefficients and HG `g`.
+#[derive(Clone, Copy)]
+struct Layer {
+    z: [f64; 2],
+    n: f64,
+    sigma_s: f64,
+    sigma_a: f64,
+    g: f64,
+}
+
+/// Unpolarised Fresnel reflectance from index `n1` into `n2` at incidence cosine `cos_i`, by the
+/// textbook amplitude formulas (1 beyond the critical angle).
+fn fresnel(cos_i: f64, n1: f64, n2: f64) -> f64 {
+    let sin_t = n1 / n2 * (1.0 - cos_i * cos_i).max(0.0).sqrt();
+    if sin_t >= 1.0 {
+        return 1.0;
+    }
+    let cos_t = (1.0 - sin_t * sin_t).sqrt();
+    let rs = (n1 * cos_i - n2 * cos_t) / (n1 * cos_i + n2 * cos_t);
+    let rp = (n2 * cos_i - n1 * cos_t) / (n2 * cos_i + n1 * cos_t);
+    0.5 * (rs * rs + rp * rp)
+}
+
+/// A plain tracer of plane-parallel layers in air (index 1 between them), independent of the
+/// renderer: a photon is a height `z` and a direction cosine `μ`; it flies straight to the next
+/// collision or face, scatters with the layer's albedo (analog absorption) by Henyey–Greenstein,
+/// and at each face reflects with the Fresnel probability or refracts by Snell's law in `μ`.
+/// Returns the fractions of photons leaving below the first layer (R) and above the last (T).
+fn plain_layers(layers: &[Layer], photons: u64, rng: &mut Rng) -> (f64, f64) {
+    let (mut r_count, mut t_count) = (0u64, 0u64);
+    for _ in 0..photons {
+        // in layer `at` (None: in the air below, between or above), travelling with cosine mu
+        let (mut z, mut mu, mut at) = (layers[0].z[0] - 1.0, 1.0f64, None::<usize>);
+        loop {
+            let Some(k) = at else {
+                // in the air: straight to the next face along mu, or away
+                let next = if mu > 0.0 {
+                    layers.iter().position(|l| l.z[0] >= z - 1e-12)
+                } else {
+                    layers.iter().rposition(|l| l.z[1] <= z + 1e-12)
+                };
+                let Some(k) = next else {
+                    if mu > 0.0 {
+                        t_count += 1;
+                    } else {
+                        r_count += 1;
+                    }
+                    break;
+                };
+                let l = layers[k];
+                z = if mu > 0.0 { l.z[0] } else { l.z[1] };
+                if uniform(rng) < fresnel(mu.abs(), 1.0, l.n) {
+                    mu = -mu;
+                    continue;
+                }
+                mu = mu.signum() * (1.0 - (1.0 - mu * mu) / (l.n * l.n)).sqrt();
+                at = Some(k);
+                continue;
+            };
+            let l = layers[k];
+            let sigma_t = l.sigma_s + l.sigma_a;
+            let s = -(1.0 - uniform(rng)).ln() / sigma_t;
+            let z_new = z + mu * s;
+            if z_new < l.z[0] || z_new > l.z[1] {
+                z = if z_new > l.z[1] { l.z[1] } else { l.z[0] };
+                if uniform(rng) < fresnel(mu.abs(), l.n, 1.0) {
+                    mu = -mu;
+                    continue;
+                }
+                mu = mu.signum() * (1.0 - l.n * l.n * (1.0 - mu * mu)).sqrt();
+                at = None;
+                continue;
+            }
+            z = z_new;
+            if uniform(rng) >= l.sigma_s / sigma_t {
+                break;
+            }
+            let g = l.g;
+            let c = if g == 0.0 {
+                1.0 - 2.0 * uniform(rng)
+            } else {
+                let f = (1.0 - g * g) / (1.0 - g + 2.0 * g * uniform(rng));
+                (1.0 + g * g - f * f) / (2.0 * g)
+            };
+            let phi = 2.0 * std::f64::consts::PI * uniform(rng);
+            mu = mu * c
+                + (1.0 - mu * mu).max(0.0).sqrt() * (1.0 - c * c).max(0.0).sqrt() * phi.cos();
+        }
+    }
+    (
+        r_count as f64 / photons as f64,
+        t_count as f64 / photons as f64,
+    )
+}
+
+/// A part and its bulk: a shape at `center` of constant index `n`.
+fn part(shape: Bounds, center: DVec3, n: f64, bulk: (f64, f64, f64)) -> (Part, Bulk) {
+    (
+        Part {
+            shape,
+            center,
+            profiles: vec![Profile::Constant { n }],
+        },
+        Bulk {
+            sigma_s: bulk.0,
+            sigma_a: bulk.1,
+            scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g: bulk.2 }),
+        },
+    )
+}
+
+#[test]
+fn two_slabs_apart_match_a_plain_layered_tracer() {
+    // different indices, coefficients, albedos and phase functions, with air between
+    let layers = [
+        Layer {
+            z: [-1.05, -0.05],
+            n: 1.4,
+            sigma_s: 1.5,
+            sigma_a: 0.2,
+            g: 0.5,
+        },
+        Layer {
+            z: [0.45, 1.05],
+            n: 1.2,
+            sigma_s: 3.0,
+            sigma_a: 0.05,
+            g: 0.85,
+        },
+    ];
+    let photons = 100_000;
+    let (r_ref, t_ref) = plain_layers(&layers, photons, &mut stream_rng(21, 0));
+    let slab = |l: &Layer| {
+        let half = DVec3::new(500.0, 500.0, 0.5 * (l.z[1] - l.z[0]));
+        let center = DVec3::new(0.0, 0.0, 0.5 * (l.z[0] + l.z[1]));
+        part(
+            Bounds::Box { half },
+            center,
+            l.n,
+            (l.sigma_s, l.sigma_a, l.g),
+        )
+    };
+    let scene = RenderScene {
+        volume: Volume::several(layers.iter().map(slab).collect(), 1.0),
+        light: Light::Beam {
+            center: DVec3::new(0.0, 0.0, -2.0),
+            direction: DVec3::Z,
+            radius: 0.0,
+        },
+        sensors: vec![flux("T", 1.05), flux("R", -1.05)],
+        ..bare_scene(0.01)
+    };
+    let (e, est) = render(&scene, photons, 7);
+    let value = |k: usize| (e.mean[k].re, e.stderr[k]);
+    let (t, st) = value(est.sensor_image(0).first);
+    let (r, sr) = value(est.sensor_image(1).first);
+    let (a, _) = value(est.total(Total::Absorbed));
+    let lost = 1.0 - t - r - a;
+    assert!(
+        lost.abs() < 0.01,
+        "light lost sideways or unaccounted: {lost}"
+    );
+    let ref_err = |p: f64| (p * (1.0 - p) / photons as f64).sqrt();
+    for (what, x, sx, y) in [("T", t, st, t_ref), ("R", r, sr, r_ref)] {
+        let tol = 4.0 * sx.hypot(ref_err(y));
+        assert!(
+            (x - y).abs() < tol,
+            "{what} {x} ± {sx} vs the plain layered tracer's {y}"
+        );
+    }
+    // the second slab matters: without it transmission would be several times larger
+    let (_, t_one) = plain_layers(&layers[..1], photons, &mut stream_rng(22, 0));
+    assert!(
+        t_one - t_ref > 20.0 * ref_err(t_ref),
+        "one slab {t_one} vs two {t_ref}"
+    );
+}
+
+/// A glass ball (n = 1.5, forward scattering) beside a glass cube (n = 1.3, isotropic, more
+/// absorbing), lit by a lamp above them and seen by a pinhole in front.
+fn ball_and_cube() -> RenderScene {
+    let volume = Volume::several(
+        vec![
+            part(
+                Bounds::Sphere { radius: 0.8 },
+                DVec3::new(-1.1, 0.0, 0.0),
+                1.5,
+                (2.0, 0.1, 0.7),
+            ),
+            part(
+                Bounds::Box {
+                    half: DVec3::new(0.5, 0.6, 0.5),
+                },
+                DVec3::new(1.1, 0.2, 0.0),
+                1.3,
+                (0.8, 0.3, 0.0),
+            ),
+        ],
+        1.0,
+    );
+    let camera = Pinhole::looking_at(
+        "cam".into(),
+        DVec3::new(0.0, 0.5, 5.0),
+        DVec3::ZERO,
+        DVec3::Y,
+        45f64.to_radians(),
+        [12, 8],
+    )
+    .unwrap();
+    RenderScene {
+        volume,
+        light: Light::Point {
+            position: DVec3::new(0.0, 2.5, 1.5),
+        },
+        pinholes: vec![camera],
+        reflections: 2,
+        ..bare_scene(0.01)
+    }
+}
+
+/// Particle tracing, path tracing and bidirectional tracing agree on the pinhole's image of two
+/// volumes: its total and its two halves, each holding one volume (within 4 combined standard
+/// errors). Light reaches each volume past the other, and connections run out of one, and with
+/// the reflections inside, past the other too.
+#[test]
+fn particle_path_and_bidirectional_tracing_agree_on_two_volumes() {
+    let s = ball_and_cube();
+    let (a, est) = render(&s, 400_000, 1);
+    let mut p = s.clone();
+    p.tracing = Tracing::FromCameras;
+    let (b, _) = render(&p, 60_000, 2);
+    p.tracing = Tracing::Bidirectional;
+    let (c, _) = render(&p, 60_000, 3);
+    let image = est.pinhole_image(0);
+    // the sums over the left and right halves, their pixels' errors added in quadrature
+    let half = |e: &lightpath::mc::Estimate, left: bool| {
+        let (mut x, mut v) = (0.0, 0.0);
+        for j in 0..8 {
+            for i in if left { 0..6 } else { 6..12 } {
+                let k = image.plane(None, 0) + j * 12 + i;
+                x += e.mean[k].re;
+                v += e.stderr[k].powi(2);
+            }
+        }
+        (x, v.sqrt())
+    };
+    for (what, other) in [("paths", &b), ("bidirectional", &c)] {
+        let k = image.total();
+        let (x, sx, y, sy) = (a.mean[k].re, a.stderr[k], other.mean[k].re, other.stderr[k]);
+        assert!(
+            x > 0.0 && (x - y).abs() < 4.0 * sx.hypot(sy),
+            "total: particles {x} ± {sx}, {what} {y} ± {sy}"
+        );
+        for left in [true, false] {
+            let ((x, sx), (y, sy)) = (half(&a, left), half(other, left));
+            assert!(
+                x > 0.0 && (x - y).abs() < 4.0 * sx.hypot(sy),
+                "left half {left}: particles {x} ± {sx}, {what} {y} ± {sy}"
+            );
+        }
+    }
+}
+
+/// A graded lens (a Luneburg profile raised by 0.2, so that every face refracts) placed at `c`
+/// renders as the lens at the origin with the light and the sensors moved by `c` too: its
+/// profile and bounds move with it. The same photons (one seed) take the same paths up to
+/// round-off, so the two agree far within their standard errors (the focus falls on a pixel's
+/// centre, not on an edge that round-off would decide).
+#[test]
+fn a_placed_volume_renders_as_the_same_volume_at_the_origin() {
+    let c = DVec3::new(0.7, -0.4, 1.3);
+    let lens = |center: DVec3| Part {
+        shape: Bounds::Sphere { radius: 1.0 },
+        center,
+        profiles: vec![
+            Profile::Luneburg { radius: 1.0 },
+            Profile::Constant { n: 0.2 },
+        ],
+    };
+    let bulk = Bulk {
+        sigma_s: 0.4,
+        sigma_a: 0.1,
+        scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g: 0.6 }),
+    };
+    let scene = |volume: Volume, shift: DVec3| {
+        let mut screen = Sensor::new(
+            "screen".into(),
+            lightpath::rrte::SensorKind::Screen,
+            DVec3::new(0.0, 0.0, 1.05) + shift,
+            DVec3::Z,
+            Some([1.4, 1.4]),
+            [7, 7],
+        );
+        screen.normal = DVec3::Z;
+        RenderScene {
+            volume,
+            light: Light::Beam {
+                center: DVec3::new(0.0, 0.0, -2.0) + shift,
+                direction: DVec3::Z,
+                radius: 0.8,
+            },
+            sensors: vec![screen, flux("down", -1.5 + shift.z)],
+            ..bare_scene(0.01)
+        }
+    };
+    let placed = scene(Volume::several(vec![(lens(c), bulk.clone())], 1.0), c);
+    let origin = scene(
+        Volume {
+            field: BoundedField::new(
+                vec![
+                    Profile::Luneburg { radius: 1.0 },
+                    Profile::Constant { n: 0.2 },
+                ],
+                Bounds::Sphere { radius: 1.0 },
+                1.0,
+            ),
+            sigma_s: bulk.sigma_s,
+            sigma_a: bulk.sigma_a,
+            scattering: bulk.scattering.clone(),
+            density: None,
+            parts: Vec::new(),
+        },
+        DVec3::ZERO,
+    );
+    let (a, est) = render(&placed, 20_000, 4);
+    let (b, _) = render(&origin, 20_000, 4);
+    let focus = est.sensor_image(0);
+    let mut compared = 0;
+    for k in (focus.first..focus.first + focus.pixels).chain([est.sensor_image(1).first]) {
+        let (x, y, s) = (a.mean[k].re, b.mean[k].re, b.stderr[k]);
+        assert!(
+            (x - y).abs() <= 0.05 * s + 1e-12,
+            "output {k}: placed {x}, at the origin {y} ± {s}"
+        );
+        compared += (y > 0.0) as usize;
+    }
+    assert!(compared > 20, "only {compared} outputs lit");
+}
+
+/// An orthographic camera and a far pinhole see the intensity a collimated detector counts,
+/// through a second volume: light scattered in a glass ball leaves it towards the camera through
+/// an absorbing glass block beside it, so each connection runs through the ball's medium, out,
+/// across the block's and out again, and photons are traced the same way. Intensity = power in
+/// the detector's 10° cone over its solid angle (up to the cone's angular average).
+#[test]
+fn cameras_see_through_a_second_volume_what_a_collimated_detector_counts() {
+    let volume = Volume::several(
+        vec![
+            part(
+                Bounds::Sphere { radius: 0.8 },
+                DVec3::ZERO,
+                1.4,
+                (1.5, 0.1, 0.0),
+            ),
+            part(
+                Bounds::Box {
+                    half: DVec3::new(0.4, 1.2, 1.2),
+                },
+                DVec3::new(1.8, 0.0, 0.0),
+                1.3,
+                (0.3, 0.6, 0.5),
+            ),
+        ],
+        1.0,
+    );
+    let mut detector = Sensor::new(
+        "collimated".into(),
+        lightpath::rrte::SensorKind::Flux,
+        DVec3::new(2.2, 0.0, 0.0),
+        DVec3::X,
+        None,
+        [1, 1],
+    );
+    let alpha = 10f64.to_radians();
+    detector.acceptance = Some(alpha);
+    let base = RenderScene {
+        volume,
+        light: Light::Beam {
+            center: DVec3::new(0.0, 0.0, -2.0),
+            direction: DVec3::Z,
+            radius: 0.5,
+        },
+        sensors: vec![detector],
+        reflections: 2,
+        ..bare_scene(0.01)
+    };
+    let (e, est) = render(&base, 400_000, 41);
+    let (p, sp) = (e.mean[est.power(0)].re, e.stderr[est.power(0)]);
+    let omega = 2.0 * std::f64::consts::PI * (1.0 - alpha.cos());
+    let (reference, ref_se) = (p / omega, sp / omega);
+    let mut scene = base.clone();
+    scene.sensors.clear();
+    scene.cameras.push(lightpath::rrte::Camera::new(
+        "side".into(),
+        DVec3::X,
+        DVec3::new(3.0, 0.0, 0.0),
+        [2.6, 2.6],
+        [13, 13],
+    ));
+    let distance = 30.0;
+    scene.pinholes.push(
+        Pinhole::looking_at(
+            "far".into(),
+            DVec3::new(distance, 0.0, 0.0),
+            DVec3::ZERO,
+            DVec3::Y,
+            6f64.to_radians(),
+            [11, 11],
+        )
+        .unwrap(),
+    );
+    let (e, est) = render(&scene, 20_000, 43);
+    let value = |k: usize| (e.mean[k].re, e.stderr[k]);
+    let area = scene.cameras[0].pixel_area();
+    let (sum, s_sum) = value(est.camera_image(0).total());
+    let (irr, s_irr) = value(est.pinhole_image(0).total());
+    let d2 = distance * distance;
+    for (what, i, si) in [
+        ("orthographic camera", sum * area, s_sum * area),
+        ("pinhole irradiance × D²", irr * d2, s_irr * d2),
+    ] {
+        assert!(
+            (i - reference).abs() < 4.0 * si.hypot(ref_se),
+            "{what}: intensity {i} ± {si} vs collimated detector {reference} ± {ref_se}"
+        );
+    }
+}
