@@ -1,8 +1,9 @@
 //! Several volumes in one scene, each its own shape, index and bulk: two slabs apart against a
-//! plain layered tracer written here (Fresnel at all four faces, the gap between them), particle,
-//! path and bidirectional tracing on the same images of a glass ball beside a glass cube, and a
-//! volume placed away from the origin against the same volume at the origin with the rest of the
-//! scene moved.
+//! plain layered tracer written here (Fresnel at all four faces, the gap between them; with and
+//! without a density), particle, path and bidirectional tracing on the same images of a glass
+//! ball beside a glass cube, cameras against a collimated detector through a second volume, a
+//! sampled volume against the analytic one, and a volume placed away from the origin against the
+//! same volume at the origin with the rest of the scene moved.
 
 mod common;
 
@@ -40,8 +41,15 @@ fn fresnel(cos_i: f64, n1: f64, n2: f64) -> f64 {
 /// renderer: a photon is a height `z` and a direction cosine `μ`; it flies straight to the next
 /// collision or face, scatters with the layer's albedo (analog absorption) by Henyey–Greenstein,
 /// and at each face reflects with the Fresnel probability or refracts by Snell's law in `μ`.
+/// The layers' coefficients are scaled by `density(z)` (at most `max`), drawn by delta tracking:
+/// tentative collisions against `σ_t · max`, kept with probability `density(z)/max`.
 /// Returns the fractions of photons leaving below the first layer (R) and above the last (T).
-fn plain_layers(layers: &[Layer], photons: u64, rng: &mut Rng) -> (f64, f64) {
+fn plain_layers(
+    layers: &[Layer],
+    (density, max): (&dyn Fn(f64) -> f64, f64),
+    photons: u64,
+    rng: &mut Rng,
+) -> (f64, f64) {
     let (mut r_count, mut t_count) = (0u64, 0u64);
     for _ in 0..photons {
         // in layer `at` (None: in the air below, between or above), travelling with cosine mu
@@ -74,7 +82,7 @@ fn plain_layers(layers: &[Layer], photons: u64, rng: &mut Rng) -> (f64, f64) {
             };
             let l = layers[k];
             let sigma_t = l.sigma_s + l.sigma_a;
-            let s = -(1.0 - uniform(rng)).ln() / sigma_t;
+            let s = -(1.0 - uniform(rng)).ln() / (sigma_t * max);
             let z_new = z + mu * s;
             if z_new < l.z[0] || z_new > l.z[1] {
                 z = if z_new > l.z[1] { l.z[1] } else { l.z[0] };
@@ -87,6 +95,9 @@ fn plain_layers(layers: &[Layer], photons: u64, rng: &mut Rng) -> (f64, f64) {
                 continue;
             }
             z = z_new;
+            if uniform(rng) * max >= density(z) {
+                continue;
+            }
             if uniform(rng) >= l.sigma_s / sigma_t {
                 break;
             }
@@ -124,27 +135,39 @@ fn part(shape: Bounds, center: DVec3, n: f64, bulk: (f64, f64, f64)) -> (Part, B
     )
 }
 
-#[test]
-fn two_slabs_apart_match_a_plain_layered_tracer() {
-    // different indices, coefficients, albedos and phase functions, with air between
-    let layers = [
-        Layer {
-            z: [-1.05, -0.05],
-            n: 1.4,
-            sigma_s: 1.5,
-            sigma_a: 0.2,
-            g: 0.5,
-        },
-        Layer {
-            z: [0.45, 1.05],
-            n: 1.2,
-            sigma_s: 3.0,
-            sigma_a: 0.05,
-            g: 0.85,
-        },
-    ];
+/// Two slabs apart, with different indices, coefficients, albedos and phase functions.
+const LAYERS: [Layer; 2] = [
+    Layer {
+        z: [-1.05, -0.05],
+        n: 1.4,
+        sigma_s: 1.5,
+        sigma_a: 0.2,
+        g: 0.5,
+    },
+    Layer {
+        z: [0.45, 1.05],
+        n: 1.2,
+        sigma_s: 3.0,
+        sigma_a: 0.05,
+        g: 0.85,
+    },
+];
+
+/// The density `0.6 + 0.5 z` that scales both slabs in [`slabs_apart_scaled_by_a_density`].
+fn linear(z: f64) -> f64 {
+    0.6 + 0.5 * z
+}
+
+/// Render [`LAYERS`] (scaled by `density`, if any) under a pencil beam, and check their
+/// transmittance and reflectance against the plain layered tracer's with the density `plain`
+/// (within 4 combined standard errors), and that every photon is accounted for. Returns the
+/// plain tracer's transmittance.
+fn slabs_against_the_plain_tracer(
+    density: Option<lightpath::rrte::Density>,
+    plain: (&dyn Fn(f64) -> f64, f64),
+) -> f64 {
     let photons = 100_000;
-    let (r_ref, t_ref) = plain_layers(&layers, photons, &mut stream_rng(21, 0));
+    let (r_ref, t_ref) = plain_layers(&LAYERS, plain, photons, &mut stream_rng(21, 0));
     let slab = |l: &Layer| {
         let half = DVec3::new(500.0, 500.0, 0.5 * (l.z[1] - l.z[0]));
         let center = DVec3::new(0.0, 0.0, 0.5 * (l.z[0] + l.z[1]));
@@ -155,8 +178,10 @@ fn two_slabs_apart_match_a_plain_layered_tracer() {
             (l.sigma_s, l.sigma_a, l.g),
         )
     };
+    let mut volume = Volume::several(LAYERS.iter().map(slab).collect(), 1.0);
+    volume.density = density;
     let scene = RenderScene {
-        volume: Volume::several(layers.iter().map(slab).collect(), 1.0),
+        volume,
         light: Light::Beam {
             center: DVec3::new(0.0, 0.0, -2.0),
             direction: DVec3::Z,
@@ -183,11 +208,52 @@ fn two_slabs_apart_match_a_plain_layered_tracer() {
             "{what} {x} ± {sx} vs the plain layered tracer's {y}"
         );
     }
-    // the second slab matters: without it transmission would be several times larger
-    let (_, t_one) = plain_layers(&layers[..1], photons, &mut stream_rng(22, 0));
+    t_ref
+}
+
+#[test]
+fn two_slabs_apart_match_a_plain_layered_tracer() {
+    let uniform: (&dyn Fn(f64) -> f64, f64) = (&|_| 1.0, 1.0);
+    let t_ref = slabs_against_the_plain_tracer(None, uniform);
+    // the second slab matters: without it much more light would pass
+    let photons = 100_000;
+    let (_, t_one) = plain_layers(&LAYERS[..1], uniform, photons, &mut stream_rng(22, 0));
+    let err = (t_ref * (1.0 - t_ref) / photons as f64).sqrt();
     assert!(
-        t_one - t_ref > 20.0 * ref_err(t_ref),
+        t_one - t_ref > 20.0 * err,
         "one slab {t_one} vs two {t_ref}"
+    );
+}
+
+/// A density scales every volume's own coefficients: the slabs under `0.6 + 0.5 z` (a trilinear
+/// grid with nodes on the outer faces, exact for a linear function) against the plain tracer's
+/// delta tracking of the same density, and unlike the slabs without it.
+#[test]
+fn slabs_apart_scaled_by_a_density_match_the_plain_tracer() {
+    use lightpath::eikonal::grid::{GridField, Interp};
+    let (spacing, lateral) = (2.1, 240);
+    let corner = -(lateral as f64) * spacing;
+    let n = 2 * lateral + 1;
+    let mut values = Vec::with_capacity(2 * n * n);
+    for z in [-1.05, 1.05] {
+        values.extend(std::iter::repeat_n(linear(z), n * n));
+    }
+    let grid = GridField::from_samples(
+        DVec3::new(corner, corner, -1.05),
+        spacing,
+        [n, n, 2],
+        values,
+        Interp::Trilinear,
+    )
+    .unwrap();
+    let density = lightpath::rrte::Density::new(grid).unwrap();
+    let t_ref = slabs_against_the_plain_tracer(Some(density), (&linear, linear(1.05)));
+    let uniform: (&dyn Fn(f64) -> f64, f64) = (&|_| 1.0, 1.0);
+    let (_, t_plain) = plain_layers(&LAYERS, uniform, 100_000, &mut stream_rng(23, 0));
+    let err = (t_ref * (1.0 - t_ref) / 1e5).sqrt();
+    assert!(
+        (t_ref - t_plain).abs() > 20.0 * err,
+        "with the density {t_ref}, without {t_plain}"
     );
 }
 
@@ -356,10 +422,30 @@ fn a_placed_volume_renders_as_the_same_volume_at_the_origin() {
 /// through a second volume: light scattered in a glass ball leaves it towards the camera through
 /// an absorbing glass block beside it, so each connection runs through the ball's medium, out,
 /// across the block's and out again, and photons are traced the same way. Intensity = power in
-/// the detector's 10° cone over its solid angle (up to the cone's angular average).
+/// the detector's 10° cone over its solid angle (up to the cone's angular average). With a
+/// density, the connections' transmittances are ratio-tracked volume by volume.
 #[test]
 fn cameras_see_through_a_second_volume_what_a_collimated_detector_counts() {
-    let volume = Volume::several(
+    use lightpath::eikonal::grid::{GridField, Interp};
+    // a density rising along x, the camera's direction: 0.5 at x = −1 to 1.9 at x = 2.5
+    let values = [-1.0, 2.5].map(|x| 0.5 + 0.4 * (x + 1.0)).repeat(4);
+    let grid = GridField::from_samples(
+        DVec3::new(-1.0, -1.75, -1.75),
+        3.5,
+        [2, 2, 2],
+        values,
+        Interp::Trilinear,
+    )
+    .unwrap();
+    let density = lightpath::rrte::Density::new(grid).unwrap();
+    collimated_and_cameras(None);
+    collimated_and_cameras(Some(density));
+}
+
+/// The scene of [`cameras_see_through_a_second_volume_what_a_collimated_detector_counts`], its
+/// volumes scaled by `density`.
+fn collimated_and_cameras(density: Option<lightpath::rrte::Density>) {
+    let mut volume = Volume::several(
         vec![
             part(
                 Bounds::Sphere { radius: 0.8 },
@@ -378,6 +464,7 @@ fn cameras_see_through_a_second_volume_what_a_collimated_detector_counts() {
         ],
         1.0,
     );
+    volume.density = density;
     let mut detector = Sensor::new(
         "collimated".into(),
         lightpath::rrte::SensorKind::Flux,
@@ -437,6 +524,84 @@ fn cameras_see_through_a_second_volume_what_a_collimated_detector_counts() {
         assert!(
             (i - reference).abs() < 4.0 * si.hypot(ref_se),
             "{what}: intensity {i} ± {si} vs collimated detector {reference} ± {ref_se}"
+        );
+    }
+}
+
+/// A volume bounded by a signed-distance shape (a sampled glass ball) beside a glass block, lit
+/// through the ball into the block, renders as the analytic ball beside the same block:
+/// transmitted and reflected flux and a side camera's total (connections through the sampled
+/// surface and the block) agree within 4 combined standard errors (the grid's interpolation error
+/// stays below them).
+#[test]
+fn a_sampled_volume_beside_another_renders_as_the_analytic_one() {
+    use lightpath::eikonal::grid::Interp;
+    use lightpath::eikonal::sdf::{SdfGrid, Shape, sample_shapes};
+    let (origin, dims, samples) = sample_shapes(
+        &[Shape::Sphere {
+            center: DVec3::ZERO,
+            radius: 0.8,
+        }],
+        0.0,
+        0.04,
+    );
+    let ball = SdfGrid::from_samples(origin, 0.04, dims, samples, Interp::Tricubic).unwrap();
+    let scene = |shape: Bounds| {
+        let volume = Volume::several(
+            vec![
+                part(shape, DVec3::new(-1.1, 0.0, 0.0), 1.5, (1.2, 0.1, 0.6)),
+                part(
+                    Bounds::Box {
+                        half: DVec3::new(0.5, 0.9, 0.9),
+                    },
+                    DVec3::new(1.1, 0.0, 0.0),
+                    1.3,
+                    (0.6, 0.3, 0.0),
+                ),
+            ],
+            1.0,
+        );
+        let plane = |name: &str, x: f64| {
+            Sensor::new(
+                name.into(),
+                lightpath::rrte::SensorKind::Flux,
+                DVec3::new(x, 0.0, 0.0),
+                DVec3::X * x.signum(),
+                None,
+                [1, 1],
+            )
+        };
+        RenderScene {
+            volume,
+            light: Light::Beam {
+                center: DVec3::new(-3.0, 0.0, 0.0),
+                direction: DVec3::X,
+                radius: 0.5,
+            },
+            sensors: vec![plane("T", 2.0), plane("R", -2.0)],
+            cameras: vec![lightpath::rrte::Camera::new(
+                "side".into(),
+                DVec3::Y,
+                DVec3::new(0.0, 3.0, 0.0),
+                [4.4, 2.2],
+                [8, 4],
+            )],
+            ..bare_scene(0.01)
+        }
+    };
+    let analytic = scene(Bounds::Sphere { radius: 0.8 });
+    let sampled = scene(Bounds::Sdf(std::sync::Arc::new(ball)));
+    let (a, est) = render(&analytic, 40_000, 5);
+    let (b, _) = render(&sampled, 40_000, 6);
+    for (what, k) in [
+        ("T", est.power(0)),
+        ("R", est.power(1)),
+        ("camera", est.camera_image(0).total()),
+    ] {
+        let (x, sx, y, sy) = (a.mean[k].re, a.stderr[k], b.mean[k].re, b.stderr[k]);
+        assert!(
+            x > 0.0 && (x - y).abs() < 4.0 * sx.hypot(sy),
+            "{what}: analytic {x} ± {sx}, sampled {y} ± {sy}"
         );
     }
 }

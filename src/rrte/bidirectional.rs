@@ -46,9 +46,7 @@
 //! there, more often than a connection does (with an index-matched surface there are none).
 
 use super::connect::{Aim, MAX_AGAIN};
-use super::particle::{
-    Leg, MAX_EVENTS, MAX_REFLECTIONS, ParticleTracer, Stop, Tools, Way, roulette,
-};
+use super::particle::{Leg, MAX_EVENTS, ParticleTracer, Reflections, Stop, Tools, Way, roulette};
 use super::scene::{Connections, Light, Volume};
 use crate::eikonal::Ray;
 use crate::math::{C64, Rng, uniform};
@@ -697,6 +695,8 @@ impl ParticleTracer<'_> {
         // surface, whether it began inside the volume, the cosine where it left a surface
         let (mut inside, mut outside) = (0.0, 0.0);
         let mut met = Meetings::default();
+        // reflections inside since the last vertex (see `MAX_REFLECTIONS`)
+        let mut reflections = Reflections::default();
         let most_bounces = self.most_bounces(t);
         let mut began_inside = volume.field.bounds.contains(start.x);
         let mut cos_start = 1.0;
@@ -765,6 +765,7 @@ impl ParticleTracer<'_> {
                                 facing: Some(facing),
                             });
                             (inside, outside, met) = (0.0, 0.0, Meetings::default());
+                            reflections = Reflections::default();
                             began_inside = false;
                             if !roulette(&mut beta, rng) || vertices.len() >= MAX_EVENTS {
                                 break;
@@ -818,6 +819,7 @@ impl ParticleTracer<'_> {
                         facing: None,
                     });
                     (inside, outside, met) = (0.0, 0.0, Meetings::default());
+                    reflections = Reflections::default();
                     (began_inside, cos_start) = (true, 1.0);
                     if start.photon {
                         let phase = |d: DVec3| volume.scattering_at(hit.x).eval(u.dot(d));
@@ -835,8 +837,9 @@ impl ParticleTracer<'_> {
                 }
                 Stop::Boundary(end) => {
                     leg = Leg::leave(t, end, rng);
-                    met.met_inside(matches!(leg, Leg::Inside(_)));
-                    if met.bounces > MAX_REFLECTIONS {
+                    let bounced = matches!(leg, Leg::Inside(_));
+                    met.met_inside(bounced);
+                    if bounced && !reflections.another() {
                         // given up, as a flight out of steps
                         break;
                     }

@@ -1469,7 +1469,7 @@ impl<'s> ParticleTracer<'s> {
         let volume = t.flyer.volume;
         let derivatives = &self.scene.derivatives;
         let mut tracks: Tracks = [0.0; MAX_TARGETS];
-        let mut reflections = 0;
+        let mut reflections = Reflections::default();
         loop {
             tracks.fill(0.0);
             let (stop, travelled) =
@@ -1492,7 +1492,7 @@ impl<'s> ParticleTracer<'s> {
                     for (s, param) in p.score.iter_mut().zip(derivatives) {
                         *s += albedo_score(param.medium(), volume);
                     }
-                    reflections = 0;
+                    reflections = Reflections::default();
                     let w_in = hit.v.normalize();
                     if self.connects() {
                         let v = Vertex::fixed(hit.x, Some(w_in));
@@ -1519,13 +1519,10 @@ impl<'s> ParticleTracer<'s> {
                     }
                 }
                 Stop::Boundary(end) => match Leg::leave(t, end, rng) {
-                    Leg::Inside(_) if reflections == MAX_REFLECTIONS => {
+                    Leg::Inside(reflected) if reflections.another() => ray = reflected,
+                    Leg::Inside(_) => {
                         out[self.total(Total::Unfinished)].re += p.weight;
                         return None;
-                    }
-                    Leg::Inside(reflected) => {
-                        reflections += 1;
-                        ray = reflected;
                     }
                     out => return Some(out),
                 },
@@ -1645,6 +1642,23 @@ impl Leg {
                 v: reflect(d, normal) * n_in,
             }),
         }
+    }
+}
+
+/// The reflections inside the surface a photon or path has made since its last event (or its
+/// start), counted up to [`MAX_REFLECTIONS`], where every tracer gives it up.
+#[derive(Clone, Copy, Debug, Default)]
+pub(super) struct Reflections(usize);
+
+impl Reflections {
+    /// Count one more reflection: `false` if there have been [`MAX_REFLECTIONS`] already (the
+    /// photon or path is then given up).
+    pub(super) fn another(&mut self) -> bool {
+        if self.0 == MAX_REFLECTIONS {
+            return false;
+        }
+        self.0 += 1;
+        true
     }
 }
 

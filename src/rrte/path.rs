@@ -28,7 +28,7 @@
 //! index-matched surfaces the two estimate the same images.
 
 use super::connect::Aim;
-use super::particle::{Leg, ParticleTracer, Stop, Tools, Way};
+use super::particle::{Leg, ParticleTracer, Reflections, Stop, Tools, Way};
 use super::scene::{Light, grid_pixel};
 use crate::eikonal::Ray;
 use crate::math::{C64, Rng, uniform};
@@ -474,7 +474,7 @@ impl ParticleTracer<'_> {
         rng: &mut Rng,
         out: &mut [C64],
     ) -> Option<Leg> {
-        let mut reflections = 0;
+        let mut reflections = Reflections::default();
         loop {
             let (stop, travelled) = t.next_event(ray, rng);
             w.steps += travelled.steps;
@@ -483,7 +483,7 @@ impl ParticleTracer<'_> {
                 Stop::Collision(hit) => {
                     w.events += 1;
                     w.beta *= t.flyer.volume.albedo_at(hit.x);
-                    reflections = 0;
+                    reflections = Reflections::default();
                     let u = hit.v.normalize();
                     self.light_to_event(t, hit.x, u, w, pixel, rng, out);
                     if !w.roulette(rng) || w.events >= super::particle::MAX_EVENTS {
@@ -492,14 +492,9 @@ impl ParticleTracer<'_> {
                     ray = t.scatter(hit.x, u, rng);
                 }
                 Stop::Boundary(end) => match Leg::leave(t, end, rng) {
-                    // given up (see `MAX_REFLECTIONS`)
-                    Leg::Inside(_) if reflections == super::particle::MAX_REFLECTIONS => {
-                        return None;
-                    }
-                    Leg::Inside(reflected) => {
-                        reflections += 1;
-                        ray = reflected;
-                    }
+                    Leg::Inside(reflected) if reflections.another() => ray = reflected,
+                    // given up
+                    Leg::Inside(_) => return None,
                     out => return Some(out),
                 },
                 Stop::Stuck => return None,

@@ -39,7 +39,7 @@
 
 use super::connection_slopes::Vertex;
 use super::particle::{
-    ParticleTracer, Tools, Total, albedo_score, flight_score, roulette, roulette_by,
+    ParticleTracer, Reflections, Tools, Total, albedo_score, flight_score, roulette, roulette_by,
 };
 use super::scene::{Derivative, MAX_DERIVATIVES, MAX_TARGETS, Volume};
 use crate::eikonal::trace::{entry_parameter, jacobian_of, refract};
@@ -678,7 +678,7 @@ impl ParticleTracer<'_> {
         let derivatives = &self.scene.derivatives;
         let mut tracks = [0.0; MAX_TARGETS];
         let mut slopes: TrackSlopes = [[0.0; P]; MAX_TARGETS];
-        let mut reflections = 0;
+        let mut reflections = Reflections::default();
         loop {
             let u = uniform(rng);
             tracks.fill(0.0);
@@ -729,17 +729,14 @@ impl ParticleTracer<'_> {
             if !collided {
                 match self.leave(t, sens, &mut ray, &mut tan, p, rng) {
                     Some(out_leg) => return Some(out_leg),
-                    None if reflections == super::particle::MAX_REFLECTIONS => {
+                    None if reflections.another() => continue,
+                    None => {
                         out[self.total(Total::Unfinished)].re += p.weight;
                         return None;
                     }
-                    None => {
-                        reflections += 1;
-                        continue;
-                    }
                 }
             }
-            reflections = 0;
+            reflections = Reflections::default();
             p.events += 1;
             out[self.total(Total::Absorbed)].re += p.weight * (1.0 - albedo);
             p.weight *= albedo;
