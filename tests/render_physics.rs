@@ -1,11 +1,11 @@
 //! The refractive renderer against closed forms and an independent tracer: energy balance, the
 //! Fresnel slab (with its multiple internal reflections and their arrival times), a scattering slab
-//! with mismatched faces against a plain slab tracer written here, a Luneburg lens focusing a beam
+//! with mismatched faces against the plain layered tracer of `common`, a Luneburg lens focusing a beam
 //! on its antipode, and a beam bending along the closed-form ray of a linear-gradient tank.
 
 mod common;
 
-use common::{bare_scene, flux, render};
+use common::{Layer, bare_scene, flux, intensity_in_cone, plain_layers, render};
 use glam::DVec3;
 use lightpath::eikonal::{BoundedField, Bounds, Profile};
 use lightpath::math::{Rng, stream_rng, uniform};
@@ -202,78 +202,20 @@ fn light_trapped_in_a_clear_glass_cube_is_given_up_as_unfinished() {
     assert!((x + u - 1.0).abs() < 1e-12, "{x} + {u}");
 }
 
-/// A plain slab tracer independent of the renderer: analog absorption, straight flights in `μ`
-/// only, Fresnel by the textbook amplitude formulas; returns (R, T) per photon as 0/1 tallies.
-fn plain_slab(n: f64, tau: f64, albedo: f64, g: f64, photons: u64, rng: &mut Rng) -> (f64, f64) {
-    let fresnel = |cos_i: f64, n1: f64, n2: f64| -> f64 {
-        let sin_t = n1 / n2 * (1.0 - cos_i * cos_i).sqrt();
-        if sin_t >= 1.0 {
-            return 1.0;
-        }
-        let cos_t = (1.0 - sin_t * sin_t).sqrt();
-        let rs = (n1 * cos_i - n2 * cos_t) / (n1 * cos_i + n2 * cos_t);
-        let rp = (n2 * cos_i - n1 * cos_t) / (n2 * cos_i + n1 * cos_t);
-        0.5 * (rs * rs + rp * rp)
-    };
-    let (mut r_count, mut t_count) = (0u64, 0u64);
-    for _ in 0..photons {
-        if uniform(rng) < fresnel(1.0, 1.0, n) {
-            r_count += 1;
-            continue;
-        }
-        // optical depth coordinate in [0, tau], direction cosine mu
-        let (mut z, mut mu) = (0.0f64, 1.0f64);
-        loop {
-            let s = -(1.0 - uniform(rng)).ln();
-            let z_new = z + mu * s;
-            if z_new < 0.0 || z_new > tau {
-                let face_top = z_new > tau;
-                z = if face_top { tau } else { 0.0 };
-                if uniform(rng) < fresnel(mu.abs(), n, 1.0) {
-                    mu = -mu;
-                    continue;
-                }
-                if face_top {
-                    t_count += 1;
-                } else {
-                    r_count += 1;
-                }
-                break;
-            }
-            z = z_new;
-            if uniform(rng) >= albedo {
-                break;
-            }
-            // Henyey–Greenstein cosine, then rotate about the old direction
-            let c = if g == 0.0 {
-                1.0 - 2.0 * uniform(rng)
-            } else {
-                let f = (1.0 - g * g) / (1.0 - g + 2.0 * g * uniform(rng));
-                (1.0 + g * g - f * f) / (2.0 * g)
-            };
-            let phi = 2.0 * std::f64::consts::PI * uniform(rng);
-            mu = mu * c
-                + (1.0 - mu * mu).max(0.0).sqrt() * (1.0 - c * c).max(0.0).sqrt() * phi.cos();
-        }
-    }
-    (
-        r_count as f64 / photons as f64,
-        t_count as f64 / photons as f64,
-    )
-}
-
 #[test]
 fn a_scattering_slab_with_fresnel_faces_matches_a_plain_slab_tracer() {
     let (n, l, sigma_s, sigma_a, g) = (1.4, 1.0, 1.8, 0.2, 0.6);
     let photons = 100_000;
-    let (r_ref, t_ref) = plain_slab(
+    // the plain layered tracer of `common`: one layer, no density
+    let slab = Layer {
+        z: [-0.5 * l, 0.5 * l],
         n,
-        (sigma_s + sigma_a) * l,
-        sigma_s / (sigma_s + sigma_a),
+        sigma_s,
+        sigma_a,
         g,
-        photons,
-        &mut stream_rng(11, 0),
-    );
+    };
+    let no_density: (&dyn Fn(f64) -> f64, f64) = (&|_| 1.0, 1.0);
+    let (r_ref, t_ref) = plain_layers(&[slab], no_density, photons, &mut stream_rng(11, 0));
     let ref_err = |p: f64| (p * (1.0 - p) / photons as f64).sqrt();
     for profile in [
         Profile::Constant { n },
@@ -695,10 +637,7 @@ fn orthographic_and_pinhole_cameras_see_the_intensity_a_collimated_detector_coun
         sensors: vec![detector],
         ..bare_scene(0.005)
     };
-    let (e, est) = render(&base, 400_000, 31);
-    let (p, sp) = value(&e, est.power(0));
-    let omega = 2.0 * std::f64::consts::PI * (1.0 - alpha.cos());
-    let (reference, ref_se) = (p / omega, sp / omega);
+    let (reference, ref_se) = intensity_in_cone(&base, alpha, 400_000, 31);
     let mut scene = base.clone();
     scene.sensors.clear();
     scene.cameras.push(lightpath::rrte::Camera::new(

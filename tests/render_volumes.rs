@@ -1,5 +1,5 @@
-//! Several volumes in one scene, each its own shape, index and bulk: two slabs apart against a
-//! plain layered tracer written here (Fresnel at all four faces, the gap between them; with and
+//! Several volumes in one scene, each its own shape, index and bulk: two slabs apart against the
+//! plain layered tracer of `common` (Fresnel at all four faces, the gap between them; with and
 //! without a density), particle, path and bidirectional tracing on the same images of a glass
 //! ball beside a glass cube, cameras against a collimated detector through a second volume, a
 //! sampled volume against the analytic one, and a volume placed away from the origin against the
@@ -7,117 +7,12 @@
 
 mod common;
 
-use common::{bare_scene, flux, render};
+use common::{Layer, bare_scene, flux, intensity_in_cone, plain_layers, render};
 use glam::DVec3;
 use lightpath::eikonal::{BoundedField, Bounds, Part, Profile};
-use lightpath::math::{Rng, stream_rng, uniform};
+use lightpath::math::stream_rng;
 use lightpath::medium::{PhaseFunction, Scattering};
 use lightpath::rrte::{Bulk, Light, Pinhole, RenderScene, Sensor, Total, Tracing, Volume};
-
-/// A layer of the plain tracer: its faces `z0 < z1`, index, coefficients and HG `g`.
-#[derive(Clone, Copy)]
-struct Layer {
-    z: [f64; 2],
-    n: f64,
-    sigma_s: f64,
-    sigma_a: f64,
-    g: f64,
-}
-
-/// Unpolarised Fresnel reflectance from index `n1` into `n2` at incidence cosine `cos_i`, by the
-/// textbook amplitude formulas (1 beyond the critical angle).
-fn fresnel(cos_i: f64, n1: f64, n2: f64) -> f64 {
-    let sin_t = n1 / n2 * (1.0 - cos_i * cos_i).max(0.0).sqrt();
-    if sin_t >= 1.0 {
-        return 1.0;
-    }
-    let cos_t = (1.0 - sin_t * sin_t).sqrt();
-    let rs = (n1 * cos_i - n2 * cos_t) / (n1 * cos_i + n2 * cos_t);
-    let rp = (n2 * cos_i - n1 * cos_t) / (n2 * cos_i + n1 * cos_t);
-    0.5 * (rs * rs + rp * rp)
-}
-
-/// A plain tracer of plane-parallel layers in air (index 1 between them), independent of the
-/// renderer: a photon is a height `z` and a direction cosine `μ`; it flies straight to the next
-/// collision or face, scatters with the layer's albedo (analog absorption) by Henyey–Greenstein,
-/// and at each face reflects with the Fresnel probability or refracts by Snell's law in `μ`.
-/// The layers' coefficients are scaled by `density(z)` (at most `max`), drawn by delta tracking:
-/// tentative collisions against `σ_t · max`, kept with probability `density(z)/max`.
-/// Returns the fractions of photons leaving below the first layer (R) and above the last (T).
-fn plain_layers(
-    layers: &[Layer],
-    (density, max): (&dyn Fn(f64) -> f64, f64),
-    photons: u64,
-    rng: &mut Rng,
-) -> (f64, f64) {
-    let (mut r_count, mut t_count) = (0u64, 0u64);
-    for _ in 0..photons {
-        // in layer `at` (None: in the air below, between or above), travelling with cosine mu
-        let (mut z, mut mu, mut at) = (layers[0].z[0] - 1.0, 1.0f64, None::<usize>);
-        loop {
-            let Some(k) = at else {
-                // in the air: straight to the next face along mu, or away
-                let next = if mu > 0.0 {
-                    layers.iter().position(|l| l.z[0] >= z - 1e-12)
-                } else {
-                    layers.iter().rposition(|l| l.z[1] <= z + 1e-12)
-                };
-                let Some(k) = next else {
-                    if mu > 0.0 {
-                        t_count += 1;
-                    } else {
-                        r_count += 1;
-                    }
-                    break;
-                };
-                let l = layers[k];
-                z = if mu > 0.0 { l.z[0] } else { l.z[1] };
-                if uniform(rng) < fresnel(mu.abs(), 1.0, l.n) {
-                    mu = -mu;
-                    continue;
-                }
-                mu = mu.signum() * (1.0 - (1.0 - mu * mu) / (l.n * l.n)).sqrt();
-                at = Some(k);
-                continue;
-            };
-            let l = layers[k];
-            let sigma_t = l.sigma_s + l.sigma_a;
-            let s = -(1.0 - uniform(rng)).ln() / (sigma_t * max);
-            let z_new = z + mu * s;
-            if z_new < l.z[0] || z_new > l.z[1] {
-                z = if z_new > l.z[1] { l.z[1] } else { l.z[0] };
-                if uniform(rng) < fresnel(mu.abs(), l.n, 1.0) {
-                    mu = -mu;
-                    continue;
-                }
-                mu = mu.signum() * (1.0 - l.n * l.n * (1.0 - mu * mu)).sqrt();
-                at = None;
-                continue;
-            }
-            z = z_new;
-            if uniform(rng) * max >= density(z) {
-                continue;
-            }
-            if uniform(rng) >= l.sigma_s / sigma_t {
-                break;
-            }
-            let g = l.g;
-            let c = if g == 0.0 {
-                1.0 - 2.0 * uniform(rng)
-            } else {
-                let f = (1.0 - g * g) / (1.0 - g + 2.0 * g * uniform(rng));
-                (1.0 + g * g - f * f) / (2.0 * g)
-            };
-            let phi = 2.0 * std::f64::consts::PI * uniform(rng);
-            mu = mu * c
-                + (1.0 - mu * mu).max(0.0).sqrt() * (1.0 - c * c).max(0.0).sqrt() * phi.cos();
-        }
-    }
-    (
-        r_count as f64 / photons as f64,
-        t_count as f64 / photons as f64,
-    )
-}
 
 /// A part and its bulk: a shape at `center` of constant index `n`.
 fn part(shape: Bounds, center: DVec3, n: f64, bulk: (f64, f64, f64)) -> (Part, Bulk) {
@@ -486,10 +381,7 @@ fn collimated_and_cameras(density: Option<lightpath::rrte::Density>) {
         reflections: 2,
         ..bare_scene(0.01)
     };
-    let (e, est) = render(&base, 400_000, 41);
-    let (p, sp) = (e.mean[est.power(0)].re, e.stderr[est.power(0)]);
-    let omega = 2.0 * std::f64::consts::PI * (1.0 - alpha.cos());
-    let (reference, ref_se) = (p / omega, sp / omega);
+    let (reference, ref_se) = intensity_in_cone(&base, alpha, 400_000, 41);
     let mut scene = base.clone();
     scene.sensors.clear();
     scene.cameras.push(lightpath::rrte::Camera::new(

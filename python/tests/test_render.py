@@ -47,6 +47,18 @@ def test_render_equals_the_command_line_and_its_images_add_up(repo, run_cli, tmp
         lp.render(repo / "configs" / "quickstart.toml")
 
 
+def test_render_takes_several_volumes_from_a_dict(repo):
+    # the example's three volumes, rendered by particle tracing; then two of them made to overlap
+    scene = read_toml(repo / "configs" / "render_volumes.toml")
+    scene["render"]["estimator"] = "particle"
+    r = lp.render(scene, samples=2000, seed=3, threads=2)
+    assert len(r.result["config"]["volume"]) == 3
+    assert r.result["cameras"][0]["irradiance"]["mean"] > 0
+    scene["volume"][1]["center"] = [-1.0, 0.0, 0.0]
+    with pytest.raises(ValueError, match=r"volume\[0\] and volume\[1\] overlap"):
+        lp.render(scene, samples=100)
+
+
 def test_render_derivatives_give_the_gradient_of_a_loss(tmp_path):
     # a Fresnel slab's transmission and reflection with their derivatives by the medium; the
     # gradient of a loss on the powers is the chain rule through them

@@ -105,3 +105,123 @@ pub fn exr_channel(path: &std::path::Path, name: &str) -> ((usize, usize), Vec<f
         _ => panic!("{name} is not f32"),
     }
 }
+
+/// A layer of the plain tracer: its faces `z0 < z1`, index, coefficients and HG `g`.
+#[derive(Clone, Copy)]
+pub struct Layer {
+    pub z: [f64; 2],
+    pub n: f64,
+    pub sigma_s: f64,
+    pub sigma_a: f64,
+    pub g: f64,
+}
+
+/// Unpolarised Fresnel reflectance from index `n1` into `n2` at incidence cosine `cos_i`, by the
+/// textbook amplitude formulas (1 beyond the critical angle).
+pub fn fresnel(cos_i: f64, n1: f64, n2: f64) -> f64 {
+    let sin_t = n1 / n2 * (1.0 - cos_i * cos_i).max(0.0).sqrt();
+    if sin_t >= 1.0 {
+        return 1.0;
+    }
+    let cos_t = (1.0 - sin_t * sin_t).sqrt();
+    let rs = (n1 * cos_i - n2 * cos_t) / (n1 * cos_i + n2 * cos_t);
+    let rp = (n2 * cos_i - n1 * cos_t) / (n2 * cos_i + n1 * cos_t);
+    0.5 * (rs * rs + rp * rp)
+}
+
+/// A plain tracer of plane-parallel layers in air (index 1 between them), independent of the
+/// renderer: a photon is a height `z` and a direction cosine `μ`; it flies straight to the next
+/// collision or face, scatters with the layer's albedo (analog absorption) by Henyey–Greenstein,
+/// and at each face reflects with the Fresnel probability or refracts by Snell's law in `μ`.
+/// The layers' coefficients are scaled by `density(z)` (at most `max`), drawn by delta tracking:
+/// tentative collisions against `σ_t · max`, kept with probability `density(z)/max`.
+/// Returns the fractions of photons leaving below the first layer (R) and above the last (T).
+pub fn plain_layers(
+    layers: &[Layer],
+    (density, max): (&dyn Fn(f64) -> f64, f64),
+    photons: u64,
+    rng: &mut lightpath::math::Rng,
+) -> (f64, f64) {
+    let (mut r_count, mut t_count) = (0u64, 0u64);
+    for _ in 0..photons {
+        // in layer `at` (None: in the air below, between or above), travelling with cosine mu
+        let (mut z, mut mu, mut at) = (layers[0].z[0] - 1.0, 1.0f64, None::<usize>);
+        loop {
+            let Some(k) = at else {
+                // in the air: straight to the next face along mu, or away
+                let next = if mu > 0.0 {
+                    layers.iter().position(|l| l.z[0] >= z - 1e-12)
+                } else {
+                    layers.iter().rposition(|l| l.z[1] <= z + 1e-12)
+                };
+                let Some(k) = next else {
+                    if mu > 0.0 {
+                        t_count += 1;
+                    } else {
+                        r_count += 1;
+                    }
+                    break;
+                };
+                let l = layers[k];
+                z = if mu > 0.0 { l.z[0] } else { l.z[1] };
+                if lightpath::math::uniform(rng) < fresnel(mu.abs(), 1.0, l.n) {
+                    mu = -mu;
+                    continue;
+                }
+                mu = mu.signum() * (1.0 - (1.0 - mu * mu) / (l.n * l.n)).sqrt();
+                at = Some(k);
+                continue;
+            };
+            let l = layers[k];
+            let sigma_t = l.sigma_s + l.sigma_a;
+            let s = -(1.0 - lightpath::math::uniform(rng)).ln() / (sigma_t * max);
+            let z_new = z + mu * s;
+            if z_new < l.z[0] || z_new > l.z[1] {
+                z = if z_new > l.z[1] { l.z[1] } else { l.z[0] };
+                if lightpath::math::uniform(rng) < fresnel(mu.abs(), l.n, 1.0) {
+                    mu = -mu;
+                    continue;
+                }
+                mu = mu.signum() * (1.0 - l.n * l.n * (1.0 - mu * mu)).sqrt();
+                at = None;
+                continue;
+            }
+            z = z_new;
+            if lightpath::math::uniform(rng) * max >= density(z) {
+                continue;
+            }
+            if lightpath::math::uniform(rng) >= l.sigma_s / sigma_t {
+                break;
+            }
+            let g = l.g;
+            let c = if g == 0.0 {
+                1.0 - 2.0 * lightpath::math::uniform(rng)
+            } else {
+                let f = (1.0 - g * g) / (1.0 - g + 2.0 * g * lightpath::math::uniform(rng));
+                (1.0 + g * g - f * f) / (2.0 * g)
+            };
+            let phi = 2.0 * std::f64::consts::PI * lightpath::math::uniform(rng);
+            mu = mu * c
+                + (1.0 - mu * mu).max(0.0).sqrt() * (1.0 - c * c).max(0.0).sqrt() * phi.cos();
+        }
+    }
+    (
+        r_count as f64 / photons as f64,
+        t_count as f64 / photons as f64,
+    )
+}
+
+/// The intensity along a collimated flux detector's axis (sensor 0 of `scene`, accepting within
+/// `alpha` of its normal): its power over the cone's solid angle (up to the cone's angular
+/// average), with its standard error, from `photons` photons.
+pub fn intensity_in_cone(
+    scene: &lightpath::rrte::RenderScene,
+    alpha: f64,
+    photons: u64,
+    seed: u64,
+) -> (f64, f64) {
+    let (e, est) = render(scene, photons, seed);
+    let k = est.power(0);
+    let omega = 2.0 * std::f64::consts::PI * (1.0 - alpha.cos());
+    (e.mean[k].re / omega, e.stderr[k] / omega)
+}
