@@ -1247,6 +1247,23 @@ fn several_volumes_are_checked_by_key_and_render() {
         ),
     ];
     refused_all(&dir, &base, cases);
+    // a volume's mesh is read relative to the config, wherever the command runs
+    std::fs::create_dir_all(dir.join("meshes")).unwrap();
+    std::fs::copy(
+        config("meshes/trefoil.obj"),
+        dir.join("meshes").join("trefoil.obj"),
+    )
+    .unwrap();
+    let knot = base.replacen(
+        "bounds = { kind = \"box\", size = [0.7, 1.2, 0.7] }",
+        "bounds = { kind = \"sdf\", mesh = \"meshes/trefoil.obj\", scale = 0.2, spacing = 0.03 }",
+        1,
+    );
+    assert_ne!(knot, base);
+    let path = dir.join("knot.toml");
+    std::fs::write(&path, knot).unwrap();
+    let o = lightpath(&["check", &path.display().to_string()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let out = dir.join("run");
     render_ok(&config("render_volumes.toml"), &out, 300);
     let r = results(&out);

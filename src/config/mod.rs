@@ -506,10 +506,7 @@ fn build(value: toml::Value, path: &Path) -> Result<Task, ConfigError> {
         }
         TaskKind::Render => {
             let mut config: RenderConfig = typed(value)?;
-            config.field.resolve_paths(path);
-            if let Some(m) = &mut config.medium {
-                m.resolve_paths(path.parent().unwrap_or(Path::new("")));
-            }
+            config.resolve_paths(path);
             let scene = config.build()?;
             let design = config.design(&scene)?;
             Task::Render(Box::new(RenderTask {

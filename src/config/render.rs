@@ -738,6 +738,28 @@ const MAX_PIXELS: u64 = 4096;
 const MAX_BINS: u64 = 10_000;
 
 impl RenderConfig {
+    /// Make the file paths of the field, the medium and every volume (grids, signed-distance
+    /// shapes and meshes, phase tables) relative to the config file's folder.
+    pub fn resolve_paths(&mut self, config: &std::path::Path) {
+        let dir = config.parent().unwrap_or(std::path::Path::new(""));
+        self.field.resolve_paths(config);
+        if let Some(m) = &mut self.medium {
+            m.resolve_paths(dir);
+        }
+        for v in &mut self.volume {
+            let mut keys = FieldConfig {
+                profiles: std::mem::take(&mut v.profiles),
+                bounds: std::mem::take(&mut v.bounds),
+                n_out: 1.0,
+            };
+            keys.resolve_paths(config);
+            (v.profiles, v.bounds) = (keys.profiles, keys.bounds);
+            if let Some(m) = &mut v.medium {
+                m.resolve_paths(dir);
+            }
+        }
+    }
+
     /// The scene these keys describe, every value checked.
     pub fn build(&self) -> Result<RenderScene, ConfigError> {
         let (volume, modulation) = if self.volume.is_empty() {
