@@ -129,7 +129,7 @@ pub fn describe(task: &RenderTask) -> String {
     let s = &task.scene;
     let v = &s.volume;
     format!(
-        "render config{}: {} index profile(s) ({}) in {}, σ_s = {}, σ_a = {}, {} sensor plane(s), {} target(s), {} probe(s), {} camera(s), {} surface(s), {} output(s){}{}{}; ~{:.3} scattering events per photon",
+        "render config{}: {} index profile(s) ({}) in {}, {}, {} sensor plane(s), {} target(s), {} probe(s), {} camera(s), {} surface(s), {} output(s){}{}{}; ~{:.3} scattering events per photon",
         match s.tracing {
             crate::rrte::Tracing::FromLight => "",
             crate::rrte::Tracing::FromCameras => " (path tracing from the cameras)",
@@ -142,8 +142,7 @@ pub fn describe(task: &RenderTask) -> String {
             "curved rays"
         },
         bounds_text(&v.field.bounds),
-        v.sigma_s,
-        v.sigma_a,
+        bulk_text(v),
         s.sensors.iter().filter(|x| x.region.is_none()).count(),
         s.sensors.iter().filter(|x| x.region.is_some()).count(),
         s.probes.len(),
@@ -168,6 +167,22 @@ pub fn describe(task: &RenderTask) -> String {
                 ),
             }),
         crate::speckle::paths::expected_events(&proxy_medium(&task.scene)),
+    )
+}
+
+/// The volume's coefficients in words: one volume's, or each of several volumes' in order.
+fn bulk_text(v: &crate::rrte::Volume) -> String {
+    if v.parts.is_empty() {
+        return format!("σ_s = {}, σ_a = {}", v.sigma_s, v.sigma_a);
+    }
+    let list = |f: fn(&crate::rrte::Bulk) -> f64| {
+        let each: Vec<String> = v.parts.iter().map(|b| f(b).to_string()).collect();
+        format!("[{}]", each.join(", "))
+    };
+    format!(
+        "σ_s = {}, σ_a = {} (volume by volume)",
+        list(|b| b.sigma_s),
+        list(|b| b.sigma_a)
     )
 }
 
@@ -225,12 +240,24 @@ fn bounds_text(bounds: &crate::eikonal::Bounds) -> String {
 /// The volume as a homogeneous medium in its bounding box (for the expected path length).
 pub fn proxy_medium(scene: &crate::rrte::RenderScene) -> Medium {
     let v = &scene.volume;
-    let half = v.field.bounds.half_extent().unwrap_or(glam::DVec3::ONE);
+    let mut half = v.field.bounds.half_extent().unwrap_or(glam::DVec3::ONE);
+    let (mut sigma_s, mut sigma_a, mut scattering) = (v.sigma_s, v.sigma_a, &v.scattering);
+    // of several volumes, the most extinguishing one in its own box (the estimate errs towards
+    // more work)
+    let parts = v.field.bounds.parts().unwrap_or(&[]);
+    if let Some((part, b)) = parts
+        .iter()
+        .zip(&v.parts)
+        .max_by(|a, b| a.1.sigma_t().total_cmp(&b.1.sigma_t()))
+    {
+        half = part.shape.half_extent().unwrap_or(half);
+        (sigma_s, sigma_a, scattering) = (b.sigma_s, b.sigma_a, &b.scattering);
+    }
     Medium {
         geometry: Geometry::boxed((half * 2.0).to_array()),
-        sigma_s: v.sigma_s,
-        sigma_a: v.sigma_a,
-        scattering: v.scattering.clone(),
+        sigma_s,
+        sigma_a,
+        scattering: scattering.clone(),
     }
 }
 
