@@ -344,6 +344,67 @@ fn spectra_are_checked_by_key() {
     let _ = std::fs::remove_dir_all(dir);
 }
 
+/// Volumes of their own glasses: their materials checked by key (and refused without a
+/// spectrum, or beside `spectrum.inside`); the example renders in RGB time-of-flight frames.
+#[test]
+fn volumes_of_their_own_glasses_are_checked_by_key_and_render() {
+    let dir = tmp("glasses");
+    std::fs::create_dir_all(&dir).unwrap();
+    let base = std::fs::read_to_string(config("render_glasses.toml")).unwrap();
+    let spectrum = "[spectrum]\nrange_nm = [380.0, 780.0]";
+    let cases: &[(&str, &str, &str)] = &[
+        (
+            "materials = [\"bk7\"]",
+            "materials = [\"crown\"]",
+            "volume[0].materials[0]",
+        ),
+        (
+            "materials = [\"bk7\", \"f2\"]",
+            "materials = [\"bk7\", \"bk7\"]",
+            "volume[1].materials",
+        ),
+        (
+            "materials = [\"bk7\", \"f2\"]",
+            "materials = [\"bk7\", \"f2\", \"fused_silica\"]",
+            "volume[1].materials",
+        ),
+        (
+            spectrum,
+            "[spectrum]\ninside = [\"bk7\"]\nrange_nm = [380.0, 780.0]",
+            "spectrum.inside",
+        ),
+        (
+            spectrum,
+            "[spectral]\nrange_nm = [380.0, 780.0]",
+            "spectral",
+        ),
+    ];
+    refused_all(&dir, &base, cases);
+    // without [spectrum], the materials are refused by the first volume naming them
+    let plain: String = base
+        .lines()
+        .filter(|l| {
+            !l.starts_with("[spectrum]")
+                && !l.starts_with("range_nm")
+                && !l.starts_with("reference_nm")
+        })
+        .map(|l| format!("{l}\n"))
+        .collect();
+    refused(&dir.join("plain.toml"), &plain, "volume[0].materials");
+    let out = dir.join("run");
+    render_ok(&config("render_glasses.toml"), &out, 2000);
+    let r = results(&out);
+    assert_eq!(r["channels"], serde_json::json!(["R", "G", "B"]));
+    assert_eq!(
+        r["config"]["volume"][1]["materials"],
+        serde_json::json!(["bk7", "f2"])
+    );
+    for file in ["screen_caustics.exr", "camera_view_t0005.exr"] {
+        assert!(out.join(file).exists(), "{file}");
+    }
+    let _ = std::fs::remove_dir_all(dir);
+}
+
 /// A white-light render writes RGB images with a standard error per channel, and says so.
 #[test]
 fn white_light_renders_rgb_images() {

@@ -335,3 +335,226 @@ fn a_pulse_arrives_at_the_group_delay() {
     );
     assert!(((group - phase) / width) > 4.0);
 }
+
+/// A part and its bulk for the scenes of several volumes below.
+fn part(
+    shape: Bounds,
+    center: DVec3,
+    profiles: Vec<Profile>,
+    sigma_s: f64,
+) -> (lightpath::eikonal::Part, lightpath::rrte::Bulk) {
+    (
+        lightpath::eikonal::Part::new(shape, center, profiles),
+        lightpath::rrte::Bulk {
+            sigma_s,
+            sigma_a: 0.02,
+            scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g: 0.5 }),
+        },
+    )
+}
+
+/// Two volumes of their own glasses side by side in water, a crown ball and a ball mixing crown
+/// (surface) into flint (centre): rendered at one line through each volume's dispersion map, and
+/// with each volume's index written out at that wavelength, the screen and the pinhole camera
+/// (reached by connections through both balls) agree to round-off.
+#[test]
+fn volumes_of_their_own_glasses_at_one_line_are_their_fields_at_that_line() {
+    let flint = Material::named("f2").unwrap();
+    let water = Material::Cauchy {
+        a: 1.324,
+        b: 0.00306,
+        c: 0.0,
+    };
+    let (l, r, radius) = (450.0, REFERENCE_NM, 0.7);
+    let ball = Bounds::Sphere { radius };
+    // indices of the crown ball, and of the mixture's centre and surface, at wavelength `at`
+    let balls = |at: f64, n_out: f64, spectrum| {
+        let (crown, centre) = (bk7().index(at), flint.index(at));
+        let volume = Volume::several(
+            vec![
+                part(
+                    ball.clone(),
+                    DVec3::new(-0.9, 0.0, 0.0),
+                    vec![Profile::Constant { n: crown }],
+                    0.4,
+                ),
+                part(
+                    ball.clone(),
+                    DVec3::new(0.9, 0.0, 0.0),
+                    vec![Profile::SphericalPolynomial {
+                        n0: centre,
+                        coefficients: vec![(crown - centre) / radius],
+                    }],
+                    0.2,
+                ),
+            ],
+            n_out,
+        );
+        RenderScene {
+            volume,
+            light: Light::Beam {
+                center: DVec3::new(0.0, 0.0, -2.0),
+                direction: DVec3::Z,
+                radius: 1.7,
+            },
+            sensors: vec![Sensor::new(
+                "back".into(),
+                SensorKind::Screen,
+                DVec3::new(0.0, 0.0, 1.2),
+                DVec3::Z,
+                Some([4.0, 2.0]),
+                [40, 20],
+            )],
+            pinholes: vec![
+                lightpath::rrte::Pinhole::looking_at(
+                    "view".into(),
+                    DVec3::new(0.5, -4.0, 1.0),
+                    DVec3::ZERO,
+                    DVec3::Z,
+                    20f64.to_radians(),
+                    [16, 8],
+                )
+                .unwrap(),
+            ],
+            spectrum,
+            ..bare_scene(0.005)
+        }
+    };
+    let n_out = 1.333;
+    let mapped = balls(
+        r,
+        n_out,
+        Some(
+            Spectrum::new([l, l], r, None, Some(water.clone())).with_parts(vec![
+                Some(Dispersion::Scaled(bk7())),
+                Some(Dispersion::Mixed(bk7(), flint.clone())),
+            ]),
+        ),
+    );
+    let by_hand = balls(l, n_out * water.index(l) / water.index(r), None);
+    let (a, est) = render(&mapped, 3_000);
+    let (b, _) = render(&by_hand, 3_000);
+    for (what, image) in [
+        ("screen", est.sensor_image(0)),
+        ("pinhole", est.images_of_camera(0)),
+    ] {
+        let mut total = 0.0;
+        for i in 0..image.pixels {
+            let (x, y) = (a.mean[image.first + i].re, b.mean[image.first + i].re);
+            assert!(
+                (x - y).abs() <= 1e-9 * (1.0 + y.abs()),
+                "{what} pixel {i}: {x} vs {y}"
+            );
+            total += y;
+        }
+        assert!(total > 0.0, "{what} saw nothing");
+    }
+    // and the reference line differs: dispersion moved the light
+    let (c, _) = render(&balls(r, n_out, None), 3_000);
+    let image = est.sensor_image(0);
+    let pixel = |e: &lightpath::mc::Estimate, i: usize| e.mean[image.first + i].re;
+    let lit = (0..image.pixels).filter(|&i| pixel(&b, i) > 0.0).count();
+    let moved = (0..image.pixels)
+        .filter(|&i| (pixel(&c, i) - pixel(&b, i)).abs() > 1e-9)
+        .count();
+    assert!(moved > lit / 10, "only {moved} of {lit} lit pixels changed");
+}
+
+/// A pulse through a weakly scattering N-BK7 slab and then a clear F2 slab arrives after the
+/// group path of each glass at its own dispersion, `4 + 3 n_g(BK7) + 4 n_g(F2)`: at a flux
+/// detector behind (the flights through each slab) and at an orthographic camera behind (the
+/// light scattered forward on the beam, connected out of the first slab and across the second,
+/// which it enters again). Taking the first slab's group factors for the second would be three
+/// bins early, the phase path seven.
+#[test]
+fn a_pulse_through_two_glasses_arrives_at_each_ones_group_delay() {
+    let flint = Material::named("f2").unwrap();
+    let (l, r) = (450.0, REFERENCE_NM);
+    let h = 1e-3;
+    let group = |m: &Material| m.index(l) - l * (m.index(l + h) - m.index(l - h)) / (2.0 * h);
+    let slab = |from: f64, to: f64, n: f64, sigma_s: f64| {
+        part(
+            Bounds::Box {
+                half: DVec3::new(50.0, 50.0, 0.5 * (to - from)),
+            },
+            DVec3::new(0.0, 0.0, 0.5 * (from + to)),
+            vec![Profile::Constant { n }],
+            sigma_s,
+        )
+    };
+    let mut volume = Volume::several(
+        vec![
+            slab(-5.0, -2.0, bk7().index(r), 0.05),
+            slab(-1.0, 3.0, flint.index(r), 0.0),
+        ],
+        1.0,
+    );
+    volume.parts[0].sigma_a = 0.0;
+    volume.parts[0].scattering = Scattering::single(PhaseFunction::Isotropic);
+    volume.parts[1].sigma_a = 0.0;
+    let group_path = 4.0 + 3.0 * group(&bk7()) + 4.0 * group(&flint);
+    let phase_path = 4.0 + 3.0 * bk7().index(l) + 4.0 * flint.index(l);
+    // the bins put the group path in the middle of one
+    let width = group_path / 200.5;
+    let bins = 260;
+    let scene = RenderScene {
+        volume,
+        light: Light::Beam {
+            center: DVec3::new(0.0, 0.0, -6.0),
+            direction: DVec3::Z,
+            radius: 0.0,
+        },
+        sensors: vec![Sensor::new(
+            "behind".into(),
+            SensorKind::Flux,
+            DVec3::new(0.0, 0.0, 5.0),
+            DVec3::Z,
+            None,
+            [1, 1],
+        )],
+        cameras: vec![lightpath::rrte::Camera::new(
+            "behind".into(),
+            DVec3::Z,
+            DVec3::new(0.0, 0.0, 5.0),
+            [4.0, 4.0],
+            [1, 1],
+        )],
+        spectrum: Some(Spectrum::new([l, l], r, None, None).with_parts(vec![
+            Some(Dispersion::Scaled(bk7())),
+            Some(Dispersion::Scaled(flint.clone())),
+        ])),
+        transient: Some(lightpath::rrte::Transient {
+            bins,
+            max_path: bins as f64 * width,
+        }),
+        ..bare_scene(0.01)
+    };
+    let (e, est) = render(&scene, 4_000);
+    let brightest = |image: lightpath::rrte::ImageLayout| {
+        (0..bins)
+            .max_by(|&a, &b| {
+                e.mean[image.plane(Some(a), 0)]
+                    .re
+                    .total_cmp(&e.mean[image.plane(Some(b), 0)].re)
+            })
+            .unwrap()
+    };
+    for (what, image) in [
+        ("flux detector", est.sensor_image(0)),
+        ("orthographic camera", est.camera_image(0)),
+    ] {
+        assert_eq!(
+            brightest(image),
+            200,
+            "{what}: group path {group_path}, phase path {phase_path}"
+        );
+    }
+    // the second slab at the first one's group factors, n_g = α n
+    let alpha = group(&bk7()) / bk7().index(l);
+    let wrong = 4.0 * (group(&flint) - alpha * flint.index(l));
+    assert!(
+        wrong / width > 2.5 && (group_path - phase_path) / width > 6.0,
+        "{wrong} and {} against bins of {width}",
+        group_path - phase_path
+    );
+}

@@ -17,11 +17,7 @@ use lightpath::rrte::{Bulk, Light, Pinhole, RenderScene, Sensor, Total, Tracing,
 /// A part and its bulk: a shape at `center` of constant index `n`.
 fn part(shape: Bounds, center: DVec3, n: f64, bulk: (f64, f64, f64)) -> (Part, Bulk) {
     (
-        Part {
-            shape,
-            center,
-            profiles: vec![Profile::Constant { n }],
-        },
+        Part::new(shape, center, vec![Profile::Constant { n }]),
         Bulk {
             sigma_s: bulk.0,
             sigma_a: bulk.1,
@@ -245,13 +241,15 @@ fn particle_path_and_bidirectional_tracing_agree_on_two_volumes() {
 #[test]
 fn a_placed_volume_renders_as_the_same_volume_at_the_origin() {
     let c = DVec3::new(0.7, -0.4, 1.3);
-    let lens = |center: DVec3| Part {
-        shape: Bounds::Sphere { radius: 1.0 },
-        center,
-        profiles: vec![
-            Profile::Luneburg { radius: 1.0 },
-            Profile::Constant { n: 0.2 },
-        ],
+    let lens = |center: DVec3| {
+        Part::new(
+            Bounds::Sphere { radius: 1.0 },
+            center,
+            vec![
+                Profile::Luneburg { radius: 1.0 },
+                Profile::Constant { n: 0.2 },
+            ],
+        )
     };
     let bulk = Bulk {
         sigma_s: 0.4,

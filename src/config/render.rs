@@ -100,6 +100,11 @@ pub struct VolumeConfig {
     /// Bulk scattering inside (absent: clear).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub medium: Option<MediumConfig>,
+    /// With `[spectrum]`, what the volume is made of, as `spectrum.inside` names it for a
+    /// volume of its own: one material (the profiles scaled with it) or two mixed in place
+    /// (absent: the same index at every wavelength).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub materials: Vec<String>,
 }
 
 /// The coefficients and scattering law of a render's `[medium]` keys (at `wavelength`, NaN if
@@ -157,7 +162,7 @@ fn check_apart(parts: &[Part]) -> Result<(), ConfigError> {
 }
 
 /// The most volumes a scene holds (each is asked which holds a point at every step).
-const MAX_VOLUMES: usize = 16;
+const MAX_VOLUMES: usize = crate::eikonal::MAX_PARTS;
 
 /// An error of `[field]` or `[medium]` keys, told of `[[volume]]` entry `i`.
 fn of_volume(i: usize, e: ConfigError) -> ConfigError {
@@ -509,7 +514,8 @@ pub enum MaterialConfig {
 }
 
 impl SpectrumConfig {
-    fn build(&self) -> Result<Spectrum, ConfigError> {
+    /// The spectrum, with each volume's dispersion where the scene has `volumes`.
+    fn build(&self, volumes: &[VolumeConfig]) -> Result<Spectrum, ConfigError> {
         let range = match (self.range_nm, self.wavelength_nm) {
             (Some(_), Some(_)) => {
                 return err(
@@ -604,33 +610,51 @@ impl SpectrumConfig {
             }
             Ok(m)
         };
-        let inside = match self.inside.as_slice() {
-            [] => None,
-            [one] => Some(Dispersion::Scaled(material("spectrum.inside[0]", one)?)),
-            [first, second] => {
-                let (m1, m2) = (
-                    material("spectrum.inside[0]", first)?,
-                    material("spectrum.inside[1]", second)?,
-                );
-                if (m1.index(reference) - m2.index(reference)).abs() < 1e-6 {
+        // the materials a volume is made of (named under `key`)
+        let dispersion = |key: &str, names: &[String]| -> Result<_, ConfigError> {
+            Ok(match names {
+                [] => None,
+                [one] => Some(Dispersion::Scaled(material(&format!("{key}[0]"), one)?)),
+                [first, second] => {
+                    let (m1, m2) = (
+                        material(&format!("{key}[0]"), first)?,
+                        material(&format!("{key}[1]"), second)?,
+                    );
+                    if (m1.index(reference) - m2.index(reference)).abs() < 1e-6 {
+                        return err(format!(
+                            "{key} = [\"{first}\", \"{second}\"]: the two materials have the same index at reference_nm, so the field cannot say how they mix"
+                        ));
+                    }
+                    Some(Dispersion::Mixed(m1, m2))
+                }
+                more => {
                     return err(format!(
-                        "spectrum.inside = [\"{first}\", \"{second}\"]: the two materials have the same index at reference_nm, so the field cannot say how they mix"
+                        "{key} names {} materials: one (the field scaled with it) or two (mixed in place)",
+                        more.len()
                     ));
                 }
-                Some(Dispersion::Mixed(m1, m2))
-            }
-            more => {
-                return err(format!(
-                    "spectrum.inside names {} materials: one (the field scaled with it) or two (mixed in place)",
-                    more.len()
-                ));
-            }
+            })
         };
+        let inside = dispersion("spectrum.inside", &self.inside)?;
         let outside = match &self.outside {
             Some(name) => Some(material("spectrum.outside", name)?),
             None => None,
         };
-        Ok(Spectrum::new(range, reference, inside, outside))
+        let spectrum = Spectrum::new(range, reference, inside, outside);
+        if volumes.is_empty() {
+            return Ok(spectrum);
+        }
+        if !self.inside.is_empty() {
+            return err(
+                "spectrum.inside: with [[volume]], each volume names what it is made of (volume[i].materials)",
+            );
+        }
+        let parts = volumes
+            .iter()
+            .enumerate()
+            .map(|(i, v)| dispersion(&format!("volume[{i}].materials"), &v.materials))
+            .collect::<Result<_, _>>()?;
+        Ok(spectrum.with_parts(parts))
     }
 }
 
@@ -980,7 +1004,7 @@ impl RenderConfig {
                 EstimatorConfig::Bidirectional => Tracing::Bidirectional,
             },
             transient,
-            spectrum: self.spectrum.as_ref().map(|s| s.build()).transpose()?,
+            spectrum: self.spectrum()?,
             step,
             max_steps: r.max_steps as usize,
         };
@@ -1073,6 +1097,19 @@ impl RenderConfig {
         Ok((volume, modulation))
     }
 
+    /// `[spectrum]`, with each volume's materials; a volume's materials without it are refused.
+    fn spectrum(&self) -> Result<Option<Spectrum>, ConfigError> {
+        match &self.spectrum {
+            Some(s) => s.build(&self.volume).map(Some),
+            None => match self.volume.iter().position(|v| !v.materials.is_empty()) {
+                Some(i) => err(format!(
+                    "volume[{i}].materials: what a volume is made of sets its dispersion, which needs [spectrum] (the light's wavelengths)"
+                )),
+                None => Ok(None),
+            },
+        }
+    }
+
     /// The volumes of `[[volume]]`, as one volume of several parts.
     fn several_volumes(&self) -> Result<Volume, ConfigError> {
         let n = self.volume.len();
@@ -1094,11 +1131,6 @@ impl RenderConfig {
                 "modulation",
                 self.modulation.is_some(),
                 "an ultrasonic field is modulated in a scene of one volume ([field])",
-            ),
-            (
-                "spectrum",
-                self.spectrum.is_some(),
-                "dispersion is rendered in a scene of one volume ([field])",
             ),
             (
                 "design",
@@ -1140,11 +1172,7 @@ impl RenderConfig {
             };
             let field = keys.build().map_err(|e| of_volume(i, e))?;
             check_positive(&field).map_err(|e| of_volume(i, e))?;
-            parts.push(Part {
-                shape: field.bounds,
-                center,
-                profiles: field.profiles,
-            });
+            parts.push(Part::new(field.bounds, center, field.profiles));
             bulks.push(match &v.medium {
                 None => Bulk {
                     sigma_s: 0.0,

@@ -101,9 +101,28 @@ pub struct Part {
     pub shape: Bounds,
     pub center: DVec3,
     pub profiles: Vec<Profile>,
+    /// Inside, `n = offset + scale · Σ profiles`: 1 and 0 except in a dispersive render, which
+    /// maps each part's field, given at a reference wavelength, to the photon's wavelength by
+    /// the part's own materials (as [`BoundedField::scale`] does for a field of one volume).
+    pub scale: f64,
+    pub offset: f64,
 }
 
+/// The most parts a field may have (volumes of a scene).
+pub const MAX_PARTS: usize = 16;
+
 impl Part {
+    /// A part of `shape` holding `profiles`, both moved to `center`.
+    pub fn new(shape: Bounds, center: DVec3, profiles: Vec<Profile>) -> Self {
+        Part {
+            shape,
+            center,
+            profiles,
+            scale: 1.0,
+            offset: 0.0,
+        }
+    }
+
     /// How deep `x` lies inside the part's shape: positive inside (a lower bound on the distance
     /// to its surface), negative outside; the part holding a point, or the nearest, has the
     /// largest depth among disjoint parts.
@@ -120,21 +139,26 @@ impl Part {
         }
     }
 
-    /// The sum of the part's profiles at `x` (scene coordinates).
+    /// The part's index at `x` (scene coordinates).
     pub fn index(&self, x: DVec3) -> f64 {
         self.eval(x).0
     }
 
-    /// `(n, ∇n, ∇²n)` of the part's profiles at `x` (scene coordinates).
+    /// `(n, ∇n, ∇²n)` of the part at `x` (scene coordinates): its profiles' sum, mapped.
     #[inline]
     fn eval(&self, x: DVec3) -> (f64, DVec3, DMat3) {
         let local = x - self.center;
-        self.profiles
-            .iter()
-            .fold((0.0, DVec3::ZERO, DMat3::ZERO), |(n, g, h), p| {
-                let (pn, pg, ph) = p.eval(local);
-                (n + pn, g + pg, h + ph)
-            })
+        let (n, g, h) =
+            self.profiles
+                .iter()
+                .fold((0.0, DVec3::ZERO, DMat3::ZERO), |(n, g, h), p| {
+                    let (pn, pg, ph) = p.eval(local);
+                    (n + pn, g + pg, h + ph)
+                });
+        if self.scale == 1.0 && self.offset == 0.0 {
+            return (n, g, h);
+        }
+        (self.offset + self.scale * n, g * self.scale, h * self.scale)
     }
 }
 
@@ -671,6 +695,20 @@ impl IndexField for BoundedField {
 }
 
 impl BoundedField {
+    /// Set each part's map `(scale, offset)` (see [`Part::scale`]) in a field of several parts;
+    /// the parts are copied once if another field shares them, and kept in place after that.
+    pub fn map_parts(&mut self, map: impl Fn(usize) -> (f64, f64)) {
+        let [Profile::Parts(parts)] = self.profiles.as_mut_slice() else {
+            return;
+        };
+        // the bounds hold the same parts: let go of them so that a field of its own is not copied
+        self.bounds = Bounds::Everywhere;
+        for (k, p) in Arc::make_mut(parts).iter_mut().enumerate() {
+            (p.scale, p.offset) = map(k);
+        }
+        self.bounds = Bounds::Parts(parts.clone());
+    }
+
     /// `(n, ∇n)` at `x` (what ray tracing needs): the same bits as [`IndexField::eval`]'s first two.
     #[inline(always)]
     pub fn value_grad(&self, x: DVec3) -> (f64, DVec3) {

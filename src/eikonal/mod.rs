@@ -12,5 +12,5 @@ pub mod sdf;
 pub mod trace;
 
 pub use adjoint::{ExitGradient, FieldParam, GridAdjoint, RayGradient};
-pub use field::{BoundedField, Bounds, IndexField, Part, Profile, part_at};
+pub use field::{BoundedField, Bounds, IndexField, MAX_PARTS, Part, Profile, part_at};
 pub use trace::{Ray, RayEnd, Tracer};

@@ -561,8 +561,7 @@ impl ParticleTracer<'_> {
                     leave_y: -e.outgoing,
                     leave_z: e.direction,
                     carried: carried * cos_z,
-                    delay: t.delay.inside(e.optical_path - outside, e.length)
-                        + t.delay.outside(outside),
+                    delay: t.exit_delay(&e, outside),
                     segment: Segment::new(volume, e.length, e.outside() + to_y, false, true)
                         .with_cos(cos_y, cos_z),
                 })
@@ -581,7 +580,7 @@ impl ParticleTracer<'_> {
                     leave_z: c.direction,
                     carried: n_out * n_out * transmittance * c.reflectance / (n_y * n_y * c.spread)
                         * inverse_p,
-                    delay: t.delay.inside(c.optical_path, c.length),
+                    delay: t.delay_inside(c.arrival.x, c.optical_path, c.length),
                     segment: Segment::new(volume, c.length, 0.0, false, true),
                 })
             }
@@ -666,8 +665,7 @@ impl ParticleTracer<'_> {
         let outside = volume.field.n_out * (exit.outside() + to_p);
         Some(OutToSurface {
             carried: transmittance * exit.transmission / exit.jacobian * inverse_p,
-            delay: t.delay.inside(exit.optical_path - outside, exit.length)
-                + t.delay.outside(outside),
+            delay: t.exit_delay(&exit, outside),
             segment: Segment::new(volume, exit.length, exit.outside() + to_p, false, true),
             outside: exit.outside() + to_p,
             cos,

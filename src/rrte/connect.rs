@@ -92,7 +92,7 @@ impl Exit {
     /// The length inside of the path's first part: from `inside_from` along `inside_along` (and
     /// its reflections inside the surface) to where it first leaves.
     pub fn first_length(&self) -> f64 {
-        self.length - self.again.parts().iter().map(|p| p.2).sum::<f64>()
+        self.length - self.again.parts().iter().map(|p| p.length).sum::<f64>()
     }
 
     /// `e^{−∫σ_t}` along the path in a homogeneous `volume`: `e^{−σ_t L}`, or where the bounds
@@ -103,28 +103,37 @@ impl Exit {
         }
         let first = volume.sigma_t_at(self.inside_from) * self.first_length();
         let again = self.again.parts().iter();
-        (-again.fold(first, |depth, &(y, _, length)| {
-            depth + volume.sigma_t_at(y) * length
+        (-again.fold(first, |depth, p| {
+            depth + volume.sigma_t_at(p.inside) * p.length
         }))
         .exp()
     }
 }
 
-/// Parts of a non-convex volume that a path through its surface enters again: each part's entry
-/// point (just inside), unit direction there and geometric length across.
+/// Parts of a non-convex volume that a path through its surface enters again.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Again {
-    parts: [(DVec3, DVec3, f64); MAX_AGAIN],
+    parts: [Reentry; MAX_AGAIN],
     count: usize,
 }
 
+/// A path's way across a part it enters again: the entry point (just inside), the unit
+/// direction there, and the geometric length and optical path across.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Reentry {
+    pub inside: DVec3,
+    pub along: DVec3,
+    pub length: f64,
+    pub optical_path: f64,
+}
+
 impl Again {
-    pub fn parts(&self) -> &[(DVec3, DVec3, f64)] {
+    pub fn parts(&self) -> &[Reentry] {
         &self.parts[..self.count]
     }
 
     /// Add a part; `false` if there are [`MAX_AGAIN`] already.
-    fn push(&mut self, part: (DVec3, DVec3, f64)) -> bool {
+    fn push(&mut self, part: Reentry) -> bool {
         if self.count == MAX_AGAIN {
             return false;
         }
@@ -517,7 +526,13 @@ impl<'v> Connector<'v> {
                 let inside = x + w * (exit + entry_parameter(t0));
                 let chord = bounds.exit(inside, w)?.max(0.0);
                 let chord = chord.min(end - entry);
-                if !again.push((inside, w, chord)) {
+                let reentry = Reentry {
+                    inside,
+                    along: w,
+                    length: chord,
+                    optical_path: n * chord,
+                };
+                if !again.push(reentry) {
                     return None;
                 }
                 between += t0;
@@ -1144,7 +1159,13 @@ impl<'v> Connector<'v> {
                 d - o * (normal.dot(d) / cos)
             });
             let c = self.cross(exit.surface + o * entry_parameter(t0), at, o, dout, slide)?;
-            if !exit.again.push((c.inside, c.along, c.length)) {
+            let reentry = Reentry {
+                inside: c.inside,
+                along: c.along,
+                length: c.length,
+                optical_path: c.optical_path,
+            };
+            if !exit.again.push(reentry) {
                 return None;
             }
             exit.between += t0;

@@ -104,6 +104,29 @@ impl<'v> Tools<'v> {
 }
 
 impl Tools<'_> {
+    /// The group delay of a stretch inside the part of the volume that holds `x`, of optical
+    /// path `optical_path` and geometric `length` (a flight or a path within one part).
+    #[inline]
+    pub(super) fn delay_inside(&self, x: DVec3, optical_path: f64, length: f64) -> f64 {
+        let part = self.flyer.volume.part_index(x).unwrap_or(0);
+        self.delay.inside(part, optical_path, length)
+    }
+
+    /// The group delay of the path `e` through the surface, whose optical path holds
+    /// `outside` of straight stretches outside the volume: each part's stretch inside at that
+    /// part's dispersion.
+    pub(super) fn exit_delay(&self, e: &Exit, outside: f64) -> f64 {
+        let again = e.again.parts();
+        let first = (
+            e.optical_path - outside - again.iter().map(|p| p.optical_path).sum::<f64>(),
+            e.first_length(),
+        );
+        again.iter().fold(
+            self.delay.outside(outside) + self.delay_inside(e.inside_from, first.0, first.1),
+            |delay, p| delay + self.delay_inside(p.inside, p.optical_path, p.length),
+        )
+    }
+
     /// A free-flight distance from `x` over geometric length, against the majorant there
     /// (infinite in a clear volume).
     pub(super) fn free_path(&self, x: DVec3, rng: &mut Rng) -> f64 {
@@ -140,6 +163,8 @@ impl Tools<'_> {
         mut chord: impl FnMut(DVec3, DVec3),
     ) -> (Stop, Travelled) {
         let mut travelled = Travelled::default();
+        // a flight stays in the part it starts in
+        let part = self.flyer.volume.part_index(ray.x).unwrap_or(0);
         loop {
             let (flight, k) = self
                 .flyer
@@ -151,7 +176,7 @@ impl Tools<'_> {
                     optical_path,
                     length,
                 } => {
-                    travelled.add(self, optical_path, length);
+                    travelled.add(self, part, optical_path, length);
                     if self.real_collision(hit.x, rng) {
                         return (Stop::Collision(hit), travelled);
                     }
@@ -162,7 +187,7 @@ impl Tools<'_> {
                     optical_path,
                     length,
                 } => {
-                    travelled.add(self, optical_path, length);
+                    travelled.add(self, part, optical_path, length);
                     return (Stop::Boundary(end), travelled);
                 }
                 Flight::Stuck { .. } => return (Stop::Stuck, travelled),
@@ -208,8 +233,8 @@ pub(super) struct Travelled {
 }
 
 impl Travelled {
-    fn add(&mut self, t: &Tools, optical_path: f64, length: f64) {
-        self.opl += t.delay.inside(optical_path, length);
+    fn add(&mut self, t: &Tools, part: usize, optical_path: f64, length: f64) {
+        self.opl += t.delay.inside(part, optical_path, length);
         self.length += length;
     }
 }
@@ -718,7 +743,8 @@ impl<'s> ParticleTracer<'s> {
         opl: f64,
         out: &mut [C64],
     ) -> bool {
-        let Some(bin) = self.bin(opl + t.delay.inside(c.optical_path, c.length)) else {
+        let Some(bin) = self.bin(opl + t.delay_inside(c.arrival.x, c.optical_path, c.length))
+        else {
             return false;
         };
         let o = self.probe_offset(i);
@@ -855,9 +881,7 @@ impl<'s> ParticleTracer<'s> {
                 direction: e.direction,
                 radiance,
                 total: radiance,
-                delay: t.delay.outside(before)
-                    + t.delay.inside(e.optical_path - before, e.length)
-                    + t.delay.outside(n_out * to_plane),
+                delay: t.exit_delay(e, before) + t.delay.outside(n_out * to_plane),
                 inside: e.length,
                 outside: e.outside() + to_plane,
                 pdf: 1.0 / cam.area(),
@@ -882,7 +906,7 @@ impl<'s> ParticleTracer<'s> {
             direction: e.direction,
             radiance: irradiance / (cos * cos * cos * cam.pixel_area()),
             total: irradiance,
-            delay: t.delay.inside(e.optical_path - outside, e.length) + t.delay.outside(outside),
+            delay: t.exit_delay(e, outside),
             inside: e.length,
             outside: e.outside() + to_pinhole,
             pdf: 1.0 / cam.image_area(cos),
@@ -932,8 +956,8 @@ impl<'s> ParticleTracer<'s> {
     ) -> f64 {
         let first = (e.first_length(), bounces);
         let mut kept = self.transmittance(t, e.inside_from, e.inside_along, first, rng);
-        for &(y, d, length) in e.again.parts() {
-            kept *= self.ratio_tracking(t, y, d, length, rng);
+        for p in e.again.parts() {
+            kept *= self.ratio_tracking(t, p.inside, p.along, p.length, rng);
         }
         kept
     }

@@ -314,8 +314,7 @@ impl ParticleTracer<'_> {
             return Some(LightLink {
                 direction: e.direction,
                 radiance: intensity * cos * carried,
-                delay: t.delay.inside(e.optical_path - outside, e.length)
-                    + t.delay.outside(outside),
+                delay: t.exit_delay(&e, outside),
                 inside: e.length,
                 outside: e.outside() + to_q,
                 pdf: intensity,
@@ -434,7 +433,7 @@ impl ParticleTracer<'_> {
                 radiance: n_out * n_out * intensity * transmittance * c.reflectance
                     / (n_q * n_q * c.spread)
                     * inverse_p,
-                delay: t.delay.inside(c.optical_path, c.length),
+                delay: t.delay_inside(c.arrival.x, c.optical_path, c.length),
                 inside: c.length,
                 outside: 0.0,
                 pdf: intensity,
@@ -454,8 +453,7 @@ impl ParticleTracer<'_> {
             Some(LightLink {
                 direction: e.direction,
                 radiance: intensity * transmittance * e.transmission / e.jacobian * inverse_p,
-                delay: t.delay.inside(e.optical_path - outside, e.length)
-                    + t.delay.outside(outside),
+                delay: t.exit_delay(&e, outside),
                 inside: e.length,
                 outside: e.outside() + to_q,
                 pdf: intensity,

@@ -116,15 +116,21 @@ impl Volume {
         albedo(self.sigma_s, self.sigma_a)
     }
 
-    /// The bulk of the part holding `x` (or the nearest), where the bounds are several volumes.
+    /// Which part holds `x` (or is nearest), where the bounds are several volumes.
     #[inline]
-    fn part(&self, x: DVec3) -> Option<&Bulk> {
+    pub fn part_index(&self, x: DVec3) -> Option<usize> {
         let parts = self
             .field
             .bounds
             .parts()
             .filter(|_| !self.parts.is_empty())?;
-        Some(&self.parts[crate::eikonal::part_at(parts, x)])
+        Some(crate::eikonal::part_at(parts, x))
+    }
+
+    /// The bulk of the part holding `x` (or the nearest), where the bounds are several volumes.
+    #[inline]
+    fn part(&self, x: DVec3) -> Option<&Bulk> {
+        self.part_index(x).map(|k| &self.parts[k])
     }
 
     /// Extinction at density 1 at `x` (inside).

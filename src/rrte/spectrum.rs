@@ -12,7 +12,7 @@
 //! materials mixed in place (paper 002's crown/flint spheres) keep at every point the mixing ratio
 //! the reference field gives it.
 
-use crate::eikonal::BoundedField;
+use crate::eikonal::{BoundedField, MAX_PARTS};
 
 /// A dispersion formula (wavelength in micrometres, as glass catalogues give them).
 #[derive(Clone, Debug, PartialEq)]
@@ -92,26 +92,28 @@ impl Dispersion {
 /// How a photon's time of flight follows from its optical path: a pulse travels at the group
 /// velocity, so its delay (times `c`) is `∫ n_g ds` with `n_g = n − λ dn/dλ`. With the affine map
 /// `n = a + b n_ref`, `n_g = α n + β` inside (`α = 1 − λ b'/b`, `β = λ (a b'/b − a')`), and
-/// `n_g = γ n` outside; without dispersion `α = γ = 1`, `β = 0`.
+/// `n_g = γ n` outside; without dispersion `α = γ = 1`, `β = 0`. A volume of several parts
+/// (volumes of their own materials) has an `(α, β)` per part.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Delay {
-    pub alpha: f64,
-    pub beta: f64,
+    /// `(α, β)` inside the volume (entry 0), or inside each part of a volume of several.
+    inside: [(f64, f64); MAX_PARTS],
     pub gamma: f64,
 }
 
 impl Delay {
     /// No dispersion: the delay is the optical path.
     pub const NONE: Delay = Delay {
-        alpha: 1.0,
-        beta: 0.0,
+        inside: [(1.0, 0.0); MAX_PARTS],
         gamma: 1.0,
     };
 
-    /// The group path of a stretch inside of optical path `optical_path` and geometric `length`.
+    /// The group path of a stretch inside `part` (0 for a volume of one) of optical path
+    /// `optical_path` and geometric `length`.
     #[inline]
-    pub fn inside(&self, optical_path: f64, length: f64) -> f64 {
-        self.alpha * optical_path + self.beta * length
+    pub fn inside(&self, part: usize, optical_path: f64, length: f64) -> f64 {
+        let (alpha, beta) = self.inside[part];
+        alpha * optical_path + beta * length
     }
 
     /// The group path of a straight stretch outside of optical path `optical_path`.
@@ -130,6 +132,9 @@ pub struct Spectrum {
     /// The wavelength at which the scene's field (and `n_out`) are given.
     pub reference_nm: f64,
     pub inside: Option<Dispersion>,
+    /// For a volume of several parts, each part's dispersion (`None`: its index is the same at
+    /// every wavelength); empty for a volume of one, whose dispersion is `inside`.
+    pub parts: Vec<Option<Dispersion>>,
     pub outside: Option<Material>,
     /// The mean linear-sRGB response over the range, for the white balance.
     white: [f64; 3],
@@ -156,9 +161,17 @@ impl Spectrum {
             range_nm,
             reference_nm,
             inside,
+            parts: Vec::new(),
             outside,
             white,
         }
+    }
+
+    /// The spectrum with a dispersion for each part of a volume of several (at most
+    /// [`MAX_PARTS`]; `inside` must be `None`).
+    pub fn with_parts(self, parts: Vec<Option<Dispersion>>) -> Self {
+        assert!(self.inside.is_none() && parts.len() <= MAX_PARTS);
+        Spectrum { parts, ..self }
     }
 
     /// Colour channels of the images: 3 (linear sRGB) for white light, 1 for a single line.
@@ -191,7 +204,7 @@ impl Spectrum {
     pub fn delay(&self, lambda_nm: f64) -> Delay {
         let h = 0.01;
         let l = lambda_nm;
-        let (alpha, beta) = match &self.inside {
+        let group = |d: &Option<Dispersion>| match d {
             None => (1.0, 0.0),
             Some(d) => {
                 let (b, a) = d.affine(l, self.reference_nm);
@@ -201,19 +214,31 @@ impl Spectrum {
                 (1.0 - l * db / b, l * (a * db / b - da))
             }
         };
+        let mut inside = Delay::NONE.inside;
+        if self.parts.is_empty() {
+            inside[0] = group(&self.inside);
+        }
+        for (k, d) in self.parts.iter().enumerate() {
+            inside[k] = group(d);
+        }
         let gamma = match &self.outside {
             None => 1.0,
             Some(m) => 1.0 - l * (m.index(l + h) - m.index(l - h)) / (2.0 * h) / m.index(l),
         };
-        Delay { alpha, beta, gamma }
+        Delay { inside, gamma }
     }
 
-    /// Set `field` to `base` (given at the reference wavelength) at wavelength `lambda_nm`.
+    /// Set `field` to `base` (given at the reference wavelength) at wavelength `lambda_nm`: the
+    /// field's map, or each part's.
     pub fn disperse(&self, field: &mut BoundedField, base: &BoundedField, lambda_nm: f64) {
-        (field.scale, field.offset) = match &self.inside {
+        let map = |d: &Option<Dispersion>| match d {
             Some(d) => d.affine(lambda_nm, self.reference_nm),
             None => (1.0, 0.0),
         };
+        (field.scale, field.offset) = map(&self.inside);
+        if !self.parts.is_empty() {
+            field.map_parts(|k| map(&self.parts[k]));
+        }
         field.n_out = match &self.outside {
             Some(m) => base.n_out * m.index(lambda_nm) / m.index(self.reference_nm),
             None => base.n_out,
@@ -349,7 +374,7 @@ mod tests {
             let n = t * crown.index(l) + (1.0 - t) * flint.index(l);
             let want = t * group(&crown, l) + (1.0 - t) * group(&flint, l);
             // n_g = α n + β per unit length
-            assert!((d.inside(n, 1.0) - want).abs() < 1e-6, "t = {t}");
+            assert!((d.inside(0, n, 1.0) - want).abs() < 1e-6, "t = {t}");
         }
         assert!((d.outside(flint.index(l)) - group(&flint, l)).abs() < 1e-6);
         // normal dispersion: the group index exceeds the index

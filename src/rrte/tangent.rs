@@ -719,7 +719,7 @@ impl ParticleTracer<'_> {
                 // to the surface, with probability e^{−σ_t L}
                 to_surface
             };
-            p.opl += t.delay.inside(end.optical_path, end.length);
+            p.opl += t.delay_inside(ray.x, end.optical_path, end.length);
             let collided = end.stop == Stop::Collision;
             for (s, param) in p.score.iter_mut().zip(derivatives) {
                 *s += flight_score(param.medium(), collided, volume, end.length);
