@@ -144,6 +144,38 @@ impl Part {
         self.eval(x).0
     }
 
+    /// The part's `(n, ∇n)` at `x` (scene coordinates; the bits of [`BoundedField::value_grad`]
+    /// at a point inside the part, whose field map is the identity).
+    #[inline]
+    pub fn value_grad(&self, x: DVec3) -> (f64, DVec3) {
+        let (n, g, _) = self.eval(x);
+        (n, g)
+    }
+
+    /// Whether `n` is constant inside the part (rays are straight in it).
+    pub fn is_constant(&self) -> bool {
+        self.profiles.iter().all(Profile::is_constant)
+    }
+
+    /// Whether `x` (scene coordinates) is inside the part, and then how far it may run before
+    /// testing again (as [`Bounds::inside_clearance`] of the part's shape).
+    #[inline]
+    pub fn inside_clearance(&self, x: DVec3) -> Option<f64> {
+        self.shape.inside_clearance(x - self.center)
+    }
+
+    /// [`Bounds::clearance`] of the part's shape at `x` (scene coordinates, inside).
+    #[inline]
+    pub fn clearance(&self, x: DVec3) -> f64 {
+        self.shape.clearance(x - self.center)
+    }
+
+    /// Whether `x` (scene coordinates) is inside the part.
+    #[inline]
+    pub fn contains(&self, x: DVec3) -> bool {
+        self.shape.contains(x - self.center)
+    }
+
     /// `(n, ∇n, ∇²n)` of the part at `x` (scene coordinates): its profiles' sum, mapped.
     #[inline]
     fn eval(&self, x: DVec3) -> (f64, DVec3, DMat3) {
@@ -224,9 +256,7 @@ impl Profile {
     pub fn is_constant(&self) -> bool {
         match self {
             Profile::Constant { .. } => true,
-            Profile::Parts(parts) => parts
-                .iter()
-                .all(|p| p.profiles.iter().all(Profile::is_constant)),
+            Profile::Parts(parts) => parts.iter().all(Part::is_constant),
             _ => false,
         }
     }

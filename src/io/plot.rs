@@ -75,7 +75,9 @@ pub fn colour_image(
     })
 }
 
-/// Panels of `nx × ny` pixels side by side, pixel `i` of panel `p` coloured `colour(p, i)`.
+/// Panels of `nx × ny` pixels side by side, pixel `i` of panel `p` coloured `colour(p, i)`; each
+/// panel 260 pixels wide and as high as the image's aspect says (within a quarter and twice
+/// that, so strips stay visible).
 fn pixel_panels(
     path: &Path,
     title: &str,
@@ -87,9 +89,12 @@ fn pixel_panels(
     register_font();
     let e = |e: &dyn std::fmt::Display| e.to_string();
     let side = 260u32;
-    let width = side * names.len().max(1) as u32 + 20;
+    let aspect = (ny as f64 / nx.max(1) as f64).clamp(0.25, 2.0);
+    // around each plot: the margins (8 on each side) and the caption; above them, the title
+    let width = (side + 16) * names.len().max(1) as u32;
+    let height = (side as f64 * aspect).round() as u32 + 16 + 22 + 32;
     let staged = crate::io::staging_name(path);
-    let root = BitMapBackend::new(&staged, (width, side + 70)).into_drawing_area();
+    let root = BitMapBackend::new(&staged, (width, height)).into_drawing_area();
     root.fill(&WHITE).map_err(|x| e(&x))?;
     let root = root.titled(title, ("sans-serif", 20)).map_err(|x| e(&x))?;
     let areas = root.split_evenly((1, names.len().max(1)));

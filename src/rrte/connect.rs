@@ -24,7 +24,7 @@
 use super::flight::{fresnel, reflect};
 use super::scene::{Surface, Volume};
 use crate::eikonal::trace::{entry_parameter, jacobian_of, refract};
-use crate::eikonal::{BoundedField, IndexField, Ray, Tracer};
+use crate::eikonal::{BoundedField, IndexField, Ray, Tracer, part_at};
 use crate::math::{Rng, orthonormal_basis, uniform, uniform_sphere};
 use glam::{DMat3, DVec3};
 
@@ -332,6 +332,22 @@ impl<'v> Connector<'v> {
 
     /// Trace from `x` along unit `w` to the closest approach to `y`, carrying `∂x/∂v0`; `None` if
     /// the ray leaves the volume or runs out of steps first.
+    /// Whether rays from `x` run straight: `n` is constant in the volume, or in the part of
+    /// several volumes that holds `x` (a ray stays in its part until it reaches the surface).
+    fn straight_from(&self, x: DVec3) -> bool {
+        self.straight
+            || (self.volume.field.bounds.parts())
+                .is_some_and(|parts| parts[part_at(parts, x)].is_constant())
+    }
+
+    /// The straight path from `x` to `y` in the part holding `x` (of constant `n`), if it
+    /// reaches `y` before it leaves the part.
+    fn straight_in_part(&self, x: DVec3, y: DVec3) -> Option<Connection> {
+        let c = self.straight_line(x, y)?;
+        let exit = self.volume.field.bounds.exit(x, c.direction)?;
+        (exit >= c.length).then_some(c)
+    }
+
     fn shoot(&self, x: DVec3, w: DVec3, y: DVec3) -> Option<(Ray, DMat3, f64, f64)> {
         self.approach(Tangent::start(&self.volume.field, x, w), y)
     }
@@ -340,7 +356,7 @@ impl<'v> Connector<'v> {
     /// through a constant index); `None` if it leaves the volume or runs out of steps first.
     fn approach(&self, mut s: Tangent, y: DVec3) -> Option<(Ray, DMat3, f64, f64)> {
         let field = &self.volume.field;
-        if self.straight {
+        if self.straight_from(s.r.x) {
             // x(σ) = x + v σ: the sensitivities move as ∂x += ∂v σ
             let d = s.r.v / s.n;
             let along = (y - s.r.x).dot(d);
@@ -398,6 +414,9 @@ impl<'v> Connector<'v> {
     pub fn solve(&self, x: DVec3, y: DVec3, w0: DVec3) -> Option<Connection> {
         if self.straight {
             return self.straight_line(x, y);
+        }
+        if self.straight_from(x) {
+            return self.straight_in_part(x, y);
         }
         let n_x = self.volume.field.n(x);
         let mut w = w0.normalize();
@@ -468,7 +487,7 @@ impl<'v> Connector<'v> {
     /// The path Newton's method finds from one random start, counted once (the biased variant of
     /// Alg. 3: exact where a single path joins the points).
     pub fn sample_first(&self, x: DVec3, y: DVec3, rng: &mut Rng) -> Sampled {
-        if self.straight {
+        if self.straight_from(x) {
             return self.sample(x, y, rng);
         }
         first(
@@ -481,9 +500,14 @@ impl<'v> Connector<'v> {
     /// One stationary path from `x` to `y` drawn at random, with an unbiased estimate of the
     /// inverse probability of drawing it (Alg. 3; `1` where `n` is constant: one path).
     pub fn sample(&self, x: DVec3, y: DVec3, rng: &mut Rng) -> Sampled {
-        if self.straight {
+        if self.straight_from(x) {
+            let path = if self.straight {
+                self.straight_line(x, y)
+            } else {
+                self.straight_in_part(x, y)
+            };
             return Sampled {
-                path: self.straight_line(x, y).map(|c| (c, 1.0)),
+                path: path.map(|c| (c, 1.0)),
                 solves: 1,
                 iterations: 0,
                 distinct: 1,
@@ -621,7 +645,7 @@ impl<'v> Connector<'v> {
         (xv, vv): (DMat3, DMat3),
     ) -> Option<(Ray, DMat3, DMat3, f64, f64, f64)> {
         let field = &self.volume.field;
-        if self.straight {
+        if self.straight_from(x) {
             // constant n: x(σ) = x + n w σ in closed form, so the sensitivities move as
             // ∂x += ∂v σ and ∂v stays
             let n = field.n(x);
@@ -1661,6 +1685,92 @@ mod tests {
             "{} vs {expected}",
             found.spread
         );
+    }
+
+    /// In a scene of several volumes, paths in a glass block beside a graded ball run straight
+    /// in the block in closed form, and agree with the same paths stepped through it (the
+    /// block's index written as a flat linear profile, which is stepped): within the block, out
+    /// of it along a direction, and out of the graded ball across the block to a point beyond.
+    #[test]
+    fn paths_in_a_constant_volume_beside_a_graded_one_run_straight() {
+        use crate::eikonal::Part;
+        use crate::rrte::Bulk;
+        let clear = || Bulk {
+            sigma_s: 0.0,
+            sigma_a: 0.0,
+            scattering: Scattering::single(PhaseFunction::Isotropic),
+        };
+        // a graded ball (n from 1.3 at the centre to 1.2 at the surface) and a glass block on
+        // its right
+        let lens = Part::new(
+            Bounds::Sphere { radius: 1.0 },
+            DVec3::ZERO,
+            vec![Profile::SphericalPolynomial {
+                n0: 1.3,
+                coefficients: vec![0.0, -0.1],
+            }],
+        );
+        let centre = DVec3::new(2.2, 0.0, 0.0);
+        let scene = |glass: Profile| {
+            let half = DVec3::new(0.5, 0.8, 0.8);
+            let block = Part::new(Bounds::Box { half }, centre, vec![glass]);
+            Volume::several(vec![(lens.clone(), clear()), (block, clear())], 1.0)
+        };
+        let closed = scene(Profile::Constant { n: 1.5 });
+        let stepped = scene(Profile::Linear {
+            n0: 1.5,
+            gradient: DVec3::ZERO,
+        });
+        let (a, b) = (
+            Connector::new(&closed, 1e-3, 100_000),
+            Connector::new(&stepped, 1e-3, 100_000),
+        );
+        let close = |what: &str, u: f64, v: f64| {
+            assert!(
+                (u - v).abs() <= 1e-6 * v.abs().max(1.0),
+                "{what}: {u} vs {v}"
+            );
+        };
+        // within the block
+        let (x, y) = (
+            centre + DVec3::new(-0.3, 0.3, 0.1),
+            centre + DVec3::new(0.4, -0.2, 0.3),
+        );
+        let w0 = (y - x).normalize();
+        let (p, q) = (a.solve(x, y, w0).unwrap(), b.solve(x, y, w0).unwrap());
+        assert_eq!(p.iterations, 0);
+        assert!(q.iterations > 0);
+        close("length", p.length, q.length);
+        close("optical path", p.optical_path, q.optical_path);
+        close("spread", p.spread, q.spread);
+        assert!((p.direction - q.direction).length() < 1e-6);
+        // no path inside from the block to a point in the other volume
+        let other = DVec3::new(0.5, 0.1, 0.0);
+        let towards = (other - x).normalize();
+        assert!(a.solve(x, other, towards).is_none() && b.solve(x, other, towards).is_none());
+        let exits = |e: &Exit, f: &Exit| {
+            assert!((e.direction - f.direction).length() < 1e-6);
+            assert!((e.surface - f.surface).length() < 1e-6);
+            close("length", e.length, f.length);
+            close("optical path", e.optical_path, f.optical_path);
+            close("transmission", e.transmission, f.transmission);
+            close("jacobian", e.jacobian, f.jacobian);
+        };
+        // out of the block along a direction, refracted at its surface
+        let c = DVec3::new(0.3, 1.0, 0.2).normalize();
+        exits(
+            &a.solve_exit(x, c, c, 0).unwrap(),
+            &b.solve_exit(x, c, c, 0).unwrap(),
+        );
+        // out of the graded ball, across the block and on to a point beyond it
+        let (x, p) = (DVec3::new(0.2, 0.1, -0.1), DVec3::new(4.5, 0.4, 0.2));
+        let w0 = (p - x).normalize();
+        let (e, f) = (
+            a.solve_through(x, p, w0, 0).unwrap(),
+            b.solve_through(x, p, w0, 0).unwrap(),
+        );
+        assert_eq!(e.again.parts().len(), 1);
+        exits(&e, &f);
     }
 
     #[test]

@@ -6,7 +6,7 @@
 //! `n` is constant the ray is a straight line and the flight is exact.
 
 use super::scene::Volume;
-use crate::eikonal::{IndexField, Ray, Tracer};
+use crate::eikonal::{IndexField, Part, Ray, Tracer, part_at};
 use glam::DVec3;
 
 /// How a free flight ended.
@@ -82,7 +82,15 @@ impl<'v> Flyer<'v> {
         distance: f64,
         mut chord: impl FnMut(DVec3, DVec3),
     ) -> (Flight, usize) {
-        if self.straight {
+        let field = &self.volume.field;
+        // of several volumes, the one holding the start: a flight never leaves it without
+        // reaching the surface, so it is tested and evaluated alone (straight if its `n` is
+        // constant)
+        let part = field
+            .bounds
+            .parts()
+            .map(|parts| &parts[part_at(parts, r.x)]);
+        if self.straight || part.is_some_and(Part::is_constant) {
             let flight = self.fly_straight(r, distance);
             let end = match flight {
                 Flight::Collision { ray, .. } | Flight::Boundary { ray, .. } => ray.x,
@@ -92,7 +100,6 @@ impl<'v> Flyer<'v> {
             return (flight, 1);
         }
         let t = &self.tracer;
-        let field = &self.volume.field;
         let h = t.step;
         let (mut r, mut s, mut opl) = (r, 0.0, 0.0);
         // the force at the end of a step starts the next (one field evaluation per step, the same
@@ -100,7 +107,7 @@ impl<'v> Flyer<'v> {
         let (mut n0, g0) = field.value_grad(r.x);
         let mut force = g0 * n0;
         // distance that may still be run before the next inside–outside test
-        let mut clear = self.clearance(r.x);
+        let mut clear = self.clearance(part, r.x);
         for k in 0..t.max_steps {
             let v_half = r.v + force * (0.5 * h);
             let x = r.x + v_half * h;
@@ -108,14 +115,21 @@ impl<'v> Flyer<'v> {
             let inside = if clear > 0.0 {
                 true
             } else if self.skip_tests {
-                let found = field.bounds.inside_clearance(x);
+                let found = match part {
+                    Some(p) => p.inside_clearance(x),
+                    None => field.bounds.inside_clearance(x),
+                };
                 clear = found.map_or(0.0, safe_clearance);
                 found.is_some()
             } else {
-                field.bounds.contains(x)
+                part.map_or_else(|| field.bounds.contains(x), |p| p.contains(x))
             };
             let (next, tau, boundary, n_next, force_next) = if inside {
-                let (n1, g1) = field.value_grad_inside(x);
+                let (n1, g1) = match part {
+                    // a field of parts has no map of its own (each part has)
+                    Some(p) if field.scale == 1.0 && field.offset == 0.0 => p.value_grad(x),
+                    _ => field.value_grad_inside(x),
+                };
                 let f1 = g1 * n1;
                 let next = Ray {
                     x,
@@ -175,13 +189,15 @@ impl<'v> Flyer<'v> {
         )
     }
 
-    /// The distance a flight from `x` (inside) may run before testing again.
-    fn clearance(&self, x: DVec3) -> f64 {
-        if self.skip_tests {
-            safe_clearance(self.volume.field.bounds.clearance(x))
-        } else {
-            0.0
+    /// The distance a flight from `x` (inside, in `part` if the volume has parts) may run before
+    /// testing again.
+    fn clearance(&self, part: Option<&Part>, x: DVec3) -> f64 {
+        if !self.skip_tests {
+            return 0.0;
         }
+        safe_clearance(
+            part.map_or_else(|| self.volume.field.bounds.clearance(x), |p| p.clearance(x)),
+        )
     }
 
     /// A straight flight through constant `n`, in closed form.
@@ -247,6 +263,79 @@ pub fn reflect(d: DVec3, normal: DVec3) -> DVec3 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::eikonal::{BoundedField, Bounds, Profile};
+    use crate::math::{stream_rng, uniform, uniform_sphere};
+    use crate::medium::{PhaseFunction, Scattering};
+    use crate::rrte::Bulk;
+
+    /// In a scene of several volumes, a flight runs in the volume holding its start alone: in a
+    /// graded lens it is the same flight, bit for bit, as in the lens alone; in a glass ball
+    /// beside it, a straight flight in closed form (one step, to the ball's surface).
+    #[test]
+    fn a_flight_among_several_volumes_is_the_flight_in_its_own() {
+        let ball = |radius: f64| Bounds::Sphere { radius };
+        let lens = vec![Profile::Luneburg { radius: 1.0 }];
+        let clear = || Bulk {
+            sigma_s: 0.0,
+            sigma_a: 0.0,
+            scattering: Scattering::single(PhaseFunction::Isotropic),
+        };
+        let glass_at = DVec3::new(2.5, 0.0, 0.0);
+        let several = Volume::several(
+            vec![
+                (Part::new(ball(1.0), DVec3::ZERO, lens.clone()), clear()),
+                (
+                    Part::new(ball(0.8), glass_at, vec![Profile::Constant { n: 1.5 }]),
+                    clear(),
+                ),
+            ],
+            1.0,
+        );
+        let alone = Volume {
+            field: BoundedField::new(lens, ball(1.0), 1.0),
+            ..several.clone()
+        };
+        let (flyer, flyer_alone) = (
+            Flyer::new(&several, 0.01, 100_000),
+            Flyer::new(&alone, 0.01, 100_000),
+        );
+        let mut rng = stream_rng(3, 0);
+        let mut draw = || uniform(&mut rng);
+        let mut stepped = 0;
+        for _ in 0..200 {
+            let x = uniform_sphere(draw(), draw()) * 0.9 * draw().cbrt();
+            let w = uniform_sphere(draw(), draw());
+            let d = -draw().ln();
+            let r = Ray {
+                x,
+                v: w * alone.field.n(x),
+            };
+            let (a, b) = (flyer.fly(r, d), flyer_alone.fly(r, d));
+            assert_eq!(a, b);
+            stepped += a.1;
+            // in the glass ball, straight to its surface
+            let r = Ray {
+                x: glass_at + x * 0.8,
+                v: w * 1.5,
+            };
+            let (flight, steps) = flyer.fly(r, f64::INFINITY);
+            let Flight::Boundary {
+                ray,
+                length,
+                optical_path,
+            } = flight
+            else {
+                panic!("{flight:?}");
+            };
+            let b = (x * 0.8).dot(w);
+            let exit = -b + (b * b - (x * 0.8).length_squared() + 0.64).sqrt();
+            assert_eq!(steps, 1);
+            assert!((length - exit).abs() < 1e-9 && (optical_path - 1.5 * exit).abs() < 1e-9);
+            assert!(((ray.x - glass_at).length() - 0.8).abs() < 1e-9);
+        }
+        // the lens's flights were stepped (about a mean free path of 1 in steps of 0.01)
+        assert!(stepped > 200 * 20, "{stepped} steps");
+    }
 
     #[test]
     fn fresnel_matches_normal_incidence_and_brewster() {
