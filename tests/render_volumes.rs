@@ -495,3 +495,91 @@ fn a_sampled_volume_beside_another_renders_as_the_analytic_one() {
         );
     }
 }
+
+/// A lens of profile `lens` in a water cylinder (10 long) beside a glass block that the light
+/// crosses after it, from a config with `modulation` (a table, or nothing).
+fn lens_beside_a_block(lens: &str, modulation: &str) -> Result<RenderScene, String> {
+    let text = format!(
+        "[field]\nn_out = 1.33\n\
+         [[volume]]\nbounds = {{ kind = \"cylinder\", radius = 3.0, half_length = 5.0 }}\n\
+         profiles = [{lens}]\n\
+         [[volume]]\ncenter = [0.0, 0.0, 6.5]\nbounds = {{ kind = \"box\", size = [4.0, 4.0, 1.0] }}\n\
+         profiles = [{{ kind = \"constant\", n = 1.5 }}]\nmedium = {{ sigma_s = 0.05, sigma_a = 0.3 }}\n\
+         [light]\nkind = \"beam\"\ncenter = [0.0, 0.0, -6.0]\ndirection = [0.0, 0.0, 1.0]\nradius = 0.4\n\
+         [[sensor]]\nkind = \"flux\"\nname = \"window\"\ncenter = [0.0, 0.0, 8.0]\n\
+         normal = [0.0, 0.0, 1.0]\nsize = [0.2, 0.2]\n\
+         [render]\nstep = 0.05\n{modulation}"
+    );
+    match lightpath::config::load_text(&text) {
+        Ok(lightpath::config::Task::Render(t)) => Ok(t.scene),
+        Ok(_) => panic!("not a render"),
+        Err(e) => Err(e.to_string()),
+    }
+}
+
+/// [`lens_beside_a_block`] with an ultrasonic lens (m = 0) of amplitude `n_max`.
+fn ultrasonic_beside_a_block(n_max: f64, modulation: &str) -> RenderScene {
+    let lens = format!("{{ kind = \"ultrasonic\", n0 = 1.33, n_max = {n_max}, k_r = 2.0, m = 0 }}");
+    lens_beside_a_block(&lens, modulation).unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// A sinusoidally modulated ultrasonic lens beside a glass block renders as the average of the
+/// lens frozen at its phases (the light crosses the block after the lens, to a small window
+/// whose power depends on how strongly the lens focuses); a strobe freezes the volume's field
+/// at its phase; a modulation with no ultrasonic volume is refused.
+#[test]
+fn an_ultrasonic_volume_beside_another_averages_its_phases() {
+    let n_max = 0.01;
+    let sinusoidal = "[modulation]\nkind = \"sinusoidal\"\n";
+    let modulated = ultrasonic_beside_a_block(n_max, sinusoidal);
+    assert_eq!(
+        modulated.modulation,
+        Some(lightpath::rrte::Modulation::Sinusoidal)
+    );
+    let (e, est) = render(&modulated, 40_000, 41);
+    let value = |e: &lightpath::mc::Estimate| (e.mean[est.power(0)].re, e.stderr[est.power(0)]);
+    let (m, sm) = value(&e);
+    // against the midpoint rule over 16 frozen phases θ in (−π/2, π/2), n_max sin θ
+    let k = 16;
+    let (mut avg, mut var) = (0.0, 0.0);
+    for i in 0..k {
+        let theta = std::f64::consts::PI * ((i as f64 + 0.5) / k as f64 - 0.5);
+        let frozen = ultrasonic_beside_a_block(n_max * theta.sin(), "");
+        let (p, sp) = value(&render(&frozen, 5_000, 43 + i as u64).0);
+        avg += p / k as f64;
+        var += sp * sp / (k * k) as f64;
+    }
+    assert!(
+        (m - avg).abs() < 4.0 * (sm * sm + var).sqrt(),
+        "modulated {m} ± {sm} vs phase average {avg} ± {}",
+        var.sqrt()
+    );
+    // the static lens at full amplitude focuses more: the test sees the modulation
+    let fixed = ultrasonic_beside_a_block(n_max, "");
+    let (st, sst) = value(&render(&fixed, 20_000, 47).0);
+    assert!(
+        st - m > 4.0 * (sst * sst + sm * sm).sqrt(),
+        "static {st} ± {sst} vs modulated {m}"
+    );
+    // a strobe at 30° is the lens at half its amplitude, and leaves the block as it is
+    let strobed = ultrasonic_beside_a_block(
+        n_max,
+        "[modulation]\nkind = \"strobed\"\nphase_deg = 30.0\n",
+    );
+    assert_eq!(strobed.modulation, None);
+    let parts = |s: &RenderScene| s.volume.field.bounds.parts().unwrap().to_vec();
+    let (a, b) = (
+        parts(&strobed),
+        parts(&ultrasonic_beside_a_block(0.5 * n_max, "")),
+    );
+    let Profile::Ultrasonic { n_max: got, .. } = a[0].profiles[0] else {
+        panic!("ultrasonic")
+    };
+    assert!((got - 0.5 * n_max).abs() < 1e-15, "{got}");
+    assert_eq!(a[1], b[1]);
+    // nothing to modulate
+    let Err(e) = lens_beside_a_block("{ kind = \"constant\", n = 1.33 }", sinusoidal) else {
+        panic!("a modulation of constant volumes was taken")
+    };
+    assert!(e.contains("modulation: no [[volume]]"), "{e}");
+}

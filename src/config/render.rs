@@ -6,7 +6,7 @@ use super::scene::{MediumConfig, finite, positive, unit};
 use super::trace::BoundsConfig;
 use super::trace::{FieldConfig, check_positive};
 use super::{ConfigError, err};
-use crate::eikonal::{Bounds, Part};
+use crate::eikonal::{BoundedField, Bounds, Part};
 use crate::medium::{PhaseFunction, Scattering};
 use crate::rrte::{
     Bulk, Camera, Connections, Density, Derivative, Dispersion, FieldDerivative, Filter, Light,
@@ -173,6 +173,47 @@ fn of_volume(i: usize, e: ConfigError) -> ConfigError {
             .replace("medium.", &format!("{key}.medium."))
             .replace("medium:", &format!("{key}.medium:")),
     )
+}
+
+/// Whether `field` has an ultrasonic profile or a phased array, whose index could oscillate.
+fn oscillates(field: &BoundedField) -> bool {
+    field.profiles.iter().any(|p| {
+        matches!(
+            p,
+            crate::eikonal::Profile::Ultrasonic { .. }
+                | crate::eikonal::Profile::PhasedArray { .. }
+        )
+    })
+}
+
+/// `[modulation]` on `field`: a strobe freezes it at its phase; a continuous modulation is left
+/// to each photon's instant, after every eighth of the period has been checked to give a valid
+/// field. Whether photons sample the period.
+fn modulated(
+    m: &ModulationConfig,
+    field: &mut BoundedField,
+) -> Result<Option<Modulation>, ConfigError> {
+    let base = field.clone();
+    match *m {
+        ModulationConfig::Sinusoidal {} => {
+            for i in 0..8 {
+                let omega_t = std::f64::consts::TAU * i as f64 / 8.0;
+                crate::rrte::particle::modulate(field, &base, omega_t);
+                check_positive(field)?;
+            }
+            *field = base;
+            Ok(Some(Modulation::Sinusoidal))
+        }
+        ModulationConfig::Strobed { phase_deg } => {
+            if !phase_deg.is_finite() || phase_deg.abs() > 360.0 {
+                return err(format!(
+                    "modulation.phase_deg = {phase_deg}: must be within [-360, 360]"
+                ));
+            }
+            crate::rrte::particle::modulate(field, &base, phase_deg.to_radians());
+            Ok(None)
+        }
+    }
 }
 
 /// A designed transducer position keeps its element's line outside the volume over its whole
@@ -789,7 +830,7 @@ impl RenderConfig {
         let (volume, modulation) = if self.volume.is_empty() {
             self.one_volume()?
         } else {
-            (self.several_volumes()?, None)
+            self.several_volumes()?
         };
         let light = self.light()?;
         if self.sensor.len() > MAX_SENSORS {
@@ -1028,42 +1069,12 @@ impl RenderConfig {
         }
         let modulation = match &self.modulation {
             None => None,
-            Some(m) => {
-                let base = field.clone();
-                let ultrasonic = field.profiles.iter().any(|p| {
-                    matches!(
-                        p,
-                        crate::eikonal::Profile::Ultrasonic { .. }
-                            | crate::eikonal::Profile::PhasedArray { .. }
-                    )
-                });
-                if !ultrasonic {
-                    return err(
-                        "modulation: the field has no ultrasonic profile or phased array whose index could oscillate",
-                    );
-                }
-                match *m {
-                    ModulationConfig::Sinusoidal {} => {
-                        // every instant must give a valid field: check a period's worth of them
-                        for i in 0..8 {
-                            let omega_t = std::f64::consts::TAU * i as f64 / 8.0;
-                            crate::rrte::particle::modulate(&mut field, &base, omega_t);
-                            check_positive(&field)?;
-                        }
-                        field = base;
-                        Some(Modulation::Sinusoidal)
-                    }
-                    ModulationConfig::Strobed { phase_deg } => {
-                        if !phase_deg.is_finite() || phase_deg.abs() > 360.0 {
-                            return err(format!(
-                                "modulation.phase_deg = {phase_deg}: must be within [-360, 360]"
-                            ));
-                        }
-                        crate::rrte::particle::modulate(&mut field, &base, phase_deg.to_radians());
-                        None
-                    }
-                }
+            Some(_) if !oscillates(&field) => {
+                return err(
+                    "modulation: the field has no ultrasonic profile or phased array whose index could oscillate",
+                );
             }
+            Some(m) => modulated(m, &mut field)?,
         };
         check_positive(&field)?;
         field.n_out = positive("field.n_out", field.n_out)?;
@@ -1110,8 +1121,9 @@ impl RenderConfig {
         }
     }
 
-    /// The volumes of `[[volume]]`, as one volume of several parts.
-    fn several_volumes(&self) -> Result<Volume, ConfigError> {
+    /// The volumes of `[[volume]]`, as one volume of several parts (with `[modulation]` on those
+    /// holding an ultrasonic field).
+    fn several_volumes(&self) -> Result<(Volume, Option<Modulation>), ConfigError> {
         let n = self.volume.len();
         if n > MAX_VOLUMES {
             return err(format!("volume: {n} volumes; at most {MAX_VOLUMES}"));
@@ -1126,11 +1138,6 @@ impl RenderConfig {
                 "medium",
                 self.medium.is_some(),
                 "each [[volume]] gives its own medium",
-            ),
-            (
-                "modulation",
-                self.modulation.is_some(),
-                "an ultrasonic field is modulated in a scene of one volume ([field])",
             ),
             (
                 "design",
@@ -1153,6 +1160,7 @@ impl RenderConfig {
             .map_or(Ok(f64::NAN), |w| positive("wavelength", w))?;
         let mut parts = Vec::with_capacity(n);
         let mut bulks = Vec::with_capacity(n);
+        let (mut modulation, mut oscillating) = (None, false);
         for (i, v) in self.volume.iter().enumerate() {
             let center = finite(&format!("volume[{i}].center"), v.center)?;
             if v.profiles.is_empty() {
@@ -1170,8 +1178,12 @@ impl RenderConfig {
                 bounds: v.bounds.clone(),
                 n_out: self.field.n_out,
             };
-            let field = keys.build().map_err(|e| of_volume(i, e))?;
+            let mut field = keys.build().map_err(|e| of_volume(i, e))?;
             check_positive(&field).map_err(|e| of_volume(i, e))?;
+            if let Some(m) = self.modulation.as_ref().filter(|_| oscillates(&field)) {
+                modulation = modulated(m, &mut field).map_err(|e| of_volume(i, e))?;
+                oscillating = true;
+            }
             parts.push(Part::new(field.bounds, center, field.profiles));
             bulks.push(match &v.medium {
                 None => Bulk {
@@ -1190,6 +1202,11 @@ impl RenderConfig {
                 }
             });
         }
+        if self.modulation.is_some() && !oscillating {
+            return err(
+                "modulation: no [[volume]] has an ultrasonic profile or phased array whose index could oscillate",
+            );
+        }
         check_apart(&parts)?;
         let n_out = positive("field.n_out", self.field.n_out)?;
         let mut volume = Volume::several(parts.into_iter().zip(bulks).collect(), n_out);
@@ -1202,7 +1219,7 @@ impl RenderConfig {
             }
             Some(d) => Some(d.build(&volume.field)?),
         };
-        Ok(volume)
+        Ok((volume, modulation))
     }
 
     /// The parameters `render.derivatives` names, checked: medium parameters (`sigma_s`, `g`, …)

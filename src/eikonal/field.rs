@@ -725,16 +725,16 @@ impl IndexField for BoundedField {
 }
 
 impl BoundedField {
-    /// Set each part's map `(scale, offset)` (see [`Part::scale`]) in a field of several parts;
-    /// the parts are copied once if another field shares them, and kept in place after that.
-    pub fn map_parts(&mut self, map: impl Fn(usize) -> (f64, f64)) {
+    /// Change each part of a field of several with `change(k, part)` (their shapes must stay):
+    /// the parts are copied once if another field shares them, and changed in place after that.
+    pub fn change_parts(&mut self, mut change: impl FnMut(usize, &mut Part)) {
         let [Profile::Parts(parts)] = self.profiles.as_mut_slice() else {
             return;
         };
         // the bounds hold the same parts: let go of them so that a field of its own is not copied
         self.bounds = Bounds::Everywhere;
         for (k, p) in Arc::make_mut(parts).iter_mut().enumerate() {
-            (p.scale, p.offset) = map(k);
+            change(k, p);
         }
         self.bounds = Bounds::Parts(parts.clone());
     }

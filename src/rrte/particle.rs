@@ -1834,14 +1834,28 @@ const STEP_COST: f64 = 100.0;
 
 /// Set `field` to its instant `omega_t` of the ultrasound period: every ultrasonic amplitude
 /// to `sin Ωt` times its amplitude in `base` (the same field unmodulated), every phased array to
-/// the instant itself.
+/// the instant itself (in every part of a field of several volumes).
 pub fn modulate(
     field: &mut crate::eikonal::BoundedField,
     base: &crate::eikonal::BoundedField,
     omega_t: f64,
 ) {
     use crate::eikonal::Profile;
-    for (p, b) in field.profiles.iter_mut().zip(&base.profiles) {
+    if let [Profile::Parts(base)] = base.profiles.as_slice() {
+        field.change_parts(|k, p| modulate_profiles(&mut p.profiles, &base[k].profiles, omega_t));
+        return;
+    }
+    modulate_profiles(&mut field.profiles, &base.profiles, omega_t);
+}
+
+/// [`modulate`] for the profiles of one field or part.
+fn modulate_profiles(
+    profiles: &mut [crate::eikonal::Profile],
+    base: &[crate::eikonal::Profile],
+    omega_t: f64,
+) {
+    use crate::eikonal::Profile;
+    for (p, b) in profiles.iter_mut().zip(base) {
         match (p, b) {
             (Profile::Ultrasonic { n_max, .. }, Profile::Ultrasonic { n_max: full, .. }) => {
                 *n_max = full * omega_t.sin();

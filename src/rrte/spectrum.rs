@@ -237,7 +237,7 @@ impl Spectrum {
         };
         (field.scale, field.offset) = map(&self.inside);
         if !self.parts.is_empty() {
-            field.map_parts(|k| map(&self.parts[k]));
+            field.change_parts(|k, p| (p.scale, p.offset) = map(&self.parts[k]));
         }
         field.n_out = match &self.outside {
             Some(m) => base.n_out * m.index(lambda_nm) / m.index(self.reference_nm),
