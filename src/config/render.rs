@@ -1179,11 +1179,11 @@ impl RenderConfig {
                 n_out: self.field.n_out,
             };
             let mut field = keys.build().map_err(|e| of_volume(i, e))?;
-            check_positive(&field).map_err(|e| of_volume(i, e))?;
             if let Some(m) = self.modulation.as_ref().filter(|_| oscillates(&field)) {
                 modulation = modulated(m, &mut field).map_err(|e| of_volume(i, e))?;
                 oscillating = true;
             }
+            check_positive(&field).map_err(|e| of_volume(i, e))?;
             parts.push(Part::new(field.bounds, center, field.profiles));
             bulks.push(match &v.medium {
                 None => Bulk {

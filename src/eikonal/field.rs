@@ -179,19 +179,23 @@ impl Part {
     /// `(n, ∇n, ∇²n)` of the part at `x` (scene coordinates): its profiles' sum, mapped.
     #[inline]
     fn eval(&self, x: DVec3) -> (f64, DVec3, DMat3) {
-        let local = x - self.center;
-        let (n, g, h) =
-            self.profiles
-                .iter()
-                .fold((0.0, DVec3::ZERO, DMat3::ZERO), |(n, g, h), p| {
-                    let (pn, pg, ph) = p.eval(local);
-                    (n + pn, g + pg, h + ph)
-                });
-        if self.scale == 1.0 && self.offset == 0.0 {
-            return (n, g, h);
-        }
-        (self.offset + self.scale * n, g * self.scale, h * self.scale)
+        mapped_sum(&self.profiles, x - self.center, self.scale, self.offset)
     }
+}
+
+/// `(n, ∇n, ∇²n)` of `offset + scale · Σ profiles` at `x`.
+#[inline]
+fn mapped_sum(profiles: &[Profile], x: DVec3, scale: f64, offset: f64) -> (f64, DVec3, DMat3) {
+    let (n, g, h) = profiles
+        .iter()
+        .fold((0.0, DVec3::ZERO, DMat3::ZERO), |(n, g, h), p| {
+            let (pn, pg, ph) = p.eval(x);
+            (n + pn, g + pg, h + ph)
+        });
+    if scale == 1.0 && offset == 0.0 {
+        return (n, g, h);
+    }
+    (offset + scale * n, g * scale, h * scale)
 }
 
 /// The index of the part of `parts` that holds `x`, or the nearest one.
@@ -809,17 +813,7 @@ impl BoundedField {
         {
             return grid.eval(x);
         }
-        let (n, g, h) =
-            self.profiles
-                .iter()
-                .fold((0.0, DVec3::ZERO, DMat3::ZERO), |(n, g, h), p| {
-                    let (pn, pg, ph) = p.eval(x);
-                    (n + pn, g + pg, h + ph)
-                });
-        if self.scale == 1.0 && self.offset == 0.0 {
-            return (n, g, h);
-        }
-        (self.offset + self.scale * n, g * self.scale, h * self.scale)
+        mapped_sum(&self.profiles, x, self.scale, self.offset)
     }
 }
 

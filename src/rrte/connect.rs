@@ -340,9 +340,10 @@ impl<'v> Connector<'v> {
                 .is_some_and(|parts| parts[part_at(parts, x)].is_constant())
     }
 
-    /// The straight path from `x` to `y` in the part holding `x` (of constant `n`), if it
-    /// reaches `y` before it leaves the part.
-    fn straight_in_part(&self, x: DVec3, y: DVec3) -> Option<Connection> {
+    /// The straight path from `x` to `y` through constant `n`, if it reaches `y` before it
+    /// leaves the volume (or the part of several holding `x`): points in two volumes, or in two
+    /// lobes of a shape that is not convex, are not joined through the surroundings.
+    fn straight_inside(&self, x: DVec3, y: DVec3) -> Option<Connection> {
         let c = self.straight_line(x, y)?;
         let exit = self.volume.field.bounds.exit(x, c.direction)?;
         (exit >= c.length).then_some(c)
@@ -412,11 +413,8 @@ impl<'v> Connector<'v> {
 
     /// The stationary path Newton's method reaches from the initial direction `w0`, if any.
     pub fn solve(&self, x: DVec3, y: DVec3, w0: DVec3) -> Option<Connection> {
-        if self.straight {
-            return self.straight_line(x, y);
-        }
         if self.straight_from(x) {
-            return self.straight_in_part(x, y);
+            return self.straight_inside(x, y);
         }
         let n_x = self.volume.field.n(x);
         let mut w = w0.normalize();
@@ -501,13 +499,8 @@ impl<'v> Connector<'v> {
     /// inverse probability of drawing it (Alg. 3; `1` where `n` is constant: one path).
     pub fn sample(&self, x: DVec3, y: DVec3, rng: &mut Rng) -> Sampled {
         if self.straight_from(x) {
-            let path = if self.straight {
-                self.straight_line(x, y)
-            } else {
-                self.straight_in_part(x, y)
-            };
             return Sampled {
-                path: path.map(|c| (c, 1.0)),
+                path: self.straight_inside(x, y).map(|c| (c, 1.0)),
                 solves: 1,
                 iterations: 0,
                 distinct: 1,
@@ -1771,6 +1764,37 @@ mod tests {
         );
         assert_eq!(e.again.parts().len(), 1);
         exits(&e, &f);
+    }
+
+    /// Between two glass balls (constant `n` everywhere), no straight path joins a point in one
+    /// to a point in the other through the air between; within one ball, the straight line does.
+    #[test]
+    fn straight_paths_stay_in_their_volume() {
+        use crate::eikonal::Part;
+        use crate::rrte::Bulk;
+        let ball = |x: f64| {
+            let part = Part::new(
+                Bounds::Sphere { radius: 1.0 },
+                DVec3::new(x, 0.0, 0.0),
+                vec![Profile::Constant { n: 1.5 }],
+            );
+            let bulk = Bulk {
+                sigma_s: 1.0,
+                sigma_a: 0.0,
+                scattering: Scattering::single(PhaseFunction::Isotropic),
+            };
+            (part, bulk)
+        };
+        let v = Volume::several(vec![ball(-1.5), ball(1.5)], 1.0);
+        let c = Connector::new(&v, 1e-2, 1000);
+        let mut rng = crate::math::stream_rng(1, 0);
+        let (x, y) = (DVec3::new(-1.2, 0.1, 0.0), DVec3::new(1.3, -0.2, 0.1));
+        assert!(c.solve(x, y, (y - x).normalize()).is_none());
+        assert!(c.sample(x, y, &mut rng).path.is_none());
+        let z = DVec3::new(-1.8, 0.4, 0.2);
+        let (found, inverse_p) = c.sample(x, z, &mut rng).path.unwrap();
+        assert_eq!(inverse_p, 1.0);
+        assert!((found.length - (z - x).length()).abs() < 1e-12);
     }
 
     #[test]
