@@ -131,10 +131,9 @@ pub struct Spectrum {
     pub range_nm: [f64; 2],
     /// The wavelength at which the scene's field (and `n_out`) are given.
     pub reference_nm: f64,
-    pub inside: Option<Dispersion>,
-    /// For a volume of several parts, each part's dispersion (`None`: its index is the same at
-    /// every wavelength); empty for a volume of one, whose dispersion is `inside`.
-    pub parts: Vec<Option<Dispersion>>,
+    /// The dispersion inside: of the volume (one entry), or of each part of a volume of several
+    /// (`None`: the index is the same at every wavelength).
+    inside: Vec<Option<Dispersion>>,
     pub outside: Option<Material>,
     /// The mean linear-sRGB response over the range, for the white balance.
     white: [f64; 3],
@@ -160,18 +159,20 @@ impl Spectrum {
         Spectrum {
             range_nm,
             reference_nm,
-            inside,
-            parts: Vec::new(),
+            inside: vec![inside],
             outside,
             white,
         }
     }
 
     /// The spectrum with a dispersion for each part of a volume of several (at most
-    /// [`MAX_PARTS`]; `inside` must be `None`).
+    /// [`MAX_PARTS`]), in place of the one volume's.
     pub fn with_parts(self, parts: Vec<Option<Dispersion>>) -> Self {
-        assert!(self.inside.is_none() && parts.len() <= MAX_PARTS);
-        Spectrum { parts, ..self }
+        assert!(parts.len() <= MAX_PARTS);
+        Spectrum {
+            inside: parts,
+            ..self
+        }
     }
 
     /// Colour channels of the images: 3 (linear sRGB) for white light, 1 for a single line.
@@ -215,10 +216,7 @@ impl Spectrum {
             }
         };
         let mut inside = Delay::NONE.inside;
-        if self.parts.is_empty() {
-            inside[0] = group(&self.inside);
-        }
-        for (k, d) in self.parts.iter().enumerate() {
+        for (k, d) in self.inside.iter().enumerate() {
             inside[k] = group(d);
         }
         let gamma = match &self.outside {
@@ -235,9 +233,10 @@ impl Spectrum {
             Some(d) => d.affine(lambda_nm, self.reference_nm),
             None => (1.0, 0.0),
         };
-        (field.scale, field.offset) = map(&self.inside);
-        if !self.parts.is_empty() {
-            field.change_parts(|k, p| (p.scale, p.offset) = map(&self.parts[k]));
+        if field.bounds.parts().is_some() {
+            field.change_parts(|k, p| (p.scale, p.offset) = map(&self.inside[k]));
+        } else {
+            (field.scale, field.offset) = map(&self.inside[0]);
         }
         field.n_out = match &self.outside {
             Some(m) => base.n_out * m.index(lambda_nm) / m.index(self.reference_nm),
