@@ -2,7 +2,9 @@
 //! tracing): a pure absorber's transmission against Beer–Lambert per photon, and a scattering
 //! slab with Fresnel faces against finite differences of independent renders (the expectation's
 //! slope), for σ_s, σ_a and the Henyey–Greenstein g, on both sides; bad keys refused by name, and
-//! `render.json` carrying them.
+//! `render.json` carrying them; a share between equal phase functions changing no probe or
+//! camera; several volumes, each differentiated by its own medium (an absorber before a slab
+//! exactly per photon, two slabs apart against central differences).
 
 mod common;
 
@@ -11,7 +13,7 @@ use glam::DVec3;
 use lightpath::eikonal::{BoundedField, Bounds, Profile};
 use lightpath::medium::params::Param;
 use lightpath::medium::{PhaseFunction, Scattering};
-use lightpath::rrte::{Derivative, Light, RenderScene, Volume};
+use lightpath::rrte::{Derivative, Light, MediumDerivative, ParticleTracer, RenderScene, Volume};
 
 /// A slab (faces at z = ±0.5, wide beyond where light spreads) of index `n` in air under a normal
 /// beam, with flux sensors on both faces: transmitted (0) and reflected (1).
@@ -37,7 +39,10 @@ fn slab(n: f64, sigma_s: f64, sigma_a: f64, g: f64, derivatives: Vec<Param>) -> 
             radius: 0.0,
         },
         sensors: vec![flux("T", 0.5), flux("R", -0.5)],
-        derivatives: derivatives.into_iter().map(Derivative::Medium).collect(),
+        derivatives: derivatives
+            .into_iter()
+            .map(|p| Derivative::Medium(MediumDerivative::of_one(p)))
+            .collect(),
         ..bare_scene(0.01)
     }
 }
@@ -315,4 +320,313 @@ fn mixture_parameters_differentiate_as_their_differences() {
             );
         }
     }
+}
+
+/// Two slabs apart (faces at z = −1.05, −0.05 and 0.45, 1.05) under a normal pencil beam, each
+/// `(n, σ_s, σ_a, scattering)`, with flux sensors beyond them (T) and before them (R) and an
+/// orthographic camera looking back along −z at the lit side: what the second slab sends it
+/// crosses the first.
+fn two_slabs(
+    slabs: [(f64, f64, f64, Scattering); 2],
+    derivatives: Vec<(usize, Param)>,
+) -> RenderScene {
+    use lightpath::eikonal::Part;
+    use lightpath::rrte::{Bulk, Camera};
+    let parts = [(-1.05, -0.05), (0.45, 1.05)]
+        .into_iter()
+        .zip(slabs)
+        .map(|((z0, z1), (n, sigma_s, sigma_a, scattering))| {
+            let half = DVec3::new(500.0, 500.0, 0.5 * (z1 - z0));
+            let center = DVec3::new(0.0, 0.0, 0.5 * (z0 + z1));
+            let part = Part::new(Bounds::Box { half }, center, vec![Profile::Constant { n }]);
+            (
+                part,
+                Bulk {
+                    sigma_s,
+                    sigma_a,
+                    scattering,
+                },
+            )
+        })
+        .collect();
+    RenderScene {
+        volume: Volume::several(parts, 1.0),
+        light: Light::Beam {
+            center: DVec3::new(0.0, 0.0, -2.0),
+            direction: DVec3::Z,
+            radius: 0.0,
+        },
+        sensors: vec![flux("T", 1.1), flux("R", -1.1)],
+        cameras: vec![Camera::new(
+            "back".into(),
+            -DVec3::Z,
+            DVec3::new(0.0, 0.0, -1.5),
+            [3.0, 3.0],
+            [2, 2],
+        )],
+        derivatives: derivatives
+            .into_iter()
+            .map(|(k, param)| {
+                Derivative::Medium(MediumDerivative {
+                    param,
+                    volume: Some(k),
+                })
+            })
+            .collect(),
+        ..bare_scene(0.01)
+    }
+}
+
+fn hg(g: f64) -> Scattering {
+    Scattering::single(PhaseFunction::HenyeyGreenstein { g })
+}
+
+/// An index-matched absorber (σ_a = 0.7, 1.0 thick) before a matched scattering slab: every
+/// photon the second slab sends on crossed the absorber once on its way in, and every one it sends
+/// back crosses it again, as does every connection from the second slab to the back camera. So
+/// `∂/∂σ_a` of the absorber is, photon for photon, `−1.0 T` for the transmission and `−2.0` times
+/// the reflection and the camera's image (its connections' stretches inside the absorber alone
+/// count, not those inside the scattering slab).
+#[test]
+fn an_absorber_before_a_slab_differentiates_by_its_own_thickness() {
+    let s = two_slabs(
+        [(1.0, 0.0, 0.7, hg(0.0)), (1.0, 3.0, 0.05, hg(0.85))],
+        vec![(0, Param::SigmaA), (1, Param::SigmaA)],
+    );
+    let (e, est) = render(&s, 20_000, 3);
+    let camera = est.camera_image(0);
+    let d_camera = est.camera_derivative(0, 0);
+    let pairs = [
+        (est.power(0), est.power_derivative(0, 0), -1.0),
+        (est.power(1), est.power_derivative(1, 0), -2.0),
+        (camera.total(), d_camera.total(), -2.0),
+    ]
+    .into_iter()
+    .chain((0..camera.pixels).map(|k| (camera.first + k, d_camera.first + k, -2.0)));
+    for (value, derivative, crossings) in pairs {
+        let (v, d) = (e.mean[value].re, e.mean[derivative].re);
+        assert!(v > 0.0, "output {value} is empty");
+        assert!(
+            (d - crossings * v).abs() < 1e-9 * v,
+            "output {value}: derivative {d}, {crossings} × {v}"
+        );
+    }
+    // the scattering slab's absorption weighs its own tracks
+    let d = e.mean[est.power_derivative(1, 1)].re;
+    assert!(
+        d < -0.05 * e.mean[est.power(1)].re,
+        "dR/dvolume[1].sigma_a = {d}"
+    );
+}
+
+/// Two scattering slabs apart (index-matched), the second a mixture of a
+/// forward Henyey–Greenstein type and an isotropic one: the estimated derivatives of T, R and
+/// the back camera's total with respect to each slab's own parameters (the first's σ_a and g,
+/// the second's σ_s, σ_a, HG g and share) against central differences of independent renders at
+/// θ ± h with common random numbers (mean and error over 16 seeds; 4 combined standard errors). The camera's connections from the second slab cross the
+/// first, so its σ_a's derivative holds their stretches inside the first slab alone; each
+/// derivative is also far from zero, so the comparison can fail.
+#[test]
+fn slabs_apart_differentiate_each_by_its_own_medium() {
+    let mixture = |g: f64, share: f64| {
+        // the share of the HG type, unnormalised: the types renormalised
+        let total = share + 0.5;
+        Scattering::mixture(vec![
+            (share / total, PhaseFunction::HenyeyGreenstein { g }),
+            (0.5 / total, PhaseFunction::Isotropic),
+        ])
+    };
+    // θ: volume[0] σ_a, g; volume[1] σ_s, σ_a, g, share
+    let theta = [0.2, 0.5, 3.0, 0.05, 0.85, 0.5];
+    let params = vec![
+        (0, Param::SigmaA),
+        (0, Param::G(0)),
+        (1, Param::SigmaS),
+        (1, Param::SigmaA),
+        (1, Param::G(0)),
+        (1, Param::Weight(0)),
+    ];
+    let scene = |t: [f64; 6], derivatives| {
+        two_slabs(
+            [
+                (1.0, 1.5, t[0], hg(t[1])),
+                (1.0, t[2], t[3], mixture(t[4], t[5])),
+            ],
+            derivatives,
+        )
+    };
+    let s = scene(theta, params.clone());
+    let (e, est) = render(&s, 400_000, 11);
+    let outputs = |e: &lightpath::mc::Estimate, est: &ParticleTracer, j: Option<usize>| {
+        let index = [
+            j.map_or(est.power(0), |j| est.power_derivative(0, j)),
+            j.map_or(est.power(1), |j| est.power_derivative(1, j)),
+            j.map_or(est.camera_image(0), |j| est.camera_derivative(0, j))
+                .total(),
+        ];
+        index.map(|k| (e.mean[k].re, e.stderr[k]))
+    };
+    let steps = [0.05, 0.05, 0.3, 0.03, 0.03, 0.1];
+    for (j, h) in steps.into_iter().enumerate() {
+        // central differences with common random numbers: each pair from one seed
+        let at = |sign: f64, seed: u64| {
+            let mut t = theta;
+            t[j] += sign * h;
+            let s = scene(t, vec![]);
+            let (e, est) = render(&s, 64_000, seed);
+            outputs(&e, &est, None).map(|o| o.0)
+        };
+        let pairs: Vec<[f64; 3]> = (0..16)
+            .map(|k| {
+                let (up, down) = (at(1.0, 100 + k), at(-1.0, 100 + k));
+                [0, 1, 2].map(|i| (up[i] - down[i]) / (2.0 * h))
+            })
+            .collect();
+        let got = outputs(&e, &est, Some(j));
+        let name = s.derivatives[j].name();
+        for (i, what) in ["T", "R", "camera"].into_iter().enumerate() {
+            let fd = pairs.iter().map(|p| p[i]).sum::<f64>() / 16.0;
+            let var = pairs.iter().map(|p| (p[i] - fd).powi(2)).sum::<f64>() / 15.0;
+            let sfd = (var / 16.0).sqrt();
+            let (d, sd) = got[i];
+            eprintln!("d{what}/d{name}: {d:.5} ± {sd:.5}, differences {fd:.5} ± {sfd:.5}");
+            assert!(d.abs() > 4.0 * sd, "d{what}/d{name}: {d} ± {sd}");
+            assert!(
+                (d - fd).abs() < 4.0 * sd.hypot(sfd),
+                "d{what}/d{name}: {d} ± {sd}, differences {fd} ± {sfd}"
+            );
+        }
+    }
+}
+
+/// A share between two equal phase functions changes nothing: the derivatives of a probe's
+/// fluence and a camera's image with respect to it are zero within their errors. What each
+/// connection carries does not depend on the share (only the photons' scores do, with mean
+/// zero), and it is not attenuated by it: a share scored as a coefficient (`−L` along each
+/// connection) reads many standard errors below zero.
+#[test]
+fn a_share_between_equal_phase_functions_changes_nothing() {
+    use lightpath::rrte::{Camera, Probe};
+    let mut s = slab(1.0, 2.0, 0.3, 0.0, vec![Param::Weight(0)]);
+    let hg = PhaseFunction::HenyeyGreenstein { g: 0.6 };
+    s.volume.scattering = Scattering::mixture(vec![(0.4, hg.clone()), (0.6, hg)]);
+    s.probes = vec![Probe {
+        name: "mid".into(),
+        position: DVec3::new(0.4, 0.0, 0.1),
+    }];
+    s.cameras = vec![Camera::new(
+        "back".into(),
+        -DVec3::Z,
+        DVec3::new(0.0, 0.0, -1.0),
+        [2.0, 2.0],
+        [1, 1],
+    )];
+    let (e, est) = render(&s, 100_000, 5);
+    let camera = (
+        est.camera_image(0).total(),
+        est.camera_derivative(0, 0).total(),
+    );
+    let probe = (est.probe_total(0), est.probe_derivative(0, 0));
+    for (what, (value, derivative)) in [("probe", probe), ("camera", camera)] {
+        let (v, d, sd) = (
+            e.mean[value].re,
+            e.mean[derivative].re,
+            e.stderr[derivative],
+        );
+        eprintln!("{what}: {v:.5}, derivative {d:.6} ± {sd:.6}");
+        assert!(
+            v > 0.0 && d.abs() < 4.0 * sd,
+            "{what}: {v}, derivative {d} ± {sd}"
+        );
+    }
+}
+
+/// In a scene of several volumes each medium parameter names its volume (`volume[i].sigma_s`):
+/// bad names are refused by key, and the example of three volumes renders them into
+/// `render.json` (the clear lens's `σ_s` too, at 0: light crossing it would be scattered).
+#[test]
+fn derivatives_of_several_volumes_name_their_volume() {
+    let example = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/configs/render_volumes.toml"
+    ))
+    .unwrap();
+    let base = example.replace("estimator = \"bidirectional\"", "estimator = \"particle\"");
+    assert_ne!(base, example);
+    let with = |derivatives: &str| format!("{base}derivatives = {derivatives}\n");
+    for (derivatives, needles) in [
+        (
+            "[\"sigma_s\"]",
+            &["render.derivatives[0] = \"sigma_s\"", "volume[i].sigma_s"][..],
+        ),
+        ("[\"volume[3].sigma_s\"]", &["volume[3]", "3 volumes"]),
+        (
+            "[\"volume[0].g[1]\"]",
+            &["volume[0]'s medium has no such parameter"],
+        ),
+        (
+            "[\"volume[2].g\"]",
+            &["render.derivatives[0]", "no such parameter"],
+        ),
+        ("[\"volume[0]sigma_s\"]", &["volume[i].name"]),
+        ("[\"volume[1].profiles[0].radius\"]", &["one volume"]),
+        ("[\"profiles[0].radius\"]", &["one volume"]),
+        (
+            "[\"volume[0].g\", \"volume[0].g[0]\"]",
+            &["render.derivatives[1]", "once"],
+        ),
+    ] {
+        let Err(e) = lightpath::config::load_text(&with(derivatives)) else {
+            panic!("not refused: {derivatives}")
+        };
+        let e = e.to_string();
+        for n in needles {
+            assert!(e.contains(n), "{derivatives}: {n:?} not in: {e}");
+        }
+    }
+    // a parameter of one volume's medium in a scene of one volume
+    let one = "[field]\nprofiles = [{ kind = \"constant\", n = 1.0 }]\nbounds = { kind = \"sphere\", radius = 1.0 }\n[medium]\nsigma_s = 1.0\nsigma_a = 0.1\n[light]\nkind = \"point\"\nposition = [0.0, 0.0, 0.0]\n[[sensor]]\nkind = \"flux\"\nname = \"T\"\ncenter = [0.0, 0.0, 2.0]\nnormal = [0.0, 0.0, 1.0]\n[render]\nderivatives = [\"volume[0].sigma_s\"]\n";
+    let Err(e) = lightpath::config::load_text(one) else {
+        panic!("not refused: volume[0] of one volume")
+    };
+    assert!(e.to_string().contains("sigma_s, g"), "{e}");
+
+    let dir = std::env::temp_dir().join(format!("lightpath-vol-derivs-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let cfg = dir.join("volumes.toml");
+    let names = [
+        "volume[0].sigma_s",
+        "volume[0].g",
+        "volume[1].sigma_s",
+        "volume[2].sigma_a",
+    ];
+    std::fs::write(&cfg, with(&format!("{names:?}"))).unwrap();
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_lightpath"))
+        .args(["render", cfg.to_str().unwrap(), "--out"])
+        .arg(dir.join("out"))
+        .args(["--samples", "4000", "--quiet"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("out/render.json")).unwrap())
+            .unwrap();
+    let view = &json["cameras"][0];
+    for name in names {
+        let d = &view["derivatives"][name];
+        assert!(d["mean"].as_f64().unwrap().is_finite(), "{name}: {view}");
+        assert!(d["stderr"].as_f64().unwrap() > 0.0, "{name}: {d}");
+        let file = format!(
+            "camera_view_d_{}.exr",
+            name.replace('[', "_").replace(']', "")
+        );
+        assert!(dir.join("out").join(&file).exists(), "{file}");
+    }
+    // light absorbed more in the smoky block darkens the view: every path through it scores −L
+    let smoky = view["derivatives"]["volume[2].sigma_a"]["mean"]
+        .as_f64()
+        .unwrap();
+    assert!(smoky < 0.0, "d view/d volume[2].sigma_a = {smoky}");
+    let _ = std::fs::remove_dir_all(dir);
 }

@@ -59,6 +59,32 @@ def test_render_takes_several_volumes_from_a_dict(repo):
         lp.render(scene, samples=100)
 
 
+def test_render_vjp_differentiates_each_volumes_medium(repo):
+    # the example's three volumes, the view's left half a window (an output of its own)
+    scene = read_toml(repo / "configs" / "render_volumes.toml")
+    scene["render"].update(estimator="particle", samples=3000, chunk=500, seed=3)
+    scene["sensor"][0]["window"] = [{"name": "left", "columns": [0, 47], "rows": [0, 63]}]
+    params = ["volume[2].sigma_a", "volume[0].g", "volume[0].sigma_s"]
+    vjp = lp.render_vjp(scene, params, threads=2)
+    assert vjp.sensors == ["left"] and list(vjp.theta) == [0.8, 0.6, 3.0]
+    assert np.all(np.isfinite(vjp.jacobian)) and np.all(vjp.jacobian_stderr > 0)
+    # theta sets each volume's own medium: the same photons as the config with those values
+    theta = [1.1, 0.5, 2.5]
+    moved = lp.render_vjp(scene, params, theta=theta, threads=2)
+    scene["volume"][2]["medium"]["sigma_a"] = 1.1
+    scene["volume"][0]["medium"]["phase"]["g"] = 0.5
+    scene["volume"][0]["medium"]["sigma_s"] = 2.5
+    written = lp.render_vjp(scene, params, threads=2)
+    assert list(written.theta) == theta
+    assert np.array_equal(moved.value, written.value)
+    assert np.array_equal(moved.jacobian, written.jacobian)
+    assert not np.array_equal(moved.value, vjp.value)
+    with pytest.raises(ValueError, match=r"volume\[i\]\.sigma_s"):
+        lp.render_vjp(scene, ["sigma_s"])
+    with pytest.raises(ValueError, match=r"volume\[0\]"):
+        lp.render_vjp(scene, params, theta=[1.1, 0.5, -2.0])
+
+
 def test_render_derivatives_give_the_gradient_of_a_loss(tmp_path):
     # a Fresnel slab's transmission and reflection with their derivatives by the medium; the
     # gradient of a loss on the powers is the chain rule through them

@@ -10,8 +10,8 @@ use crate::eikonal::{BoundedField, Bounds, Part};
 use crate::medium::{PhaseFunction, Scattering};
 use crate::rrte::{
     Bulk, Camera, Connections, Density, Derivative, Dispersion, FieldDerivative, Filter, Light,
-    MAX_DERIVATIVES, MAX_TARGETS, Material, Modulation, Probe, Region, RenderScene, Sensor,
-    SensorKind, Spectrum, Surface, Tracing, Transient, Volume,
+    MAX_DERIVATIVES, MAX_TARGETS, Material, MediumDerivative, Modulation, Probe, Region,
+    RenderScene, Sensor, SensorKind, Spectrum, Surface, Tracing, Transient, Volume,
 };
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -214,6 +214,43 @@ fn modulated(
             Ok(None)
         }
     }
+}
+
+/// The medium parameter `volume[k].name` names (`rest`: what follows `volume[`), checked against
+/// the scene's several volumes.
+fn volume_parameter(rest: &str, volume: &Volume) -> Result<MediumDerivative, String> {
+    use crate::medium::params::Param;
+    let count = volume.parts.len();
+    if count == 0 {
+        return Err("volume[i].name names a parameter of one of several volumes ([[volume]]); this scene has one ([field], [medium]): name it alone (sigma_s, g, …)".into());
+    }
+    let (k, name) = rest
+        .split_once("].")
+        .and_then(|(k, name)| Some((k.trim().parse::<usize>().ok()?, name.trim())))
+        .ok_or("write volume[i].name, e.g. volume[0].sigma_s")?;
+    if k >= count {
+        return Err(format!(
+            "volume[{k}]: the scene has {count} volumes, volume[0] to volume[{}]",
+            count - 1
+        ));
+    }
+    if name.starts_with("profiles[") {
+        return Err("index-field derivatives are estimated in a scene of one volume ([field]); with [[volume]], differentiate the volumes' media (volume[i].sigma_s, volume[i].g, …)".into());
+    }
+    let param = Param::parse(name).map_err(|e| e.to_string())?;
+    let b = &volume.parts[k];
+    if param
+        .value_in(b.sigma_s, b.sigma_a, &b.scattering)
+        .is_none()
+    {
+        return Err(format!(
+            "volume[{k}]'s medium has no such parameter (phase-function parameters need a component of that kind: g an \"hg\" one, bin a table, vmf_* a vMF mixture)"
+        ));
+    }
+    Ok(MediumDerivative {
+        param,
+        volume: Some(k),
+    })
 }
 
 /// A designed transducer position keeps its element's line outside the volume over its whole
@@ -1144,11 +1181,6 @@ impl RenderConfig {
                 self.design.is_some(),
                 "a design moves the field of a scene of one volume ([field])",
             ),
-            (
-                "render.derivatives",
-                !self.render.derivatives.is_empty(),
-                "derivatives are estimated in a scene of one volume ([field])",
-            ),
         ];
         for (key, given, why) in refused {
             if given {
@@ -1264,9 +1296,25 @@ impl RenderConfig {
                 "{list}: derivatives need a homogeneous medium, and [density] makes it heterogeneous; drop [density]",
             ));
         }
+        let several = !volume.parts.is_empty();
         let mut params = Vec::new();
         for (i, name) in names.iter().enumerate() {
-            let p = if name.trim_start().starts_with("profiles[") {
+            let trimmed = name.trim();
+            let p = if let Some(rest) = trimmed.strip_prefix("volume[") {
+                let m = volume_parameter(rest, volume)
+                    .map_err(|e| ConfigError(format!("{}: {e}", key(i))))?;
+                Derivative::Medium(m)
+            } else if several && trimmed.starts_with("profiles[") {
+                return err(format!(
+                    "{}: index-field derivatives are estimated in a scene of one volume ([field]); with [[volume]], differentiate the volumes' media (volume[i].sigma_s, volume[i].g, …)",
+                    key(i)
+                ));
+            } else if several {
+                return err(format!(
+                    "{}: with [[volume]], name the volume whose medium it is: volume[i].{trimmed}",
+                    key(i)
+                ));
+            } else if trimmed.starts_with("profiles[") {
                 let f = self
                     .field_derivative(name, volume)
                     .map_err(|e| ConfigError(format!("{}: {e}", key(i))))?;
@@ -1282,7 +1330,7 @@ impl RenderConfig {
                         key(i)
                     ));
                 }
-                Derivative::Medium(p)
+                Derivative::Medium(MediumDerivative::of_one(p))
             };
             if params.iter().any(|q: &Derivative| q.name() == p.name()) {
                 return err(format!(

@@ -14,7 +14,9 @@ use super::bridge::{Differentiable, Pullback};
 use super::{Param, medium_at};
 use crate::mc::{Plan, StopFlag, estimate_until};
 use crate::medium::{Geometry, Medium};
-use crate::rrte::{Derivative, FieldDerivative, ParticleTracer, RenderScene, Tracing};
+use crate::rrte::{
+    Bulk, Derivative, FieldDerivative, MediumDerivative, ParticleTracer, RenderScene, Tracing,
+};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
@@ -22,7 +24,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 /// [`RenderScene::objectives`]), with its score pullback.
 pub struct RenderOp {
     pub scene: RenderScene,
-    pub params: Vec<Param>,
+    /// The medium's parameters, each of the one volume or of one of several.
+    pub params: Vec<MediumDerivative>,
     /// Index-field parameters, after `params` in `θ` (none from [`Self::new`]).
     pub field: Vec<FieldDerivative>,
     pub samples: u64,
@@ -61,11 +64,26 @@ impl Pullback for RenderEvaluation {
 }
 
 impl RenderOp {
-    /// The operation on `scene` (particle tracing, a homogeneous medium that has every parameter
-    /// of `params`, at least one sensor), `samples` photons per evaluation.
+    /// The operation on `scene` (particle tracing, a homogeneous medium of one volume that has
+    /// every parameter of `params`, at least one sensor), `samples` photons per evaluation.
     pub fn new(
         scene: RenderScene,
         params: Vec<Param>,
+        sizes: (u64, u64, u64),
+    ) -> crate::Result<Self> {
+        if !scene.volume.parts.is_empty() {
+            return Err(
+                "a scene of several volumes: name each medium parameter's volume (RenderOp::from_scene, volume[i].sigma_s)".into(),
+            );
+        }
+        let params = params.into_iter().map(MediumDerivative::of_one).collect();
+        Self::of_medium(scene, params, sizes)
+    }
+
+    /// [`Self::new`] with parameters of the one volume's or several volumes' media.
+    fn of_medium(
+        scene: RenderScene,
+        params: Vec<MediumDerivative>,
         (samples, chunk, seed): (u64, u64, u64),
     ) -> crate::Result<Self> {
         if scene.tracing != Tracing::FromLight {
@@ -132,7 +150,7 @@ impl RenderOp {
             )
             .into());
         }
-        let mut op = Self::new(scene, params, sizes)?;
+        let mut op = Self::of_medium(scene, params, sizes)?;
         if op.params.len() + field.len() > crate::rrte::MAX_DERIVATIVES {
             return Err(format!(
                 "{} parameters: a render differentiates at most {}",
@@ -169,7 +187,9 @@ impl RenderOp {
             .params
             .iter()
             .map(|p| {
-                p.value_in(v.sigma_s, v.sigma_a, &v.scattering)
+                let m = self.bulk(p.volume);
+                p.param
+                    .value_in(m.sigma_s, m.sigma_a, &m.scattering)
                     .unwrap_or(0.0)
             })
             .collect();
@@ -199,17 +219,22 @@ impl RenderOp {
         self.evaluations.load(Ordering::Relaxed)
     }
 
-    /// The scene with its medium at `θ`, and per parameter the factor turning the scores'
+    /// The bulk medium of volume `k` of several, or of the one volume (`None`).
+    fn bulk(&self, k: Option<usize>) -> Bulk {
+        let v = &self.scene.volume;
+        match k {
+            Some(k) => v.parts[k].clone(),
+            None => Bulk {
+                sigma_s: v.sigma_s,
+                sigma_a: v.sigma_a,
+                scattering: v.scattering.clone(),
+            },
+        }
+    }
+
+    /// The scene with its media at `θ`, and per parameter the factor turning the scores'
     /// derivative into `∂/∂θ` (unnormalised table nodes and shares, as [`medium_at`]).
     fn scene_at(&self, theta: &[f64]) -> crate::Result<(RenderScene, Vec<f64>)> {
-        let v = &self.scene.volume;
-        let base = Medium {
-            // only the coefficients and particles are read
-            geometry: Geometry::boxed([1.0; 3]),
-            sigma_s: v.sigma_s,
-            sigma_a: v.sigma_a,
-            scattering: v.scattering.clone(),
-        };
         let m_count = self.params.len();
         if theta.len() != m_count + self.field.len() {
             return Err(format!(
@@ -219,11 +244,45 @@ impl RenderOp {
             )
             .into());
         }
-        let (m, mut factor) = medium_at(&base, &self.params, &theta[..m_count])?;
         let mut scene = self.scene.clone();
-        scene.volume.sigma_s = m.sigma_s;
-        scene.volume.sigma_a = m.sigma_a;
-        scene.volume.scattering = m.scattering;
+        let mut factor = vec![1.0; m_count];
+        // each volume's medium at its parameters' values
+        let mut volumes: Vec<Option<usize>> = self.params.iter().map(|p| p.volume).collect();
+        volumes.sort();
+        volumes.dedup();
+        for k in volumes {
+            let mine: Vec<usize> = (0..m_count)
+                .filter(|&i| self.params[i].volume == k)
+                .collect();
+            let bulk = self.bulk(k);
+            let base = Medium {
+                // only the coefficients and particles are read
+                geometry: Geometry::boxed([1.0; 3]),
+                sigma_s: bulk.sigma_s,
+                sigma_a: bulk.sigma_a,
+                scattering: bulk.scattering,
+            };
+            let params: Vec<Param> = mine.iter().map(|&i| self.params[i].param).collect();
+            let values: Vec<f64> = mine.iter().map(|&i| theta[i]).collect();
+            let (m, f) = medium_at(&base, &params, &values).map_err(|e| match k {
+                Some(k) => format!("volume[{k}]: {e}").into(),
+                None => e,
+            })?;
+            for (&i, f) in mine.iter().zip(f) {
+                factor[i] = f;
+            }
+            let (sigma_s, sigma_a, scattering) = match k {
+                Some(k) => {
+                    let b = &mut scene.volume.parts[k];
+                    (&mut b.sigma_s, &mut b.sigma_a, &mut b.scattering)
+                }
+                None => {
+                    let v = &mut scene.volume;
+                    (&mut v.sigma_s, &mut v.sigma_a, &mut v.scattering)
+                }
+            };
+            (*sigma_s, *sigma_a, *scattering) = (m.sigma_s, m.sigma_a, m.scattering);
+        }
         for (f, &value) in self.field.iter().zip(&theta[m_count..]) {
             if !value.is_finite() {
                 return Err(format!("{} = {value}: not a finite number", f.name).into());
@@ -236,7 +295,7 @@ impl RenderOp {
         scene.derivatives = self
             .params
             .iter()
-            .map(|&p| Derivative::Medium(p))
+            .map(|&m| Derivative::Medium(m))
             .chain(self.field.iter().cloned().map(Derivative::Field))
             .collect();
         Ok((scene, factor))

@@ -193,6 +193,12 @@ impl Param {
         }
     }
 
+    /// Whether this is a coefficient, `σ_s` or `σ_a` (enters through attenuation: `−L` along a
+    /// path of geometric length `L`).
+    pub fn is_coefficient(&self) -> bool {
+        matches!(self, Param::SigmaS | Param::SigmaA)
+    }
+
     /// Whether this is a phase-function parameter (enters at vertices, not through coefficients).
     pub fn is_phase(&self) -> bool {
         matches!(

@@ -462,7 +462,7 @@ impl ParticleTracer<'_> {
                 None => self.camera_link(t, y.x, camera, way, rng, out),
                 Some(n) => self.surface_camera_link(t, y.x, n, camera, way, rng, out),
             };
-            let Some(link) = link.filter(|l| !crosses_after_mirror(way, l.inside)) else {
+            let Some(link) = link.filter(|l| !crosses_after_mirror(way, l.inside.total())) else {
                 continue;
             };
             let volume = t.flyer.volume;
@@ -474,8 +474,14 @@ impl ParticleTracer<'_> {
                 camera: &[],
                 light_pdf,
                 camera_pdf: link.pdf,
-                link: Segment::new(volume, link.inside, link.outside, orthographic, true)
-                    .with_cos(cos_y, 1.0),
+                link: Segment::new(
+                    volume,
+                    link.inside.total(),
+                    link.outside,
+                    orthographic,
+                    true,
+                )
+                .with_cos(cos_y, 1.0),
                 rho_light,
                 rho_camera: f64::NAN,
             };
@@ -619,6 +625,7 @@ impl ParticleTracer<'_> {
                     return None;
                 }
                 let (transmittance, inside) = self.past_volume(t, z.x, w, distance, rng)?;
+                let inside = inside.total();
                 Some(Joint {
                     leave_y: -w,
                     leave_z: w,

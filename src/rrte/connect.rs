@@ -22,7 +22,7 @@
 //! al. 2020): `Σ_k f(C_k)` is then estimated without bias by `f(C)/p(C)`.
 
 use super::flight::{fresnel, reflect};
-use super::scene::{Surface, Volume};
+use super::scene::{PartLengths, Surface, Volume};
 use crate::eikonal::trace::{entry_parameter, jacobian_of, refract};
 use crate::eikonal::{BoundedField, IndexField, Ray, Tracer, part_at};
 use crate::math::{Rng, orthonormal_basis, uniform, uniform_sphere};
@@ -95,18 +95,20 @@ impl Exit {
         self.length - self.again.parts().iter().map(|p| p.length).sum::<f64>()
     }
 
+    /// The geometric length inside, part by part where `volume` is several.
+    pub fn lengths(&self, volume: &Volume) -> PartLengths {
+        let mut lengths = PartLengths::default();
+        lengths.add(volume.part_index(self.inside_from), self.first_length());
+        for p in self.again.parts() {
+            lengths.add(volume.part_index(p.inside), p.length);
+        }
+        lengths
+    }
+
     /// `e^{−∫σ_t}` along the path in a homogeneous `volume`: `e^{−σ_t L}`, or where the bounds
     /// are several volumes, each stretch inside at its own part's `σ_t`.
     pub fn attenuation(&self, volume: &Volume) -> f64 {
-        if volume.parts.is_empty() {
-            return (-volume.sigma_t() * self.length).exp();
-        }
-        let first = volume.sigma_t_at(self.inside_from) * self.first_length();
-        let again = self.again.parts().iter();
-        (-again.fold(first, |depth, p| {
-            depth + volume.sigma_t_at(p.inside) * p.length
-        }))
-        .exp()
+        (-self.lengths(volume).depth(volume)).exp()
     }
 }
 

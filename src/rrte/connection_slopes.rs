@@ -235,16 +235,18 @@ impl ParticleTracer<'_> {
             if !(value > 0.0 && value.is_finite() && self.add_to_probe(t, i, c, value, opl, out)) {
                 return;
             }
+            // the connection runs in the part of the event
+            let part = volume.part_index(v.x);
             for (j, d) in derivatives.iter().enumerate() {
-                let own = match d {
-                    Derivative::Medium(m) => {
+                let own = match d.medium_in(part) {
+                    Some(m) => {
                         let phase = v.w_in.map_or(0.0, |w| {
-                            m.dlog_mixture(volume.scattering_at(v.x), w.dot(c.direction))
+                            m.dlog_mixture(volume.scattering_of(part), w.dot(c.direction))
                         });
-                        let attenuation = if m.is_phase() { 0.0 } else { -c.length };
+                        let attenuation = if m.is_coefficient() { -c.length } else { 0.0 };
                         value * (phase + attenuation)
                     }
-                    Derivative::Field(_) => 0.0,
+                    None => 0.0,
                 };
                 out[self.probe_derivative(i, j)].re += value * score[j] + own;
             }
@@ -303,7 +305,8 @@ impl ParticleTracer<'_> {
                     continue;
                 };
                 let scale = weight * emit(volume, (v.x, v.w_in), link.direction);
-                if !self.record_link_scored(t, &link, (scale, opl), score, v.w_in, out) {
+                let event = v.w_in.map(|w| (v.x, w));
+                if !self.record_link_scored(t, &link, (scale, opl), score, event, out) {
                     continue;
                 }
                 for (k, volumes) in shifted.iter().enumerate() {
@@ -337,29 +340,32 @@ impl ParticleTracer<'_> {
 
     /// Record `link` carrying `scale` after the optical path `opl` ([`Self::record_link`]) and,
     /// with derivatives, its value times the path's `score` plus its own medium derivatives: `∂
-    /// log` of the phase function at a scattering event (`w_in`: the incoming direction; none
-    /// from the light or a surface), `−L` inside the volume for σ_s and σ_a. `false` if it adds
-    /// nothing.
+    /// log` of the phase function at a scattering event (`event`: its position and incoming
+    /// direction; none from the light or a surface) for the medium there, `−L` inside each
+    /// volume for its σ_s and σ_a. `false` if it adds nothing.
     pub(super) fn record_link_scored(
         &self,
         t: &Tools,
         link: &CameraLink,
         (scale, opl): (f64, f64),
         score: &[f64],
-        w_in: Option<DVec3>,
+        event: Option<(DVec3, DVec3)>,
         out: &mut [C64],
     ) -> bool {
         if !self.record_link(t, link, scale, opl, out) {
             return false;
         }
-        let scattering = &t.flyer.volume.scattering;
+        let volume = t.flyer.volume;
+        let at = event.map(|(x, w_in)| (volume.part_index(x), w_in.dot(link.direction)));
         for (j, d) in self.scene.derivatives.iter().enumerate() {
             let own = match d {
-                Derivative::Medium(m) => {
-                    let phase =
-                        w_in.map_or(0.0, |w| m.dlog_mixture(scattering, w.dot(link.direction)));
-                    phase + if m.is_phase() { 0.0 } else { -link.inside }
-                }
+                // a coefficient attenuates the stretches inside its volume; the phase function's
+                // parameters and shares weigh the scattering event's
+                Derivative::Medium(m) if m.param.is_coefficient() => -link.inside.within(m.volume),
+                Derivative::Medium(_) => at.map_or(0.0, |(part, mu)| {
+                    d.medium_in(part)
+                        .map_or(0.0, |p| p.dlog_mixture(volume.scattering_of(part), mu))
+                }),
                 Derivative::Field(_) => 0.0,
             };
             self.add_link_slope(link, scale * (score[j] + own), j, out);

@@ -32,7 +32,7 @@ pub mod tangent;
 pub use particle::{ImageLayout, MAX_REFLECTIONS, ParticleTracer, Total};
 pub use scene::{
     Bulk, Camera, Connections, Density, Derivative, FieldDerivative, Filter, Light,
-    MAX_DERIVATIVES, MAX_TARGETS, Modulation, Pinhole, PixelWindow, Probe, Region, RenderScene,
-    Sensor, SensorKind, Surface, Tracing, Transient, Volume,
+    MAX_DERIVATIVES, MAX_TARGETS, MediumDerivative, Modulation, PartLengths, Pinhole, PixelWindow,
+    Probe, Region, RenderScene, Sensor, SensorKind, Surface, Tracing, Transient, Volume,
 };
 pub use spectrum::{Dispersion, Material, Spectrum};

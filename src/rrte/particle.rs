@@ -20,8 +20,8 @@ use super::connect::{Aim, Connection, Connector, Exit, Sampled};
 use super::connection_slopes::{ShiftedFields, Vertex, emitted};
 use super::flight::{Flight, Flyer, fresnel, reflect};
 use super::scene::{
-    Connections, Filter, MAX_DERIVATIVES, MAX_TARGETS, Modulation, Region, RenderScene, SensorKind,
-    Shares, Tracing, Volume, shares,
+    Connections, Filter, MAX_DERIVATIVES, MAX_TARGETS, Modulation, PartLengths, Region,
+    RenderScene, SensorKind, Shares, Tracing, Volume, shares,
 };
 use super::spectrum::Delay;
 use crate::eikonal::trace::refract;
@@ -254,8 +254,8 @@ pub(super) struct CameraLink {
     pub(super) total: f64,
     /// Group delay from the event to the camera.
     pub(super) delay: f64,
-    /// Geometric length inside the volume and straight outside it.
-    pub(super) inside: f64,
+    /// Geometric length inside the volume (part by part) and straight outside it.
+    pub(super) inside: PartLengths,
     pub(super) outside: f64,
     /// The density of the camera's own sampling of this path's start: per unit area of an
     /// orthographic camera's rectangle, per solid angle at a pinhole.
@@ -882,7 +882,7 @@ impl<'s> ParticleTracer<'s> {
                 radiance,
                 total: radiance,
                 delay: t.exit_delay(e, before) + t.delay.outside(n_out * to_plane),
-                inside: e.length,
+                inside: e.lengths(t.flyer.volume),
                 outside: e.outside() + to_plane,
                 pdf: 1.0 / cam.area(),
             });
@@ -907,7 +907,7 @@ impl<'s> ParticleTracer<'s> {
             radiance: irradiance / (cos * cos * cos * cam.pixel_area()),
             total: irradiance,
             delay: t.exit_delay(e, outside),
-            inside: e.length,
+            inside: e.lengths(t.flyer.volume),
             outside: e.outside() + to_pinhole,
             pdf: 1.0 / cam.image_area(cos),
         })
@@ -1006,10 +1006,12 @@ impl<'s> ParticleTracer<'s> {
         w: DVec3,
         length: f64,
         rng: &mut Rng,
-    ) -> Option<(f64, f64)> {
+    ) -> Option<(f64, PartLengths)> {
         // every stretch of the line inside the volume (one if it is convex)
-        let bounds = &t.flyer.volume.field.bounds;
-        let (mut from, mut transmittance, mut inside) = (0.0, 1.0, 0.0);
+        let volume = t.flyer.volume;
+        let bounds = &volume.field.bounds;
+        let (mut from, mut transmittance) = (0.0, 1.0);
+        let mut inside = PartLengths::default();
         while let Some((t0, t1)) = bounds.interval(y + w * from, w) {
             let (t0, t1) = (from + t0, from + t1);
             if t1 <= from || t0 >= length {
@@ -1022,7 +1024,7 @@ impl<'s> ParticleTracer<'s> {
             let b = t1.min(length);
             if b > a {
                 transmittance *= self.transmittance(t, y + w * a, w, (b - a, 0), rng);
-                inside += b - a;
+                inside.add(volume.part_index(y + w * (0.5 * (a + b))), b - a);
             }
             if bounds.is_convex() || b >= length {
                 break;
@@ -1426,7 +1428,7 @@ impl<'s> ParticleTracer<'s> {
                 total: radiance,
                 delay: t.delay.outside(n_out * to_plane),
                 inside,
-                outside: to_plane - inside,
+                outside: to_plane - inside.total(),
                 pdf: 1.0 / cam.area(),
             });
         }
@@ -1452,7 +1454,7 @@ impl<'s> ParticleTracer<'s> {
             total: irradiance,
             delay: t.delay.outside(n_out * distance),
             inside,
-            outside: distance - inside,
+            outside: distance - inside.total(),
             pdf: 1.0 / cam.image_area(cos),
         })
     }
@@ -1500,10 +1502,17 @@ impl<'s> ParticleTracer<'s> {
                 t.next_event_visiting(ray, rng, |a, b| self.track(a, b, &mut tracks));
             p.steps += travelled.steps;
             p.opl += travelled.opl;
-            // the flight's score: `σ_t e^{−σ_t L}` to a collision, `e^{−σ_t L}` to the surface
+            // the flight's score: `σ_t e^{−σ_t L}` to a collision, `e^{−σ_t L}` to the surface,
+            // in the medium of the part it flew in
             let collided = matches!(stop, Stop::Collision(_));
-            for (s, param) in p.score.iter_mut().zip(derivatives) {
-                *s += flight_score(param.medium(), collided, volume, travelled.length);
+            let part = if derivatives.is_empty() {
+                None
+            } else {
+                volume.part_index(ray.x)
+            };
+            let coefficients = volume.coefficients(part);
+            for (s, d) in p.score.iter_mut().zip(derivatives) {
+                *s += flight_score(d.medium_in(part), collided, coefficients, travelled.length);
             }
             // the flight's tracks count with its own score (they depend on its length)
             self.record_tracks(&tracks, p.weight, &p.score[..derivatives.len()], out);
@@ -1513,8 +1522,8 @@ impl<'s> ParticleTracer<'s> {
                     let albedo = volume.albedo_at(hit.x);
                     out[self.total(Total::Absorbed)].re += p.weight * (1.0 - albedo);
                     p.weight *= albedo;
-                    for (s, param) in p.score.iter_mut().zip(derivatives) {
-                        *s += albedo_score(param.medium(), volume);
+                    for (s, d) in p.score.iter_mut().zip(derivatives) {
+                        *s += albedo_score(d.medium_in(part), coefficients);
                     }
                     reflections = Reflections::default();
                     let w_in = hit.v.normalize();
@@ -1535,10 +1544,11 @@ impl<'s> ParticleTracer<'s> {
                     if !derivatives.is_empty() {
                         // the scattering event's score: its particle type and direction
                         let mu = w_in.dot(ray.v.normalize());
-                        for (s, param) in p.score.iter_mut().zip(derivatives) {
-                            *s += param
-                                .medium()
-                                .map_or(0.0, |m| m.dlog_event(&volume.scattering, kind, mu));
+                        let scattering = volume.scattering_of(part);
+                        for (s, d) in p.score.iter_mut().zip(derivatives) {
+                            *s += d
+                                .medium_in(part)
+                                .map_or(0.0, |m| m.dlog_event(scattering, kind, mu));
                         }
                     }
                 }
@@ -1559,28 +1569,30 @@ impl<'s> ParticleTracer<'s> {
     }
 }
 
-/// A free flight's score for medium parameter `param` (`∂ log` of its probability): `σ_t
-/// e^{−σ_t L}` to a collision, `e^{−σ_t L}` to the surface, over geometric length `L`. What the
+/// A free flight's score for medium parameter `param` (`∂ log` of its probability; `None`: not
+/// a parameter of the medium flown through): `σ_t e^{−σ_t L}` to a collision, `e^{−σ_t L}` to
+/// the surface, over geometric length `L`, in a medium of coefficients `(σ_s, σ_t)`. What the
 /// flight itself tallies (a target's track) counts with it; what comes after a collision also
 /// with [`albedo_score`].
 pub(super) fn flight_score(
     param: Option<Param>,
     collided: bool,
-    volume: &Volume,
+    (_, sigma_t): (f64, f64),
     length: f64,
 ) -> f64 {
     match param {
-        Some(Param::SigmaS | Param::SigmaA) if collided => 1.0 / volume.sigma_t() - length,
+        Some(Param::SigmaS | Param::SigmaA) if collided => 1.0 / sigma_t - length,
         Some(Param::SigmaS | Param::SigmaA) => -length,
         _ => 0.0,
     }
 }
 
-/// The score of a collision's weight `σ_s/σ_t` (the albedo) for medium parameter `param`.
-pub(super) fn albedo_score(param: Option<Param>, volume: &Volume) -> f64 {
+/// The score of a collision's weight `σ_s/σ_t` (the albedo) for medium parameter `param`, in a
+/// medium of coefficients `(σ_s, σ_t)`.
+pub(super) fn albedo_score(param: Option<Param>, (sigma_s, sigma_t): (f64, f64)) -> f64 {
     match param {
-        Some(Param::SigmaS) => 1.0 / volume.sigma_s - 1.0 / volume.sigma_t(),
-        Some(Param::SigmaA) => -1.0 / volume.sigma_t(),
+        Some(Param::SigmaS) => 1.0 / sigma_s - 1.0 / sigma_t,
+        Some(Param::SigmaA) => -1.0 / sigma_t,
         _ => 0.0,
     }
 }

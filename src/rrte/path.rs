@@ -346,6 +346,7 @@ impl ParticleTracer<'_> {
             return None;
         }
         let (transmittance, inside) = self.past_volume(t, y, dir, distance, rng)?;
+        let inside = inside.total();
         let intensity = light.intensity(-dir);
         Some(LightLink {
             direction: dir,

@@ -133,6 +133,21 @@ impl Volume {
         self.part_index(x).map(|k| &self.parts[k])
     }
 
+    /// `(σ_s, σ_t)` at density 1 of `part` ([`Self::part_index`]; `None`: the one volume).
+    #[inline]
+    pub fn coefficients(&self, part: Option<usize>) -> (f64, f64) {
+        match part {
+            Some(k) => (self.parts[k].sigma_s, self.parts[k].sigma_t()),
+            None => (self.sigma_s, self.sigma_s + self.sigma_a),
+        }
+    }
+
+    /// The phase function of `part` ([`Self::part_index`]; `None`: the one volume).
+    #[inline]
+    pub fn scattering_of(&self, part: Option<usize>) -> &Scattering {
+        part.map_or(&self.scattering, |k| &self.parts[k].scattering)
+    }
+
     /// Extinction at density 1 at `x` (inside).
     #[inline]
     pub fn sigma_t_at(&self, x: DVec3) -> f64 {
@@ -656,7 +671,7 @@ pub enum SensorKind {
 #[derive(Clone, Debug, PartialEq)]
 pub enum Derivative {
     /// A parameter of the homogeneous medium: path-space scores of every photon.
-    Medium(crate::medium::params::Param),
+    Medium(MediumDerivative),
     /// A parameter of the index field: forward sensitivities of every photon's path (see
     /// [`super::tangent`]).
     Field(FieldDerivative),
@@ -673,20 +688,88 @@ pub struct FieldDerivative {
     pub scale: f64,
 }
 
+/// A medium parameter a render is differentiated by, of the one volume or of one of several.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct MediumDerivative {
+    pub param: crate::medium::params::Param,
+    /// Which of several volumes ([`Volume::parts`]) it belongs to; `None` for one volume.
+    pub volume: Option<usize>,
+}
+
+impl MediumDerivative {
+    /// `param` of the one volume.
+    pub fn of_one(param: crate::medium::params::Param) -> Self {
+        MediumDerivative {
+            param,
+            volume: None,
+        }
+    }
+
+    /// `sigma_s`, or `volume[1].sigma_s` for one of several volumes.
+    pub fn name(&self) -> String {
+        match self.volume {
+            None => self.param.name(),
+            Some(k) => format!("volume[{k}].{}", self.param.name()),
+        }
+    }
+}
+
 impl Derivative {
     pub fn name(&self) -> String {
         match self {
-            Derivative::Medium(p) => p.name(),
+            Derivative::Medium(m) => m.name(),
             Derivative::Field(f) => f.name.clone(),
         }
     }
 
     /// The medium parameter, if this is one.
-    pub fn medium(&self) -> Option<crate::medium::params::Param> {
+    pub fn medium(&self) -> Option<MediumDerivative> {
         match self {
-            Derivative::Medium(p) => Some(*p),
+            Derivative::Medium(m) => Some(*m),
             Derivative::Field(_) => None,
         }
+    }
+
+    /// The medium parameter, if this is one of the medium in `part` ([`Volume::part_index`]:
+    /// `None` for one volume): what scores an event there.
+    #[inline]
+    pub fn medium_in(&self, part: Option<usize>) -> Option<crate::medium::params::Param> {
+        match self {
+            Derivative::Medium(m) if m.volume == part => Some(m.param),
+            _ => None,
+        }
+    }
+}
+
+/// The geometric lengths of a path inside the volume, part by part where it is several (at 0
+/// for one volume): what the attenuation along it and its derivatives take.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PartLengths([f64; crate::eikonal::MAX_PARTS]);
+
+impl PartLengths {
+    /// Add `length` inside `part` (`None`: the one volume).
+    #[inline]
+    pub fn add(&mut self, part: Option<usize>, length: f64) {
+        self.0[part.unwrap_or(0)] += length;
+    }
+
+    /// The length inside `part`; for `None`, inside the whole volume.
+    pub fn within(&self, part: Option<usize>) -> f64 {
+        part.map_or_else(|| self.total(), |k| self.0[k])
+    }
+
+    pub fn total(&self) -> f64 {
+        self.0.iter().sum()
+    }
+
+    /// `∫σ_t` along the path in a homogeneous `volume`: each part's length at its `σ_t`.
+    pub fn depth(&self, volume: &Volume) -> f64 {
+        if volume.parts.is_empty() {
+            return volume.sigma_t() * self.0[0];
+        }
+        (volume.parts.iter().zip(&self.0))
+            .map(|(b, l)| b.sigma_t() * l)
+            .sum()
     }
 }
 

@@ -674,6 +674,8 @@ impl ParticleTracer<'_> {
     ) -> Option<Leaving> {
         let volume = t.flyer.volume;
         let (sigma_t, albedo) = (volume.sigma_t(), volume.albedo());
+        // index-field derivatives are of one volume, whose medium's parameters score here
+        let coefficients = volume.coefficients(None);
         let straight = volume.homogeneous();
         let derivatives = &self.scene.derivatives;
         let mut tracks = [0.0; MAX_TARGETS];
@@ -721,8 +723,8 @@ impl ParticleTracer<'_> {
             };
             p.opl += t.delay_inside(ray.x, end.optical_path, end.length);
             let collided = end.stop == Stop::Collision;
-            for (s, param) in p.score.iter_mut().zip(derivatives) {
-                *s += flight_score(param.medium(), collided, volume, end.length);
+            for (s, d) in p.score.iter_mut().zip(derivatives) {
+                *s += flight_score(d.medium_in(None), collided, coefficients, end.length);
             }
             self.record_tracks_with_slopes(sens, &tracks, &slopes, p, out);
             (ray, tan) = (end.ray, end.tan);
@@ -740,8 +742,8 @@ impl ParticleTracer<'_> {
             p.events += 1;
             out[self.total(Total::Absorbed)].re += p.weight * (1.0 - albedo);
             p.weight *= albedo;
-            for (s, param) in p.score.iter_mut().zip(derivatives) {
-                *s += albedo_score(param.medium(), volume);
+            for (s, d) in p.score.iter_mut().zip(derivatives) {
+                *s += albedo_score(d.medium_in(None), coefficients);
             }
             if self.connects() {
                 let speed = ray.v.length();
@@ -791,9 +793,9 @@ impl ParticleTracer<'_> {
         // the direction about the incoming one in a frame that turns continuously with it
         let (mu, phi) = (phase.sample_mu(u1), std::f64::consts::TAU * u2);
         let w = direction_about_continuously(w_in, mu, phi);
-        for (s, param) in p.score.iter_mut().zip(&self.scene.derivatives) {
-            *s += param
-                .medium()
+        for (s, d) in p.score.iter_mut().zip(&self.scene.derivatives) {
+            *s += d
+                .medium_in(None)
                 .map_or(0.0, |m| m.dlog_event(scattering, kind, mu));
         }
         let l = sens.at(ray.x);
