@@ -1170,22 +1170,8 @@ impl RenderConfig {
                 "field: with [[volume]], each volume gives its own bounds and profiles; [field] gives n_out alone",
             );
         }
-        let refused = [
-            (
-                "medium",
-                self.medium.is_some(),
-                "each [[volume]] gives its own medium",
-            ),
-            (
-                "design",
-                self.design.is_some(),
-                "a design moves the field of a scene of one volume ([field])",
-            ),
-        ];
-        for (key, given, why) in refused {
-            if given {
-                return err(format!("{key}: not with [[volume]]: {why}"));
-            }
+        if self.medium.is_some() {
+            return err("medium: not with [[volume]]: each [[volume]] gives its own medium");
         }
         let wavelength = self
             .wavelength
