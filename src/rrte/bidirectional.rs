@@ -47,7 +47,7 @@
 
 use super::connect::{Aim, MAX_AGAIN};
 use super::particle::{Leg, MAX_EVENTS, ParticleTracer, Reflections, Stop, Tools, Way, roulette};
-use super::scene::{Connections, Light, Volume};
+use super::scene::{Connections, Light, PartLengths, Volume};
 use crate::eikonal::Ray;
 use crate::math::{C64, Rng, uniform};
 use glam::DVec3;
@@ -107,10 +107,9 @@ fn crosses_after_mirror(way: Way, inside: f64) -> bool {
 /// A segment of a path as the weights see it.
 #[derive(Clone, Copy, Debug)]
 struct Segment {
-    /// `e^{−σ_t ℓ}/ℓ²` over its geometric length (inside; `ℓ` counts the straight stretch
-    /// outside too), without the `1/ℓ²` from a beam or an orthographic camera. Through several
-    /// volumes, `σ_t` is the smallest of theirs ([`Volume::sigma_t`]): the weights stay unbiased
-    /// as long as every strategy sees the same densities.
+    /// `e^{−∫σ_t}/ℓ²` over its geometric length (`∫σ_t` inside: through several volumes each
+    /// stretch at its own volume's `σ_t`; `ℓ` counts the straight stretches outside too), without
+    /// the `1/ℓ²` from a beam or an orthographic camera.
     g: f64,
     /// `|cos θ|` at its start and at its end where they lie on a surface (1 elsewhere): the
     /// density per unit area there is the solid angle's times `g` times it.
@@ -121,11 +120,17 @@ struct Segment {
 }
 
 impl Segment {
-    fn new(volume: &Volume, inside: f64, outside: f64, parallel: bool, connectible: bool) -> Self {
-        let length = inside + outside;
+    fn new(
+        volume: &Volume,
+        inside: &PartLengths,
+        outside: f64,
+        parallel: bool,
+        connectible: bool,
+    ) -> Self {
+        let length = inside.total() + outside;
         let spread = if parallel { 1.0 } else { length * length };
         Segment {
-            g: (-volume.sigma_t() * inside).exp() / spread,
+            g: (-inside.depth(volume)).exp() / spread,
             cos_start: 1.0,
             cos_end: 1.0,
             connectible,
@@ -420,7 +425,7 @@ impl ParticleTracer<'_> {
                 None => self.light_link(t, z.x, way, rng, out),
                 Some(n) => self.surface_light_link(t, z.x, n, way, rng, out),
             };
-            let Some(link) = link.filter(|l| !crosses_after_mirror(way, l.inside)) else {
+            let Some(link) = link.filter(|l| !crosses_after_mirror(way, l.inside.total())) else {
                 continue;
             };
             let volume = t.flyer.volume;
@@ -431,7 +436,7 @@ impl ParticleTracer<'_> {
                 camera: zs,
                 light_pdf: link.pdf,
                 camera_pdf: pixel.pdf,
-                link: Segment::new(volume, link.inside, link.outside, false, true)
+                link: Segment::new(volume, &link.inside, link.outside, false, true)
                     .with_cos(1.0, cos_z),
                 rho_light: f64::NAN,
                 rho_camera,
@@ -474,14 +479,8 @@ impl ParticleTracer<'_> {
                 camera: &[],
                 light_pdf,
                 camera_pdf: link.pdf,
-                link: Segment::new(
-                    volume,
-                    link.inside.total(),
-                    link.outside,
-                    orthographic,
-                    true,
-                )
-                .with_cos(cos_y, 1.0),
+                link: Segment::new(volume, &link.inside, link.outside, orthographic, true)
+                    .with_cos(cos_y, 1.0),
                 rho_light,
                 rho_camera: f64::NAN,
             };
@@ -568,8 +567,14 @@ impl ParticleTracer<'_> {
                     leave_z: e.direction,
                     carried: carried * cos_z,
                     delay: t.exit_delay(&e, outside),
-                    segment: Segment::new(volume, e.length, e.outside() + to_y, false, true)
-                        .with_cos(cos_y, cos_z),
+                    segment: Segment::new(
+                        volume,
+                        &e.lengths(volume),
+                        e.outside() + to_y,
+                        false,
+                        true,
+                    )
+                    .with_cos(cos_y, cos_z),
                 })
             }
             (None, None, Way::Bounces(bounces)) => {
@@ -587,7 +592,13 @@ impl ParticleTracer<'_> {
                     carried: n_out * n_out * transmittance * c.reflectance / (n_y * n_y * c.spread)
                         * inverse_p,
                     delay: t.delay_inside(c.arrival.x, c.optical_path, c.length),
-                    segment: Segment::new(volume, c.length, 0.0, false, true),
+                    segment: Segment::new(
+                        volume,
+                        &PartLengths::one(volume.part_index(z.x), c.length),
+                        0.0,
+                        false,
+                        true,
+                    ),
                 })
             }
             (None, Some(facing), Way::Bounces(bounces)) => {
@@ -625,13 +636,12 @@ impl ParticleTracer<'_> {
                     return None;
                 }
                 let (transmittance, inside) = self.past_volume(t, z.x, w, distance, rng)?;
-                let inside = inside.total();
                 Some(Joint {
                     leave_y: -w,
                     leave_z: w,
                     carried: transmittance * cos_z / (distance * distance),
                     delay: t.delay.outside(n_out * distance),
-                    segment: Segment::new(volume, inside, distance - inside, false, true)
+                    segment: Segment::new(volume, &inside, distance - inside.total(), false, true)
                         .with_cos(cos_y, cos_z),
                 })
             }
@@ -673,7 +683,13 @@ impl ParticleTracer<'_> {
         Some(OutToSurface {
             carried: transmittance * exit.transmission / exit.jacobian * inverse_p,
             delay: t.exit_delay(&exit, outside),
-            segment: Segment::new(volume, exit.length, exit.outside() + to_p, false, true),
+            segment: Segment::new(
+                volume,
+                &exit.lengths(volume),
+                exit.outside() + to_p,
+                false,
+                true,
+            ),
             outside: exit.outside() + to_p,
             cos,
             exit,
@@ -698,7 +714,7 @@ impl ParticleTracer<'_> {
         let (mut beta, mut opl, mut steps) = (1.0, 0.0, 0);
         // the segment so far: geometric length inside and outside, its meetings with the
         // surface, whether it began inside the volume, the cosine where it left a surface
-        let (mut inside, mut outside) = (0.0, 0.0);
+        let (mut inside, mut outside) = (PartLengths::default(), 0.0);
         let mut met = Meetings::default();
         // reflections inside since the last vertex (see `MAX_REFLECTIONS`)
         let mut reflections = Reflections::default();
@@ -755,7 +771,7 @@ impl ParticleTracer<'_> {
                             let first = vertices.is_empty();
                             let segment = Segment::new(
                                 volume,
-                                inside,
+                                &inside,
                                 outside,
                                 first && start.parallel,
                                 connectible(&met, began_inside, false),
@@ -769,7 +785,8 @@ impl ParticleTracer<'_> {
                                 segment: segment.with_cos(cos_start, -facing.dot(d)),
                                 facing: Some(facing),
                             });
-                            (inside, outside, met) = (0.0, 0.0, Meetings::default());
+                            (inside, outside, met) =
+                                (PartLengths::default(), 0.0, Meetings::default());
                             reflections = Reflections::default();
                             began_inside = false;
                             if !roulette(&mut beta, rng) || vertices.len() >= MAX_EVENTS {
@@ -801,7 +818,7 @@ impl ParticleTracer<'_> {
             let (stop, travelled) = t.next_event(ray, rng);
             steps += travelled.steps;
             opl += travelled.opl;
-            inside += travelled.length;
+            inside.add(volume.part_index(ray.x), travelled.length);
             match stop {
                 Stop::Collision(hit) => {
                     beta *= volume.albedo_at(hit.x);
@@ -809,7 +826,7 @@ impl ParticleTracer<'_> {
                     let u = hit.v.normalize();
                     let segment = Segment::new(
                         volume,
-                        inside,
+                        &inside,
                         outside,
                         first && start.parallel,
                         connectible(&met, began_inside, true),
@@ -823,7 +840,7 @@ impl ParticleTracer<'_> {
                         segment: segment.with_cos(cos_start, 1.0),
                         facing: None,
                     });
-                    (inside, outside, met) = (0.0, 0.0, Meetings::default());
+                    (inside, outside, met) = (PartLengths::default(), 0.0, Meetings::default());
                     reflections = Reflections::default();
                     (began_inside, cos_start) = (true, 1.0);
                     if start.photon {
@@ -890,6 +907,36 @@ struct Joint {
 mod tests {
     use super::*;
     use crate::math::stream_rng;
+
+    /// A segment through two volumes is weighed by each one's extinction over its stretch inside
+    /// it (not by one extinction over the whole length), and its spread by its whole length.
+    #[test]
+    fn a_segment_through_two_volumes_takes_each_ones_extinction() {
+        use crate::eikonal::{Bounds, Part, Profile};
+        use crate::medium::{PhaseFunction, Scattering};
+        let ball = |x: f64, sigma_s: f64, sigma_a: f64| {
+            (
+                Part::new(
+                    Bounds::Sphere { radius: 0.5 },
+                    DVec3::new(x, 0.0, 0.0),
+                    vec![Profile::Constant { n: 1.3 }],
+                ),
+                super::super::scene::Bulk {
+                    sigma_s,
+                    sigma_a,
+                    scattering: Scattering::single(PhaseFunction::Isotropic),
+                },
+            )
+        };
+        let volume = Volume::several(vec![ball(-1.0, 2.0, 0.1), ball(1.0, 0.8, 0.3)], 1.0);
+        let mut inside = PartLengths::one(Some(0), 0.4);
+        inside.add(Some(1), 0.7);
+        let s = Segment::new(&volume, &inside, 0.9, false, true);
+        let want = (-(2.1 * 0.4 + 1.1 * 0.7f64)).exp() / (2.0f64 * 2.0);
+        assert!((s.g - want).abs() < 1e-15 * want, "{} vs {want}", s.g);
+        let parallel = Segment::new(&volume, &inside, 0.9, true, true);
+        assert!((parallel.g - want * 4.0).abs() < 1e-15 * want);
+    }
 
     /// The path `v_1 … v_k` split after `s` events, as [`ParticleTracer::bidirectional`] sees it
     /// for that strategy: `rho[i − 1]` the phase function at `v_i`, `segments[j]` from `v_j` to

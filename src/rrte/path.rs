@@ -29,7 +29,7 @@
 
 use super::connect::Aim;
 use super::particle::{Leg, ParticleTracer, Reflections, Stop, Tools, Way};
-use super::scene::{Light, grid_pixel};
+use super::scene::{Light, PartLengths, grid_pixel};
 use crate::eikonal::Ray;
 use crate::math::{C64, Rng, uniform};
 use glam::DVec3;
@@ -76,8 +76,8 @@ pub(super) struct LightLink {
     pub(super) radiance: f64,
     /// Group delay from the light to the event.
     pub(super) delay: f64,
-    /// Geometric length inside the volume and straight outside it.
-    pub(super) inside: f64,
+    /// Geometric length inside the volume (part by part) and straight outside it.
+    pub(super) inside: PartLengths,
     pub(super) outside: f64,
     /// The light's own density of emitting along the path (per solid angle).
     pub(super) pdf: f64,
@@ -298,10 +298,11 @@ impl ParticleTracer<'_> {
         rng: &mut Rng,
         out: &mut [C64],
     ) -> Option<LightLink> {
-        let n_out = t.flyer.volume.field.n_out;
+        let volume = t.flyer.volume;
+        let n_out = volume.field.n_out;
         let light = &self.scene.light;
         let q = self.light_point(rng)?;
-        let inside = t.flyer.volume.field.bounds.contains(q);
+        let inside = volume.field.bounds.contains(q);
         if matches!(way, Way::Across | Way::Mirror) && !inside {
             let (e, carried) = self.across(t, y, Aim::Point(q), way, rng, out)?;
             let cos = e.direction.dot(facing);
@@ -315,7 +316,7 @@ impl ParticleTracer<'_> {
                 direction: e.direction,
                 radiance: intensity * cos * carried,
                 delay: t.exit_delay(&e, outside),
-                inside: e.length,
+                inside: e.lengths(volume),
                 outside: e.outside() + to_q,
                 pdf: intensity,
             });
@@ -330,7 +331,7 @@ impl ParticleTracer<'_> {
                 direction: -o.exit.outgoing,
                 radiance: intensity * o.carried * o.cos,
                 delay: o.delay,
-                inside: o.exit.length,
+                inside: o.exit.lengths(volume),
                 outside: o.outside,
                 pdf: intensity,
             });
@@ -346,14 +347,13 @@ impl ParticleTracer<'_> {
             return None;
         }
         let (transmittance, inside) = self.past_volume(t, y, dir, distance, rng)?;
-        let inside = inside.total();
         let intensity = light.intensity(-dir);
         Some(LightLink {
             direction: dir,
             radiance: intensity * cos * transmittance / (distance * distance),
             delay: t.delay.outside(n_out * distance),
             inside,
-            outside: distance - inside,
+            outside: distance - inside.total(),
             pdf: intensity,
         })
     }
@@ -435,7 +435,7 @@ impl ParticleTracer<'_> {
                     / (n_q * n_q * c.spread)
                     * inverse_p,
                 delay: t.delay_inside(c.arrival.x, c.optical_path, c.length),
-                inside: c.length,
+                inside: PartLengths::one(volume.part_index(x), c.length),
                 outside: 0.0,
                 pdf: intensity,
             })
@@ -455,7 +455,7 @@ impl ParticleTracer<'_> {
                 direction: e.direction,
                 radiance: intensity * transmittance * e.transmission / e.jacobian * inverse_p,
                 delay: t.exit_delay(&e, outside),
-                inside: e.length,
+                inside: e.lengths(volume),
                 outside: e.outside() + to_q,
                 pdf: intensity,
             })

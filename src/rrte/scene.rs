@@ -747,6 +747,13 @@ impl Derivative {
 pub struct PartLengths([f64; crate::eikonal::MAX_PARTS]);
 
 impl PartLengths {
+    /// `length` inside `part` alone (`None`: the one volume).
+    pub fn one(part: Option<usize>, length: f64) -> Self {
+        let mut lengths = PartLengths::default();
+        lengths.add(part, length);
+        lengths
+    }
+
     /// Add `length` inside `part` (`None`: the one volume).
     #[inline]
     pub fn add(&mut self, part: Option<usize>, length: f64) {
