@@ -47,6 +47,21 @@ fn slab(n: f64, sigma_s: f64, sigma_a: f64, g: f64, derivatives: Vec<Param>) -> 
     }
 }
 
+/// `lightpath render` on the config file `cfg` into `out`, with `args`: its `render.json`.
+fn render_json(cfg: &std::path::Path, out: &std::path::Path, args: &[&str]) -> serde_json::Value {
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_lightpath"))
+        .arg("render")
+        .arg(cfg)
+        .arg("--out")
+        .arg(out)
+        .args(args)
+        .arg("--quiet")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    serde_json::from_str(&std::fs::read_to_string(out.join("render.json")).unwrap()).unwrap()
+}
+
 /// A pure absorber (σ_a = 2, no scattering) transmits `e^{−σ_a}` of a normal beam, each
 /// transmitted photon with the score `−L = −1` of its flight: the derivative is minus the
 /// transmission photon for photon.
@@ -169,20 +184,7 @@ fn derivatives_are_checked_and_written() {
     std::fs::create_dir_all(&dir).unwrap();
     let cfg = dir.join("slab.toml");
     std::fs::write(&cfg, text("[\"sigma_a\", \"g\"]", "")).unwrap();
-    let o = std::process::Command::new(env!("CARGO_BIN_EXE_lightpath"))
-        .args([
-            "render",
-            cfg.to_str().unwrap(),
-            "--out",
-            dir.join("out").to_str().unwrap(),
-            "--quiet",
-        ])
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let json: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("out/render.json")).unwrap())
-            .unwrap();
+    let json = render_json(&cfg, &dir.join("out"), &[]);
     let sensor = &json["sensors"][0];
     let power = sensor["power"]["mean"].as_f64().unwrap();
     let d = sensor["derivatives"]["sigma_a"]["mean"].as_f64().unwrap();
@@ -608,16 +610,7 @@ fn derivatives_of_several_volumes_name_their_volume() {
         "volume[2].sigma_a",
     ];
     std::fs::write(&cfg, with(&format!("{names:?}"))).unwrap();
-    let o = std::process::Command::new(env!("CARGO_BIN_EXE_lightpath"))
-        .args(["render", cfg.to_str().unwrap(), "--out"])
-        .arg(dir.join("out"))
-        .args(["--samples", "4000", "--quiet"])
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let json: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("out/render.json")).unwrap())
-            .unwrap();
+    let json = render_json(&cfg, &dir.join("out"), &["--samples", "4000"]);
     let view = &json["cameras"][0];
     for name in names {
         let d = &view["derivatives"][name];
