@@ -1323,8 +1323,9 @@ fn a_render_design_beyond_the_time_budget_is_refused() {
 }
 
 /// Several volumes: bad keys of a volume are named with its index, overlaps and what a scene of
-/// several volumes does not take are refused by key, and the example renders with its volumes
-/// echoed in `render.json`.
+/// several volumes does not take are refused by key, a lamp inside one volume renders with each
+/// estimator and a fluence probe inside another counts its light, and the example renders with
+/// its volumes echoed in `render.json`.
 #[test]
 fn several_volumes_are_checked_by_key_and_render() {
     let dir = tmp("volumes");
@@ -1370,16 +1371,40 @@ fn several_volumes_are_checked_by_key_and_render() {
         ),
         (
             "kind = \"pinhole\"",
-            "kind = \"fluence\"\nname = \"p\"\nposition = [0.2, 0.0, 0.0]\n\n[[sensor]]\nkind = \"pinhole\"",
-            "sensor[0].kind",
-        ),
-        (
-            "kind = \"spot\"\nposition = [-0.8, -3.0, 1.2]",
-            "kind = \"spot\"\nposition = [-1.3, 0.0, 0.0]",
-            "light.position",
+            "kind = \"fluence\"\nname = \"p\"\nposition = [0.2, 0.0, 0.7]\n\n[[sensor]]\nkind = \"pinhole\"",
+            "sensor[0].position",
         ),
     ];
     refused_all(&dir, &base, cases);
+    // a lamp inside the milky ball, seen by each estimator, and a fluence probe in the smoky
+    // block (not for path tracing, which renders cameras alone): connections run out of the
+    // one, past the lens and into the other
+    let lamp_inside = base.replacen(
+        "kind = \"spot\"\nposition = [-0.8, -3.0, 1.2]",
+        "kind = \"spot\"\nposition = [-1.3, 0.1, 0.0]",
+        1,
+    );
+    let probe = "[[sensor]]\nkind = \"fluence\"\nname = \"in_block\"\nposition = [1.4, 0.1, -0.3]\n\n[[sensor]]\nkind = \"pinhole\"";
+    for estimator in ["particle", "path", "bidirectional"] {
+        let mut config = lamp_inside.replacen(
+            "estimator = \"bidirectional\"",
+            &format!("estimator = \"{estimator}\""),
+            1,
+        );
+        if estimator != "path" {
+            config = config.replacen("[[sensor]]\nkind = \"pinhole\"", probe, 1);
+        }
+        let path = dir.join(format!("lit_{estimator}.toml"));
+        std::fs::write(&path, config).unwrap();
+        let out = dir.join(format!("lit_{estimator}"));
+        render_ok(&path.display().to_string(), &out, 200);
+        let r = results(&out);
+        assert!(r["cameras"][0]["irradiance"]["mean"].as_f64().unwrap() > 0.0);
+        if estimator != "path" {
+            assert_eq!(r["probes"][0]["name"], "in_block");
+            assert!(r["probes"][0]["fluence"]["mean"].as_f64().unwrap() > 0.0);
+        }
+    }
     // a volume's mesh is read relative to the config, wherever the command runs
     std::fs::create_dir_all(dir.join("meshes")).unwrap();
     std::fs::copy(

@@ -1,7 +1,9 @@
 //! Several volumes in one scene, each its own shape, index and bulk: two slabs apart against the
 //! plain layered tracer of `common` (Fresnel at all four faces, the gap between them; with and
 //! without a density), particle, path and bidirectional tracing on the same images of a glass
-//! ball beside a glass cube, cameras against a collimated detector through a second volume, a
+//! ball beside a glass cube (the lamp above them or inside the ball), a fluence probe in one
+//! glass ball lit from another against a target about it, cameras against a collimated detector
+//! through a second volume, a
 //! sampled volume against the analytic one, and a volume placed away from the origin against the
 //! same volume at the origin with the rest of the scene moved.
 
@@ -196,8 +198,28 @@ fn ball_and_cube() -> RenderScene {
 /// the reflections inside, past the other too.
 #[test]
 fn particle_path_and_bidirectional_tracing_agree_on_two_volumes() {
-    let s = ball_and_cube();
-    let (a, est) = render(&s, 400_000, 1);
+    three_estimators_agree(&ball_and_cube());
+}
+
+/// With the lamp inside the glass ball (off its centre, the ball now clear), particle, path
+/// and bidirectional tracing agree on the pinhole's image as above: path tracing connects the
+/// events in the cube to the lamp by paths out of the cube, into the ball and on to the lamp
+/// (refracted at both, reflected inside either), bidirectional tracing by the unreflected ones
+/// and its other strategies.
+#[test]
+fn the_three_estimators_agree_with_the_lamp_inside_one_of_two_volumes() {
+    let mut s = ball_and_cube();
+    s.light = Light::Point {
+        position: DVec3::new(-1.2, 0.15, 0.1),
+    };
+    s.volume.parts[0].sigma_s = 0.0;
+    three_estimators_agree(&s);
+}
+
+/// Particle tracing, path tracing and bidirectional tracing agree on the pinhole's image of
+/// `s`: its total and its two halves (within 4 combined standard errors).
+fn three_estimators_agree(s: &RenderScene) {
+    let (a, est) = render(s, 400_000, 1);
     let mut p = s.clone();
     p.tracing = Tracing::FromCameras;
     let (b, _) = render(&p, 60_000, 2);
@@ -582,4 +604,63 @@ fn an_ultrasonic_volume_beside_another_averages_its_phases() {
         panic!("a modulation of constant volumes was taken")
     };
     assert!(e.contains("modulation: no [[volume]]"), "{e}");
+}
+
+/// Two glass balls (n = 1.5 and 1.3, both scattering) with a lamp inside the first:
+/// `(scene, the point inside the second where it is measured)`.
+fn lamp_in_a_ball_beside_another() -> (RenderScene, DVec3) {
+    let volume = Volume::several(
+        vec![
+            part(
+                Bounds::Sphere { radius: 0.8 },
+                DVec3::new(-1.0, 0.0, 0.0),
+                1.5,
+                (1.0, 0.1, 0.5),
+            ),
+            part(
+                Bounds::Sphere { radius: 0.7 },
+                DVec3::new(1.0, 0.2, 0.0),
+                1.3,
+                (0.3, 0.05, 0.0),
+            ),
+        ],
+        1.0,
+    );
+    let scene = RenderScene {
+        volume,
+        light: Light::Point {
+            position: DVec3::new(-1.1, 0.1, 0.05),
+        },
+        reflections: 2,
+        ..bare_scene(0.01)
+    };
+    (scene, DVec3::new(0.9, 0.25, 0.1))
+}
+
+/// A fluence probe in one glass ball counts the light of a lamp inside another as a small
+/// target about it does: the probe by connections out of the lamp's ball (and out of every
+/// scattering event there) into the probe's, refracted at both and reflected inside either, and
+/// within the probe's own ball from the events there; the target by the photons' tracks through
+/// it, an estimator that connects nothing. They agree within 4 combined standard errors (the
+/// target averages the fluence over a ball of radius 0.1, a difference far below them).
+#[test]
+fn a_probe_in_one_volume_counts_the_light_from_another_as_a_target_does() {
+    let (mut scene, p) = lamp_in_a_ball_beside_another();
+    scene.probes = vec![lightpath::rrte::Probe {
+        name: "probe".into(),
+        position: p,
+    }];
+    let region = lightpath::rrte::Region::Sphere {
+        center: p,
+        radius: 0.3,
+    };
+    scene.sensors = vec![Sensor::target("around".into(), region)];
+    let (e, est) = render(&scene, 200_000, 7);
+    let (probe, sp) = (e.mean[est.probe_total(0)].re, e.stderr[est.probe_total(0)]);
+    let (target, st) = (e.mean[est.power(0)].re, e.stderr[est.power(0)]);
+    assert!(sp < 0.02 * probe && st < 0.03 * target, "{sp} {st}");
+    assert!(
+        (probe - target).abs() < 4.0 * sp.hypot(st),
+        "probe {probe} ± {sp}, target {target} ± {st}"
+    );
 }

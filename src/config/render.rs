@@ -969,15 +969,10 @@ impl RenderConfig {
                     ..Camera::new(name.clone(), direction, center, *size, pixels)
                 });
             } else if let SensorConfig::Fluence { name, position } = s {
-                if !volume.parts.is_empty() {
-                    return err(format!(
-                        "sensor[{i}].kind = \"fluence\": not with [[volume]]: a probe's connections run inside its own volume and would miss the light reaching it from the others; use a target (kind = \"target\") instead"
-                    ));
-                }
                 let position = finite(&format!("sensor[{i}].position"), *position)?;
                 if !volume.field.bounds.contains(position) {
                     return err(format!(
-                        "sensor[{i}].position = {:?}: a fluence probe must lie inside the volume (field.bounds)",
+                        "sensor[{i}].position = {:?}: a fluence probe must lie inside the volume (field.bounds, or one of the [[volume]]s)",
                         position.to_array()
                     ));
                 }
@@ -1607,15 +1602,6 @@ impl RenderConfig {
         if matches!(scene.light, Light::FocusedBeam { .. }) {
             return err(format!(
                 "light.focus: a focused beam's directions are a delta and its rays converge, which render.estimator = \"{name}\" does not connect; use render.estimator = \"particle\""
-            ));
-        }
-        if let Light::Point { position } | Light::Spot { position, .. } = scene.light
-            && !scene.volume.parts.is_empty()
-            && scene.volume.field.bounds.contains(position)
-        {
-            return err(format!(
-                "light.position = {:?}: inside one of several volumes, where render.estimator = \"{name}\" reaches it only from that volume; use render.estimator = \"particle\"",
-                position.to_array()
             ));
         }
         if scene.tracing == Tracing::Bidirectional {

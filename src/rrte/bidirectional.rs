@@ -169,17 +169,25 @@ struct Meetings {
     left: bool,
     bounces_before_leaving: usize,
     bounces_since_entry: usize,
+    /// Of several volumes, the ones entered before the last entry (bits), and the last entered.
+    entered_before: u32,
+    last_entered: Option<usize>,
 }
 
 impl Meetings {
-    /// The segment met the surface from outside: entered, or reflected off it (`glanced`).
-    fn met_outside(&mut self, glanced: bool) {
+    /// The segment met the surface from outside: entered `part` (of several volumes), or
+    /// reflected off it (`glanced`).
+    fn met_outside(&mut self, glanced: bool, part: Option<usize>) {
         self.all += 1;
         if glanced {
             self.glances += 1;
-        } else {
-            self.bounces_since_entry = 0;
+            return;
         }
+        self.bounces_since_entry = 0;
+        if let Some(k) = self.last_entered {
+            self.entered_before |= 1 << k;
+        }
+        self.last_entered = part;
     }
 
     /// The segment met the surface from inside: left, or reflected inside (`bounced`).
@@ -201,20 +209,29 @@ impl Meetings {
     /// inside it follows and whether the volume is index-matched. Between a point inside and one
     /// outside a connection reflects inside the part it starts from (up to `most_bounces` times)
     /// and then refracts out, into and out of up to [`MAX_AGAIN`] parts of a shape that is not
-    /// convex, reflecting nowhere else; between two points inside it only reflects inside, as
-    /// often; between two points outside it either never meets the surface (straight, also
-    /// across an index-matched volume), refracts into and out of up to `1 + MAX_AGAIN` parts, or
-    /// only reflects once off the outside. (A path off the outside that then crosses parts is
-    /// made by particle and path tracing, not here: its reflection would have to come first
-    /// from whichever end the connection starts.)
+    /// convex, reflecting nowhere else; between two points inside one volume it only reflects
+    /// inside, as often; between points inside two of several volumes (`between`: their parts)
+    /// it leaves the one, crosses any other it meets (in and out, up to `MAX_AGAIN − 1` of them)
+    /// and enters the other, reflecting nowhere (so it is the same path from either end);
+    /// between two points outside it either never meets the surface (straight, also across an
+    /// index-matched volume), refracts into and out of up to `1 + MAX_AGAIN` parts, or only
+    /// reflects once off the outside. (A path off the outside that then crosses parts is made by
+    /// particle and path tracing, not here: its reflection would have to come first from
+    /// whichever end the connection starts.)
     fn connectible(
         &self,
-        began_inside: bool,
-        ends_inside: bool,
+        (began_inside, ends_inside): (bool, bool),
+        between: Option<(usize, usize)>,
         most_bounces: usize,
         matched: bool,
     ) -> bool {
         let refractions = self.all - self.bounces - self.glances;
+        if let Some((from, to)) = between {
+            return ends_inside
+                && self.bounces + self.glances == 0
+                && self.entered_before & (1 << from | 1 << to) == 0
+                && refractions <= 2 * MAX_AGAIN;
+        }
         if began_inside != ends_inside {
             let first_part = if began_inside {
                 self.bounces_before_leaving
@@ -422,7 +439,8 @@ impl ParticleTracer<'_> {
         let z = zs[zs.len() - 1];
         for way in self.ways(t, z.facing.is_some()) {
             let link = match z.facing {
-                None => self.light_link(t, z.x, way, rng, out),
+                // between two of several volumes, unreflected only (see `Meetings::connectible`)
+                None => self.light_link(t, z.x, way, false, rng, out),
                 Some(n) => self.surface_light_link(t, z.x, n, way, rng, out),
             };
             let Some(link) = link.filter(|l| !crosses_after_mirror(way, l.inside.total())) else {
@@ -492,6 +510,14 @@ impl ParticleTracer<'_> {
     /// Join the light subpath's last event `y_s` to the camera subpath's last `z_t` (the light
     /// event a point source of intensity `w ρ`, the camera event a point sensor; see
     /// [`super::path`] for the basic radiance a point source brings).
+    /// Whether a connection joins the events `x` and `y` (both inside) after `bounces`
+    /// reflections inside the surface: between two of several volumes only unreflected (see
+    /// [`Meetings::connectible`]).
+    fn joins(&self, t: &Tools, x: DVec3, y: DVec3, bounces: usize) -> bool {
+        let volume = t.flyer.volume;
+        bounces == 0 || volume.part_index(x) == volume.part_index(y)
+    }
+
     fn join(
         &self,
         t: &Tools,
@@ -578,24 +604,27 @@ impl ParticleTracer<'_> {
                 })
             }
             (None, None, Way::Bounces(bounces)) => {
+                if !self.joins(t, z.x, y.x, bounces) {
+                    return None;
+                }
                 let first_only = self.scene.connections == Connections::First;
                 let sampled = t
                     .connector
-                    .sample_bounced(z.x, y.x, bounces, first_only, rng);
-                let (c, inverse_p) = self.tally(sampled, out)?;
-                let transmittance =
-                    self.transmittance(t, z.x, c.direction, (c.length, bounces), rng);
+                    .sample_inside(z.x, y.x, bounces, first_only, rng);
+                let (path, inverse_p) = self.tally(sampled, out)?;
+                let transmittance = self.path_transmittance(t, z.x, &path, rng);
                 let n_y = t.flyer.n(y.x);
                 Some(Joint {
-                    leave_y: -c.arrival.v.normalize(),
-                    leave_z: c.direction,
-                    carried: n_out * n_out * transmittance * c.reflectance / (n_y * n_y * c.spread)
+                    leave_y: -path.arrival().1,
+                    leave_z: path.direction(),
+                    carried: n_out * n_out * transmittance * path.fresnel()
+                        / (n_y * n_y * path.spread())
                         * inverse_p,
-                    delay: t.delay_inside(c.arrival.x, c.optical_path, c.length),
+                    delay: t.path_delay(&path),
                     segment: Segment::new(
                         volume,
-                        &PartLengths::one(volume.part_index(z.x), c.length),
-                        0.0,
+                        &path.lengths(volume),
+                        path.outside(),
                         false,
                         true,
                     ),
@@ -720,9 +749,11 @@ impl ParticleTracer<'_> {
         let mut reflections = Reflections::default();
         let most_bounces = self.most_bounces(t);
         let mut began_inside = volume.field.bounds.contains(start.x);
+        // of several volumes, the one the segment began in
+        let mut began_in = volume.part_index(start.x).filter(|_| began_inside);
         let mut cos_start = 1.0;
         let connectible = |met: &Meetings, began_inside: bool, ends_inside: bool| {
-            met.connectible(began_inside, ends_inside, most_bounces, matched)
+            met.connectible((began_inside, ends_inside), None, most_bounces, matched)
         };
         let mut leg = if began_inside {
             Leg::Inside(Ray {
@@ -749,7 +780,10 @@ impl ParticleTracer<'_> {
                             opl += t.delay.outside(n_out * t0);
                             outside += t0;
                             leg = Leg::enter(t, x, d, t0, rng);
-                            met.met_outside(matches!(leg, Leg::Outside { .. }));
+                            match leg {
+                                Leg::Inside(r) => met.met_outside(false, volume.part_index(r.x)),
+                                Leg::Outside { .. } => met.met_outside(true, None),
+                            }
                             continue;
                         }
                         (_, Some((i, distance))) => {
@@ -788,7 +822,7 @@ impl ParticleTracer<'_> {
                             (inside, outside, met) =
                                 (PartLengths::default(), 0.0, Meetings::default());
                             reflections = Reflections::default();
-                            began_inside = false;
+                            (began_inside, began_in) = (false, None);
                             if !roulette(&mut beta, rng) || vertices.len() >= MAX_EVENTS {
                                 break;
                             }
@@ -824,12 +858,18 @@ impl ParticleTracer<'_> {
                     beta *= volume.albedo_at(hit.x);
                     let first = vertices.is_empty();
                     let u = hit.v.normalize();
+                    let ends_in = volume.part_index(hit.x);
+                    let between = match (began_in, ends_in) {
+                        (Some(a), Some(b)) if a != b => Some((a, b)),
+                        _ => None,
+                    };
+                    let made = (began_inside, true);
                     let segment = Segment::new(
                         volume,
                         &inside,
                         outside,
                         first && start.parallel,
-                        connectible(&met, began_inside, true),
+                        met.connectible(made, between, most_bounces, matched),
                     );
                     vertices.push(Vertex {
                         x: hit.x,
@@ -842,7 +882,7 @@ impl ParticleTracer<'_> {
                     });
                     (inside, outside, met) = (PartLengths::default(), 0.0, Meetings::default());
                     reflections = Reflections::default();
-                    (began_inside, cos_start) = (true, 1.0);
+                    (began_inside, began_in, cos_start) = (true, ends_in, 1.0);
                     if start.photon {
                         let phase = |d: DVec3| volume.scattering_at(hit.x).eval(u.dot(d));
                         self.connect_probes(t, hit.x, beta, opl, phase, rng, out);
@@ -1133,14 +1173,18 @@ mod tests {
         }
     }
 
-    /// The surface events of a traced segment, in order: `E` enters, `L` leaves, `B` reflects
-    /// inside, `G` reflects off the outside.
+    /// The surface events of a traced segment, in order: `E` enters (`E3`: the volume of index
+    /// 3 among several), `L` leaves, `B` reflects inside, `G` reflects off the outside.
     fn met(events: &str) -> Meetings {
         let mut m = Meetings::default();
-        for e in events.chars() {
+        let mut chars = events.chars().peekable();
+        while let Some(e) = chars.next() {
             match e {
-                'E' => m.met_outside(false),
-                'G' => m.met_outside(true),
+                'E' => {
+                    let part = chars.next_if(char::is_ascii_digit);
+                    m.met_outside(false, part.map(|d| d as usize - '0' as usize));
+                }
+                'G' => m.met_outside(true, None),
                 'L' => m.met_inside(false),
                 'B' => m.met_inside(true),
                 _ => unreachable!(),
@@ -1155,7 +1199,7 @@ mod tests {
     #[test]
     fn segments_are_connectible_as_the_connections_run() {
         let io = |events: &str, began_inside: bool| {
-            met(events).connectible(began_inside, !began_inside, 2, false)
+            met(events).connectible((began_inside, !began_inside), None, 2, false)
         };
         // from a point inside to one outside, and the other way
         for (events, made) in [
@@ -1182,9 +1226,10 @@ mod tests {
         ] {
             assert_eq!(io(events, false), made, "{events} from outside");
         }
-        let inside = |events: &str| met(events).connectible(true, true, 2, false);
+        let inside = |events: &str| met(events).connectible((true, true), None, 2, false);
         assert!(inside("") && inside("BB") && !inside("BBB") && !inside("LE"));
-        let outside = |events: &str, matched| met(events).connectible(false, false, 2, matched);
+        let outside =
+            |events: &str, matched| met(events).connectible((false, false), None, 2, matched);
         for events in ["", "EL", "ELEL", "ELELELELEL", "G"] {
             assert!(outside(events, false), "{events}");
         }
@@ -1192,5 +1237,27 @@ mod tests {
             assert!(!outside(events, false), "{events}");
         }
         assert!(outside("ELELELELELEL", true));
+    }
+
+    /// Between points in two of several volumes (0 and 1) a connection leaves the one, crosses
+    /// any other it meets and enters the other, reflecting nowhere, so it is the same path from
+    /// either end: a traced segment that enters either end's volume before its last entry, or
+    /// reflects anywhere, is made by tracing alone.
+    #[test]
+    fn segments_between_two_volumes_are_connectible_as_the_connections_run() {
+        let between = |events: &str| met(events).connectible((true, true), Some((0, 1)), 2, false);
+        for events in ["LE1", "LE2LE1", "LE2LE3LE4LE1"] {
+            assert!(between(events), "{events}");
+        }
+        for events in [
+            "BLE1",
+            "LE1B",
+            "LGE1",
+            "LE0LE1",
+            "LE1LE2LE1",
+            "LE2LE3LE4LE5LE1",
+        ] {
+            assert!(!between(events), "{events}");
+        }
     }
 }

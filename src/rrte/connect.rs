@@ -170,6 +170,90 @@ impl<T> Sampled<T> {
             distinct: 0,
         }
     }
+
+    /// The same draw with its path turned by `f`.
+    pub fn map<U>(self, f: impl FnOnce(T) -> U) -> Sampled<U> {
+        Sampled {
+            path: self.path.map(|(p, inverse_p)| (f(p), inverse_p)),
+            solves: self.solves,
+            iterations: self.iterations,
+            distinct: self.distinct,
+        }
+    }
+}
+
+/// A path between two points inside the volume ([`Connector::sample_inside`]), with the
+/// reflections it takes inside the surface of the start's volume before it leaves it (all of
+/// them, for a path within it).
+#[derive(Clone, Copy, Debug, PartialEq)]
+// on the stack for one connection at a time: boxing the larger would allocate per connection
+#[allow(clippy::large_enum_variant)]
+pub enum InsidePath {
+    /// Along curved rays within the part holding both, after reflections inside its surface.
+    Within(Connection, usize),
+    /// Out of one of several volumes, across any between, into the other
+    /// ([`Connector::solve_into`]): its stretches inside the other after the reflections there
+    /// are parts entered again.
+    Between(Exit, usize),
+}
+
+impl InsidePath {
+    /// Unit direction leaving the start.
+    pub fn direction(&self) -> DVec3 {
+        match self {
+            InsidePath::Within(c, _) => c.direction,
+            InsidePath::Between(e, _) => e.direction,
+        }
+    }
+
+    /// Reflections inside the surface of the start's volume before the path leaves it.
+    pub fn bounces(&self) -> usize {
+        match *self {
+            InsidePath::Within(_, b) | InsidePath::Between(_, b) => b,
+        }
+    }
+
+    /// Where it arrives (its closest approach to the far point), and its unit direction there.
+    pub fn arrival(&self) -> (DVec3, DVec3) {
+        match self {
+            InsidePath::Within(c, _) => (c.arrival.x, c.arrival.v.normalize()),
+            InsidePath::Between(e, _) => (e.surface, e.outgoing),
+        }
+    }
+
+    /// The ray tube's cross-section at the far point per unit solid angle at the start,
+    /// `dA⊥/dω`.
+    pub fn spread(&self) -> f64 {
+        match self {
+            InsidePath::Within(c, _) => c.spread,
+            InsidePath::Between(e, _) => e.jacobian,
+        }
+    }
+
+    /// The product of its Fresnel factors: reflectances inside the surface, and `1 − R` of
+    /// every surface it crosses.
+    pub fn fresnel(&self) -> f64 {
+        match self {
+            InsidePath::Within(c, _) => c.reflectance,
+            InsidePath::Between(e, _) => e.transmission,
+        }
+    }
+
+    /// Its geometric length inside, part by part where `volume` is several.
+    pub fn lengths(&self, volume: &Volume) -> PartLengths {
+        match self {
+            InsidePath::Within(c, _) => PartLengths::one(volume.part_index(c.arrival.x), c.length),
+            InsidePath::Between(e, _) => e.lengths(volume),
+        }
+    }
+
+    /// Its geometric length outside the volume, between the volumes it joins.
+    pub fn outside(&self) -> f64 {
+        match self {
+            InsidePath::Within(..) => 0.0,
+            InsidePath::Between(e, _) => e.outside(),
+        }
+    }
 }
 
 /// Solves connections in one volume.
@@ -943,6 +1027,37 @@ impl<'v> Connector<'v> {
         }
     }
 
+    /// A path from `x` to `y` (both inside) after `bounces` reflections inside the surface,
+    /// drawn like [`Connector::sample`]: within the part holding both
+    /// ([`Connector::sample_bounced`]); where they lie in two of several volumes, out of the one
+    /// and into the other ([`Connector::sample_into`]), the reflections split between the two
+    /// at random (each of the `bounces + 1` ways alike, the inverse probability times
+    /// `bounces + 1`: an unbiased estimate of the sum over them).
+    pub fn sample_inside(
+        &self,
+        x: DVec3,
+        y: DVec3,
+        bounces: usize,
+        first_only: bool,
+        rng: &mut Rng,
+    ) -> Sampled<InsidePath> {
+        let bounds = &self.volume.field.bounds;
+        if bounds
+            .parts()
+            .is_some_and(|parts| part_at(parts, x) != part_at(parts, y))
+        {
+            let ways = bounces + 1;
+            let first = ((uniform(rng) * ways as f64) as usize).min(bounces);
+            let mut s = self.sample_into(x, y, (first, bounces - first), first_only, rng);
+            if let Some((_, inverse_p)) = &mut s.path {
+                *inverse_p *= ways as f64;
+            }
+            return s.map(|e| InsidePath::Between(e, first));
+        }
+        self.sample_bounced(x, y, bounces, first_only, rng)
+            .map(|c| InsidePath::Within(c, bounces))
+    }
+
     /// The ray inside reaching the surface at `end` (index `n_in` just inside), with
     /// sensitivities `xv`, `vv` to the perturbations `dv0` of its start, reflects: its unit
     /// direction after, the Fresnel reflectance `R` (1 beyond the critical angle), and the
@@ -1098,6 +1213,39 @@ impl<'v> Connector<'v> {
         turn: [DVec3; 2],
         slide: [DVec3; 2],
     ) -> Option<Crossing> {
+        let (along, sensitivities, entered) = self.refract_in(inside, at, w, turn, slide)?;
+        let (end, xv, vv, length, optical_path, n_end) =
+            self.shoot_out(inside, along, sensitivities)?;
+        let (outgoing, out, turn, moved) =
+            self.refract_out(end, (xv, vv), [DVec3::X, DVec3::Y], n_end)?;
+        Some(Crossing {
+            inside,
+            along,
+            end: end.x,
+            outgoing,
+            length,
+            optical_path,
+            transmission: entered * out,
+            turn,
+            moved,
+        })
+    }
+
+    /// The straight ray along unit `w` entering the volume at `at` (`inside`: a point just past
+    /// it), refracted in: its unit direction inside, the sensitivities `(∂x, ∂v)` there along
+    /// the two perturbations of the ray — `turn` of its direction and `slide` of the entry point
+    /// along the surface (columns; the refraction's by central differences of its closed form,
+    /// `v = n d`: `|v|` follows `n` along the slide) — and `1 − R` of the entry. `None` if it is
+    /// reflected totally.
+    #[allow(clippy::type_complexity)]
+    fn refract_in(
+        &self,
+        inside: DVec3,
+        at: DVec3,
+        w: DVec3,
+        turn: [DVec3; 2],
+        slide: [DVec3; 2],
+    ) -> Option<(DVec3, (DMat3, DMat3), f64)> {
         let field = &self.volume.field;
         let (n_in, grad) = field.value_grad(inside);
         let eta = field.n_out / n_in;
@@ -1117,22 +1265,8 @@ impl<'v> Connector<'v> {
             DMat3::from_cols(slide[0], slide[1], DVec3::ZERO),
             DMat3::from_cols(dv[0], dv[1], DVec3::ZERO),
         );
-        let (end, xv, vv, length, optical_path, n_end) =
-            self.shoot_out(inside, along, sensitivities)?;
-        let (outgoing, out, turn, moved) =
-            self.refract_out(end, (xv, vv), [DVec3::X, DVec3::Y], n_end)?;
         let cos = field.bounds.normal(at)?.dot(w);
-        Some(Crossing {
-            inside,
-            along,
-            end: end.x,
-            outgoing,
-            length,
-            optical_path,
-            transmission: (1.0 - fresnel(cos, eta)) * out,
-            turn,
-            moved,
-        })
+        Some((along, sensitivities, 1.0 - fresnel(cos, eta)))
     }
 
     /// A path that has left the volume (its exit, and the derivatives of its outgoing direction
@@ -1150,51 +1284,82 @@ impl<'v> Connector<'v> {
         until: impl Fn(&Exit) -> f64,
     ) -> Option<(Exit, [DVec3; 2], [DVec3; 2])> {
         let (mut exit, mut dout, mut moved) = left?;
-        let field = &self.volume.field;
-        let bounds = &field.bounds;
         loop {
-            let o = exit.outgoing;
-            let Some(t0) = bounds.reentry(exit.surface, o) else {
+            let Some(t0) = self
+                .volume
+                .field
+                .bounds
+                .reentry(exit.surface, exit.outgoing)
+            else {
                 return Some((exit, dout, moved));
             };
             if t0 >= until(&exit) {
                 return Some((exit, dout, moved));
             }
-            if self
-                .surfaces
-                .iter()
-                .any(|s| s.hit(exit.surface, o).is_some_and(|t| t < t0))
-            {
-                return None;
-            }
-            let at = exit.surface + o * t0;
-            let normal = bounds.normal(at)?;
-            let cos = normal.dot(o);
-            if cos >= 0.0 {
-                return None;
-            }
-            let slide = [0, 1].map(|k| {
-                let d = moved[k] + dout[k] * t0;
-                d - o * (normal.dot(d) / cos)
-            });
-            let c = self.cross(exit.surface + o * entry_parameter(t0), at, o, dout, slide)?;
-            let reentry = Reentry {
-                inside: c.inside,
-                along: c.along,
-                length: c.length,
-                optical_path: c.optical_path,
-            };
-            if !exit.again.push(reentry) {
-                return None;
-            }
-            exit.between += t0;
-            exit.length += c.length;
-            exit.optical_path += field.n_out * t0 + c.optical_path;
-            exit.transmission *= c.transmission;
-            exit.surface = c.end;
-            exit.outgoing = c.outgoing;
-            (dout, moved) = (c.turn, c.moved);
+            (dout, moved) = self.cross_again(&mut exit, (dout, moved), t0)?;
         }
+    }
+
+    /// The path that has left the volume (`exit`, with the derivatives `(dout, moved)` of its
+    /// outgoing direction and exit point along the two angles of its start) meets a part of it
+    /// `t0` ahead: where it enters (just past the surface), the entry point itself, and how it
+    /// slides along the surface along the two angles. `None` if a surface outside blocks the way,
+    /// or the path only grazes the part.
+    fn meet_again(
+        &self,
+        exit: &Exit,
+        (dout, moved): ([DVec3; 2], [DVec3; 2]),
+        t0: f64,
+    ) -> Option<(DVec3, DVec3, [DVec3; 2])> {
+        let o = exit.outgoing;
+        if self
+            .surfaces
+            .iter()
+            .any(|s| s.hit(exit.surface, o).is_some_and(|t| t < t0))
+        {
+            return None;
+        }
+        let at = exit.surface + o * t0;
+        let normal = self.volume.field.bounds.normal(at)?;
+        let cos = normal.dot(o);
+        if cos >= 0.0 {
+            return None;
+        }
+        let slide = [0, 1].map(|k| {
+            let d = moved[k] + dout[k] * t0;
+            d - o * (normal.dot(d) / cos)
+        });
+        Some((exit.surface + o * entry_parameter(t0), at, slide))
+    }
+
+    /// The path that has left the volume (as [`Self::meet_again`]) crosses the part it meets
+    /// `t0` ahead: `exit` extended across it (refracted in and out), and the derivatives of its
+    /// new outgoing direction and exit point. `None` if it is blocked, reflected totally,
+    /// trapped, or has entered [`MAX_AGAIN`] parts already.
+    fn cross_again(
+        &self,
+        exit: &mut Exit,
+        derivatives: ([DVec3; 2], [DVec3; 2]),
+        t0: f64,
+    ) -> Option<([DVec3; 2], [DVec3; 2])> {
+        let (inside, at, slide) = self.meet_again(exit, derivatives, t0)?;
+        let c = self.cross(inside, at, exit.outgoing, derivatives.0, slide)?;
+        let reentry = Reentry {
+            inside: c.inside,
+            along: c.along,
+            length: c.length,
+            optical_path: c.optical_path,
+        };
+        if !exit.again.push(reentry) {
+            return None;
+        }
+        exit.between += t0;
+        exit.length += c.length;
+        exit.optical_path += self.volume.field.n_out * t0 + c.optical_path;
+        exit.transmission *= c.transmission;
+        exit.surface = c.end;
+        exit.outgoing = c.outgoing;
+        Some((c.turn, c.moved))
     }
 
     /// The path Newton's method reaches from `w0` that leaves the volume and passes through the
@@ -1217,6 +1382,187 @@ impl<'v> Connector<'v> {
     /// surface on its way to `p`: a surface seen, or lit, in the volume's mirror image.
     pub fn solve_mirror(&self, y: DVec3, p: DVec3, w0: DVec3) -> Option<Exit> {
         self.aim_at(p, w0, |w| self.mirror_map(y, w))
+    }
+
+    /// The ray from `x` (inside one of several volumes) along unit `w`, after `bounces.0`
+    /// reflections inside the surface, out of its volume and across every other it meets (each
+    /// refracted in and out) until it meets the part `into`: refracted into it, reflected
+    /// `bounces.1` times inside its surface, and traced to its closest approach to `y`. Returns
+    /// the path as an [`Exit`] ending there (`surface`: the point of closest approach,
+    /// `outgoing`: the unit direction of arrival; each stretch in `into` one of the parts
+    /// entered again), the miss perpendicular to the arrival, and the miss's derivatives along
+    /// the two angles of `w` (`e1`, `e2` of its frame) as a 2×2 matrix; or, if it leaves the last
+    /// volume it meets without meeting `into`, where it does so, with the derivatives of its
+    /// outgoing direction and of that point along the two angles. `None` if it is reflected
+    /// totally, trapped or blocked, or enters `into` and passes `y` by.
+    fn map_into(
+        &self,
+        (x, w): (DVec3, DVec3),
+        (y, into): (DVec3, usize),
+        bounces: (usize, usize),
+    ) -> Option<Toward> {
+        let field = &self.volume.field;
+        let parts = field.bounds.parts()?;
+        let (mut exit, mut dout, mut moved) = self.exit_map(x, w, bounces.0)?;
+        let t0 = loop {
+            let Some(t0) = field.bounds.reentry(exit.surface, exit.outgoing) else {
+                return Some(Toward::Missed(exit, dout, moved));
+            };
+            if part_at(parts, exit.surface + exit.outgoing * entry_parameter(t0)) == into {
+                break t0;
+            }
+            (dout, moved) = self.cross_again(&mut exit, (dout, moved), t0)?;
+        };
+        let (inside, at, slide) = self.meet_again(&exit, (dout, moved), t0)?;
+        let (along, sensitivities, entered) =
+            self.refract_in(inside, at, exit.outgoing, dout, slide)?;
+        exit.between += t0;
+        exit.optical_path += field.n_out * t0;
+        exit.transmission *= entered;
+        // the stretches inside `into`, each from its start with the sensitivities there
+        let mut stretch = (inside, along, sensitivities);
+        let push = |exit: &mut Exit, (inside, along): (DVec3, DVec3), length, optical_path| {
+            exit.length += length;
+            exit.optical_path += optical_path;
+            exit.again.push(Reentry {
+                inside,
+                along,
+                length,
+                optical_path,
+            })
+        };
+        for _ in 0..bounces.1 {
+            let (from, along, (xv, vv)) = stretch;
+            let (end, xv, vv, length, optical_path, n_in) =
+                self.shoot_out(from, along, (xv, vv))?;
+            let (bounce, reflectance, dx, dv) =
+                self.reflect_in(end, (xv, vv), [DVec3::X, DVec3::Y], n_in)?;
+            if !push(&mut exit, (from, along), length, optical_path) {
+                return None;
+            }
+            exit.transmission *= reflectance;
+            stretch = (
+                // a start just inside, so that the index there reads as the inside's
+                end.x + bounce * (1e-12 * (1.0 + end.x.length())),
+                bounce,
+                (
+                    DMat3::from_cols(dx[0], dx[1], DVec3::ZERO),
+                    DMat3::from_cols(dv[0], dv[1], DVec3::ZERO),
+                ),
+            );
+        }
+        let (from, along, (xv, vv)) = stretch;
+        let (end, xv, length, optical_path) =
+            self.approach(Tangent::with(field, from, along, xv, vv), y)?;
+        if !push(&mut exit, (from, along), length, optical_path) {
+            return None;
+        }
+        exit.surface = end.x;
+        exit.outgoing = end.v.normalize();
+        let (f1, f2) = orthonormal_basis(exit.outgoing);
+        let d = end.x - y;
+        let (c1, c2) = (xv * DVec3::X, xv * DVec3::Y);
+        let m = [[f1.dot(c1), f1.dot(c2)], [f2.dot(c1), f2.dot(c2)]];
+        Some(Toward::Reached(exit, [f1.dot(d), f2.dot(d)], m))
+    }
+
+    /// The path Newton's method reaches from `w0` that joins `x` inside one of several volumes
+    /// to `y` inside another: out of the first after `bounces.0` reflections inside its surface,
+    /// across every volume it meets between them (refracted in and out), into the second and,
+    /// after `bounces.1` reflections inside its surface, on to `y` ([`Self::map_into`]). Its `jacobian` is the ray tube's cross-section at `y` per unit
+    /// solid angle at `x`, `dA⊥/dω` (the irradiance at `y` of a source of intensity `I` at `x`
+    /// is `I · transmission / jacobian`); `surface` is `y` (within the tolerance) and
+    /// `outgoing` the direction of arrival there. `None` for points in one volume.
+    pub fn solve_into(
+        &self,
+        x: DVec3,
+        y: DVec3,
+        w0: DVec3,
+        bounces: (usize, usize),
+    ) -> Option<Exit> {
+        let parts = self.volume.field.bounds.parts()?;
+        let into = part_at(parts, y);
+        if part_at(parts, x) == into {
+            return None;
+        }
+        let mut w = w0.normalize();
+        let mut last = None;
+        let mut polished = false;
+        // whether a ray has entered `y`'s volume yet: until then, one that leaves past it is
+        // steered towards `y`; after, one that goes astray steps back
+        let mut reached = false;
+        for iteration in 0..self.max_iterations {
+            let (mut exit, r, m) = match self.map_into((x, w), (y, into), bounces) {
+                Some(Toward::Reached(exit, r, m)) => (exit, r, m),
+                Some(Toward::Missed(exit, dout, dsurf)) if !reached => {
+                    // leaving past the volume `y` is in: turn towards `y` by the angle between
+                    // (`dg` follows the point it leaves from) until the path meets it
+                    last = Some(w);
+                    let to_y = y - exit.surface;
+                    let distance = to_y.length();
+                    let g = to_y / distance;
+                    let dg = dsurf.map(|ds| -(ds - g * g.dot(ds)) / distance);
+                    w = steer(w, exit.outgoing, g, dout, dg)?;
+                    continue;
+                }
+                _ => {
+                    w = step_back(last?, w)?;
+                    continue;
+                }
+            };
+            last = Some(w);
+            reached = true;
+            let det = m[0][0] * m[1][1] - m[0][1] * m[1][0];
+            if self.converged(
+                (r[0] * r[0] + r[1] * r[1]).sqrt(),
+                self.tolerance,
+                &mut polished,
+            ) {
+                exit.jacobian = det.abs();
+                exit.iterations = iteration + 1;
+                return (det.abs() > 0.0 && det.is_finite()).then_some(exit);
+            }
+            w = newton_turn(w, m, det, r)?;
+        }
+        None
+    }
+
+    /// A path from `x` inside one of several volumes to `y` inside another
+    /// ([`Self::solve_into`]), after `bounces.0` reflections inside the first and `bounces.1`
+    /// inside the second, drawn like [`Connector::sample`] (`first_only`: the biased variant);
+    /// through index-matched volumes the straight line. None for points in one volume.
+    pub fn sample_into(
+        &self,
+        x: DVec3,
+        y: DVec3,
+        bounces: (usize, usize),
+        first_only: bool,
+        rng: &mut Rng,
+    ) -> Sampled<Exit> {
+        let Some(parts) = self.volume.field.bounds.parts() else {
+            return Sampled::none();
+        };
+        if part_at(parts, x) == part_at(parts, y) {
+            return Sampled::none();
+        }
+        if self.matched {
+            if bounces != (0, 0) {
+                return Sampled::none();
+            }
+            let d = y - x;
+            let s = d.length();
+            return self.straight_exit(x, d / s, Some(s));
+        }
+        let start = |rng: &mut Rng| self.initial(x, y, rng);
+        let solve = |w| {
+            self.solve_into(x, y, w, bounces)
+                .map(|e| (e, e.direction, e.iterations))
+        };
+        if first_only {
+            first(start, solve, rng)
+        } else {
+            restarts(self.max_restarts, start, solve, rng)
+        }
     }
 
     /// Newton's method on the direction `w` given to `map` (from `w0`) for the path that passes
@@ -1443,6 +1789,17 @@ impl<'v> Connector<'v> {
         }
         None
     }
+}
+
+/// Where a path from one of several volumes towards a point in another goes
+/// ([`Connector::map_into`]).
+enum Toward {
+    /// Into the other volume, to its closest approach to the point: the path, the miss
+    /// perpendicular to its arrival, and the miss's derivatives along the two angles of its start.
+    Reached(Exit, [f64; 2], [[f64; 2]; 2]),
+    /// Out of the last volume it met, past the other: the path so far, and the derivatives of
+    /// its outgoing direction and of the point where it left.
+    Missed(Exit, [DVec3; 2], [DVec3; 2]),
 }
 
 /// A ray across the volume from outside ([`Connector::cross`]).
@@ -2128,6 +2485,176 @@ mod tests {
             (mean - images).abs() < 4.0 * se && se < 0.05 * images,
             "{mean} ± {se} vs {images}"
         );
+    }
+
+    /// Three glass balls in a row (n = 1.5, 1.4 and 1.3 in air), in closed form and stepped: a
+    /// path from a point in the first to a point in the third, found from the straight line's
+    /// direction and from random starts, directly or after a reflection inside the third, is the
+    /// one traced by hand through every ball it meets (sphere intersections, Snell's law and the
+    /// law of reflection): it passes through the point, carries the Fresnel factors of every
+    /// surface it meets, and its ray tube's cross-section at the point equals that of
+    /// neighbouring rays traced by hand. Solved from the other end (its reflection now inside
+    /// the volume it starts from), the same path comes back with the spread that reciprocity
+    /// gives, `n_y² dA_y/dω_x = n_x² dA_x/dω_y` (the two-point étendue).
+    #[test]
+    fn a_path_between_two_volumes_crosses_a_third_and_spreads_as_traced_by_hand() {
+        use crate::eikonal::Part;
+        use crate::rrte::Bulk;
+        let balls = [
+            (DVec3::ZERO, 1.0, 1.5),
+            (DVec3::new(2.2, 0.1, 0.0), 0.7, 1.4),
+            (DVec3::new(4.2, 0.2, -0.1), 0.9, 1.3),
+        ];
+        let scene = |graded: bool| {
+            let parts = balls.map(|(c, r, n)| {
+                let profile = if graded {
+                    Profile::Linear {
+                        n0: n,
+                        gradient: DVec3::ZERO,
+                    }
+                } else {
+                    Profile::Constant { n }
+                };
+                let clear = Bulk {
+                    sigma_s: 0.0,
+                    sigma_a: 0.0,
+                    scattering: Scattering::single(PhaseFunction::Isotropic),
+                };
+                (
+                    Part::new(Bounds::Sphere { radius: r }, c, vec![profile]),
+                    clear,
+                )
+            });
+            Volume::several(parts.to_vec(), 1.0)
+        };
+        // the hand's trace from `x` in ball `from` along `w` to the plane through `y` across
+        // `o`: where it crosses it, the unit direction there, the length inside and the
+        // transmission, and the index at both ends
+        let hand = |x: DVec3, from: usize, w: DVec3, y: DVec3, (to, bounces): (usize, usize)| {
+            let (c, r, n) = balls[from];
+            let local = x - c;
+            let b = local.dot(w);
+            let t = -b + (b * b - (local.length_squared() - r * r)).sqrt();
+            let mut at = x + w * t;
+            let mut normal = (at - c) / r;
+            let mut d = snell(w, -normal, n);
+            let mut length = t;
+            let mut transmission = 1.0 - reflectance(normal.dot(w), normal.dot(d), n);
+            loop {
+                // the nearest ball ahead
+                let (k, t0) = (0..3)
+                    .filter_map(|k| {
+                        let (c, r, _) = balls[k];
+                        let local = at - c;
+                        let b = local.dot(d);
+                        let disc = b * b - (local.length_squared() - r * r);
+                        let t0 = -b - disc.max(0.0).sqrt();
+                        (disc > 0.0 && t0 > 1e-9).then_some((k, t0))
+                    })
+                    .min_by(|a, b| a.1.total_cmp(&b.1))
+                    .expect("meets a ball");
+                let (c, r, n) = balls[k];
+                let a = at + d * t0;
+                let nrm = (a - c) / r;
+                let inside = snell(d, nrm, 1.0 / n);
+                transmission *= 1.0 - reflectance(-nrm.dot(d), -nrm.dot(inside), 1.0 / n);
+                if k == to {
+                    let (mut a, mut inside) = (a, inside);
+                    for _ in 0..bounces {
+                        let t1 = -2.0 * (a - c).dot(inside);
+                        let e = a + inside * t1;
+                        let nrm = (e - c) / r;
+                        let cos_i = nrm.dot(inside);
+                        let sin_t2 = n * n * (1.0 - cos_i * cos_i);
+                        transmission *= if sin_t2 >= 1.0 {
+                            1.0
+                        } else {
+                            reflectance(cos_i, (1.0 - sin_t2).sqrt(), n)
+                        };
+                        length += t1;
+                        (a, inside) = (e, inside - nrm * (2.0 * cos_i));
+                    }
+                    let reach = (y - a).dot(inside);
+                    return (a + inside * reach, inside, length + reach, transmission);
+                }
+                let t1 = -2.0 * (a - c).dot(inside);
+                let e = a + inside * t1;
+                normal = (e - c) / r;
+                let out = snell(inside, -normal, n);
+                transmission *= 1.0 - reflectance(normal.dot(inside), normal.dot(out), n);
+                length += t1;
+                (at, d) = (e, out);
+            }
+        };
+        let (x, y) = (DVec3::new(0.3, -0.2, 0.4), DVec3::new(4.4, 0.5, 0.2));
+        for graded in [false, true] {
+            let v = scene(graded);
+            let connector = Connector::new(&v, 1e-3, 100_000);
+            let mut rng = crate::math::stream_rng(5, 0);
+            for bounces in [(0, 0), (0, 1)] {
+                let found: Vec<Exit> = std::iter::once((y - x).normalize())
+                    .chain((0..400).map(|_| connector.initial(x, y, &mut rng)))
+                    .filter_map(|w| connector.solve_into(x, y, w, bounces))
+                    .collect();
+                let least = if bounces.1 == 0 { 200 } else { 20 };
+                assert!(
+                    found.len() > least,
+                    "{} of 401 starts converge",
+                    found.len()
+                );
+                for f in &found[..5] {
+                    let (end, o, length, transmission) = hand(x, 0, f.direction, y, (2, bounces.1));
+                    assert!((f.surface - y).length() < 1e-8, "{f:?}");
+                    assert!((end - y).length() < 1e-8, "{end} vs {y}");
+                    assert!((f.outgoing - o).length() < 1e-8);
+                    assert!((f.length - length).abs() < 1e-8, "{} vs {length}", f.length);
+                    let t = transmission;
+                    assert!(
+                        (f.transmission - t).abs() < 1e-9 * t,
+                        "{} vs {t}",
+                        f.transmission
+                    );
+                    assert_eq!(
+                        f.again.parts().len(),
+                        2 + bounces.1,
+                        "through the middle ball"
+                    );
+                    let (e1, e2) = orthonormal_basis(f.direction);
+                    let (f1, f2) = orthonormal_basis(o);
+                    let h = 1e-6;
+                    // where the ray crosses the plane through y across the found arrival
+                    let at_plane = |w: DVec3| {
+                        let (e, d, _, _) = hand(x, 0, w.normalize(), y, (2, bounces.1));
+                        e + d * (y - e).dot(o) / d.dot(o)
+                    };
+                    let turn = |e: DVec3| {
+                        (at_plane(f.direction + e * h) - at_plane(f.direction - e * h)) / (2.0 * h)
+                    };
+                    let (d1, d2) = (turn(e1), turn(e2));
+                    let det = (f1.dot(d1) * f2.dot(d2) - f1.dot(d2) * f2.dot(d1)).abs();
+                    assert!(
+                        (f.jacobian - det).abs() < 1e-6 * det,
+                        "{} vs {det}",
+                        f.jacobian
+                    );
+                    // back from y along the reversed arrival, its reflections now in the first
+                    let back = connector
+                        .solve_into(y, x, -f.outgoing, (bounces.1, bounces.0))
+                        .expect("converges back");
+                    assert!((back.outgoing + f.direction).length() < 1e-6);
+                    assert!((back.length - f.length).abs() < 1e-8);
+                    let t = f.transmission;
+                    assert!(
+                        (back.transmission - t).abs() < 1e-8 * t,
+                        "{}",
+                        back.transmission
+                    );
+                    let (n_x, n_y) = (1.5, 1.3);
+                    let (forth, back) = (n_y * n_y * f.jacobian, n_x * n_x * back.jacobian);
+                    assert!((forth - back).abs() < 1e-6 * back, "{forth} vs {back}");
+                }
+            }
+        }
     }
 
     #[test]

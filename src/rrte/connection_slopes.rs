@@ -29,7 +29,7 @@
 //! The inverse probability multiplies a path's value and its derivative alike: the estimate of
 //! `Σ_k f(C_k)` differentiates into the estimate of `Σ_k ∂f(C_k)`.
 
-use super::connect::{Connection, Connector};
+use super::connect::{Connector, InsidePath};
 use super::particle::{CameraLink, ParticleTracer, Tools};
 use super::scene::{Derivative, FieldDerivative, MAX_DERIVATIVES, RenderScene, Volume};
 use crate::eikonal::IndexField;
@@ -198,17 +198,19 @@ fn polished<'v>(scene: &'v RenderScene, volume: &'v Volume) -> Connector<'v> {
 }
 
 impl ParticleTracer<'_> {
-    /// What a vertex at `x` with incoming direction `w_in` and power `weight` sends along the
-    /// path `c` through `volume` (homogeneous): `weight · emit · e^{−σ_t L} · R / (dA⊥/dω)`.
+    /// What a vertex at `x` with incoming direction `w_in` and power `weight` sends along
+    /// `path` through `volume` (homogeneous): `weight · emit · e^{−∫σ_t} · F / (dA⊥/dω)`, `F` its
+    /// Fresnel factors.
     fn carried(
         &self,
         volume: &Volume,
         (x, w_in): (DVec3, Option<DVec3>),
         weight: f64,
-        c: &Connection,
+        path: &InsidePath,
     ) -> f64 {
-        let emit = emitted(self.scene, volume, (x, w_in), c.direction);
-        weight * emit * (-volume.sigma_t_at(x) * c.length).exp() * c.reflectance / c.spread
+        let emit = emitted(self.scene, volume, (x, w_in), path.direction());
+        let attenuation = (-path.lengths(volume).depth(volume)).exp();
+        weight * emit * attenuation * path.fresnel() / path.spread()
     }
 
     /// Next-event connections from `v` (inside) to every probe, carrying `weight` after the
@@ -230,26 +232,37 @@ impl ParticleTracer<'_> {
     ) {
         let volume = t.flyer.volume;
         let derivatives = &self.scene.derivatives;
-        self.probe_paths(t, v.x, rng, out, |out, i, c, inverse_p, bounces, _| {
+        self.probe_paths(t, v.x, rng, out, |out, i, c, inverse_p, _| {
             let value = self.carried(volume, (v.x, v.w_in), weight, c) * inverse_p;
             if !(value > 0.0 && value.is_finite() && self.add_to_probe(t, i, c, value, opl, out)) {
                 return;
             }
-            // the connection runs in the part of the event
+            // the event scatters by its own volume's phase function; the connection is
+            // attenuated in every volume it runs through
             let part = volume.part_index(v.x);
+            let lengths = c.lengths(volume);
             for (j, d) in derivatives.iter().enumerate() {
-                let own = match d.medium_in(part) {
-                    Some(m) => {
-                        let phase = v.w_in.map_or(0.0, |w| {
-                            m.dlog_mixture(volume.scattering_of(part), w.dot(c.direction))
-                        });
-                        let attenuation = if m.is_coefficient() { -c.length } else { 0.0 };
-                        value * (phase + attenuation)
-                    }
-                    None => 0.0,
+                let Derivative::Medium(m) = d else {
+                    out[self.probe_derivative(i, j)].re += value * score[j];
+                    continue;
                 };
-                out[self.probe_derivative(i, j)].re += value * score[j] + own;
+                let phase = match (d.medium_in(part), v.w_in) {
+                    (Some(m), Some(w)) => {
+                        m.dlog_mixture(volume.scattering_of(part), w.dot(c.direction()))
+                    }
+                    _ => 0.0,
+                };
+                let attenuation = if m.param.is_coefficient() {
+                    -lengths.within(m.volume)
+                } else {
+                    0.0
+                };
+                out[self.probe_derivative(i, j)].re += value * (score[j] + phase + attenuation);
             }
+            // index-field derivatives are of one volume's: every path lies within it
+            let InsidePath::Within(_, bounces) = *c else {
+                return;
+            };
             let y = self.scene.probes[i].position;
             for (k, volumes) in shifted.iter().enumerate() {
                 let h = self.shifted.steps[k];
@@ -260,8 +273,13 @@ impl ParticleTracer<'_> {
                     let (x, w_in) = v.moved(k, by);
                     let volume = &volumes[side];
                     let path =
-                        polished(self.scene, volume).solve_bounced(x, y, c.direction, bounces)?;
-                    Some(self.carried(volume, (x, w_in), weight, &path))
+                        polished(self.scene, volume).solve_bounced(x, y, c.direction(), bounces)?;
+                    Some(self.carried(
+                        volume,
+                        (x, w_in),
+                        weight,
+                        &InsidePath::Within(path, bounces),
+                    ))
                 });
                 if let [Some(down), Some(up)] = moved {
                     let slope = (up - down) / (2.0 * h) * inverse_p;

@@ -16,7 +16,7 @@
 //! the conservation of basic radiance `L/n²` of the RRTE expresses.
 
 use super::bidirectional::Subpaths;
-use super::connect::{Aim, Connection, Connector, Exit, Sampled};
+use super::connect::{Aim, Connector, Exit, InsidePath, Sampled};
 use super::connection_slopes::{ShiftedFields, Vertex, emitted};
 use super::flight::{Flight, Flyer, fresnel, reflect};
 use super::scene::{
@@ -110,6 +110,16 @@ impl Tools<'_> {
     pub(super) fn delay_inside(&self, x: DVec3, optical_path: f64, length: f64) -> f64 {
         let part = self.flyer.volume.part_index(x).unwrap_or(0);
         self.delay.inside(part, optical_path, length)
+    }
+
+    /// The group delay along the path `path` between two points inside.
+    pub(super) fn path_delay(&self, path: &InsidePath) -> f64 {
+        match path {
+            InsidePath::Within(c, _) => self.delay_inside(c.arrival.x, c.optical_path, c.length),
+            InsidePath::Between(e, _) => {
+                self.exit_delay(e, self.flyer.volume.field.n_out * e.outside())
+            }
+        }
     }
 
     /// The group delay of the path `e` through the surface, whose optical path holds
@@ -699,52 +709,53 @@ impl<'s> ParticleTracer<'s> {
         rng: &mut Rng,
         out: &mut [C64],
     ) {
-        self.probe_paths(t, x, rng, out, |out, i, c, inverse_p, bounces, rng| {
-            let transmittance = self.transmittance(t, x, c.direction, (c.length, bounces), rng);
+        self.probe_paths(t, x, rng, out, |out, i, path, inverse_p, rng| {
+            let transmittance = self.path_transmittance(t, x, path, rng);
+            let d = path.direction();
             let value =
-                weight * emit(c.direction) * transmittance * c.reflectance / c.spread * inverse_p;
+                weight * emit(d) * transmittance * path.fresnel() / path.spread() * inverse_p;
             if value > 0.0 && value.is_finite() {
-                self.add_to_probe(t, i, c, value, opl, out);
+                self.add_to_probe(t, i, path, value, opl, out);
             }
         });
     }
 
     /// Every stationary path drawn from `x` (inside) to each probe, after 0 … K reflections inside
-    /// the surface, to `visit(out, probe, path, inverse probability, reflections, rng)`.
+    /// the surface ([`Connector::sample_inside`]), to `visit(out, probe, path, inverse
+    /// probability, rng)`.
     pub(super) fn probe_paths(
         &self,
         t: &Tools,
         x: DVec3,
         rng: &mut Rng,
         out: &mut [C64],
-        mut visit: impl FnMut(&mut [C64], usize, &Connection, f64, usize, &mut Rng),
+        mut visit: impl FnMut(&mut [C64], usize, &InsidePath, f64, &mut Rng),
     ) {
         let first_only = self.scene.connections == Connections::First;
         for (i, probe) in self.scene.probes.iter().enumerate() {
             for bounces in 0..=self.most_bounces(t) {
                 let s = t
                     .connector
-                    .sample_bounced(x, probe.position, bounces, first_only, rng);
-                if let Some((c, inverse_p)) = self.tally(s, out) {
-                    visit(out, i, &c, inverse_p, bounces, rng);
+                    .sample_inside(x, probe.position, bounces, first_only, rng);
+                if let Some((path, inverse_p)) = self.tally(s, out) {
+                    visit(out, i, &path, inverse_p, rng);
                 }
             }
         }
     }
 
-    /// Add `value` to probe `i`, reached along the path `c` after the optical path `opl`: `false`
-    /// if it arrives after the last time bin.
+    /// Add `value` to probe `i`, reached along `path` after the optical path `opl`: `false` if
+    /// it arrives after the last time bin.
     pub(super) fn add_to_probe(
         &self,
         t: &Tools,
         i: usize,
-        c: &Connection,
+        path: &InsidePath,
         value: f64,
         opl: f64,
         out: &mut [C64],
     ) -> bool {
-        let Some(bin) = self.bin(opl + t.delay_inside(c.arrival.x, c.optical_path, c.length))
-        else {
+        let Some(bin) = self.bin(opl + t.path_delay(path)) else {
             return false;
         };
         let o = self.probe_offset(i);
@@ -941,6 +952,23 @@ impl<'s> ParticleTracer<'s> {
                 kept *= self.ratio_tracking(t, from, along, stretch, rng);
             });
         if whole { kept } else { 0.0 }
+    }
+
+    /// The transmittance along `path` from `x` to a point inside ([`Self::transmittance`],
+    /// [`Self::exit_transmittance`]).
+    pub(super) fn path_transmittance(
+        &self,
+        t: &Tools,
+        x: DVec3,
+        path: &InsidePath,
+        rng: &mut Rng,
+    ) -> f64 {
+        match *path {
+            InsidePath::Within(c, bounces) => {
+                self.transmittance(t, x, c.direction, (c.length, bounces), rng)
+            }
+            InsidePath::Between(e, bounces) => self.exit_transmittance(t, &e, bounces, rng),
+        }
     }
 
     /// The transmittance along a connection through the surface (`bounces`: its reflections

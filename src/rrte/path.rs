@@ -387,7 +387,7 @@ impl ParticleTracer<'_> {
         out: &mut [C64],
     ) {
         for way in self.ways(t, false) {
-            let Some(link) = self.light_link(t, x, way, rng, out) else {
+            let Some(link) = self.light_link(t, x, way, true, rng, out) else {
                 continue;
             };
             let phase = t.flyer.volume.scattering_at(x).eval(link.direction.dot(u));
@@ -402,13 +402,15 @@ impl ParticleTracer<'_> {
     }
 
     /// The connection from the light to `x` inside the volume: the basic radiance it brings to
-    /// `x` per unit phase function, times the camera's `n_out²` (see the module's notes); from a
-    /// light outside, after the `way`'s reflections inside the surface.
+    /// `x` per unit phase function, times the camera's `n_out²` (see the module's notes); after
+    /// the `way`'s reflections inside the surface of `x`'s volume (from a light in another of
+    /// several volumes, only if `reflected_between`).
     pub(super) fn light_link(
         &self,
         t: &Tools,
         x: DVec3,
         way: Way,
+        reflected_between: bool,
         rng: &mut Rng,
         out: &mut [C64],
     ) -> Option<LightLink> {
@@ -417,26 +419,34 @@ impl ParticleTracer<'_> {
         };
         let volume = t.flyer.volume;
         let q = self.light_point(rng)?;
+        let inside = volume.field.bounds.contains(q);
+        if inside
+            && bounces > 0
+            && !reflected_between
+            && volume.part_index(x) != volume.part_index(q)
+        {
+            return None;
+        }
         let first_only = self.scene.connections == super::Connections::First;
         let n_out = volume.field.n_out;
         let light = &self.scene.light;
-        if volume.field.bounds.contains(q) {
-            // a curved connection inside (after the way's reflections inside the surface):
-            // dA_q/dω_x is its spread
-            let s = t.connector.sample_bounced(x, q, bounces, first_only, rng);
-            let (c, inverse_p) = self.tally(s, out)?;
-            let leaving_q = -c.arrival.v.normalize();
+        if inside {
+            // a curved connection inside (after the way's reflections inside the surface), or
+            // out of x's volume and into the light's: dA_q/dω_x is its spread
+            let s = t.connector.sample_inside(x, q, bounces, first_only, rng);
+            let (path, inverse_p) = self.tally(s, out)?;
+            let leaving_q = -path.arrival().1;
             let n_q = t.flyer.n(q);
-            let transmittance = self.transmittance(t, x, c.direction, (c.length, bounces), rng);
+            let transmittance = self.path_transmittance(t, x, &path, rng);
             let intensity = light.intensity(leaving_q);
             Some(LightLink {
-                direction: c.direction,
-                radiance: n_out * n_out * intensity * transmittance * c.reflectance
-                    / (n_q * n_q * c.spread)
+                direction: path.direction(),
+                radiance: n_out * n_out * intensity * transmittance * path.fresnel()
+                    / (n_q * n_q * path.spread())
                     * inverse_p,
-                delay: t.delay_inside(c.arrival.x, c.optical_path, c.length),
-                inside: PartLengths::one(volume.part_index(x), c.length),
-                outside: 0.0,
+                delay: t.path_delay(&path),
+                inside: path.lengths(volume),
+                outside: path.outside(),
                 pdf: intensity,
             })
         } else {
