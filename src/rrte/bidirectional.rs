@@ -507,17 +507,16 @@ impl ParticleTracer<'_> {
         }
     }
 
-    /// Join the light subpath's last event `y_s` to the camera subpath's last `z_t` (the light
-    /// event a point source of intensity `w ρ`, the camera event a point sensor; see
-    /// [`super::path`] for the basic radiance a point source brings).
     /// Whether a connection joins the events `x` and `y` (both inside) after `bounces`
     /// reflections inside the surface: between two of several volumes only unreflected (see
     /// [`Meetings::connectible`]).
     fn joins(&self, t: &Tools, x: DVec3, y: DVec3, bounces: usize) -> bool {
-        let volume = t.flyer.volume;
-        bounces == 0 || volume.part_index(x) == volume.part_index(y)
+        bounces == 0 || !t.connector.apart(x, y)
     }
 
+    /// Join the light subpath's last event `y_s` to the camera subpath's last `z_t` (the light
+    /// event a point source of intensity `w ρ`, the camera event a point sensor; see
+    /// [`super::path`] for the basic radiance a point source brings).
     fn join(
         &self,
         t: &Tools,

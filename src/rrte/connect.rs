@@ -605,6 +605,31 @@ impl<'v> Connector<'v> {
         self.matched
     }
 
+    /// One stationary path drawn from the starts `start` gives to `solve` (the path, its
+    /// direction at the start, its Newton iterations): Alg. 3's restarts for its inverse
+    /// probability, or with `first_only` the first path found, counted once.
+    fn draw<T>(
+        &self,
+        first_only: bool,
+        start: impl Fn(&mut Rng) -> DVec3,
+        solve: impl Fn(DVec3) -> Option<(T, DVec3, usize)>,
+        rng: &mut Rng,
+    ) -> Sampled<T> {
+        if first_only {
+            first(start, solve, rng)
+        } else {
+            restarts(self.max_restarts, start, solve, rng)
+        }
+    }
+
+    /// The straight path from `x` inside an index-matched volume to the point `p`, through
+    /// every part it meets on the way ([`Self::straight_exit`]).
+    fn straight_to(&self, x: DVec3, p: DVec3) -> Sampled<Exit> {
+        let d = p - x;
+        let s = d.length();
+        self.straight_exit(x, d / s, Some(s))
+    }
+
     /// The straight path from `x` inside an index-matched volume along unit `w`, leaving it (and
     /// reaching the point `to_point` away): its exit, with `jacobian` the spread `s²` at that
     /// point (1 for a direction), through every part of a non-convex volume it enters again on
@@ -705,11 +730,7 @@ impl<'v> Connector<'v> {
             self.solve_exit(x, c, w, bounces)
                 .map(|e| (e, e.direction, e.iterations))
         };
-        if first_only {
-            first(start, solve, rng)
-        } else {
-            restarts(self.max_restarts, start, solve, rng)
-        }
+        self.draw(first_only, start, solve, rng)
     }
 
     /// Trace from `x` along unit `w` to where the ray leaves the volume, carrying the
@@ -1020,11 +1041,13 @@ impl<'v> Connector<'v> {
             self.solve_bounced(x, y, w, bounces)
                 .map(|c| (c, c.direction, c.iterations))
         };
-        if first_only {
-            first(start, solve, rng)
-        } else {
-            restarts(self.max_restarts, start, solve, rng)
-        }
+        self.draw(first_only, start, solve, rng)
+    }
+
+    /// Whether `x` and `y` (both inside) lie in two of several volumes.
+    pub fn apart(&self, x: DVec3, y: DVec3) -> bool {
+        let parts = self.volume.field.bounds.parts();
+        parts.is_some_and(|parts| part_at(parts, x) != part_at(parts, y))
     }
 
     /// A path from `x` to `y` (both inside) after `bounces` reflections inside the surface,
@@ -1041,11 +1064,7 @@ impl<'v> Connector<'v> {
         first_only: bool,
         rng: &mut Rng,
     ) -> Sampled<InsidePath> {
-        let bounds = &self.volume.field.bounds;
-        if bounds
-            .parts()
-            .is_some_and(|parts| part_at(parts, x) != part_at(parts, y))
-        {
+        if self.apart(x, y) {
             let ways = bounces + 1;
             let first = ((uniform(rng) * ways as f64) as usize).min(bounces);
             let mut s = self.sample_into(x, y, (first, bounces - first), first_only, rng);
@@ -1539,30 +1558,21 @@ impl<'v> Connector<'v> {
         first_only: bool,
         rng: &mut Rng,
     ) -> Sampled<Exit> {
-        let Some(parts) = self.volume.field.bounds.parts() else {
-            return Sampled::none();
-        };
-        if part_at(parts, x) == part_at(parts, y) {
+        if !self.apart(x, y) {
             return Sampled::none();
         }
         if self.matched {
-            if bounces != (0, 0) {
-                return Sampled::none();
-            }
-            let d = y - x;
-            let s = d.length();
-            return self.straight_exit(x, d / s, Some(s));
+            return match bounces {
+                (0, 0) => self.straight_to(x, y),
+                _ => Sampled::none(),
+            };
         }
         let start = |rng: &mut Rng| self.initial(x, y, rng);
         let solve = |w| {
             self.solve_into(x, y, w, bounces)
                 .map(|e| (e, e.direction, e.iterations))
         };
-        if first_only {
-            first(start, solve, rng)
-        } else {
-            restarts(self.max_restarts, start, solve, rng)
-        }
+        self.draw(first_only, start, solve, rng)
     }
 
     /// Newton's method on the direction `w` given to `map` (from `w0`) for the path that passes
@@ -1631,23 +1641,17 @@ impl<'v> Connector<'v> {
         rng: &mut Rng,
     ) -> Sampled<Exit> {
         if self.matched {
-            if bounces > 0 {
-                return Sampled::none();
-            }
-            let d = p - x;
-            let s = d.length();
-            return self.straight_exit(x, d / s, Some(s));
+            return match bounces {
+                0 => self.straight_to(x, p),
+                _ => Sampled::none(),
+            };
         }
         let start = |rng: &mut Rng| self.initial(x, p, rng);
         let solve = |w| {
             self.solve_through(x, p, w, bounces)
                 .map(|e| (e, e.direction, e.iterations))
         };
-        if first_only {
-            first(start, solve, rng)
-        } else {
-            restarts(self.max_restarts, start, solve, rng)
-        }
+        self.draw(first_only, start, solve, rng)
     }
 
     /// A path from `y` outside the volume across it (refracted in and out, unscattered) to the
@@ -1738,11 +1742,7 @@ impl<'v> Connector<'v> {
             }
             .map(|e| (e, e.direction, e.iterations))
         };
-        if first_only {
-            first(start, solve, rng)
-        } else {
-            restarts(self.max_restarts, start, solve, rng)
-        }
+        self.draw(first_only, start, solve, rng)
     }
 
     /// The path Newton's method reaches from `w0` that leaves the volume along unit `c`.

@@ -420,11 +420,7 @@ impl ParticleTracer<'_> {
         let volume = t.flyer.volume;
         let q = self.light_point(rng)?;
         let inside = volume.field.bounds.contains(q);
-        if inside
-            && bounces > 0
-            && !reflected_between
-            && volume.part_index(x) != volume.part_index(q)
-        {
+        if inside && bounces > 0 && !reflected_between && t.connector.apart(x, q) {
             return None;
         }
         let first_only = self.scene.connections == super::Connections::First;
