@@ -206,13 +206,6 @@ impl InsidePath {
         }
     }
 
-    /// Reflections inside the surface of the start's volume before the path leaves it.
-    pub fn bounces(&self) -> usize {
-        match *self {
-            InsidePath::Within(_, b) | InsidePath::Between(_, b) => b,
-        }
-    }
-
     /// Where it arrives (its closest approach to the far point), and its unit direction there.
     pub fn arrival(&self) -> (DVec3, DVec3) {
         match self {

@@ -1540,7 +1540,12 @@ impl<'s> ParticleTracer<'s> {
             };
             let coefficients = volume.coefficients(part);
             for (s, d) in p.score.iter_mut().zip(derivatives) {
-                *s += flight_score(d.medium_in(part), collided, coefficients, travelled.length);
+                *s += flight_score(
+                    d.medium_in(part),
+                    collided,
+                    coefficients.1,
+                    travelled.length,
+                );
             }
             // the flight's tracks count with its own score (they depend on its length)
             self.record_tracks(&tracks, p.weight, &p.score[..derivatives.len()], out);
@@ -1599,15 +1604,10 @@ impl<'s> ParticleTracer<'s> {
 
 /// A free flight's score for medium parameter `param` (`∂ log` of its probability; `None`: not
 /// a parameter of the medium flown through): `σ_t e^{−σ_t L}` to a collision, `e^{−σ_t L}` to
-/// the surface, over geometric length `L`, in a medium of coefficients `(σ_s, σ_t)`. What the
+/// the surface, over geometric length `L`, in a medium of extinction `σ_t`. What the
 /// flight itself tallies (a target's track) counts with it; what comes after a collision also
 /// with [`albedo_score`].
-pub(super) fn flight_score(
-    param: Option<Param>,
-    collided: bool,
-    (_, sigma_t): (f64, f64),
-    length: f64,
-) -> f64 {
+pub(super) fn flight_score(param: Option<Param>, collided: bool, sigma_t: f64, length: f64) -> f64 {
     match param {
         Some(Param::SigmaS | Param::SigmaA) if collided => 1.0 / sigma_t - length,
         Some(Param::SigmaS | Param::SigmaA) => -length,

@@ -724,7 +724,7 @@ impl ParticleTracer<'_> {
             p.opl += t.delay_inside(ray.x, end.optical_path, end.length);
             let collided = end.stop == Stop::Collision;
             for (s, d) in p.score.iter_mut().zip(derivatives) {
-                *s += flight_score(d.medium_in(None), collided, coefficients, end.length);
+                *s += flight_score(d.medium_in(None), collided, coefficients.1, end.length);
             }
             self.record_tracks_with_slopes(sens, &tracks, &slopes, p, out);
             (ray, tan) = (end.ray, end.tan);
