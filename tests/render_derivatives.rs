@@ -577,8 +577,23 @@ fn derivatives_of_several_volumes_name_their_volume() {
             &["render.derivatives[0]", "no such parameter"],
         ),
         ("[\"volume[0]sigma_s\"]", &["volume[i].name"]),
-        ("[\"volume[1].profiles[0].radius\"]", &["one volume"]),
-        ("[\"profiles[0].radius\"]", &["one volume"]),
+        // the floor: light moved by the field would move across its edge
+        (
+            "[\"volume[1].profiles[0].radius\"]",
+            &["render.derivatives[0]", "[[surface]]"],
+        ),
+        (
+            "[\"volume[1].profiles[2].radius\"]",
+            &["volume[1]", "profiles has 1 profile(s)"],
+        ),
+        (
+            "[\"volume[1].profiles[0].n0\"]",
+            &["volume[1]", "luneburg profile has no parameter \"n0\""],
+        ),
+        (
+            "[\"profiles[0].radius\"]",
+            &["name the volume", "volume[i].profiles[0].radius"],
+        ),
         (
             "[\"volume[0].g\", \"volume[0].g[0]\"]",
             &["render.derivatives[1]", "once"],

@@ -216,6 +216,14 @@ fn modulated(
     }
 }
 
+/// `volume[k].profiles[…]` of a scene of several volumes: `k` and the `profiles[…]` that
+/// follows (an index-field parameter of volume `k`).
+fn volume_profile<'n>(name: &'n str, volume: &Volume) -> Option<(usize, &'n str)> {
+    let (k, rest) = name.strip_prefix("volume[")?.split_once("].")?;
+    let k = k.trim().parse::<usize>().ok()?;
+    (k < volume.parts.len() && rest.trim().starts_with("profiles[")).then_some((k, rest.trim()))
+}
+
 /// The medium parameter `volume[k].name` names (`rest`: what follows `volume[`), checked against
 /// the scene's several volumes.
 fn volume_parameter(rest: &str, volume: &Volume) -> Result<MediumDerivative, String> {
@@ -233,9 +241,6 @@ fn volume_parameter(rest: &str, volume: &Volume) -> Result<MediumDerivative, Str
             "volume[{k}]: the scene has {count} volumes, volume[0] to volume[{}]",
             count - 1
         ));
-    }
-    if name.starts_with("profiles[") {
-        return Err("index-field derivatives are estimated in a scene of one volume ([field]); with [[volume]], differentiate the volumes' media (volume[i].sigma_s, volume[i].g, …)".into());
     }
     let param = Param::parse(name).map_err(|e| e.to_string())?;
     let b = &volume.parts[k];
@@ -264,8 +269,8 @@ fn check_placement(
     let Derivative::Field(f) = derivative else {
         return Ok(());
     };
-    let crate::eikonal::Profile::PhasedArray { array, .. } =
-        &volume.field.profiles[f.param.profile]
+    let Some((crate::eikonal::Profile::PhasedArray { array, .. }, shape)) =
+        f.profile(&volume.field)
     else {
         return Ok(());
     };
@@ -274,7 +279,7 @@ fn check_placement(
     };
     let e = &array.elements[j];
     let other = if axis == 0 { e.y } else { e.x };
-    match super::trace::element_blocked(&volume.field.bounds, axis, other) {
+    match super::trace::element_blocked(shape, axis, other) {
         Some((a, b)) if a <= p.max && p.min <= b => err(format!(
             "{key} ({}): (min, max) = ({}, {}) reaches ({a}, {b}), where element {j}'s line (parallel to z) meets field.bounds; keep the range outside the volume",
             p.name, p.min, p.max
@@ -1281,13 +1286,19 @@ impl RenderConfig {
         let mut params = Vec::new();
         for (i, name) in names.iter().enumerate() {
             let trimmed = name.trim();
-            let p = if let Some(rest) = trimmed.strip_prefix("volume[") {
+            let p = if let Some((k, field)) = volume_profile(trimmed, volume) {
+                let f = self
+                    .field_derivative(field, volume, Some(k))
+                    .map_err(|e| ConfigError(format!("{}: volume[{k}]: {e}", key(i))))?;
+                self.check_field_derivative(&key(i), volume, sensors)?;
+                Derivative::Field(f)
+            } else if let Some(rest) = trimmed.strip_prefix("volume[") {
                 let m = volume_parameter(rest, volume)
                     .map_err(|e| ConfigError(format!("{}: {e}", key(i))))?;
                 Derivative::Medium(m)
             } else if several && trimmed.starts_with("profiles[") {
                 return err(format!(
-                    "{}: index-field derivatives are estimated in a scene of one volume ([field]); with [[volume]], differentiate the volumes' media (volume[i].sigma_s, volume[i].g, …)",
+                    "{}: with [[volume]], name the volume whose index field it is: volume[i].{trimmed}",
                     key(i)
                 ));
             } else if several {
@@ -1297,7 +1308,7 @@ impl RenderConfig {
                 ));
             } else if trimmed.starts_with("profiles[") {
                 let f = self
-                    .field_derivative(name, volume)
+                    .field_derivative(name, volume, None)
                     .map_err(|e| ConfigError(format!("{}: {e}", key(i))))?;
                 self.check_field_derivative(&key(i), volume, sensors)?;
                 Derivative::Field(f)
@@ -1467,8 +1478,14 @@ impl RenderConfig {
         }))
     }
 
-    /// The index-field parameter `profiles[i].name` names.
-    fn field_derivative(&self, name: &str, volume: &Volume) -> Result<FieldDerivative, String> {
+    /// The index-field parameter `profiles[i].name` names, of the one volume (`part` `None`)
+    /// or of volume `part` of several.
+    fn field_derivative(
+        &self,
+        name: &str,
+        volume: &Volume,
+        part: Option<usize>,
+    ) -> Result<FieldDerivative, String> {
         use crate::eikonal::{FieldParam, Profile};
         let bad = || {
             "index-field parameters are named profiles[i].name, e.g. profiles[0].n_max".to_string()
@@ -1476,10 +1493,13 @@ impl RenderConfig {
         let rest = name.trim().strip_prefix("profiles[").ok_or_else(bad)?;
         let (index, param) = rest.split_once("].").ok_or_else(bad)?;
         let profile: usize = index.parse().map_err(|_| bad())?;
-        let profiles = &volume.field.profiles;
+        let (profiles, list) = match (part, volume.field.bounds.parts()) {
+            (Some(k), Some(parts)) => (&parts[k].profiles, "profiles"),
+            _ => (&volume.field.profiles, "field.profiles"),
+        };
         let prof = profiles
             .get(profile)
-            .ok_or_else(|| format!("field.profiles has {} profile(s)", profiles.len()))?;
+            .ok_or_else(|| format!("{list} has {} profile(s)", profiles.len()))?;
         let which = prof
             .param_index(param)
             .ok_or_else(|| format!("the {} profile has no parameter {param:?}", prof.kind()))?;
@@ -1498,10 +1518,12 @@ impl RenderConfig {
             }
             _ => 1.0,
         };
+        let volume_key = part.map_or(String::new(), |k| format!("volume[{k}]."));
         Ok(FieldDerivative {
             param: FieldParam { profile, which },
-            name: format!("profiles[{profile}].{param}"),
+            name: format!("{volume_key}profiles[{profile}].{param}"),
             scale,
+            volume: part,
         })
     }
 
@@ -1515,7 +1537,11 @@ impl RenderConfig {
         sensors: &[Sensor],
     ) -> Result<(), ConfigError> {
         let why = "the derivatives follow each photon's path as the field changes";
-        if !volume.field.bounds.is_convex() {
+        let convex = match volume.field.bounds.parts() {
+            Some(parts) => parts.iter().all(|p| p.shape.is_convex()),
+            None => volume.field.bounds.is_convex(),
+        };
+        if !convex {
             return err(format!(
                 "{key}: index-field derivatives need convex bounds (sphere, box, cylinder); {why}, and light leaving a non-convex shape may enter it again"
             ));

@@ -193,11 +193,8 @@ impl RenderOp {
                     .unwrap_or(0.0)
             })
             .collect();
-        let mut field = v.field.clone();
         for f in &self.field {
-            let stored = field.profiles[f.param.profile]
-                .param_mut(f.param.which)
-                .map_or(0.0, |x| *x);
+            let stored = f.stored(&v.field).unwrap_or(0.0);
             theta.push(if f.scale != 0.0 {
                 stored / f.scale
             } else {
@@ -287,9 +284,7 @@ impl RenderOp {
             if !value.is_finite() {
                 return Err(format!("{} = {value}: not a finite number", f.name).into());
             }
-            if let Some(x) = scene.volume.field.profiles[f.param.profile].param_mut(f.param.which) {
-                *x = value * f.scale;
-            }
+            f.change(&mut scene.volume.field, |x| *x = value * f.scale);
         }
         factor.extend(std::iter::repeat_n(1.0, self.field.len()));
         scene.derivatives = self

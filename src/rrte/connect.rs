@@ -192,9 +192,9 @@ pub enum InsidePath {
     /// Along curved rays within the part holding both, after reflections inside its surface.
     Within(Connection, usize),
     /// Out of one of several volumes, across any between, into the other
-    /// ([`Connector::solve_into`]): its stretches inside the other after the reflections there
-    /// are parts entered again.
-    Between(Exit, usize),
+    /// ([`Connector::solve_into`]), after reflections inside the first and inside the other:
+    /// its stretches inside the other after the reflections there are parts entered again.
+    Between(Exit, (usize, usize)),
 }
 
 impl InsidePath {
@@ -1064,7 +1064,7 @@ impl<'v> Connector<'v> {
             if let Some((_, inverse_p)) = &mut s.path {
                 *inverse_p *= ways as f64;
             }
-            return s.map(|e| InsidePath::Between(e, first));
+            return s.map(|e| InsidePath::Between(e, (first, bounces - first)));
         }
         self.sample_bounced(x, y, bounces, first_only, rng)
             .map(|c| InsidePath::Within(c, bounces))

@@ -68,13 +68,9 @@ impl ShiftedFields {
             let Derivative::Field(f) = d else { continue };
             // a trial step finds how fast the parameter moves n, then the step that moves it by
             // INDEX_STEP at most
-            let value = shifted(&scene.volume, f, 0.0)
-                .field
-                .profiles
-                .get_mut(f.param.profile)
-                .and_then(|p| p.param_mut(f.param.which).map(|x| *x));
+            let value = f.stored(&scene.volume.field);
             let trial = 1e-6 * value.map_or(1.0, |v| (v / f.scale).abs().max(1.0));
-            let (change, variation) = largest_change(scene, &shifted(&scene.volume, f, trial));
+            let (change, variation) = largest_change(scene, f, &shifted(&scene.volume, f, trial));
             let rate = change / trial;
             let h = if rate > 0.0 && rate.is_finite() {
                 INDEX_STEP * variation / rate
@@ -93,23 +89,20 @@ impl ShiftedFields {
 /// `volume` with field parameter `f` moved by `by` (in the parameter's units).
 fn shifted(volume: &Volume, f: &FieldDerivative, by: f64) -> Volume {
     let mut v = volume.clone();
-    if let Some(x) = v
-        .field
-        .profiles
-        .get_mut(f.param.profile)
-        .and_then(|p| p.param_mut(f.param.which))
-    {
-        *x += by * f.scale;
-    }
+    f.change(&mut v.field, |x| *x += by * f.scale);
     v
 }
 
 /// The largest change of `n` from the scene's field to `other` over a grid of points inside the
-/// volume, at several instants of the period under a modulation; and how much the scene's `n`
-/// varies over them (`n` itself where it is constant).
-fn largest_change(scene: &RenderScene, other: &Volume) -> (f64, f64) {
+/// volume whose field `f` is a parameter of, at several instants of the period under a
+/// modulation; and how much the scene's `n` varies over them (`n` itself where it is constant).
+fn largest_change(scene: &RenderScene, f: &FieldDerivative, other: &Volume) -> (f64, f64) {
     let (base, moved) = (&scene.volume.field, &other.field);
-    let half = base.bounds.half_extent().unwrap_or(DVec3::ONE);
+    let (center, half) = match (f.volume, base.bounds.parts()) {
+        (Some(k), Some(parts)) => (parts[k].center, parts[k].shape.half_extent()),
+        _ => (DVec3::ZERO, base.bounds.half_extent()),
+    };
+    let half = half.unwrap_or(DVec3::ONE);
     let instants: Vec<Option<f64>> = match scene.modulation {
         Some(_) => (0..8)
             .map(|k| Some(std::f64::consts::TAU * (k as f64 + 0.5) / 8.0 - std::f64::consts::PI))
@@ -126,7 +119,7 @@ fn largest_change(scene: &RenderScene, other: &Volume) -> (f64, f64) {
         }
         for i in 0..GRID * GRID * GRID {
             let at = |k: usize| ((k % GRID) as f64 + 0.5) / GRID as f64 * 2.0 - 1.0;
-            let x = half * DVec3::new(at(i), at(i / GRID), at(i / (GRID * GRID)));
+            let x = center + half * DVec3::new(at(i), at(i / GRID), at(i / (GRID * GRID)));
             if base.bounds.contains(x) {
                 let n = a.n(x);
                 largest = largest.max((b.n(x) - n).abs());
@@ -259,10 +252,6 @@ impl ParticleTracer<'_> {
                 };
                 out[self.probe_derivative(i, j)].re += value * (score[j] + phase + attenuation);
             }
-            // index-field derivatives are of one volume's: every path lies within it
-            let InsidePath::Within(_, bounces) = *c else {
-                return;
-            };
             let y = self.scene.probes[i].position;
             for (k, volumes) in shifted.iter().enumerate() {
                 let h = self.shifted.steps[k];
@@ -272,14 +261,19 @@ impl ParticleTracer<'_> {
                 let moved = [(0, -h), (1, h)].map(|(side, by)| {
                     let (x, w_in) = v.moved(k, by);
                     let volume = &volumes[side];
-                    let path =
-                        polished(self.scene, volume).solve_bounced(x, y, c.direction(), bounces)?;
-                    Some(self.carried(
-                        volume,
-                        (x, w_in),
-                        weight,
-                        &InsidePath::Within(path, bounces),
-                    ))
+                    let connector = polished(self.scene, volume);
+                    // the same path, solved again: within one volume or between two
+                    let path = match *c {
+                        InsidePath::Within(_, bounces) => InsidePath::Within(
+                            connector.solve_bounced(x, y, c.direction(), bounces)?,
+                            bounces,
+                        ),
+                        InsidePath::Between(_, bounces) => InsidePath::Between(
+                            connector.solve_into(x, y, c.direction(), bounces)?,
+                            bounces,
+                        ),
+                    };
+                    Some(self.carried(volume, (x, w_in), weight, &path))
                 });
                 if let [Some(down), Some(up)] = moved {
                     let slope = (up - down) / (2.0 * h) * inverse_p;

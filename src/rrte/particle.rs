@@ -967,7 +967,7 @@ impl<'s> ParticleTracer<'s> {
             InsidePath::Within(c, bounces) => {
                 self.transmittance(t, x, c.direction, (c.length, bounces), rng)
             }
-            InsidePath::Between(e, bounces) => self.exit_transmittance(t, &e, bounces, rng),
+            InsidePath::Between(e, (bounces, _)) => self.exit_transmittance(t, &e, bounces, rng),
         }
     }
 

@@ -686,6 +686,86 @@ pub struct FieldDerivative {
     /// `∂(stored value)/∂(parameter)`: the sine of a strobe's phase for an ultrasonic profile's
     /// amplitude (the field holds `n_max sin Ωt`), else 1.
     pub scale: f64,
+    /// Which of several volumes' profiles it is a parameter of (`volume[k].profiles[i].name`);
+    /// `None` for the one volume's.
+    pub volume: Option<usize>,
+}
+
+impl FieldDerivative {
+    /// The profile it is a parameter of in `field`, and the shape it lies in (the part's, in
+    /// the part's own coordinates, for one of several volumes).
+    pub fn profile<'f>(&self, field: &'f BoundedField) -> Option<(&'f Profile, &'f Bounds)> {
+        match self.volume {
+            None => Some((field.profiles.get(self.param.profile)?, &field.bounds)),
+            Some(k) => {
+                let part = field.bounds.parts()?.get(k)?;
+                Some((part.profiles.get(self.param.profile)?, &part.shape))
+            }
+        }
+    }
+
+    /// Its stored value in `field`.
+    pub fn stored(&self, field: &BoundedField) -> Option<f64> {
+        let mut profile = self.profile(field)?.0.clone();
+        profile.param_mut(self.param.which).map(|x| *x)
+    }
+
+    /// Change its stored value in `field` by `change`.
+    pub fn change(&self, field: &mut BoundedField, change: impl FnOnce(&mut f64)) {
+        let which = self.param.which;
+        match self.volume {
+            None => {
+                if let Some(x) = field
+                    .profiles
+                    .get_mut(self.param.profile)
+                    .and_then(|p| p.param_mut(which))
+                {
+                    change(x);
+                }
+            }
+            Some(k) => {
+                let mut change = Some(change);
+                field.change_parts(|j, part| {
+                    if j == k
+                        && let Some(x) = part
+                            .profiles
+                            .get_mut(self.param.profile)
+                            .and_then(|p| p.param_mut(which))
+                        && let Some(c) = change.take()
+                    {
+                        c(x);
+                    }
+                });
+            }
+        }
+    }
+
+    /// `(∂n/∂stored, ∇ ∂n/∂stored)` at `x` (scene coordinates, inside `field`'s bounds), the
+    /// profile's scaled as `n` is ([`BoundedField::scale`], [`Part::scale`]); zero in the other
+    /// volumes of several.
+    #[inline]
+    pub fn dn(&self, field: &BoundedField, x: DVec3) -> (f64, DVec3) {
+        let (p, which) = (self.param.profile, self.param.which);
+        let (d, g, scale) = match (self.volume, field.bounds.parts()) {
+            (Some(k), Some(parts)) => {
+                if crate::eikonal::part_at(parts, x) != k {
+                    return (0.0, DVec3::ZERO);
+                }
+                let part = &parts[k];
+                let (d, g) = part.profiles[p]
+                    .dparam(x - part.center, which)
+                    .unwrap_or((0.0, DVec3::ZERO));
+                (d, g, part.scale)
+            }
+            _ => {
+                let (d, g) = field.profiles[p]
+                    .dparam(x, which)
+                    .unwrap_or((0.0, DVec3::ZERO));
+                (d, g, field.scale)
+            }
+        };
+        (d * scale, g * scale)
+    }
 }
 
 /// A medium parameter a render is differentiated by, of the one volume or of one of several.

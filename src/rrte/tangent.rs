@@ -29,7 +29,8 @@
 //!
 //! Sensors must not have edges that move with the light (a flux plane's rectangle or its
 //! grazing edge, box-filtered pixels, an acceptance cone: their crossings' share is not
-//! estimated), and photons leave the convex volume for good
+//! estimated), and volumes are convex: a photon leaving one goes straight on to the next ahead
+//! (the entry moving along the leg so that it stays on the surface) or for good
 //! (the config refuses the rest). The derivatives of closed forms at the surface (Fresnel,
 //! refraction, the surface normal's turn) and of a scattering direction's frame are central
 //! differences of those closed forms, accurate to about 1e-10.
@@ -41,7 +42,7 @@ use super::connection_slopes::Vertex;
 use super::particle::{
     ParticleTracer, Reflections, Tools, Total, albedo_score, flight_score, roulette, roulette_by,
 };
-use super::scene::{Derivative, MAX_DERIVATIVES, MAX_TARGETS, Volume};
+use super::scene::{Derivative, FieldDerivative, MAX_DERIVATIVES, MAX_TARGETS, Volume};
 use crate::eikonal::trace::{entry_parameter, jacobian_of, refract};
 use crate::eikonal::{BoundedField, IndexField, Profile, Ray, Tracer};
 use crate::math::{C64, Rng, direction_about_continuously, uniform};
@@ -76,13 +77,12 @@ impl Tangent {
 }
 
 /// The field and its parameters for one photon: which derivative slot each is, and the factor
-/// from the profile's stored value to the parameter (a modulation's `sin Ωt`, a dispersion's
-/// scale).
+/// from the profile's stored value to the parameter (a modulation's `sin Ωt`).
 struct Sensitivity<'a> {
     field: &'a BoundedField,
     tracer: Tracer<'a>,
-    /// `(slot in the scene's derivatives, profile, parameter, factor)`.
-    params: [(usize, usize, usize, f64); P],
+    /// `(slot in the scene's derivatives, parameter, factor)`.
+    params: [(usize, Option<&'a FieldDerivative>, f64); P],
     count: usize,
 }
 
@@ -98,22 +98,21 @@ struct Local {
 }
 
 impl<'a> Sensitivity<'a> {
-    fn new(t: &Tools<'a>, derivatives: &[Derivative], step: f64, max_steps: usize) -> Self {
+    fn new(t: &Tools<'a>, derivatives: &'a [Derivative], step: f64, max_steps: usize) -> Self {
         let field = &t.flyer.volume.field;
-        let mut params = [(0, 0, 0, 0.0); P];
+        let mut params = [(0, None, 0.0); P];
         let mut count = 0;
         for (slot, d) in derivatives.iter().enumerate() {
             let Derivative::Field(f) = d else { continue };
-            let (profile, which) = (f.param.profile, f.param.which);
-            let mut factor = f.scale * field.scale;
-            if let (Some(omega_t), Some(Profile::Ultrasonic { .. })) =
-                (t.instant, field.profiles.get(profile))
-                && which == 1
+            let mut factor = f.scale;
+            if let (Some(omega_t), Some((Profile::Ultrasonic { .. }, _))) =
+                (t.instant, f.profile(field))
+                && f.param.which == 1
             {
                 // the photon's field holds the amplitude times sin Ωt
                 factor *= omega_t.sin();
             }
-            params[count] = (slot, profile, which, factor);
+            params[count] = (slot, Some(f), factor);
             count += 1;
         }
         Sensitivity {
@@ -131,10 +130,8 @@ impl<'a> Sensitivity<'a> {
     /// `(∂n/∂θ_k, ∇ ∂n/∂θ_k)` at `x` inside.
     #[inline]
     fn dn(&self, x: DVec3, k: usize) -> (f64, DVec3) {
-        let (_, profile, which, factor) = self.params[k];
-        let (d, g) = self.field.profiles[profile]
-            .dparam(x, which)
-            .unwrap_or((0.0, DVec3::ZERO));
+        let (_, f, factor) = self.params[k];
+        let (d, g) = f.map_or((0.0, DVec3::ZERO), |f| f.dn(self.field, x));
         (d * factor, g * factor)
     }
 
@@ -467,7 +464,7 @@ impl ParticleTracer<'_> {
             score: [0.0; P],
         };
         let field = &t.flyer.volume.field;
-        let start = if field.bounds.contains(x) {
+        let mut start = if field.bounds.contains(x) {
             if self.connects() {
                 let v = Vertex::fixed(x, None);
                 self.connect_differentiated(t, &v, &p, shifted, rng, out);
@@ -479,81 +476,108 @@ impl ParticleTracer<'_> {
             }
             Some((Ray { x, v: d * l.n }, tan))
         } else {
-            self.enter(t, &sens, x, d, &mut p, rng, out)
+            self.enter(t, &sens, Leaving::fixed(x, d), false, &mut p, rng, out)
         };
-        if let Some((ray, tan)) = start
-            && let Some(leaving) =
-                self.inside_differentiated(t, &sens, (ray, tan), shifted, &mut p, rng, out)
-        {
-            self.leave_for_good(t, &sens, &leaving, &p, out);
+        // through each volume in turn (of several, the next ahead as it leaves one)
+        while let Some(state) = start {
+            let Some(leaving) =
+                self.inside_differentiated(t, &sens, state, shifted, &mut p, rng, out)
+            else {
+                break;
+            };
+            start = self.enter(t, &sens, leaving, true, &mut p, rng, out);
         }
         out[self.total(Total::Events)].re += p.events as f64;
         out[self.total(Total::Steps)].re += p.steps as f64;
     }
 
-    /// The straight leg from `x` along `d` outside the volume: into it (Fresnel's choice
-    /// scored), or past it for good.
+    /// Straight legs outside the volume from `e` (`left_volume`: where the photon left one):
+    /// into the volume ahead (Fresnel's choice scored; reflected off it, on to the next leg), or
+    /// past every volume for good. The point of entry moves along the leg so that it stays on
+    /// the surface, `δa = m − d (N·m)/(N·d)` with `m = δx + δd t`, and the surface's normal
+    /// turns with it.
     #[allow(clippy::too_many_arguments)]
     fn enter(
         &self,
         t: &Tools,
         sens: &Sensitivity,
-        x: DVec3,
-        d: DVec3,
+        mut e: Leaving,
+        mut left_volume: bool,
         p: &mut Photon,
         rng: &mut Rng,
         out: &mut [C64],
     ) -> Option<(Ray, Tangent)> {
         let field = &t.flyer.volume.field;
         let n_out = field.n_out;
-        let entry = match field.bounds.interval(x, d) {
-            Some((t0, t1)) if t1 > 0.0 && t0 >= 0.0 => t0,
-            _ => {
-                self.leave_for_good(t, sens, &Leaving::fixed(x, d), p, out);
-                return None;
+        loop {
+            let (x, d) = (e.x, e.d);
+            let entry = match self.ahead(t, x, d, left_volume) {
+                (Some(entry), _) if p.weight > 0.0 => entry,
+                _ => {
+                    self.leave_for_good(t, sens, &e, p, out);
+                    return None;
+                }
+            };
+            self.cross_moving(t, sens, &e, entry, p, out);
+            p.opl += t.delay.outside(n_out * entry);
+            let at = x + d * entry;
+            let inside = x + d * entry_parameter(entry);
+            let normal = field.bounds.normal(at).unwrap_or(-d);
+            let cos = d.dot(normal);
+            let mut moved = [DVec3::ZERO; P];
+            for k in 0..sens.count {
+                let m = e.dx[k] + e.dd[k] * entry;
+                moved[k] = m - d * (normal.dot(m) / cos);
             }
-        };
-        let dlog = &p.score[..self.scene.derivatives.len()];
-        self.cross_sensors(t, x, d, entry, p.weight, p.opl, dlog, out);
-        p.opl += t.delay.outside(n_out * entry);
-        let at = x + d * entry;
-        let inside = x + d * entry_parameter(entry);
-        let l = sens.at(inside);
-        let normal = field.bounds.normal(at).unwrap_or(-d);
-        let eta = n_out / l.n;
-        let r = fresnel(d.dot(normal), eta);
-        let cos = d.dot(normal);
-        let mut d_eta = [0.0; P];
-        let mut d_r = [0.0; P];
-        for k in 0..sens.count {
-            d_eta[k] = -eta * l.dn[k] / l.n;
-            d_r[k] = slope(d_eta[k].abs(), |s| fresnel(cos, eta + d_eta[k] * s));
-        }
-        if r > 0.0 && self.choose(sens, p, r, &d_r, uniform(rng)) {
-            self.leave_for_good(t, sens, &Leaving::fixed(at, reflect(d, normal)), p, out);
-            return None;
-        }
-        match refract(d, normal, eta) {
-            Ok(w) => {
+            let turn = sens.normal_turn(at, &moved);
+            let l = sens.at(inside);
+            let dn = sens.n_slope(&l, &moved);
+            let eta = n_out / l.n;
+            let r = fresnel(cos, eta);
+            let mut d_cos = [0.0; P];
+            let mut d_eta = [0.0; P];
+            let mut d_r = [0.0; P];
+            for k in 0..sens.count {
+                d_cos[k] = e.dd[k].dot(normal) + d.dot(turn[k]);
+                d_eta[k] = -eta * dn[k] / l.n;
+                let size = d_cos[k].abs().max(d_eta[k].abs());
+                d_r[k] = slope(size, |s| fresnel(cos + d_cos[k] * s, eta + d_eta[k] * s));
+            }
+            let refracted = refract(d, normal, eta);
+            if let Ok(w) = refracted
+                && !(r > 0.0 && self.choose(sens, p, r, &d_r, uniform(rng)))
+            {
                 let mut tan = Tangent::ZERO;
                 for k in 0..sens.count {
-                    let dw = slope(d_eta[k].abs(), |s| {
-                        refract(d, normal, eta + d_eta[k] * s).unwrap_or(w)
+                    let size = e.dd[k].length().max(turn[k].length()).max(d_eta[k].abs());
+                    let dw = slope(size, |s| {
+                        let normal = (normal + turn[k] * s).normalize();
+                        refract((d + e.dd[k] * s).normalize(), normal, eta + d_eta[k] * s)
+                            .unwrap_or(w)
                     });
-                    tan.v[k] = dw * l.n + w * l.dn[k];
+                    tan.x[k] = moved[k];
+                    tan.v[k] = dw * l.n + w * dn[k];
                 }
-                Some((
+                return Some((
                     Ray {
                         x: inside,
                         v: w * l.n,
                     },
                     tan,
-                ))
+                ));
             }
-            Err(mirrored) => {
-                self.leave_for_good(t, sens, &Leaving::fixed(at, mirrored), p, out);
-                None
+            // reflected off the surface (or beyond the critical angle): on along the mirror
+            let mut dd = [DVec3::ZERO; P];
+            for k in 0..sens.count {
+                dd[k] = e.dd[k] - (normal * d_cos[k] + turn[k] * cos) * 2.0;
             }
+            e = Leaving {
+                x: at,
+                d: reflect(d, normal),
+                dx: moved,
+                dd,
+            };
+            left_volume = true;
         }
     }
 
@@ -627,15 +651,29 @@ impl ParticleTracer<'_> {
         first
     }
 
-    /// A photon leaving the (convex) volume: the sensors it crosses, then away for good. Where
-    /// a recorded weight moves with the crossing (a spot's aperture, a tent-filtered pixel's
-    /// share), its pathwise derivative too: the crossing moves on the plane as the photon's exit
-    /// and direction move, `δp = m − d (N·m)/(N·d)` with `m = δx + δd t`.
+    /// A photon leaving the scene: the sensors it crosses, then away for good.
     fn leave_for_good(
         &self,
         t: &Tools,
         sens: &Sensitivity,
         e: &Leaving,
+        p: &Photon,
+        out: &mut [C64],
+    ) {
+        self.cross_moving(t, sens, e, f64::INFINITY, p, out);
+        out[self.total(Total::Escaped)].re += p.weight;
+    }
+
+    /// The sensors a photon leaving `e` crosses within `length`. Where a recorded weight moves
+    /// with the crossing (a spot's aperture, a tent-filtered pixel's share), its pathwise
+    /// derivative too: the crossing moves on the plane as the photon's exit and direction move,
+    /// `δp = m − d (N·m)/(N·d)` with `m = δx + δd t`.
+    fn cross_moving(
+        &self,
+        t: &Tools,
+        sens: &Sensitivity,
+        e: &Leaving,
+        length: f64,
         p: &Photon,
         out: &mut [C64],
     ) {
@@ -655,8 +693,7 @@ impl ParticleTracer<'_> {
             }
         };
         let (x, d) = (e.x, e.d);
-        self.cross_sensors_with(t, x, d, f64::INFINITY, p.weight, p.opl, dlog, out, moving);
-        out[self.total(Total::Escaped)].re += p.weight;
+        self.cross_sensors_with(t, x, d, length, p.weight, p.opl, dlog, out, moving);
     }
 
     /// Free flights and scattering inside the volume from `ray` (sensitivities `tan`) until the
@@ -673,10 +710,15 @@ impl ParticleTracer<'_> {
         out: &mut [C64],
     ) -> Option<Leaving> {
         let volume = t.flyer.volume;
-        let (sigma_t, albedo) = (volume.sigma_t(), volume.albedo());
-        // index-field derivatives are of one volume, whose medium's parameters score here
-        let coefficients = volume.coefficients(None);
-        let straight = volume.homogeneous();
+        // the part of several volumes the photon is in (its medium's parameters score here)
+        let part = volume.part_index(ray.x);
+        let coefficients = volume.coefficients(part);
+        let sigma_t = coefficients.1;
+        let albedo = volume.albedo_at(ray.x);
+        let straight = match (part, volume.field.bounds.parts()) {
+            (Some(k), Some(parts)) => parts[k].is_constant(),
+            _ => volume.homogeneous(),
+        };
         let derivatives = &self.scene.derivatives;
         let mut tracks = [0.0; MAX_TARGETS];
         let mut slopes: TrackSlopes = [[0.0; P]; MAX_TARGETS];
@@ -724,7 +766,7 @@ impl ParticleTracer<'_> {
             p.opl += t.delay_inside(ray.x, end.optical_path, end.length);
             let collided = end.stop == Stop::Collision;
             for (s, d) in p.score.iter_mut().zip(derivatives) {
-                *s += flight_score(d.medium_in(None), collided, coefficients.1, end.length);
+                *s += flight_score(d.medium_in(part), collided, sigma_t, end.length);
             }
             self.record_tracks_with_slopes(sens, &tracks, &slopes, p, out);
             (ray, tan) = (end.ray, end.tan);
@@ -743,7 +785,7 @@ impl ParticleTracer<'_> {
             out[self.total(Total::Absorbed)].re += p.weight * (1.0 - albedo);
             p.weight *= albedo;
             for (s, d) in p.score.iter_mut().zip(derivatives) {
-                *s += albedo_score(d.medium_in(None), coefficients);
+                *s += albedo_score(d.medium_in(part), coefficients);
             }
             if self.connects() {
                 let speed = ray.v.length();
@@ -769,7 +811,7 @@ impl ParticleTracer<'_> {
                 out[self.total(Total::Unfinished)].re += p.weight;
                 return None;
             }
-            (ray, tan) = self.scatter(t, sens, ray, &tan, p, rng);
+            (ray, tan) = self.scatter(t, sens, (ray, part), &tan, p, rng);
         }
     }
 
@@ -779,12 +821,12 @@ impl ParticleTracer<'_> {
         &self,
         t: &Tools,
         sens: &Sensitivity,
-        ray: Ray,
+        (ray, part): (Ray, Option<usize>),
         tan: &Tangent,
         p: &mut Photon,
         rng: &mut Rng,
     ) -> (Ray, Tangent) {
-        let scattering = &t.flyer.volume.scattering;
+        let scattering = t.flyer.volume.scattering_of(part);
         let kind = scattering.pick(|| uniform(rng));
         let (u1, u2) = (uniform(rng), uniform(rng));
         let phase = scattering.phase(kind);
@@ -795,7 +837,7 @@ impl ParticleTracer<'_> {
         let w = direction_about_continuously(w_in, mu, phi);
         for (s, d) in p.score.iter_mut().zip(&self.scene.derivatives) {
             *s += d
-                .medium_in(None)
+                .medium_in(part)
                 .map_or(0.0, |m| m.dlog_event(scattering, kind, mu));
         }
         let l = sens.at(ray.x);
