@@ -1171,11 +1171,13 @@ fn a_render_design_tunes_the_media_of_two_volumes() {
     );
     assert_ne!(field, DIFFUSER);
     let Err(e) = lightpath::config::load_text(&field) else {
-        panic!("an index-field design of several volumes was not refused")
+        panic!(
+            "an index-field parameter of several volumes named without its volume was not refused"
+        )
     };
     let e = e.to_string();
     assert!(
-        e.contains("design.parameters[1]") && e.contains("one volume"),
+        e.contains("design.parameters[1]") && e.contains("volume[i].profiles[0].n"),
         "{e}"
     );
     let _ = std::fs::remove_dir_all(dir);
