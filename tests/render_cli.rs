@@ -1295,6 +1295,39 @@ fn a_placement_range_through_the_volume_is_refused_by_key() {
     }
     let o = check("min = 6.0, max = 14.0");
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // the same array in the second of two volumes: its line is checked against that volume
+    let elements = (0..4)
+        .map(|j| {
+            let (x, y) = [(10.0, 0.0), (0.0, 10.0), (-10.0, 0.0), (0.0, -10.0)][j];
+            format!("  {{ position = [{x:?}, {y:?}], amplitude = 2e6, phase_deg = 0.0 }},\n")
+        })
+        .collect::<String>();
+    let two = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("experiments/ultrasonic-glass-lens/scene.toml.in"),
+    )
+    .unwrap()
+    .replace("@ALPHA@", "0.05")
+    .replace("@FREQUENCY@", "813e3")
+    .replace("@ELEMENTS@", &format!("[\n{elements}]"));
+    let lens = "  { name = \"volume[0].profiles[0].alpha\", min = 0.01, max = 0.2 },\n";
+    assert!(two.contains(lens));
+    for (range, refused) in [
+        ("min = 2.0, max = 12.0", true),
+        ("min = 6.0, max = 14.0", false),
+    ] {
+        let placed = format!("  {{ name = \"volume[1].profiles[0].x_0\", {range} }},\n");
+        std::fs::write(&path, two.replace(lens, &placed)).unwrap();
+        let o = lightpath(&["check", &path.display().to_string()]);
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(!o.status.success(), refused, "{range}: {e}");
+        if refused {
+            assert!(
+                e.contains("(volume[1].profiles[0].x_0)") && e.contains("meets volume[1].bounds"),
+                "{e}"
+            );
+        }
+    }
 }
 
 /// A render design whose renders would not fit the time budget is refused before any photon is

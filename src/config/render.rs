@@ -279,9 +279,12 @@ fn check_placement(
     };
     let e = &array.elements[j];
     let other = if axis == 0 { e.y } else { e.x };
+    let bounds = f.volume.map_or("field.bounds".to_string(), |k| {
+        format!("volume[{k}].bounds")
+    });
     match super::trace::element_blocked(shape, axis, other) {
         Some((a, b)) if a <= p.max && p.min <= b => err(format!(
-            "{key} ({}): (min, max) = ({}, {}) reaches ({a}, {b}), where element {j}'s line (parallel to z) meets field.bounds; keep the range outside the volume",
+            "{key} ({}): (min, max) = ({}, {}) reaches ({a}, {b}), where element {j}'s line (parallel to z) meets {bounds}; keep the range outside the volume",
             p.name, p.min, p.max
         )),
         _ => Ok(()),

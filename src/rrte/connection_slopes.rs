@@ -32,7 +32,7 @@
 use super::connect::{Connector, InsidePath};
 use super::particle::{CameraLink, ParticleTracer, Tools};
 use super::scene::{Derivative, FieldDerivative, MAX_DERIVATIVES, RenderScene, Volume};
-use crate::eikonal::IndexField;
+use crate::eikonal::{IndexField, part_at};
 use crate::math::{C64, Rng};
 use glam::DVec3;
 
@@ -120,7 +120,12 @@ fn largest_change(scene: &RenderScene, f: &FieldDerivative, other: &Volume) -> (
         for i in 0..GRID * GRID * GRID {
             let at = |k: usize| ((k % GRID) as f64 + 0.5) / GRID as f64 * 2.0 - 1.0;
             let x = center + half * DVec3::new(at(i), at(i / GRID), at(i / (GRID * GRID)));
-            if base.bounds.contains(x) {
+            // inside the volume whose field moves (of several, not another in its box)
+            let inside = match (f.volume, base.bounds.parts()) {
+                (Some(k), Some(parts)) => base.bounds.contains(x) && part_at(parts, x) == k,
+                _ => base.bounds.contains(x),
+            };
+            if inside {
                 let n = a.n(x);
                 largest = largest.max((b.n(x) - n).abs());
                 (lowest, highest) = (lowest.min(n), highest.max(n));
