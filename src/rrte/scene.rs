@@ -742,13 +742,14 @@ impl FieldDerivative {
 
     /// `(∂n/∂stored, ∇ ∂n/∂stored)` at `x` (scene coordinates, inside `field`'s bounds), the
     /// profile's scaled as `n` is ([`BoundedField::scale`], [`Part::scale`]); zero in the other
-    /// volumes of several.
+    /// volumes of several. `part`: the part holding `x` where the field is several
+    /// ([`crate::eikonal::part_at`], found once per point by the caller for all parameters).
     #[inline]
-    pub fn dn(&self, field: &BoundedField, x: DVec3) -> (f64, DVec3) {
+    pub fn dn(&self, field: &BoundedField, x: DVec3, part: Option<usize>) -> (f64, DVec3) {
         let (p, which) = (self.param.profile, self.param.which);
         let (d, g, scale) = match (self.volume, field.bounds.parts()) {
             (Some(k), Some(parts)) => {
-                if crate::eikonal::part_at(parts, x) != k {
+                if part != Some(k) {
                     return (0.0, DVec3::ZERO);
                 }
                 let part = &parts[k];

@@ -44,7 +44,7 @@ use super::particle::{
 };
 use super::scene::{Derivative, FieldDerivative, MAX_DERIVATIVES, MAX_TARGETS, Volume};
 use crate::eikonal::trace::{entry_parameter, jacobian_of, refract};
-use crate::eikonal::{BoundedField, IndexField, Profile, Ray, Tracer};
+use crate::eikonal::{BoundedField, IndexField, Profile, Ray, Tracer, part_at};
 use crate::math::{C64, Rng, direction_about_continuously, uniform};
 use glam::{DMat3, DVec3};
 
@@ -127,11 +127,11 @@ impl<'a> Sensitivity<'a> {
         }
     }
 
-    /// `(∂n/∂θ_k, ∇ ∂n/∂θ_k)` at `x` inside.
+    /// `(∂n/∂θ_k, ∇ ∂n/∂θ_k)` at `x` inside (in `part` of several volumes).
     #[inline]
-    fn dn(&self, x: DVec3, k: usize) -> (f64, DVec3) {
+    fn dn(&self, x: DVec3, part: Option<usize>, k: usize) -> (f64, DVec3) {
         let (_, f, factor) = self.params[k];
-        let (d, g) = f.map_or((0.0, DVec3::ZERO), |f| f.dn(self.field, x));
+        let (d, g) = f.map_or((0.0, DVec3::ZERO), |f| f.dn(self.field, x, part));
         (d * factor, g * factor)
     }
 
@@ -139,8 +139,12 @@ impl<'a> Sensitivity<'a> {
         let (n, grad, hessian) = self.field.eval_inside(x);
         let mut dn = [0.0; P];
         let mut dforce = [DVec3::ZERO; P];
+        // the part holding x, once for every parameter
+        let part = (self.count > 0)
+            .then(|| self.field.bounds.parts().map(|parts| part_at(parts, x)))
+            .flatten();
         for k in 0..self.count {
-            let (d, g) = self.dn(x, k);
+            let (d, g) = self.dn(x, part, k);
             dn[k] = d;
             dforce[k] = grad * d + g * n;
         }
