@@ -515,10 +515,7 @@ impl Bounds {
         };
         // start past the surface it left, by a small fraction of the grid spacing
         let skip = 1e-6 * g.grid().spacing;
-        match g.interval(x + d * skip, d) {
-            Some((t0, _)) if t0 >= 0.0 => Some(t0 + skip),
-            _ => None,
-        }
+        g.entry(x + d * skip, d).map(|t0| t0 + skip)
     }
 
     /// Half extents of the bounding box of the region (`None` for `Everywhere`).

@@ -299,6 +299,16 @@ impl SdfGrid {
         Some((t0, t1))
     }
 
+    /// The parameter where `o + t w` (unit `w`, `o` outside) first enters the shape, if it does
+    /// (the start of [`SdfGrid::interval`]'s stretch, without marching across it).
+    pub fn entry(&self, o: DVec3, w: DVec3) -> Option<f64> {
+        let (ta, tb) = self.box_interval(o, w)?;
+        if tb <= 0.0 || self.contains(o) {
+            return None;
+        }
+        self.crossing(o, w, ta.max(0.0), tb, false).map(|c| c.1)
+    }
+
     /// The parameter where `o + t w` (unit `w`, `o` inside) first leaves the shape.
     pub fn exit(&self, o: DVec3, w: DVec3) -> Option<f64> {
         if !self.contains(o) {

@@ -213,7 +213,9 @@ impl Meetings {
     /// inside, as often; between points inside two of several volumes (`between`: their parts)
     /// it leaves the one, crosses any other it meets (in and out, up to `MAX_AGAIN − 1` of them)
     /// and enters the other, reflecting nowhere (so it is the same path from either end);
-    /// between two points outside it either never meets the surface (straight, also across an
+    /// between two points in one part that is not convex (`between` names it twice) it either
+    /// stays within it, only reflecting inside, or leaves it, crosses any other part it meets
+    /// and enters it again where it first meets it, reflecting nowhere; between two points outside it either never meets the surface (straight, also across an
     /// index-matched volume), refracts into and out of up to `1 + MAX_AGAIN` parts, or only
     /// reflects once off the outside. (A path off the outside that then crosses parts is made by
     /// particle and path tracing, not here: its reflection would have to come first from
@@ -227,6 +229,9 @@ impl Meetings {
     ) -> bool {
         let refractions = self.all - self.bounces - self.glances;
         if let Some((from, to)) = between {
+            if from == to && !self.left {
+                return self.all == self.bounces && self.bounces <= most_bounces;
+            }
             return ends_inside
                 && self.bounces + self.glances == 0
                 && self.entered_before & (1 << from | 1 << to) == 0
@@ -507,13 +512,6 @@ impl ParticleTracer<'_> {
         }
     }
 
-    /// Whether a connection joins the events `x` and `y` (both inside) after `bounces`
-    /// reflections inside the surface: between two of several volumes only unreflected (see
-    /// [`Meetings::connectible`]).
-    fn joins(&self, t: &Tools, x: DVec3, y: DVec3, bounces: usize) -> bool {
-        bounces == 0 || !t.connector.apart(x, y)
-    }
-
     /// Join the light subpath's last event `y_s` to the camera subpath's last `z_t` (the light
     /// event a point source of intensity `w ρ`, the camera event a point sensor; see
     /// [`super::path`] for the basic radiance a point source brings).
@@ -603,13 +601,10 @@ impl ParticleTracer<'_> {
                 })
             }
             (None, None, Way::Bounces(bounces)) => {
-                if !self.joins(t, z.x, y.x, bounces) {
-                    return None;
-                }
                 let first_only = self.scene.connections == Connections::First;
                 let sampled = t
                     .connector
-                    .sample_inside(z.x, y.x, bounces, first_only, rng);
+                    .sample_inside(z.x, y.x, bounces, first_only, false, rng);
                 let (path, inverse_p) = self.tally(sampled, out)?;
                 let transmittance = self.path_transmittance(t, z.x, &path, rng);
                 let n_y = t.flyer.n(y.x);
@@ -748,8 +743,8 @@ impl ParticleTracer<'_> {
         let mut reflections = Reflections::default();
         let most_bounces = self.most_bounces(t);
         let mut began_inside = volume.field.bounds.contains(start.x);
-        // of several volumes, the one the segment began in
-        let mut began_in = volume.part_index(start.x).filter(|_| began_inside);
+        // of several volumes, the one the segment began in (0 for a volume of one part)
+        let mut began_in = Some(t.connector.part_of(start.x)).filter(|_| began_inside);
         let mut cos_start = 1.0;
         let connectible = |met: &Meetings, began_inside: bool, ends_inside: bool| {
             met.connectible((began_inside, ends_inside), None, most_bounces, matched)
@@ -780,7 +775,9 @@ impl ParticleTracer<'_> {
                             outside += t0;
                             leg = Leg::enter(t, x, d, t0, rng);
                             match leg {
-                                Leg::Inside(r) => met.met_outside(false, volume.part_index(r.x)),
+                                Leg::Inside(r) => {
+                                    met.met_outside(false, Some(t.connector.part_of(r.x)))
+                                }
                                 Leg::Outside { .. } => met.met_outside(true, None),
                             }
                             continue;
@@ -857,9 +854,10 @@ impl ParticleTracer<'_> {
                     beta *= volume.albedo_at(hit.x);
                     let first = vertices.is_empty();
                     let u = hit.v.normalize();
-                    let ends_in = volume.part_index(hit.x);
+                    let ends_in = Some(t.connector.part_of(hit.x));
+                    // out of one part into another, or in a part that is not convex
                     let between = match (began_in, ends_in) {
-                        (Some(a), Some(b)) if a != b => Some((a, b)),
+                        (Some(a), Some(b)) if a != b || t.connector.around(hit.x) => Some((a, b)),
                         _ => None,
                     };
                     let made = (began_inside, true);

@@ -148,6 +148,11 @@ impl Again {
 /// The most parts of a volume a path through its surface enters again after it first leaves.
 pub const MAX_AGAIN: usize = 4;
 
+/// Between two points in one part that is not convex, the chance of drawing a path that leaves
+/// it and comes back where the straight line between them leaves it (one minus it where the
+/// line stays inside; [`Connector::sample_inside`]).
+const AROUND_LIKELY: f64 = 0.9;
+
 /// How a [`Connector::sample`] went: the path (if the solver converged) with its inverse
 /// probability, and the work done.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -1138,31 +1143,89 @@ impl<'v> Connector<'v> {
         parts.is_some_and(|parts| part_at(parts, x) != part_at(parts, y))
     }
 
+    /// Which of several volumes holds `x` (or is nearest); 0 for a volume of one part.
+    pub fn part_of(&self, x: DVec3) -> usize {
+        self.volume
+            .field
+            .bounds
+            .parts()
+            .map_or(0, |parts| part_at(parts, x))
+    }
+
+    /// Whether the part holding `x` is not convex (a signed-distance shape), so that two points
+    /// in it may also be joined by a path that leaves it and comes back.
+    pub fn around(&self, x: DVec3) -> bool {
+        match self.volume.field.bounds.parts() {
+            Some(parts) => !parts[part_at(parts, x)].shape.is_convex(),
+            None => !self.volume.field.bounds.is_convex(),
+        }
+    }
+
+    /// Between two points in one part that is not convex, the chance of drawing a path that
+    /// leaves it and comes back rather than one within it. The straight line between them says
+    /// which is likelier; through a constant index it settles it where it can: a straight path
+    /// within exists only if the line stays inside, and an index-matched part has no other.
+    fn around_chance(&self, x: DVec3, y: DVec3) -> f64 {
+        let d = y - x;
+        let s = d.length();
+        if s == 0.0 {
+            return 0.0;
+        }
+        let bounds = &self.volume.field.bounds;
+        let leaves = bounds.exit(x, d / s).is_none_or(|e| e < s);
+        match (leaves, self.straight_from(x)) {
+            (true, true) => 1.0,
+            (false, true) if self.matched => 0.0,
+            (true, false) => AROUND_LIKELY,
+            (false, _) => 1.0 - AROUND_LIKELY,
+        }
+    }
+
     /// A path from `x` to `y` (both inside) after `bounces` reflections inside the surface,
     /// drawn like [`Connector::sample`]: within the part holding both
     /// ([`Connector::sample_bounced`]); where they lie in two of several volumes, out of the one
     /// and into the other ([`Connector::sample_into`]), the reflections split between the two
     /// at random (each of the `bounces + 1` ways alike, the inverse probability times
-    /// `bounces + 1`: an unbiased estimate of the sum over them).
+    /// `bounces + 1`: an unbiased estimate of the sum over them). In a part that is not convex
+    /// a path may also leave it and come back ([`Connector::solve_into`]): one of the two kinds
+    /// is drawn ([`Self::around_chance`]), its inverse probability divided by the kind's chance.
+    /// Without `reflected_out` a path that leaves the start's part does not reflect: with
+    /// `bounces` > 0 only one within the part is drawn.
     pub fn sample_inside(
         &self,
         x: DVec3,
         y: DVec3,
         bounces: usize,
         first_only: bool,
+        reflected_out: bool,
         rng: &mut Rng,
     ) -> Sampled<InsidePath> {
-        if self.apart(x, y) {
-            let ways = bounces + 1;
-            let first = ((uniform(rng) * ways as f64) as usize).min(bounces);
-            let mut s = self.sample_into(x, y, (first, bounces - first), first_only, rng);
-            if let Some((_, inverse_p)) = &mut s.path {
-                *inverse_p *= ways as f64;
-            }
-            return s.map(|e| InsidePath::Between(e, (first, bounces - first)));
+        let within = |rng: &mut Rng| {
+            self.sample_bounced(x, y, bounces, first_only, rng)
+                .map(|c| InsidePath::Within(c, bounces))
+        };
+        let apart = self.apart(x, y);
+        if !apart && !self.around(x) {
+            return within(rng);
         }
-        self.sample_bounced(x, y, bounces, first_only, rng)
-            .map(|c| InsidePath::Within(c, bounces))
+        if bounces > 0 && !reflected_out {
+            return if apart { Sampled::none() } else { within(rng) };
+        }
+        let chance = if apart { 1.0 } else { self.around_chance(x, y) };
+        if chance < 1.0 && (chance == 0.0 || uniform(rng) >= chance) {
+            let mut s = within(rng);
+            if let Some((_, inverse_p)) = &mut s.path {
+                *inverse_p /= 1.0 - chance;
+            }
+            return s;
+        }
+        let ways = bounces + 1;
+        let first = ((uniform(rng) * ways as f64) as usize).min(bounces);
+        let mut s = self.sample_into(x, y, (first, bounces - first), first_only, rng);
+        if let Some((_, inverse_p)) = &mut s.path {
+            *inverse_p *= ways as f64 / chance;
+        }
+        s.map(|e| InsidePath::Between(e, (first, bounces - first)))
     }
 
     /// The ray inside reaching the surface at `end` (index `n_in` just inside), with
@@ -1509,16 +1572,18 @@ impl<'v> Connector<'v> {
         bounces: (usize, usize),
     ) -> Option<Toward> {
         let field = &self.volume.field;
-        let parts = field.bounds.parts()?;
+        let from = self.part_of(x);
         let (mut exit, mut dout, mut moved) = self.exit_map(x, w, bounces.0)?;
         let t0 = loop {
             let Some(t0) = field.bounds.reentry(exit.surface, exit.outgoing) else {
                 return Some(Toward::Missed(exit, dout, moved));
             };
-            if part_at(parts, exit.surface + exit.outgoing * entry_parameter(t0)) == into {
-                break t0;
+            match self.part_of(exit.surface + exit.outgoing * entry_parameter(t0)) {
+                part if part == into => break t0,
+                // the same path from either end: into each of its two parts once
+                part if part == from => return None,
+                _ => (dout, moved) = self.cross_again(&mut exit, (dout, moved), t0)?,
             }
-            (dout, moved) = self.cross_again(&mut exit, (dout, moved), t0)?;
         };
         let (inside, at, slide) = self.meet_again(&exit, (dout, moved), t0)?;
         let (along, sensitivities, entered) =
@@ -1576,10 +1641,12 @@ impl<'v> Connector<'v> {
     /// The path Newton's method reaches from `w0` that joins `x` inside one of several volumes
     /// to `y` inside another: out of the first after `bounces.0` reflections inside its surface,
     /// across every volume it meets between them (refracted in and out), into the second and,
-    /// after `bounces.1` reflections inside its surface, on to `y` ([`Self::map_into`]). Its `jacobian` is the ray tube's cross-section at `y` per unit
+    /// after `bounces.1` reflections inside its surface, on to `y` ([`Self::map_into`]); for
+    /// `x` and `y` in one part that is not convex, out of it and back into it where the path
+    /// first meets it again. Its `jacobian` is the ray tube's cross-section at `y` per unit
     /// solid angle at `x`, `dA⊥/dω` (the irradiance at `y` of a source of intensity `I` at `x`
     /// is `I · transmission / jacobian`); `surface` is `y` (within the tolerance) and
-    /// `outgoing` the direction of arrival there. `None` for points in one volume.
+    /// `outgoing` the direction of arrival there. `None` for points in one convex part.
     pub fn solve_into(
         &self,
         x: DVec3,
@@ -1587,9 +1654,8 @@ impl<'v> Connector<'v> {
         w0: DVec3,
         bounces: (usize, usize),
     ) -> Option<Exit> {
-        let parts = self.volume.field.bounds.parts()?;
-        let into = part_at(parts, y);
-        if part_at(parts, x) == into {
+        let into = self.part_of(y);
+        if self.part_of(x) == into && !self.around(x) {
             return None;
         }
         let mut w = w0.normalize();
@@ -1598,12 +1664,19 @@ impl<'v> Connector<'v> {
         // whether a ray has entered `y`'s volume yet: until then, one that leaves past it is
         // steered towards `y`; after, one that goes astray steps back
         let mut reached = false;
+        let mut steers = 0;
         for iteration in 0..self.max_iterations {
             let (mut exit, r, m) = match self.map_into((x, w), (y, into), bounces) {
                 Some(Toward::Reached(exit, r, m)) => (exit, r, m),
                 Some(Toward::Missed(exit, dout, dsurf)) if !reached => {
                     // leaving past the volume `y` is in: turn towards `y` by the angle between
-                    // (`dg` follows the point it leaves from) until the path meets it
+                    // (`dg` follows the point it leaves from) until the path meets it; a
+                    // path that cannot (out of a convex stretch of a part and back into it)
+                    // is given up once the turns would have gone half round
+                    steers += 1;
+                    if steers > MAX_STEERS {
+                        return None;
+                    }
                     last = Some(w);
                     let to_y = y - exit.surface;
                     let distance = to_y.length();
@@ -1637,7 +1710,8 @@ impl<'v> Connector<'v> {
     /// A path from `x` inside one of several volumes to `y` inside another
     /// ([`Self::solve_into`]), after `bounces.0` reflections inside the first and `bounces.1`
     /// inside the second, drawn like [`Connector::sample`] (`first_only`: the biased variant);
-    /// through index-matched volumes the straight line. None for points in one volume.
+    /// through index-matched volumes the straight line. Also between two points in one part
+    /// that is not convex, out of it and back in; none for points in one convex part.
     pub fn sample_into(
         &self,
         x: DVec3,
@@ -1646,14 +1720,25 @@ impl<'v> Connector<'v> {
         first_only: bool,
         rng: &mut Rng,
     ) -> Sampled<Exit> {
-        if !self.apart(x, y) {
+        if !self.apart(x, y) && !self.around(x) {
             return Sampled::none();
         }
         if self.matched {
-            return match bounces {
+            let (from, into) = (self.part_of(x), self.part_of(y));
+            // as `map_into`: into each of its two parts once, at its end
+            let once = |e: &Exit| {
+                let entered = e.again.parts().iter().map(|p| self.part_of(p.inside));
+                let last = e.again.parts().len().saturating_sub(1);
+                entered
+                    .enumerate()
+                    .all(|(k, part)| (k == last) == (part == into) && (part != from || k == last))
+            };
+            let mut s = match bounces {
                 (0, 0) => self.straight_to(x, y),
                 _ => Sampled::none(),
             };
+            s.path = s.path.filter(|(e, _)| once(e));
+            return s;
         }
         let start = |rng: &mut Rng| self.initial(x, y, rng);
         let solve = |w| {
@@ -1950,6 +2035,10 @@ const DIFF_STEP: f64 = 1e-6;
 /// connections steer by the angle instead of the miss (which is undefined or points the wrong way
 /// once the ray leaves away from its target).
 const STEER: f64 = 0.5;
+
+/// Turns towards the far point a connection into a volume takes at most before it is given up:
+/// enough to turn it half round by [`MAX_TURN`] a step.
+const MAX_STEERS: usize = 12;
 
 /// One Newton step on the direction `w` turning the outgoing direction `o` (derivatives `dout`
 /// along `w`'s two angles) towards the target direction `g` (derivatives `dg`): on the
@@ -2808,6 +2897,138 @@ mod tests {
                 }
             }
         }
+    }
+    /// A dumbbell as one signed-distance shape (glass balls of radius 0.6 at `±0.9` on x, a rod
+    /// of radius 0.08 between them; index `n` in air): points in the two balls are joined by
+    /// paths out of the shape and back in. Index-matched, the straight line: its stretches inside
+    /// and between as the spheres give them, entered again once; a line through the rod enters
+    /// the shape twice and is no such path. In glass, Newton's path out and back in passes
+    /// through the far point when traced by hand through the two spheres by Snell's law (the
+    /// sampled surface's normals within its grid's error).
+    #[test]
+    fn paths_out_of_a_dumbbell_and_back_in_enter_it_once() {
+        use crate::eikonal::grid::Interp;
+        use crate::eikonal::sdf::{SdfGrid, Shape, sample_shapes};
+        let (a, b) = (DVec3::new(-0.9, 0.0, 0.0), DVec3::new(0.9, 0.0, 0.0));
+        let shapes = [
+            Shape::Sphere {
+                center: a,
+                radius: 0.6,
+            },
+            Shape::Sphere {
+                center: b,
+                radius: 0.6,
+            },
+            Shape::Capsule {
+                from: a,
+                to: b,
+                radius: 0.08,
+            },
+        ];
+        let (origin, dims, samples) = sample_shapes(&shapes, 0.0, 0.02);
+        let grid = SdfGrid::from_samples(origin, 0.02, dims, samples, Interp::Tricubic).unwrap();
+        let bounds = Bounds::Sdf(std::sync::Arc::new(grid));
+        let mut rng = crate::math::stream_rng(3, 0);
+        let matched = volume(Profile::Constant { n: 1.0 }, bounds.clone(), 1.0);
+        let c = Connector::new(&matched, 1e-2, 1000);
+        let lift = DVec3::new(0.0, 0.2, 0.0);
+        let (x, y) = (a + lift, b + lift);
+        let s = c.sample_inside(x, y, 0, false, true, &mut rng);
+        let Some((InsidePath::Between(e, _), inverse_p)) = s.path else {
+            panic!("{s:?}")
+        };
+        let chord = (0.36f64 - 0.04).sqrt();
+        assert_eq!(inverse_p, 1.0);
+        assert_eq!(e.again.parts().len(), 1);
+        assert!((e.length - 2.0 * chord).abs() < 1e-3, "{e:?}");
+        assert!((e.outside() - (1.8 - 2.0 * chord)).abs() < 1e-3, "{e:?}");
+        // across the rod: out of the ball, into the rod, out of it and into the other ball
+        let tilt = DVec3::new(0.3, 0.2, 0.0);
+        assert!(
+            c.sample_into(a + tilt, b - tilt, (0, 0), false, &mut rng)
+                .path
+                .is_none()
+        );
+        // within one ball, the straight line inside
+        let s = c.sample_inside(x, a - lift, 0, false, true, &mut rng);
+        assert!(
+            matches!(s.path, Some((InsidePath::Within(..), p)) if p == 1.0),
+            "{s:?}"
+        );
+
+        let n = 1.1;
+        let glass = volume(Profile::Constant { n }, bounds, 1.0);
+        let c = Connector::new(&glass, 1e-2, 1000);
+        let x = a + DVec3::new(0.1, 0.25, 0.05);
+        let y = b + DVec3::new(-0.2, -0.1, 0.15);
+        let e = c.solve_into(x, y, (y - x).normalize(), (0, 0)).unwrap();
+        assert!((e.surface - y).length() < 1e-8, "{e:?}");
+        // by hand: out of ball a, straight to ball b, into it and on
+        let out_of = |p: DVec3, w: DVec3, centre: DVec3| {
+            let l = p - centre;
+            let h = l.dot(w);
+            p + w * (-h + (h * h - (l.length_squared() - 0.36)).sqrt())
+        };
+        let at = out_of(x, e.direction, a);
+        let normal = (at - a) / 0.6;
+        let d = snell(e.direction, -normal, n);
+        let l = at - b;
+        let h = l.dot(d);
+        let at = at + d * (-h - (h * h - (l.length_squared() - 0.36)).sqrt());
+        let d = snell(d, (at - b) / 0.6, 1.0 / n);
+        let miss = (y - at) - d * (y - at).dot(d);
+        assert!(miss.length() < 1e-3, "missed by {miss}");
+        assert!((e.outgoing - d).length() < 1e-3, "{} {d}", e.outgoing);
+    }
+
+    /// A path from one of several volumes into another enters each of the two once (the same
+    /// path from either end, as bidirectional tracing's weights take it): from one arm of a glass
+    /// ring to a ball beyond its other arm, no path Newton finds from many starts runs through
+    /// that other arm, which the straight line crosses.
+    #[test]
+    fn a_path_into_another_volume_does_not_enter_its_own_again() {
+        use crate::eikonal::Part;
+        use crate::eikonal::grid::Interp;
+        use crate::eikonal::sdf::{SdfGrid, Shape, sample_shapes};
+        use crate::rrte::Bulk;
+        let ring = [Shape::Torus {
+            center: DVec3::ZERO,
+            axis: DVec3::Z,
+            major: 1.0,
+            minor: 0.3,
+        }];
+        let (origin, dims, samples) = sample_shapes(&ring, 0.0, 0.03);
+        let grid = SdfGrid::from_samples(origin, 0.03, dims, samples, Interp::Tricubic).unwrap();
+        let clear = Bulk {
+            sigma_s: 0.0,
+            sigma_a: 0.0,
+            scattering: Scattering::single(PhaseFunction::Isotropic),
+        };
+        let part = |bounds, center| {
+            let part = Part::new(bounds, center, vec![Profile::Constant { n: 1.2 }]);
+            (part, clear.clone())
+        };
+        let v = Volume::several(
+            vec![
+                part(Bounds::Sdf(std::sync::Arc::new(grid)), DVec3::ZERO),
+                part(Bounds::Sphere { radius: 0.4 }, DVec3::new(2.2, 0.0, 0.0)),
+            ],
+            1.0,
+        );
+        let c = Connector::new(&v, 1e-2, 1000);
+        let (x, y) = (DVec3::new(-1.0, 0.05, 0.0), DVec3::new(2.1, 0.0, 0.05));
+        let mut rng = crate::math::stream_rng(4, 0);
+        let mut found = 0;
+        for _ in 0..200 {
+            let Some(e) = c.solve_into(x, y, c.initial(x, y, &mut rng), (0, 0)) else {
+                continue;
+            };
+            found += 1;
+            for p in e.again.parts() {
+                assert_eq!(c.part_of(p.inside), 1, "{e:?}");
+            }
+        }
+        eprintln!("{found} paths found");
     }
 
     #[test]

@@ -403,14 +403,15 @@ impl ParticleTracer<'_> {
 
     /// The connection from the light to `x` inside the volume: the basic radiance it brings to
     /// `x` per unit phase function, times the camera's `n_out²` (see the module's notes); after
-    /// the `way`'s reflections inside the surface of `x`'s volume (from a light in another of
-    /// several volumes, only if `reflected_between`).
+    /// the `way`'s reflections inside the surface of `x`'s volume (on a path that leaves it —
+    /// from a light in another of several volumes, or around a part that is not convex — only
+    /// if `reflected_out`).
     pub(super) fn light_link(
         &self,
         t: &Tools,
         x: DVec3,
         way: Way,
-        reflected_between: bool,
+        reflected_out: bool,
         rng: &mut Rng,
         out: &mut [C64],
     ) -> Option<LightLink> {
@@ -420,16 +421,15 @@ impl ParticleTracer<'_> {
         let volume = t.flyer.volume;
         let q = self.light_point(rng)?;
         let inside = volume.field.bounds.contains(q);
-        if inside && bounces > 0 && !reflected_between && t.connector.apart(x, q) {
-            return None;
-        }
         let first_only = self.scene.connections == super::Connections::First;
         let n_out = volume.field.n_out;
         let light = &self.scene.light;
         if inside {
             // a curved connection inside (after the way's reflections inside the surface), or
             // out of x's volume and into the light's: dA_q/dω_x is its spread
-            let s = t.connector.sample_inside(x, q, bounces, first_only, rng);
+            let s = t
+                .connector
+                .sample_inside(x, q, bounces, first_only, reflected_out, rng);
             let (path, inverse_p) = self.tally(s, out)?;
             let leaving_q = -path.arrival().1;
             let n_q = t.flyer.n(q);
