@@ -505,20 +505,11 @@ impl<'v> Connector<'v> {
         let mut polished = false;
         for iteration in 0..self.max_iterations {
             let (end, xv, length, optical_path) = self.shoot(x, w, y)?;
-            let t = end.v.normalize();
-            let (f1, f2) = orthonormal_basis(t);
             let (e1, e2) = orthonormal_basis(w);
-            let d = end.x - y;
-            let r = [f1.dot(d), f2.dot(d)];
             // ∂(miss⊥)/∂(direction angles): the sensitivities times dv0/dw = n(x)
-            let (c1, c2) = (xv * e1 * n_x, xv * e2 * n_x);
-            let m = [[f1.dot(c1), f1.dot(c2)], [f2.dot(c1), f2.dot(c2)]];
-            let det = m[0][0] * m[1][1] - m[0][1] * m[1][0];
-            if self.converged(
-                (r[0] * r[0] + r[1] * r[1]).sqrt(),
-                self.tolerance,
-                &mut polished,
-            ) {
+            let miss = Miss::across(end.v.normalize(), end.x - y, [xv * e1 * n_x, xv * e2 * n_x]);
+            if self.converged(miss.size(), self.tolerance, &mut polished) {
+                let det = miss.det();
                 return (det.abs() > 0.0).then_some(Connection {
                     direction: w,
                     arrival: end,
@@ -529,7 +520,7 @@ impl<'v> Connector<'v> {
                     iterations: iteration + 1,
                 });
             }
-            w = newton_turn(w, m, det, r)?;
+            w = miss.turn(w)?;
         }
         None
     }
@@ -1085,17 +1076,9 @@ impl<'v> Connector<'v> {
                 continue;
             };
             last = Some(w);
-            let (f1, f2) = orthonormal_basis(end.v.normalize());
-            let d = end.x - y;
-            let miss = [f1.dot(d), f2.dot(d)];
-            let (c1, c2) = (xv * r.dv0[0], xv * r.dv0[1]);
-            let m = [[f1.dot(c1), f1.dot(c2)], [f2.dot(c1), f2.dot(c2)]];
-            let det = m[0][0] * m[1][1] - m[0][1] * m[1][0];
-            if self.converged(
-                (miss[0] * miss[0] + miss[1] * miss[1]).sqrt(),
-                self.tolerance,
-                &mut polished,
-            ) {
+            let miss = Miss::across(end.v.normalize(), end.x - y, r.dv0.map(|dv| xv * dv));
+            if self.converged(miss.size(), self.tolerance, &mut polished) {
+                let det = miss.det();
                 return (det.abs() > 0.0 && det.is_finite()).then_some(Connection {
                     direction: w,
                     arrival: end,
@@ -1106,7 +1089,7 @@ impl<'v> Connector<'v> {
                     iterations: iteration + 1,
                 });
             }
-            w = newton_turn(w, m, det, miss)?;
+            w = miss.turn(w)?;
         }
         None
     }
@@ -1631,11 +1614,8 @@ impl<'v> Connector<'v> {
         }
         exit.surface = end.x;
         exit.outgoing = end.v.normalize();
-        let (f1, f2) = orthonormal_basis(exit.outgoing);
-        let d = end.x - y;
-        let (c1, c2) = (xv * DVec3::X, xv * DVec3::Y);
-        let m = [[f1.dot(c1), f1.dot(c2)], [f2.dot(c1), f2.dot(c2)]];
-        Some(Toward::Reached(exit, [f1.dot(d), f2.dot(d)], m))
+        let miss = Miss::across(exit.outgoing, end.x - y, [xv * DVec3::X, xv * DVec3::Y]);
+        Some(Toward::Reached(exit, miss))
     }
 
     /// The path Newton's method reaches from `w0` that joins `x` inside one of several volumes
@@ -1666,8 +1646,8 @@ impl<'v> Connector<'v> {
         let mut reached = false;
         let mut steers = 0;
         for iteration in 0..self.max_iterations {
-            let (mut exit, r, m) = match self.map_into((x, w), (y, into), bounces) {
-                Some(Toward::Reached(exit, r, m)) => (exit, r, m),
+            let (exit, miss) = match self.map_into((x, w), (y, into), bounces) {
+                Some(Toward::Reached(exit, miss)) => (exit, miss),
                 Some(Toward::Missed(exit, dout, dsurf)) if !reached => {
                     // leaving past the volume `y` is in: turn towards `y` by the angle between
                     // (`dg` follows the point it leaves from) until the path meets it; a
@@ -1692,17 +1672,10 @@ impl<'v> Connector<'v> {
             };
             last = Some(w);
             reached = true;
-            let det = m[0][0] * m[1][1] - m[0][1] * m[1][0];
-            if self.converged(
-                (r[0] * r[0] + r[1] * r[1]).sqrt(),
-                self.tolerance,
-                &mut polished,
-            ) {
-                exit.jacobian = det.abs();
-                exit.iterations = iteration + 1;
-                return (det.abs() > 0.0 && det.is_finite()).then_some(exit);
+            if self.converged(miss.size(), self.tolerance, &mut polished) {
+                return miss.solved(exit, iteration);
             }
-            w = newton_turn(w, m, det, r)?;
+            w = miss.turn(w)?;
         }
         None
     }
@@ -1780,25 +1753,14 @@ impl<'v> Connector<'v> {
                 continue;
             }
             let t = to_p.dot(o);
-            let (f1, f2) = orthonormal_basis(o);
-            let miss = exit.surface + o * t - p;
-            let r = [f1.dot(miss), f2.dot(miss)];
             // the line's displacement at p: the exit point's plus the turn of its direction
-            let c1 = dsurf[0] + dout[0] * t;
-            let c2 = dsurf[1] + dout[1] * t;
-            let m = [[f1.dot(c1), f1.dot(c2)], [f2.dot(c1), f2.dot(c2)]];
-            let det = m[0][0] * m[1][1] - m[0][1] * m[1][0];
-            if self.converged(
-                (r[0] * r[0] + r[1] * r[1]).sqrt(),
-                self.tolerance,
-                &mut polished,
-            ) {
-                exit.jacobian = det.abs();
-                exit.iterations = iteration + 1;
+            let moved = [0, 1].map(|k| dsurf[k] + dout[k] * t);
+            let miss = Miss::across(o, exit.surface + o * t - p, moved);
+            if self.converged(miss.size(), self.tolerance, &mut polished) {
                 exit.optical_path += self.volume.field.n_out * t;
-                return (det.abs() > 0.0 && det.is_finite()).then_some(exit);
+                return miss.solved(exit, iteration);
             }
-            w = newton_turn(w, m, det, r)?;
+            w = miss.turn(w)?;
         }
         None
     }
@@ -1932,12 +1894,11 @@ impl<'v> Connector<'v> {
         w0: DVec3,
         map: impl Fn(DVec3) -> Option<(Exit, [DVec3; 2], [DVec3; 2])>,
     ) -> Option<Exit> {
-        let (f1, f2) = orthonormal_basis(c);
         let mut w = w0.normalize();
         let mut last = None;
         let mut polished = false;
         for iteration in 0..self.max_iterations {
-            let Some((mut exit, [d1, d2], _)) = self.onwards(map(w), |_| f64::INFINITY) else {
+            let Some((exit, [d1, d2], _)) = self.onwards(map(w), |_| f64::INFINITY) else {
                 w = step_back(last?, w)?;
                 continue;
             };
@@ -1948,17 +1909,12 @@ impl<'v> Connector<'v> {
                 w = steer(w, out, c, [d1, d2], [DVec3::ZERO; 2])?;
                 continue;
             }
-            let r = [f1.dot(out), f2.dot(out)];
-            let m = [[f1.dot(d1), f1.dot(d2)], [f2.dot(d1), f2.dot(d2)]];
-            let det = m[0][0] * m[1][1] - m[0][1] * m[1][0];
-            if out.dot(c) > 0.0
-                && self.converged((r[0] * r[0] + r[1] * r[1]).sqrt(), 1e-10, &mut polished)
-            {
-                exit.jacobian = det.abs();
-                exit.iterations = iteration + 1;
-                return (det.abs() > 0.0 && det.is_finite()).then_some(exit);
+            // the outgoing direction's components across `c`
+            let miss = Miss::across(c, out, [d1, d2]);
+            if out.dot(c) > 0.0 && self.converged(miss.size(), 1e-10, &mut polished) {
+                return miss.solved(exit, iteration);
             }
-            w = newton_turn(w, m, det, r)?;
+            w = miss.turn(w)?;
         }
         None
     }
@@ -1969,7 +1925,7 @@ impl<'v> Connector<'v> {
 enum Toward {
     /// Into the other volume, to its closest approach to the point: the path, the miss
     /// perpendicular to its arrival, and the miss's derivatives along the two angles of its start.
-    Reached(Exit, [f64; 2], [[f64; 2]; 2]),
+    Reached(Exit, Miss),
     /// Out of the last volume it met, past the other: the path so far, and the derivatives of
     /// its outgoing direction and of the point where it left.
     Missed(Exit, [DVec3; 2], [DVec3; 2]),
@@ -2059,8 +2015,7 @@ fn steer(w: DVec3, o: DVec3, g: DVec3, dout: [DVec3; 2], dg: [DVec3; 2]) -> Opti
             m[i][k] = e.dot(dout[k]) / u - e.dot(o) * du / (u * u);
         }
     }
-    let det = m[0][0] * m[1][1] - m[0][1] * m[1][0];
-    newton_turn(w, m, det, r)
+    Miss { r, m }.turn(w)
 }
 
 /// Half a Newton step back from `w`, where the map failed (the ray missed the volume or left it
@@ -2070,20 +2025,59 @@ fn step_back(last: DVec3, w: DVec3) -> Option<DVec3> {
     ((half - last).length() >= 1e-3 * MAX_TURN).then_some(half)
 }
 
-/// One Newton step on the direction `w` for the 2×2 system `m δ = −r` in the angles of `w`'s
-/// frame, at most [`MAX_TURN`] long; `None` if `m` is singular.
-fn newton_turn(w: DVec3, m: [[f64; 2]; 2], det: f64, r: [f64; 2]) -> Option<DVec3> {
-    if det == 0.0 || !det.is_finite() {
-        return None;
+/// The 2×2 system Newton's method solves on a direction `w`: a residual `r` across the path
+/// (a miss at the far point, or the outgoing direction across the one wanted) and its
+/// derivatives `m` along the two angles of `w`'s frame.
+#[derive(Clone, Copy, Debug)]
+struct Miss {
+    r: [f64; 2],
+    m: [[f64; 2]; 2],
+}
+
+impl Miss {
+    /// The components of `d` across the unit direction `t` and of its derivatives `c`.
+    fn across(t: DVec3, d: DVec3, c: [DVec3; 2]) -> Self {
+        let (f1, f2) = orthonormal_basis(t);
+        Miss {
+            r: [f1.dot(d), f2.dot(d)],
+            m: [[f1.dot(c[0]), f1.dot(c[1])], [f2.dot(c[0]), f2.dot(c[1])]],
+        }
     }
-    let (e1, e2) = orthonormal_basis(w);
-    let mut da = -(m[1][1] * r[0] - m[0][1] * r[1]) / det;
-    let mut db = -(-m[1][0] * r[0] + m[0][0] * r[1]) / det;
-    let turn = (da * da + db * db).sqrt();
-    if turn > MAX_TURN {
-        (da, db) = (da * MAX_TURN / turn, db * MAX_TURN / turn);
+
+    fn size(&self) -> f64 {
+        (self.r[0] * self.r[0] + self.r[1] * self.r[1]).sqrt()
     }
-    Some((w + e1 * da + e2 * db).normalize())
+
+    fn det(&self) -> f64 {
+        let m = &self.m;
+        m[0][0] * m[1][1] - m[0][1] * m[1][0]
+    }
+
+    /// The path `exit` solved at Newton's `iteration`: its `jacobian` the determinant's size
+    /// (`dA⊥/dω` or `dω_out/dω`); `None` where that is zero or not finite.
+    fn solved(&self, mut exit: Exit, iteration: usize) -> Option<Exit> {
+        let det = self.det().abs();
+        exit.jacobian = det;
+        exit.iterations = iteration + 1;
+        (det > 0.0 && det.is_finite()).then_some(exit)
+    }
+
+    /// One Newton step on `w` for `m δ = −r`, at most [`MAX_TURN`] long; `None` if `m` is
+    /// singular.
+    fn turn(&self, w: DVec3) -> Option<DVec3> {
+        let (m, r, det) = (&self.m, self.r, self.det());
+        if det == 0.0 || !det.is_finite() {
+            return None;
+        }
+        let (e1, e2) = orthonormal_basis(w);
+        let mut da = -(m[1][1] * r[0] - m[0][1] * r[1]) / det;
+        let mut db = -(-m[1][0] * r[0] + m[0][0] * r[1]) / det;
+        let turn = (da * da + db * db).sqrt();
+        if turn > MAX_TURN {
+            (da, db) = (da * MAX_TURN / turn, db * MAX_TURN / turn);
+        }
+        Some((w + e1 * da + e2 * db).normalize())
+    }
 }
 
 /// The path found from one random start, counted once.
