@@ -14,7 +14,7 @@ use glam::DVec3;
 use lightpath::eikonal::{BoundedField, Bounds, Part, Profile};
 use lightpath::math::stream_rng;
 use lightpath::medium::{PhaseFunction, Scattering};
-use lightpath::rrte::{Bulk, Light, Pinhole, RenderScene, Sensor, Total, Tracing, Volume};
+use lightpath::rrte::{Bulk, Light, Pinhole, RenderScene, Sensor, Total, Volume};
 
 /// A part and its bulk: a shape at `center` of constant index `n`.
 fn part(shape: Bounds, center: DVec3, n: f64, bulk: (f64, f64, f64)) -> (Part, Bulk) {
@@ -198,7 +198,7 @@ fn ball_and_cube() -> RenderScene {
 /// the reflections inside, past the other too.
 #[test]
 fn particle_path_and_bidirectional_tracing_agree_on_two_volumes() {
-    three_estimators_agree(&ball_and_cube());
+    common::three_estimators_agree(&ball_and_cube(), 400_000, 60_000);
 }
 
 /// With the lamp inside the glass ball (off its centre, the ball now clear), particle, path
@@ -213,46 +213,7 @@ fn the_three_estimators_agree_with_the_lamp_inside_one_of_two_volumes() {
         position: DVec3::new(-1.2, 0.15, 0.1),
     };
     s.volume.parts[0].sigma_s = 0.0;
-    three_estimators_agree(&s);
-}
-
-/// Particle tracing, path tracing and bidirectional tracing agree on the pinhole's image of
-/// `s`: its total and its two halves (within 4 combined standard errors).
-fn three_estimators_agree(s: &RenderScene) {
-    let (a, est) = render(s, 400_000, 1);
-    let mut p = s.clone();
-    p.tracing = Tracing::FromCameras;
-    let (b, _) = render(&p, 60_000, 2);
-    p.tracing = Tracing::Bidirectional;
-    let (c, _) = render(&p, 60_000, 3);
-    let image = est.pinhole_image(0);
-    // the sums over the left and right halves, their pixels' errors added in quadrature
-    let half = |e: &lightpath::mc::Estimate, left: bool| {
-        let (mut x, mut v) = (0.0, 0.0);
-        for j in 0..8 {
-            for i in if left { 0..6 } else { 6..12 } {
-                let k = image.plane(None, 0) + j * 12 + i;
-                x += e.mean[k].re;
-                v += e.stderr[k].powi(2);
-            }
-        }
-        (x, v.sqrt())
-    };
-    for (what, other) in [("paths", &b), ("bidirectional", &c)] {
-        let k = image.total();
-        let (x, sx, y, sy) = (a.mean[k].re, a.stderr[k], other.mean[k].re, other.stderr[k]);
-        assert!(
-            x > 0.0 && (x - y).abs() < 4.0 * sx.hypot(sy),
-            "total: particles {x} ± {sx}, {what} {y} ± {sy}"
-        );
-        for left in [true, false] {
-            let ((x, sx), (y, sy)) = (half(&a, left), half(other, left));
-            assert!(
-                x > 0.0 && (x - y).abs() < 4.0 * sx.hypot(sy),
-                "left half {left}: particles {x} ± {sx}, {what} {y} ± {sy}"
-            );
-        }
-    }
+    common::three_estimators_agree(&s, 400_000, 60_000);
 }
 
 /// A graded lens (a Luneburg profile raised by 0.2, so that every face refracts) placed at `c`

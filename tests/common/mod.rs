@@ -225,3 +225,44 @@ pub fn intensity_in_cone(
     let omega = 2.0 * std::f64::consts::PI * (1.0 - alpha.cos());
     (e.mean[k].re / omega, e.stderr[k] / omega)
 }
+
+/// Particle tracing (`particles` photons, seed 1), path tracing and bidirectional tracing
+/// (`others` samples each, seeds 2 and 3) agree on the image of `s`'s first pinhole (12 × 8
+/// pixels): its total and its two halves, within 4 combined standard errors.
+pub fn three_estimators_agree(s: &lightpath::rrte::RenderScene, particles: u64, others: u64) {
+    use lightpath::rrte::Tracing;
+    let (a, est) = render(s, particles, 1);
+    let mut p = s.clone();
+    p.tracing = Tracing::FromCameras;
+    let (b, _) = render(&p, others, 2);
+    p.tracing = Tracing::Bidirectional;
+    let (c, _) = render(&p, others, 3);
+    let image = est.pinhole_image(0);
+    // the sums over the left and right halves, their pixels' errors added in quadrature
+    let half = |e: &Estimate, left: bool| {
+        let (mut x, mut v) = (0.0, 0.0);
+        for j in 0..8 {
+            for i in if left { 0..6 } else { 6..12 } {
+                let k = image.plane(None, 0) + j * 12 + i;
+                x += e.mean[k].re;
+                v += e.stderr[k].powi(2);
+            }
+        }
+        (x, v.sqrt())
+    };
+    for (what, other) in [("paths", &b), ("bidirectional", &c)] {
+        let k = image.total();
+        let (x, sx, y, sy) = (a.mean[k].re, a.stderr[k], other.mean[k].re, other.stderr[k]);
+        assert!(
+            x > 0.0 && (x - y).abs() < 4.0 * sx.hypot(sy),
+            "total: particles {x} ± {sx}, {what} {y} ± {sy}"
+        );
+        for left in [true, false] {
+            let ((x, sx), (y, sy)) = (half(&a, left), half(other, left));
+            assert!(
+                x > 0.0 && (x - y).abs() < 4.0 * sx.hypot(sy),
+                "left half {left}: particles {x} ± {sx}, {what} {y} ± {sy}"
+            );
+        }
+    }
+}
