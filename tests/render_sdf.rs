@@ -418,22 +418,8 @@ fn probes_in_one_ball_of_a_dumbbell_count_the_light_from_the_other_as_a_target_d
         targeted.sensors = vec![Sensor::target("around".into(), region)];
         let (e, est) = common::render(&targeted, 200_000, 7);
         let (target, st) = (e.mean[est.power(0)].re, e.stderr[est.power(0)]);
-        let a = radius * 0.6f64.sqrt();
-        let corners = [
-            [1.0, 1.0, 1.0],
-            [1.0, -1.0, -1.0],
-            [-1.0, 1.0, -1.0],
-            [-1.0, -1.0, 1.0],
-        ];
         let mut probed = scene;
-        probed.probes = corners
-            .iter()
-            .enumerate()
-            .map(|(i, c)| lightpath::rrte::Probe {
-                name: format!("p{i}"),
-                position: p + DVec3::from_array(*c) * (a / 3f64.sqrt()),
-            })
-            .collect();
+        probed.probes = common::probes_about(p, radius);
         // each photon's events connect to every probe by Newton's method where n ≠ 1
         let photons = if n == 1.0 { 60_000 } else { 10_000 };
         let (e, est) = common::render(&probed, photons, 8);

@@ -620,21 +620,7 @@ fn probes_in_one_volume_count_the_light_from_another_as_a_target_does() {
         })
         .collect();
     let radius = 0.3;
-    let a = radius * 0.6f64.sqrt();
-    let corners = [
-        [1.0, 1.0, 1.0],
-        [1.0, -1.0, -1.0],
-        [-1.0, 1.0, -1.0],
-        [-1.0, -1.0, 1.0],
-    ];
-    scene.probes = corners
-        .iter()
-        .enumerate()
-        .map(|(i, c)| lightpath::rrte::Probe {
-            name: format!("p{i}"),
-            position: p + DVec3::from_array(*c) * (a / 3f64.sqrt()),
-        })
-        .collect();
+    scene.probes = common::probes_about(p, radius);
     let region = lightpath::rrte::Region::Sphere { center: p, radius };
     scene.sensors = vec![Sensor::target("around".into(), region)];
     let (e, est) = render(&scene, 80_000, 7);

@@ -266,3 +266,24 @@ pub fn three_estimators_agree(s: &lightpath::rrte::RenderScene, particles: u64, 
         }
     }
 }
+
+/// Four fluence probes at the corners of a regular tetrahedron `r √0.6` about `p`: their mean is
+/// the mean fluence over the ball of radius `r` about `p` to second order (exact for a quadratic
+/// field), what a target over that ball measures.
+pub fn probes_about(p: glam::DVec3, r: f64) -> Vec<lightpath::rrte::Probe> {
+    let a = r * 0.6f64.sqrt();
+    let corners = [
+        [1.0, 1.0, 1.0],
+        [1.0, -1.0, -1.0],
+        [-1.0, 1.0, -1.0],
+        [-1.0, -1.0, 1.0],
+    ];
+    corners
+        .iter()
+        .enumerate()
+        .map(|(i, c)| lightpath::rrte::Probe {
+            name: format!("p{i}"),
+            position: p + glam::DVec3::from_array(*c) * (a / 3f64.sqrt()),
+        })
+        .collect()
+}
