@@ -601,6 +601,10 @@ impl ParticleTracer<'_> {
                 })
             }
             (None, None, Way::Bounces(bounces)) => {
+                // between two of several volumes unreflected only: none to try (or count)
+                if bounces > 0 && t.connector.apart(z.x, y.x) {
+                    return None;
+                }
                 let first_only = self.scene.connections == Connections::First;
                 let sampled = t
                     .connector

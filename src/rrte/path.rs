@@ -421,6 +421,10 @@ impl ParticleTracer<'_> {
         let volume = t.flyer.volume;
         let q = self.light_point(rng)?;
         let inside = volume.field.bounds.contains(q);
+        // none to try (and none counted): see `Connector::sample_inside`
+        if inside && bounces > 0 && !reflected_out && t.connector.apart(x, q) {
+            return None;
+        }
         let first_only = self.scene.connections == super::Connections::First;
         let n_out = volume.field.n_out;
         let light = &self.scene.light;
