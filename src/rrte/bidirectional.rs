@@ -215,8 +215,9 @@ impl Meetings {
     /// and enters the other, reflecting nowhere (so it is the same path from either end);
     /// between two points in one part that is not convex (`between` names it twice) it either
     /// stays within it, only reflecting inside, or leaves it, crosses any other part it meets
-    /// and enters it again where it first meets it, reflecting nowhere; between two points outside it either never meets the surface (straight, also across an
-    /// index-matched volume), refracts into and out of up to `1 + MAX_AGAIN` parts, or only
+    /// and enters it again where it first meets it, reflecting nowhere; between two points
+    /// outside it either never meets the surface (straight, also across an index-matched
+    /// volume), refracts into and out of up to `1 + MAX_AGAIN` parts, or only
     /// reflects once off the outside. (A path off the outside that then crosses parts is made by
     /// particle and path tracing, not here: its reflection would have to come first from
     /// whichever end the connection starts.)
