@@ -862,7 +862,7 @@ impl ParticleTracer<'_> {
                     let ends_in = Some(t.connector.part_of(hit.x));
                     // out of one part into another, or in a part that is not convex
                     let between = match (began_in, ends_in) {
-                        (Some(a), Some(b)) if a != b || t.connector.around(hit.x) => Some((a, b)),
+                        (Some(a), Some(b)) if a != b || t.connector.not_convex(b) => Some((a, b)),
                         _ => None,
                     };
                     let made = (began_inside, true);

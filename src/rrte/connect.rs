@@ -1138,8 +1138,13 @@ impl<'v> Connector<'v> {
     /// Whether the part holding `x` is not convex (a signed-distance shape), so that two points
     /// in it may also be joined by a path that leaves it and comes back.
     pub fn around(&self, x: DVec3) -> bool {
+        self.not_convex(self.part_of(x))
+    }
+
+    /// Whether part `k` ([`Self::part_of`]) is not convex.
+    pub fn not_convex(&self, k: usize) -> bool {
         match self.volume.field.bounds.parts() {
-            Some(parts) => !parts[part_at(parts, x)].shape.is_convex(),
+            Some(parts) => !parts[k].shape.is_convex(),
             None => !self.volume.field.bounds.is_convex(),
         }
     }
@@ -2902,7 +2907,7 @@ mod tests {
     #[test]
     fn paths_out_of_a_dumbbell_and_back_in_enter_it_once() {
         use crate::eikonal::grid::Interp;
-        use crate::eikonal::sdf::{SdfGrid, Shape, sample_shapes};
+        use crate::eikonal::sdf::{SdfGrid, Shape};
         let (a, b) = (DVec3::new(-0.9, 0.0, 0.0), DVec3::new(0.9, 0.0, 0.0));
         let shapes = [
             Shape::Sphere {
@@ -2919,8 +2924,7 @@ mod tests {
                 radius: 0.08,
             },
         ];
-        let (origin, dims, samples) = sample_shapes(&shapes, 0.0, 0.02);
-        let grid = SdfGrid::from_samples(origin, 0.02, dims, samples, Interp::Tricubic).unwrap();
+        let grid = SdfGrid::from_shapes(&shapes, 0.0, 0.02, Interp::Tricubic).unwrap();
         let bounds = Bounds::Sdf(std::sync::Arc::new(grid));
         let mut rng = crate::math::stream_rng(3, 0);
         let matched = volume(Profile::Constant { n: 1.0 }, bounds.clone(), 1.0);
@@ -2983,7 +2987,7 @@ mod tests {
     fn a_path_into_another_volume_does_not_enter_its_own_again() {
         use crate::eikonal::Part;
         use crate::eikonal::grid::Interp;
-        use crate::eikonal::sdf::{SdfGrid, Shape, sample_shapes};
+        use crate::eikonal::sdf::{SdfGrid, Shape};
         use crate::rrte::Bulk;
         let ring = [Shape::Torus {
             center: DVec3::ZERO,
@@ -2991,8 +2995,7 @@ mod tests {
             major: 1.0,
             minor: 0.3,
         }];
-        let (origin, dims, samples) = sample_shapes(&ring, 0.0, 0.03);
-        let grid = SdfGrid::from_samples(origin, 0.03, dims, samples, Interp::Tricubic).unwrap();
+        let grid = SdfGrid::from_shapes(&ring, 0.0, 0.03, Interp::Tricubic).unwrap();
         let clear = Bulk {
             sigma_s: 0.0,
             sigma_a: 0.0,
