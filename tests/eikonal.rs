@@ -757,16 +757,13 @@ fn exit_adjoint_matches_finite_differences() {
     let param = |profile, which| FieldParam { profile, which };
     // a rounded box by its signed distance: the normal turns along the rounded edges
     let rounded_box = {
-        use lightpath::eikonal::sdf::{SdfGrid, Shape, sample_shapes};
+        use lightpath::eikonal::sdf::{SdfGrid, Shape};
         let shape = [Shape::Box {
             center: DVec3::ZERO,
             half: DVec3::new(0.8, 0.7, 0.9),
             rounding: 0.4,
         }];
-        let (origin, dims, samples) = sample_shapes(&shape, 0.0, 0.05);
-        std::sync::Arc::new(
-            SdfGrid::from_samples(origin, 0.05, dims, samples, Interp::Tricubic).unwrap(),
-        )
+        std::sync::Arc::new(SdfGrid::from_shapes(&shape, 0.0, 0.05, Interp::Tricubic).unwrap())
     };
     /// name, field, ray origin and direction, parameters, grid coefficient count
     type Case = (

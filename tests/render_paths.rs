@@ -479,7 +479,7 @@ fn light_reflected_inside_a_ball_before_its_first_event_agrees() {
 #[test]
 fn a_glass_ball_seen_through_a_glass_plate_agrees() {
     use lightpath::eikonal::grid::Interp;
-    use lightpath::eikonal::sdf::{SdfGrid, Shape, sample_shapes};
+    use lightpath::eikonal::sdf::{SdfGrid, Shape};
     let shapes = [
         Shape::Sphere {
             center: DVec3::new(-0.6, 0.0, 0.0),
@@ -492,8 +492,7 @@ fn a_glass_ball_seen_through_a_glass_plate_agrees() {
         },
     ];
     let spacing = 0.04;
-    let (origin, dims, samples) = sample_shapes(&shapes, 0.0, spacing);
-    let sdf = SdfGrid::from_samples(origin, spacing, dims, samples, Interp::Tricubic).unwrap();
+    let sdf = SdfGrid::from_shapes(&shapes, 0.0, spacing, Interp::Tricubic).unwrap();
     let mut s = scene(
         Profile::Constant { n: 1.5 },
         Light::Spot {

@@ -10,7 +10,7 @@ use common::bare_scene;
 use glam::DVec3;
 use lightpath::eikonal::grid::Interp;
 use lightpath::eikonal::mesh::Mesh;
-use lightpath::eikonal::sdf::{SdfGrid, Shape, sample_shapes};
+use lightpath::eikonal::sdf::{SdfGrid, Shape};
 use lightpath::eikonal::{BoundedField, Bounds, Profile, Ray};
 use lightpath::math::{stream_rng, uniform};
 use lightpath::medium::{PhaseFunction, Scattering};
@@ -19,8 +19,7 @@ use lightpath::rrte::{Camera, Light, Pinhole, RenderScene, Sensor, SensorKind, V
 use std::sync::Arc;
 
 fn sdf(shapes: &[Shape], spacing: f64) -> Arc<SdfGrid> {
-    let (origin, dims, samples) = sample_shapes(shapes, 0.0, spacing);
-    Arc::new(SdfGrid::from_samples(origin, spacing, dims, samples, Interp::Tricubic).unwrap())
+    Arc::new(SdfGrid::from_shapes(shapes, 0.0, spacing, Interp::Tricubic).unwrap())
 }
 
 fn flux(name: &str, center: DVec3, normal: DVec3) -> Sensor {

@@ -409,16 +409,12 @@ fn collimated_and_cameras(density: Option<lightpath::rrte::Density>) {
 #[test]
 fn a_sampled_volume_beside_another_renders_as_the_analytic_one() {
     use lightpath::eikonal::grid::Interp;
-    use lightpath::eikonal::sdf::{SdfGrid, Shape, sample_shapes};
-    let (origin, dims, samples) = sample_shapes(
-        &[Shape::Sphere {
-            center: DVec3::ZERO,
-            radius: 0.8,
-        }],
-        0.0,
-        0.04,
-    );
-    let ball = SdfGrid::from_samples(origin, 0.04, dims, samples, Interp::Tricubic).unwrap();
+    use lightpath::eikonal::sdf::{SdfGrid, Shape};
+    let sphere = [Shape::Sphere {
+        center: DVec3::ZERO,
+        radius: 0.8,
+    }];
+    let ball = SdfGrid::from_shapes(&sphere, 0.0, 0.04, Interp::Tricubic).unwrap();
     let scene = |shape: Bounds| {
         let volume = Volume::several(
             vec![

@@ -374,7 +374,7 @@ fn eikonal_rates(quick: bool) -> String {
 /// inside–outside after every step and skipping the test within the clearance (paper 002, Sec. 5).
 fn flight_rates(quick: bool) -> String {
     use crate::eikonal::grid::Interp;
-    use crate::eikonal::sdf::{SdfGrid, Shape, sample_shapes};
+    use crate::eikonal::sdf::{SdfGrid, Shape};
     use crate::eikonal::{BoundedField, Bounds, Profile, Ray};
     use crate::math::uniform;
     use crate::rrte::{Volume, flight::Flyer};
@@ -383,8 +383,7 @@ fn flight_rates(quick: bool) -> String {
         center: DVec3::ZERO,
         radius: 1.0,
     }];
-    let (origin, dims, samples) = sample_shapes(&shape, 0.0, 0.05);
-    let Ok(sdf) = SdfGrid::from_samples(origin, 0.05, dims, samples, Interp::Tricubic) else {
+    let Ok(sdf) = SdfGrid::from_shapes(&shape, 0.0, 0.05, Interp::Tricubic) else {
         return String::new();
     };
     let sdf = std::sync::Arc::new(sdf);

@@ -1084,17 +1084,8 @@ mod tests {
             center: DVec3::ZERO,
             radius: 1.0,
         }];
-        let (origin, dims, samples) = crate::eikonal::sdf::sample_shapes(&shapes, 0.0, spacing);
-        Arc::new(
-            SdfGrid::from_samples(
-                origin,
-                spacing,
-                dims,
-                samples,
-                super::super::grid::Interp::Tricubic,
-            )
-            .unwrap(),
-        )
+        let tricubic = super::super::grid::Interp::Tricubic;
+        Arc::new(SdfGrid::from_shapes(&shapes, 0.0, spacing, tricubic).unwrap())
     }
 
     /// On a sphere's distance with `depth = R`, `n_s = 1` and `n_c = √2` the depth-graded profile

@@ -299,6 +299,18 @@ impl SdfGrid {
         Some((t0, t1))
     }
 
+    /// The smooth union of `shapes` ([`sample_shapes`]) sampled every `spacing` and interpolated
+    /// by `interp`.
+    pub fn from_shapes(
+        shapes: &[Shape],
+        blend: f64,
+        spacing: f64,
+        interp: Interp,
+    ) -> Result<Self, String> {
+        let (origin, dims, samples) = sample_shapes(shapes, blend, spacing);
+        Self::from_samples(origin, spacing, dims, samples, interp)
+    }
+
     /// The parameter where `o + t w` (unit `w`, `o` outside) first enters the shape, if it does
     /// (the start of [`SdfGrid::interval`]'s stretch, without marching across it).
     pub fn entry(&self, o: DVec3, w: DVec3) -> Option<f64> {
@@ -613,8 +625,7 @@ mod tests {
             center: DVec3::new(0.1, -0.2, 0.05),
             radius: 1.0,
         }];
-        let (origin, dims, samples) = sample_shapes(&shapes, 0.0, 0.05);
-        SdfGrid::from_samples(origin, 0.05, dims, samples, interp).unwrap()
+        SdfGrid::from_shapes(&shapes, 0.0, 0.05, interp).unwrap()
     }
 
     /// Intervals, exits, normals and the inside test of a sampled sphere agree with the sphere's
@@ -697,8 +708,7 @@ mod tests {
             major: 1.0,
             minor: 0.3,
         }];
-        let (origin, dims, samples) = sample_shapes(&shapes, 0.0, 0.04);
-        let g = SdfGrid::from_samples(origin, 0.04, dims, samples, Interp::Tricubic).unwrap();
+        let g = SdfGrid::from_shapes(&shapes, 0.0, 0.04, Interp::Tricubic).unwrap();
         let o = DVec3::new(-2.0, 0.0, 0.0);
         let (t0, t1) = g.interval(o, DVec3::X).unwrap();
         assert!(
@@ -727,8 +737,7 @@ mod tests {
                 radius: 0.35,
             },
         ];
-        let (origin, dims, samples) = sample_shapes(&shapes, 0.15, 0.03);
-        SdfGrid::from_samples(origin, 0.03, dims, samples, Interp::Tricubic).unwrap()
+        SdfGrid::from_shapes(&shapes, 0.15, 0.03, Interp::Tricubic).unwrap()
     }
 
     /// The curvature along a line, `wᵀ ∇²d w` (a central difference of the directional
