@@ -207,9 +207,11 @@ impl Meetings {
     /// Whether a connection makes the segment, from a point inside or outside the volume
     /// (`began_inside`) to one inside or outside (`ends_inside`), given the most reflections
     /// inside it follows and whether the volume is index-matched. Between a point inside and one
-    /// outside a connection reflects inside the part it starts from (up to `most_bounces` times)
-    /// and then refracts out, into and out of up to [`MAX_AGAIN`] parts of a shape that is not
-    /// convex, reflecting nowhere else; between two points inside one volume it only reflects
+    /// outside a connection reflects inside the part it starts from and then refracts out, into
+    /// and out of the parts it meets (of several volumes or a shape that is not convex),
+    /// reflecting inside them too, `most_bounces` times in all, each stretch inside a part
+    /// crossed one of [`MAX_AGAIN`] at most; it reflects nowhere outside; between two points
+    /// inside one volume it only reflects
     /// inside, as often; between points inside two of several volumes (`between`: their parts)
     /// it leaves the one, crosses any other it meets (in and out, up to `MAX_AGAIN − 1` of them)
     /// and enters the other, reflecting nowhere (so it is the same path from either end);
@@ -244,10 +246,12 @@ impl Meetings {
             } else {
                 self.bounces_since_entry
             };
+            // after it leaves the start's part: two refractions and the reflections inside
+            // each part it crosses, a stretch inside for each
+            let crossed = refractions.saturating_sub(1) / 2;
             self.glances == 0
-                && self.bounces == first_part
                 && self.bounces <= most_bounces
-                && refractions <= 1 + 2 * MAX_AGAIN
+                && crossed + self.bounces - first_part <= MAX_AGAIN
         } else if ends_inside {
             self.all == self.bounces && self.bounces <= most_bounces
         } else {
@@ -694,7 +698,8 @@ impl ParticleTracer<'_> {
     ) -> Option<OutToSurface> {
         let volume = t.flyer.volume;
         let first_only = self.scene.connections == Connections::First;
-        let s = t.connector.sample_through(x, p, bounces, first_only, rng);
+        let bounces = self.exit_bounces(t, bounces, rng);
+        let s = t.connector.sample_through(x, p, &bounces, first_only, rng);
         let (exit, inverse_p) = self.tally(s, out)?;
         let to_p = (p - exit.surface).dot(exit.outgoing);
         let cos = -facing.dot(exit.outgoing);
@@ -706,7 +711,7 @@ impl ParticleTracer<'_> {
         {
             return None;
         }
-        let transmittance = self.exit_transmittance(t, &exit, bounces, rng);
+        let transmittance = self.exit_transmittance(t, &exit, bounces.first, rng);
         let outside = volume.field.n_out * (exit.outside() + to_p);
         Some(OutToSurface {
             carried: transmittance * exit.transmission / exit.jacobian * inverse_p,
@@ -1196,8 +1201,9 @@ mod tests {
     }
 
     /// A connection leaves the part it starts in after its reflections there, crossing parts
-    /// met again after; the same segment traced from outside in is the same path. Reflections
-    /// anywhere else, or one off the outside, are made by tracing alone.
+    /// met again after and reflecting inside them, two reflections in all and four stretches
+    /// inside parts crossed at most; the same segment traced from outside in is the same path.
+    /// More, or a reflection off the outside, are made by tracing alone.
     #[test]
     fn segments_are_connectible_as_the_connections_run() {
         let io = |events: &str, began_inside: bool| {
@@ -1209,7 +1215,12 @@ mod tests {
             ("BBL", true),
             ("BBBL", false),
             ("BLEL", true),
-            ("LEBL", false),
+            ("LEBL", true),
+            ("BLEBL", true),
+            ("LEBBL", true),
+            ("BBLEBL", false),
+            ("LEBLELEL", true),
+            ("LEBLELELEL", false),
             ("LELELELEL", true),
             ("LELELELELEL", false),
             ("LGEL", false),
@@ -1221,7 +1232,11 @@ mod tests {
             ("EBB", true),
             ("EBBB", false),
             ("ELEB", true),
-            ("EBLE", false),
+            ("EBLE", true),
+            ("EBLEB", true),
+            ("EBLEBB", false),
+            ("ELEBLELE", true),
+            ("ELEBLELELE", false),
             ("ELELELELE", true),
             ("ELELELELELE", false),
             ("GE", false),

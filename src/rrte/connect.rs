@@ -112,11 +112,14 @@ impl Exit {
     }
 }
 
-/// Parts of a non-convex volume that a path through its surface enters again.
+/// Parts of a non-convex volume, or of several volumes, that a path through its surface enters
+/// again: the stretches inside each (one per reflection inside it, and one more), and how many
+/// parts it has crossed (entered and left) on the way.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Again {
     parts: [Reentry; MAX_AGAIN],
     count: usize,
+    crossed: usize,
 }
 
 /// A path's way across a part it enters again: the entry point (just inside), the unit
@@ -134,6 +137,12 @@ impl Again {
         &self.parts[..self.count]
     }
 
+    /// The parts crossed: entered and left again (a path's last part, where it ends inside, is
+    /// not counted).
+    pub fn crossed(&self) -> usize {
+        self.crossed
+    }
+
     /// Add a part; `false` if there are [`MAX_AGAIN`] already.
     fn push(&mut self, part: Reentry) -> bool {
         if self.count == MAX_AGAIN {
@@ -145,8 +154,94 @@ impl Again {
     }
 }
 
-/// The most parts of a volume a path through its surface enters again after it first leaves.
+/// The most stretches inside parts of a volume a path through its surface enters again after it
+/// first leaves (a part it reflects inside counts once more per reflection).
 pub const MAX_AGAIN: usize = 4;
+
+/// The reflections inside the surface a connection through it follows: `first` inside the part
+/// it starts from before it first leaves; then, inside each part it crosses after that, a number
+/// drawn before Newton's method runs (the path must be one function of its start's direction),
+/// from the `after` left of its budget; and inside the part it ends in (between two points
+/// inside) what the crossings have left. A path is drawn with the chance of its crossings'
+/// numbers ([`Bounces::inverse_probability`]), so the estimate divided by it counts every path
+/// with at most `first + after` reflections once.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Bounces {
+    pub first: usize,
+    after: usize,
+    across: [usize; MAX_AGAIN],
+}
+
+/// The chance that a connection crosses a part without reflecting inside it where its budget
+/// lets it reflect (the other numbers share the rest evenly): most light crosses a dielectric
+/// unreflected, and it is the path most often there.
+const THROUGH: f64 = 0.75;
+
+impl Bounces {
+    /// `first` reflections inside the start's part, none after it.
+    pub fn first(first: usize) -> Self {
+        Bounces {
+            first,
+            ..Bounces::default()
+        }
+    }
+
+    /// `first` reflections inside the start's part, then up to `after` more: inside each part
+    /// crossed none with chance [`THROUGH`], else one of `1 ..= left` evenly; the end's part
+    /// takes what is left. Draws nothing where `after` is 0.
+    pub fn draw(first: usize, after: usize, rng: &mut Rng) -> Self {
+        let mut b = Bounces {
+            first,
+            after,
+            across: [0; MAX_AGAIN],
+        };
+        let mut left = after;
+        for k in b.across.iter_mut() {
+            if left == 0 {
+                break;
+            }
+            let u = uniform(rng);
+            if u >= THROUGH {
+                let share = (u - THROUGH) / (1.0 - THROUGH);
+                *k = 1 + ((share * left as f64) as usize).min(left - 1);
+                left -= *k;
+            }
+        }
+        b
+    }
+
+    /// `first` reflections inside the start's part, `across` inside the parts crossed, `end`
+    /// inside the end's part: one way, chosen.
+    #[cfg(test)]
+    fn with(first: usize, across: [usize; MAX_AGAIN], end: usize) -> Self {
+        Bounces {
+            first,
+            after: across.iter().sum::<usize>() + end,
+            across,
+        }
+    }
+
+    /// Reflections inside the `i`th part crossed.
+    fn across(&self, i: usize) -> usize {
+        self.across.get(i).copied().unwrap_or(0)
+    }
+
+    /// What is left of the budget after the first `crossed` parts crossed.
+    pub fn left_after(&self, crossed: usize) -> usize {
+        self.after - self.across[..crossed.min(MAX_AGAIN)].iter().sum::<usize>()
+    }
+
+    /// `1/p` of having drawn the numbers of the first `crossed` parts crossed.
+    pub fn inverse_probability(&self, crossed: usize) -> f64 {
+        (0..crossed.min(MAX_AGAIN))
+            .map(|i| match (self.left_after(i), self.across[i]) {
+                (0, _) => 1.0,
+                (_, 0) => 1.0 / THROUGH,
+                (left, _) => left as f64 / (1.0 - THROUGH),
+            })
+            .product()
+    }
+}
 
 /// Between two points in one part that is not convex, the chance of drawing a path that leaves
 /// it and comes back where the straight line between them leaves it (one minus it where the
@@ -199,7 +294,7 @@ pub enum InsidePath {
     /// Out of one of several volumes, across any between, into the other
     /// ([`Connector::solve_into`]), after reflections inside the first and inside the other:
     /// its stretches inside the other after the reflections there are parts entered again.
-    Between(Exit, (usize, usize)),
+    Between(Exit, Bounces),
 }
 
 impl InsidePath {
@@ -611,6 +706,23 @@ impl<'v> Connector<'v> {
         }
     }
 
+    /// As [`Self::draw`] for a path through the surface that reflects inside the parts it crosses
+    /// as `bounces` drew: its inverse probability also that of those reflections.
+    fn draw_crossing(
+        &self,
+        first_only: bool,
+        start: impl Fn(&mut Rng) -> DVec3,
+        solve: impl Fn(DVec3) -> Option<(Exit, DVec3, usize)>,
+        bounces: &Bounces,
+        rng: &mut Rng,
+    ) -> Sampled<Exit> {
+        let mut s = self.draw(first_only, start, solve, rng);
+        if let Some((e, inverse_p)) = &mut s.path {
+            *inverse_p *= bounces.inverse_probability(e.again.crossed);
+        }
+        s
+    }
+
     /// The straight path from `x` inside an index-matched volume to the point `p`, through
     /// every part it meets on the way ([`Self::straight_exit`]).
     fn straight_to(&self, x: DVec3, p: DVec3) -> Sampled<Exit> {
@@ -691,23 +803,25 @@ impl<'v> Connector<'v> {
     }
 
     /// A path from `x` leaving the volume along unit `c` after `bounces` reflections inside the
-    /// surface, drawn like [`Connector::sample`] (`first`: the biased variant).
+    /// surface (and inside the parts it crosses after), drawn like [`Connector::sample`]
+    /// (`first`: the biased variant), its inverse probability also that of the reflections
+    /// drawn for the parts it crosses ([`Bounces::inverse_probability`]).
     pub fn sample_exit(
         &self,
         x: DVec3,
         c: DVec3,
-        bounces: usize,
+        bounces: &Bounces,
         first_only: bool,
         rng: &mut Rng,
     ) -> Sampled<Exit> {
         if self.matched {
             // nothing reflects at an index-matched surface
-            return match bounces {
+            return match bounces.first {
                 0 => self.straight_exit(x, c, None),
                 _ => Sampled::none(),
             };
         }
-        if let Some(s) = self.box_exit(x, c, bounces, rng) {
+        if let Some(s) = self.box_exit(x, c, bounces.first, rng) {
             return s;
         }
         let start = |rng: &mut Rng| {
@@ -722,7 +836,7 @@ impl<'v> Connector<'v> {
             self.solve_exit(x, c, w, bounces)
                 .map(|e| (e, e.direction, e.iterations))
         };
-        self.draw(first_only, start, solve, rng)
+        self.draw_crossing(first_only, start, solve, bounces, rng)
     }
 
     /// From `x` in a box of constant index (the one volume), the paths leaving it along unit `c`
@@ -779,7 +893,7 @@ impl<'v> Connector<'v> {
         out.distinct = found;
         if let Some(start) = chosen {
             out.solves = 1;
-            if let Some(e) = self.solve_exit(x, c, start, bounces)
+            if let Some(e) = self.solve_exit(x, c, start, &Bounces::first(bounces))
                 && (e.direction - start).length() < SAME_PATH
             {
                 out.iterations = e.iterations;
@@ -1172,9 +1286,10 @@ impl<'v> Connector<'v> {
     /// A path from `x` to `y` (both inside) after `bounces` reflections inside the surface,
     /// drawn like [`Connector::sample`]: within the part holding both
     /// ([`Connector::sample_bounced`]); where they lie in two of several volumes, out of the one
-    /// and into the other ([`Connector::sample_into`]), the reflections split between the two
-    /// at random (each of the `bounces + 1` ways alike, the inverse probability times
-    /// `bounces + 1`: an unbiased estimate of the sum over them). In a part that is not convex
+    /// and into the other ([`Connector::sample_into`]), the reflections split at random: the
+    /// first part's one of the `bounces + 1` numbers alike (the inverse probability times
+    /// `bounces + 1`), the rest among the parts crossed and the other as [`Bounces::draw`]
+    /// splits them: an unbiased estimate of the sum over the ways. In a part that is not convex
     /// a path may also leave it and come back ([`Connector::solve_into`]): one of the two kinds
     /// is drawn ([`Self::around_chance`]), its inverse probability divided by the kind's chance.
     /// Without `reflected_out` a path that leaves the start's part does not reflect: with
@@ -1209,11 +1324,12 @@ impl<'v> Connector<'v> {
         }
         let ways = bounces + 1;
         let first = ((uniform(rng) * ways as f64) as usize).min(bounces);
-        let mut s = self.sample_into(x, y, (first, bounces - first), first_only, rng);
+        let split = Bounces::draw(first, bounces - first, rng);
+        let mut s = self.sample_into(x, y, &split, first_only, rng);
         if let Some((_, inverse_p)) = &mut s.path {
             *inverse_p *= ways as f64 / chance;
         }
-        s.map(|e| InsidePath::Between(e, (first, bounces - first)))
+        s.map(|e| InsidePath::Between(e, split))
     }
 
     /// The ray inside reaching the surface at `end` (index `n_in` just inside), with
@@ -1285,14 +1401,15 @@ impl<'v> Connector<'v> {
             slide,
             ..
         } = self.meet(y, w)?;
-        let c = self.cross(y + w * entry_parameter(t0), at, w, frame, slide)?;
+        let c = self.cross((y + w * entry_parameter(t0), at, w), frame, slide, 0)?;
+        let first = c.stretches.parts()[0];
         Some((
             Exit {
                 direction: w,
                 surface: c.end,
                 outgoing: c.outgoing,
-                inside_from: c.inside,
-                inside_along: c.along,
+                inside_from: first.inside,
+                inside_along: first.along,
                 before: t0,
                 length: c.length,
                 optical_path: self.volume.field.n_out * t0 + c.optical_path,
@@ -1358,35 +1475,83 @@ impl<'v> Connector<'v> {
     }
 
     /// The straight ray along unit `w` entering the volume at `at` (`inside`: a point just past
-    /// it) refracted in, across and refracted out, with the derivatives along two perturbations
+    /// it) refracted in, across (reflected `bounces` times inside the surface, each stretch one
+    /// of [`MAX_AGAIN`] at most) and refracted out, with the derivatives along two perturbations
     /// of the ray — `turn` of its direction and `slide` of the entry point along the surface —
     /// carried through: the refraction in by central differences of its closed form (`v = n d`:
     /// `|v|` follows `n` along the slide), the crossing by the forward sensitivities, the exit
     /// as [`Self::refract_out`]. `None` if it is reflected totally or trapped.
     fn cross(
         &self,
-        inside: DVec3,
-        at: DVec3,
-        w: DVec3,
+        (inside, at, w): (DVec3, DVec3, DVec3),
         turn: [DVec3; 2],
         slide: [DVec3; 2],
+        bounces: usize,
     ) -> Option<Crossing> {
         let (along, sensitivities, entered) = self.refract_in(inside, at, w, turn, slide)?;
+        let mut stretches = Again::default();
+        let mut start = (inside, along, sensitivities);
+        let mut transmission = entered;
+        for _ in 0..bounces {
+            let (stretch, next, reflectance) = self.bounce(start)?;
+            if !stretches.push(stretch) {
+                return None;
+            }
+            transmission *= reflectance;
+            start = next;
+        }
+        let (from, along, sensitivities) = start;
         let (end, xv, vv, length, optical_path, n_end) =
-            self.shoot_out(inside, along, sensitivities)?;
-        let (outgoing, out, turn, moved) =
-            self.refract_out(end, (xv, vv), [DVec3::X, DVec3::Y], n_end)?;
-        Some(Crossing {
-            inside,
+            self.shoot_out(from, along, sensitivities)?;
+        let last = Reentry {
+            inside: from,
             along,
-            end: end.x,
-            outgoing,
             length,
             optical_path,
-            transmission: entered * out,
+        };
+        if !stretches.push(last) {
+            return None;
+        }
+        let (outgoing, out, turn, moved) =
+            self.refract_out(end, (xv, vv), [DVec3::X, DVec3::Y], n_end)?;
+        let parts = stretches.parts();
+        Some(Crossing {
+            length: parts.iter().map(|p| p.length).sum(),
+            optical_path: parts.iter().map(|p| p.optical_path).sum(),
+            stretches,
+            end: end.x,
+            outgoing,
+            transmission: transmission * out,
             turn,
             moved,
         })
+    }
+
+    /// The ray inside from `start` (a point, unit direction, and the sensitivities `(∂x, ∂v)`
+    /// there along two perturbations, columns `x` and `y`) to the surface, where it reflects: the
+    /// stretch, the next start (just inside the reflection point, the sensitivities carried
+    /// through it, [`Self::reflect_in`]) and the Fresnel reflectance. `None` if it is trapped.
+    fn bounce(&self, (from, along, sensitivities): Start) -> Option<(Reentry, Start, f64)> {
+        let (end, xv, vv, length, optical_path, n_in) =
+            self.shoot_out(from, along, sensitivities)?;
+        let (bounce, reflectance, dx, dv) =
+            self.reflect_in(end, (xv, vv), [DVec3::X, DVec3::Y], n_in)?;
+        let stretch = Reentry {
+            inside: from,
+            along,
+            length,
+            optical_path,
+        };
+        let next = (
+            // a start just inside, so that the index there reads as the inside's
+            end.x + bounce * (1e-12 * (1.0 + end.x.length())),
+            bounce,
+            (
+                DMat3::from_cols(dx[0], dx[1], DVec3::ZERO),
+                DMat3::from_cols(dv[0], dv[1], DVec3::ZERO),
+            ),
+        );
+        Some((stretch, next, reflectance))
     }
 
     /// The straight ray along unit `w` entering the volume at `at` (`inside`: a point just past
@@ -1431,15 +1596,16 @@ impl<'v> Connector<'v> {
     /// and exit point along the two angles of its start) followed through every part of a
     /// non-convex volume it enters again before it has run `until` outside: straight to the
     /// part (the entry point sliding along the surface as the exit point moves and the direction
-    /// turns), refracted in, across, refracted out — the derivatives chained through each, the
-    /// refractions' by central differences of their closed forms. `None` if it is reflected
-    /// totally, trapped, blocked by a surface between the parts, or enters more than
-    /// [`MAX_AGAIN`] parts.
+    /// turns), refracted in, across (reflected inside as `bounces` says), refracted out — the
+    /// derivatives chained through each, the refractions' by central differences of their closed
+    /// forms. `None` if it is reflected totally, trapped, blocked by a surface between the
+    /// parts, or runs more than [`MAX_AGAIN`] stretches inside parts entered again.
     #[allow(clippy::type_complexity)]
     fn onwards(
         &self,
         left: Option<(Exit, [DVec3; 2], [DVec3; 2])>,
         until: impl Fn(&Exit) -> f64,
+        bounces: &Bounces,
     ) -> Option<(Exit, [DVec3; 2], [DVec3; 2])> {
         let (mut exit, mut dout, mut moved) = left?;
         loop {
@@ -1451,10 +1617,11 @@ impl<'v> Connector<'v> {
             else {
                 return Some((exit, dout, moved));
             };
-            if t0 >= until(&exit) {
+            // beyond the point the path ends at, only a part it reflects inside brings it back
+            if t0 >= until(&exit) && bounces.across(exit.again.crossed) == 0 {
                 return Some((exit, dout, moved));
             }
-            (dout, moved) = self.cross_again(&mut exit, (dout, moved), t0)?;
+            (dout, moved) = self.cross_again(&mut exit, (dout, moved), t0, bounces)?;
         }
     }
 
@@ -1491,26 +1658,31 @@ impl<'v> Connector<'v> {
     }
 
     /// The path that has left the volume (as [`Self::meet_again`]) crosses the part it meets
-    /// `t0` ahead: `exit` extended across it (refracted in and out), and the derivatives of its
-    /// new outgoing direction and exit point. `None` if it is blocked, reflected totally,
-    /// trapped, or has entered [`MAX_AGAIN`] parts already.
+    /// `t0` ahead: `exit` extended across it (refracted in and out, reflected inside as often as
+    /// `bounces` says for the parts crossed so far), and the derivatives of its new outgoing
+    /// direction and exit point. `None` if it is blocked, reflected totally, trapped, or runs
+    /// more than [`MAX_AGAIN`] stretches inside parts entered again.
     fn cross_again(
         &self,
         exit: &mut Exit,
         derivatives: ([DVec3; 2], [DVec3; 2]),
         t0: f64,
+        bounces: &Bounces,
     ) -> Option<([DVec3; 2], [DVec3; 2])> {
         let (inside, at, slide) = self.meet_again(exit, derivatives, t0)?;
-        let c = self.cross(inside, at, exit.outgoing, derivatives.0, slide)?;
-        let reentry = Reentry {
-            inside: c.inside,
-            along: c.along,
-            length: c.length,
-            optical_path: c.optical_path,
-        };
-        if !exit.again.push(reentry) {
-            return None;
+        let reflections = bounces.across(exit.again.crossed);
+        let c = self.cross(
+            (inside, at, exit.outgoing),
+            derivatives.0,
+            slide,
+            reflections,
+        )?;
+        for &stretch in c.stretches.parts() {
+            if !exit.again.push(stretch) {
+                return None;
+            }
         }
+        exit.again.crossed += 1;
         exit.between += t0;
         exit.length += c.length;
         exit.optical_path += self.volume.field.n_out * t0 + c.optical_path;
@@ -1524,28 +1696,30 @@ impl<'v> Connector<'v> {
     /// point `p` outside it (a pinhole), in a straight line from the surface. Its `jacobian` is the
     /// ray tube's cross-section at `p` per unit solid angle at `x` (`dA⊥/dω`): the irradiance at
     /// `p` of a source of intensity `I` at `x` is `I · transmission / jacobian`.
-    /// With `bounces`, the path reflects that many times inside the surface before it leaves.
-    pub fn solve_through(&self, x: DVec3, p: DVec3, w0: DVec3, bounces: usize) -> Option<Exit> {
-        self.aim_at(p, w0, |w| self.exit_map(x, w, bounces))
+    /// With `bounces`, the path reflects that many times inside the surface before it leaves
+    /// and inside the parts it crosses after.
+    pub fn solve_through(&self, x: DVec3, p: DVec3, w0: DVec3, bounces: &Bounces) -> Option<Exit> {
+        self.aim_at(p, w0, bounces, |w| self.exit_map(x, w, bounces.first))
     }
 
     /// As [`Self::solve_through`] for a path from `y` outside the volume that crosses it
     /// (refracted in and out, unscattered) on its way to `p`: a surface seen, or lit, through
     /// the volume.
     pub fn solve_across(&self, y: DVec3, p: DVec3, w0: DVec3) -> Option<Exit> {
-        self.aim_at(p, w0, |w| self.across_map(y, w))
+        self.aim_at(p, w0, &Bounces::default(), |w| self.across_map(y, w))
     }
 
     /// As [`Self::solve_across`] for a path from `y` outside the volume that reflects off its
     /// surface on its way to `p`: a surface seen, or lit, in the volume's mirror image.
     pub fn solve_mirror(&self, y: DVec3, p: DVec3, w0: DVec3) -> Option<Exit> {
-        self.aim_at(p, w0, |w| self.mirror_map(y, w))
+        self.aim_at(p, w0, &Bounces::default(), |w| self.mirror_map(y, w))
     }
 
-    /// The ray from `x` (inside one of several volumes) along unit `w`, after `bounces.0`
+    /// The ray from `x` (inside one of several volumes) along unit `w`, after `bounces.first`
     /// reflections inside the surface, out of its volume and across every other it meets (each
-    /// refracted in and out) until it meets the part `into`: refracted into it, reflected
-    /// `bounces.1` times inside its surface, and traced to its closest approach to `y`. Returns
+    /// refracted in and out, reflected inside as `bounces` drew) until it meets the part `into`:
+    /// refracted into it, reflected inside its surface as often as the budget has left, and
+    /// traced to its closest approach to `y`. Returns
     /// the path as an [`Exit`] ending there (`surface`: the point of closest approach,
     /// `outgoing`: the unit direction of arrival; each stretch in `into` one of the parts
     /// entered again), the miss perpendicular to the arrival, and the miss's derivatives along
@@ -1557,11 +1731,11 @@ impl<'v> Connector<'v> {
         &self,
         (x, w): (DVec3, DVec3),
         (y, into): (DVec3, usize),
-        bounces: (usize, usize),
+        bounces: &Bounces,
     ) -> Option<Toward> {
         let field = &self.volume.field;
         let from = self.part_of(x);
-        let (mut exit, mut dout, mut moved) = self.exit_map(x, w, bounces.0)?;
+        let (mut exit, mut dout, mut moved) = self.exit_map(x, w, bounces.first)?;
         let t0 = loop {
             let Some(t0) = field.bounds.reentry(exit.surface, exit.outgoing) else {
                 return Some(Toward::Missed(exit, dout, moved));
@@ -1570,7 +1744,7 @@ impl<'v> Connector<'v> {
                 part if part == into => break t0,
                 // the same path from either end: into each of its two parts once
                 part if part == from => return None,
-                _ => (dout, moved) = self.cross_again(&mut exit, (dout, moved), t0)?,
+                _ => (dout, moved) = self.cross_again(&mut exit, (dout, moved), t0, bounces)?,
             }
         };
         let (inside, at, slide) = self.meet_again(&exit, (dout, moved), t0)?;
@@ -1591,25 +1765,13 @@ impl<'v> Connector<'v> {
                 optical_path,
             })
         };
-        for _ in 0..bounces.1 {
-            let (from, along, (xv, vv)) = stretch;
-            let (end, xv, vv, length, optical_path, n_in) =
-                self.shoot_out(from, along, (xv, vv))?;
-            let (bounce, reflectance, dx, dv) =
-                self.reflect_in(end, (xv, vv), [DVec3::X, DVec3::Y], n_in)?;
-            if !push(&mut exit, (from, along), length, optical_path) {
+        for _ in 0..bounces.left_after(exit.again.crossed) {
+            let (s, next, reflectance) = self.bounce(stretch)?;
+            if !push(&mut exit, (s.inside, s.along), s.length, s.optical_path) {
                 return None;
             }
             exit.transmission *= reflectance;
-            stretch = (
-                // a start just inside, so that the index there reads as the inside's
-                end.x + bounce * (1e-12 * (1.0 + end.x.length())),
-                bounce,
-                (
-                    DMat3::from_cols(dx[0], dx[1], DVec3::ZERO),
-                    DMat3::from_cols(dv[0], dv[1], DVec3::ZERO),
-                ),
-            );
+            stretch = next;
         }
         let (from, along, (xv, vv)) = stretch;
         let (end, xv, length, optical_path) =
@@ -1624,21 +1786,16 @@ impl<'v> Connector<'v> {
     }
 
     /// The path Newton's method reaches from `w0` that joins `x` inside one of several volumes
-    /// to `y` inside another: out of the first after `bounces.0` reflections inside its surface,
-    /// across every volume it meets between them (refracted in and out), into the second and,
-    /// after `bounces.1` reflections inside its surface, on to `y` ([`Self::map_into`]); for
+    /// to `y` inside another: out of the first after `bounces.first` reflections inside its
+    /// surface, across every volume it meets between them (refracted in and out, reflected inside
+    /// as `bounces` drew), into the second and, after the reflections left inside its surface, on
+    /// to `y` ([`Self::map_into`]); for
     /// `x` and `y` in one part that is not convex, out of it and back into it where the path
     /// first meets it again. Its `jacobian` is the ray tube's cross-section at `y` per unit
     /// solid angle at `x`, `dA⊥/dω` (the irradiance at `y` of a source of intensity `I` at `x`
     /// is `I · transmission / jacobian`); `surface` is `y` (within the tolerance) and
     /// `outgoing` the direction of arrival there. `None` for points in one convex part.
-    pub fn solve_into(
-        &self,
-        x: DVec3,
-        y: DVec3,
-        w0: DVec3,
-        bounces: (usize, usize),
-    ) -> Option<Exit> {
+    pub fn solve_into(&self, x: DVec3, y: DVec3, w0: DVec3, bounces: &Bounces) -> Option<Exit> {
         let into = self.part_of(y);
         if self.part_of(x) == into && !self.around(x) {
             return None;
@@ -1686,15 +1843,15 @@ impl<'v> Connector<'v> {
     }
 
     /// A path from `x` inside one of several volumes to `y` inside another
-    /// ([`Self::solve_into`]), after `bounces.0` reflections inside the first and `bounces.1`
-    /// inside the second, drawn like [`Connector::sample`] (`first_only`: the biased variant);
+    /// ([`Self::solve_into`]), reflected inside the first, the parts it crosses and the second
+    /// as `bounces` says, drawn as [`Connector::sample_exit`] (`first_only`: the biased variant);
     /// through index-matched volumes the straight line. Also between two points in one part
     /// that is not convex, out of it and back in; none for points in one convex part.
     pub fn sample_into(
         &self,
         x: DVec3,
         y: DVec3,
-        bounces: (usize, usize),
+        bounces: &Bounces,
         first_only: bool,
         rng: &mut Rng,
     ) -> Sampled<Exit> {
@@ -1711,8 +1868,8 @@ impl<'v> Connector<'v> {
                     .enumerate()
                     .all(|(k, part)| (k == last) == (part == into) && (part != from || k == last))
             };
-            let mut s = match bounces {
-                (0, 0) => self.straight_to(x, y),
+            let mut s = match bounces.first + bounces.after {
+                0 => self.straight_to(x, y),
                 _ => Sampled::none(),
             };
             s.path = s.path.filter(|(e, _)| once(e));
@@ -1723,7 +1880,7 @@ impl<'v> Connector<'v> {
             self.solve_into(x, y, w, bounces)
                 .map(|e| (e, e.direction, e.iterations))
         };
-        self.draw(first_only, start, solve, rng)
+        self.draw_crossing(first_only, start, solve, bounces, rng)
     }
 
     /// Newton's method on the direction `w` given to `map` (from `w0`) for the path that passes
@@ -1732,6 +1889,7 @@ impl<'v> Connector<'v> {
         &self,
         p: DVec3,
         w0: DVec3,
+        bounces: &Bounces,
         map: impl Fn(DVec3) -> Option<(Exit, [DVec3; 2], [DVec3; 2])>,
     ) -> Option<Exit> {
         let mut w = w0.normalize();
@@ -1741,7 +1899,7 @@ impl<'v> Connector<'v> {
         // the path ends at p: a part of the volume beyond it is not entered
         let until = |e: &Exit| (p - e.surface).dot(e.outgoing);
         for iteration in 0..self.max_iterations {
-            let Some((mut exit, dout, dsurf)) = self.onwards(map(w), until) else {
+            let Some((mut exit, dout, dsurf)) = self.onwards(map(w), until, bounces) else {
                 w = step_back(last?, w)?;
                 continue;
             };
@@ -1771,17 +1929,17 @@ impl<'v> Connector<'v> {
     }
 
     /// A path from `x` through the point `p` outside after `bounces` reflections inside the
-    /// surface, drawn like [`Connector::sample`].
+    /// surface (and inside the parts it crosses after), drawn as [`Connector::sample_exit`].
     pub fn sample_through(
         &self,
         x: DVec3,
         p: DVec3,
-        bounces: usize,
+        bounces: &Bounces,
         first_only: bool,
         rng: &mut Rng,
     ) -> Sampled<Exit> {
         if self.matched {
-            return match bounces {
+            return match bounces.first {
                 0 => self.straight_to(x, p),
                 _ => Sampled::none(),
             };
@@ -1791,7 +1949,7 @@ impl<'v> Connector<'v> {
             self.solve_through(x, p, w, bounces)
                 .map(|e| (e, e.direction, e.iterations))
         };
-        self.draw(first_only, start, solve, rng)
+        self.draw_crossing(first_only, start, solve, bounces, rng)
     }
 
     /// A path from `y` outside the volume across it (refracted in and out, unscattered) to the
@@ -1877,8 +2035,8 @@ impl<'v> Connector<'v> {
         };
         let solve = |w| {
             match target {
-                Aim::Point(p) => self.aim_at(p, w, &map),
-                Aim::Along(c) => self.aim_along(c, w, &map),
+                Aim::Point(p) => self.aim_at(p, w, &Bounces::default(), &map),
+                Aim::Along(c) => self.aim_along(c, w, &Bounces::default(), &map),
             }
             .map(|e| (e, e.direction, e.iterations))
         };
@@ -1886,9 +2044,10 @@ impl<'v> Connector<'v> {
     }
 
     /// The path Newton's method reaches from `w0` that leaves the volume along unit `c`.
-    /// With `bounces`, the path reflects that many times inside the surface before it leaves.
-    pub fn solve_exit(&self, x: DVec3, c: DVec3, w0: DVec3, bounces: usize) -> Option<Exit> {
-        self.aim_along(c, w0, |w| self.exit_map(x, w, bounces))
+    /// With `bounces`, the path reflects that many times inside the surface before it leaves
+    /// and inside the parts it crosses after.
+    pub fn solve_exit(&self, x: DVec3, c: DVec3, w0: DVec3, bounces: &Bounces) -> Option<Exit> {
+        self.aim_along(c, w0, bounces, |w| self.exit_map(x, w, bounces.first))
     }
 
     /// Newton's method on the direction `w` given to `map` (from `w0`) for the path that leaves
@@ -1897,13 +2056,14 @@ impl<'v> Connector<'v> {
         &self,
         c: DVec3,
         w0: DVec3,
+        bounces: &Bounces,
         map: impl Fn(DVec3) -> Option<(Exit, [DVec3; 2], [DVec3; 2])>,
     ) -> Option<Exit> {
         let mut w = w0.normalize();
         let mut last = None;
         let mut polished = false;
         for iteration in 0..self.max_iterations {
-            let Some((exit, [d1, d2], _)) = self.onwards(map(w), |_| f64::INFINITY) else {
+            let Some((exit, [d1, d2], _)) = self.onwards(map(w), |_| f64::INFINITY, bounces) else {
                 w = step_back(last?, w)?;
                 continue;
             };
@@ -1936,15 +2096,19 @@ enum Toward {
     Missed(Exit, [DVec3; 2], [DVec3; 2]),
 }
 
+/// A ray inside the volume where it starts a stretch: the point, its unit direction, and the
+/// sensitivities `(∂x, ∂v)` there along two perturbations (columns `x` and `y`).
+type Start = (DVec3, DVec3, (DMat3, DMat3));
+
 /// A ray across the volume from outside ([`Connector::cross`]).
 struct Crossing {
-    /// Where it starts inside (just past the entry) and its unit direction there.
-    inside: DVec3,
-    along: DVec3,
+    /// Its stretches inside: from just past the entry, then from each reflection inside.
+    stretches: Again,
     /// Where it leaves, and its direction after refraction there.
     end: DVec3,
     outgoing: DVec3,
-    /// Geometric length and optical path inside, and `(1 − R)` of the entry and the exit.
+    /// Geometric length and optical path inside, and `(1 − R)` of the entry and the exit times
+    /// the reflectance `R` of each reflection inside.
     length: f64,
     optical_path: f64,
     transmission: f64,
@@ -2287,15 +2451,15 @@ mod tests {
         // out of the block along a direction, refracted at its surface
         let c = DVec3::new(0.3, 1.0, 0.2).normalize();
         exits(
-            &a.solve_exit(x, c, c, 0).unwrap(),
-            &b.solve_exit(x, c, c, 0).unwrap(),
+            &a.solve_exit(x, c, c, &Bounces::first(0)).unwrap(),
+            &b.solve_exit(x, c, c, &Bounces::first(0)).unwrap(),
         );
         // out of the graded ball, across the block and on to a point beyond it
         let (x, p) = (DVec3::new(0.2, 0.1, -0.1), DVec3::new(4.5, 0.4, 0.2));
         let w0 = (p - x).normalize();
         let (e, f) = (
-            a.solve_through(x, p, w0, 0).unwrap(),
-            b.solve_through(x, p, w0, 0).unwrap(),
+            a.solve_through(x, p, w0, &Bounces::first(0)).unwrap(),
+            b.solve_through(x, p, w0, &Bounces::first(0)).unwrap(),
         );
         assert_eq!(e.again.parts().len(), 1);
         exits(&e, &f);
@@ -2478,7 +2642,7 @@ mod tests {
         on_glass_balls(|c| {
             let mut rng = crate::math::stream_rng(3, 0);
             let found = (0..200)
-                .find_map(|_| c.solve_through(x, p, c.initial(x, p, &mut rng), 1))
+                .find_map(|_| c.solve_through(x, p, c.initial(x, p, &mut rng), &Bounces::first(1)))
                 .expect("some start converges");
             traced_by_hand(&found, p, hand);
         });
@@ -2690,7 +2854,7 @@ mod tests {
                 let mut paths: Vec<Exit> = Vec::new();
                 for _ in 0..3000 {
                     let w = uniform_sphere(uniform(&mut rng), uniform(&mut rng));
-                    if let Some(e) = c.solve_exit(x, out, w, bounces)
+                    if let Some(e) = c.solve_exit(x, out, w, &Bounces::first(bounces))
                         && !paths
                             .iter()
                             .any(|p| (p.direction - e.direction).length() < SAME_PATH)
@@ -2835,7 +2999,14 @@ mod tests {
             for bounces in [(0, 0), (0, 1)] {
                 let found: Vec<Exit> = std::iter::once((y - x).normalize())
                     .chain((0..400).map(|_| connector.initial(x, y, &mut rng)))
-                    .filter_map(|w| connector.solve_into(x, y, w, bounces))
+                    .filter_map(|w| {
+                        connector.solve_into(
+                            x,
+                            y,
+                            w,
+                            &Bounces::with(bounces.0, [0; MAX_AGAIN], bounces.1),
+                        )
+                    })
                     .collect();
                 let least = if bounces.1 == 0 { 200 } else { 20 };
                 assert!(
@@ -2880,7 +3051,12 @@ mod tests {
                     );
                     // back from y along the reversed arrival, its reflections now in the first
                     let back = connector
-                        .solve_into(y, x, -f.outgoing, (bounces.1, bounces.0))
+                        .solve_into(
+                            y,
+                            x,
+                            -f.outgoing,
+                            &Bounces::with(bounces.1, [0; MAX_AGAIN], bounces.0),
+                        )
                         .expect("converges back");
                     assert!((back.outgoing + f.direction).length() < 1e-6);
                     assert!((back.length - f.length).abs() < 1e-8);
@@ -2904,6 +3080,140 @@ mod tests {
     /// the shape twice and is no such path. In glass, Newton's path out and back in passes
     /// through the far point when traced by hand through the two spheres by Snell's law (the
     /// sampled surface's normals within its grid's error).
+    /// From a point in one of two volumes to a point beside it by a path that reflects once
+    /// inside the other (a rainbow's path through a glass ball), closed form and stepped: the path
+    /// Newton finds is the one traced by hand (Snell's law and the law of reflection) through
+    /// both, passes through the point, carries the Fresnel factors of all five meetings with the
+    /// surface, runs two stretches in the ball it crosses, and spreads as neighbouring rays
+    /// traced by hand do.
+    #[test]
+    fn a_path_reflected_inside_a_volume_it_crosses_spreads_as_traced_by_hand() {
+        use crate::eikonal::Part;
+        use crate::rrte::Bulk;
+        let balls = [
+            (DVec3::ZERO, 0.5, 1.3),
+            (DVec3::new(3.0, 0.0, 0.0), 1.0, 1.5),
+        ];
+        // the hand's trace from `x` along `w`: out of the first ball, into the second, reflected
+        // once inside it and out: where it leaves, its direction, the length inside both, and
+        // the transmission
+        let hand = |x: DVec3, w: DVec3| {
+            let (c, r, n) = balls[0];
+            let b = (x - c).dot(w);
+            let t = -b + (b * b - ((x - c).length_squared() - r * r)).sqrt();
+            let at = x + w * t;
+            let normal = (at - c) / r;
+            let d = snell(w, -normal, n);
+            let mut transmission = 1.0 - reflectance(normal.dot(w), normal.dot(d), n);
+            let (c, r, n) = balls[1];
+            let b = (at - c).dot(d);
+            let disc = b * b - ((at - c).length_squared() - r * r);
+            let t0 = -b - disc.max(0.0).sqrt();
+            let a = at + d * t0;
+            let nrm = (a - c) / r;
+            let mut inside = snell(d, nrm, 1.0 / n);
+            transmission *= 1.0 - reflectance(-nrm.dot(d), -nrm.dot(inside), 1.0 / n);
+            let t1 = -2.0 * (a - c).dot(inside);
+            let e = a + inside * t1;
+            let nrm = (e - c) / r;
+            let cos_i = nrm.dot(inside);
+            let sin_t2 = n * n * (1.0 - cos_i * cos_i);
+            transmission *= if sin_t2 >= 1.0 {
+                1.0
+            } else {
+                reflectance(cos_i, (1.0 - sin_t2).sqrt(), n)
+            };
+            inside -= nrm * (2.0 * cos_i);
+            let t2 = -2.0 * (e - c).dot(inside);
+            let f = e + inside * t2;
+            let nrm = (f - c) / r;
+            let out = snell(inside, -nrm, n);
+            transmission *= 1.0 - reflectance(nrm.dot(inside), nrm.dot(out), n);
+            (f, out, t + t1 + t2, transmission)
+        };
+        let (x, p) = (DVec3::new(0.1, 0.05, -0.05), DVec3::new(0.6, 0.8, 0.1));
+        for graded in [false, true] {
+            let parts = balls.map(|(c, r, n)| {
+                let profile = if graded {
+                    Profile::Linear {
+                        n0: n,
+                        gradient: DVec3::ZERO,
+                    }
+                } else {
+                    Profile::Constant { n }
+                };
+                let clear = Bulk {
+                    sigma_s: 0.0,
+                    sigma_a: 0.0,
+                    scattering: Scattering::single(PhaseFunction::Isotropic),
+                };
+                let part = Part::new(Bounds::Sphere { radius: r }, c, vec![profile]);
+                (part, clear)
+            });
+            let v = Volume::several(parts.to_vec(), 1.0);
+            let connector = Connector::new(&v, 1e-3, 100_000);
+            let mut rng = crate::math::stream_rng(7, 0);
+            let reflected = Bounces::with(0, [1, 0, 0, 0], 0);
+            let found: Vec<Exit> = (0..400)
+                .filter_map(|_| {
+                    let w0 = connector.initial(x, p, &mut rng);
+                    connector.solve_through(x, p, w0, &reflected)
+                })
+                .collect();
+            // the path straight out of the first ball to the point crosses nothing: the
+            // reflection drawn for a part crossed is not taken
+            let (across, straight): (Vec<Exit>, Vec<Exit>) =
+                found.into_iter().partition(|f| f.again.crossed() == 1);
+            assert!(across.len() >= 5, "{} of 400 starts converge", across.len());
+            for f in &across {
+                assert_eq!(f.again.parts().len(), 2);
+                traced_by_hand(f, p, |w| hand(x, w));
+            }
+            assert!(!straight.is_empty());
+            for f in &straight {
+                assert!(f.again.parts().is_empty());
+                assert!((f.direction - (f.surface - x).normalize()).length() < 1e-9);
+            }
+        }
+    }
+
+    /// [`Bounces::draw`] draws each way of splitting a budget of reflections among the parts
+    /// crossed as often as [`Bounces::inverse_probability`] says.
+    #[test]
+    fn reflections_among_parts_crossed_are_drawn_as_often_as_their_probability_says() {
+        let mut rng = crate::math::stream_rng(3, 0);
+        let draws = 200_000;
+        for (after, crossed) in [(1, 1), (2, 2), (3, 3)] {
+            let mut counts = std::collections::HashMap::new();
+            for _ in 0..draws {
+                let b = Bounces::draw(0, after, &mut rng);
+                let key: Vec<usize> = (0..crossed).map(|i| b.across(i)).collect();
+                let p = 1.0 / b.inverse_probability(crossed);
+                let entry = counts.entry(key).or_insert((0usize, p));
+                assert_eq!(entry.1, p, "one way, one probability");
+                entry.0 += 1;
+                assert_eq!(
+                    b.left_after(crossed) + (0..crossed).map(|i| b.across(i)).sum::<usize>(),
+                    after
+                );
+            }
+            let total: f64 = counts.values().map(|(_, p)| p).sum();
+            assert!(
+                (total - 1.0).abs() < 1e-12,
+                "the ways' probabilities sum to {total}"
+            );
+            for (key, (n, p)) in &counts {
+                let expected = p * draws as f64;
+                let error = (expected * (1.0 - p)).sqrt();
+                assert!(
+                    (*n as f64 - expected).abs() < 4.0 * error,
+                    "{key:?}: {n} drawn, {expected} ± {error} expected"
+                );
+            }
+        }
+        assert_eq!(Bounces::first(2).inverse_probability(3), 1.0);
+    }
+
     #[test]
     fn paths_out_of_a_dumbbell_and_back_in_enter_it_once() {
         use crate::eikonal::grid::Interp;
@@ -2943,7 +3253,7 @@ mod tests {
         // across the rod: out of the ball, into the rod, out of it and into the other ball
         let tilt = DVec3::new(0.3, 0.2, 0.0);
         assert!(
-            c.sample_into(a + tilt, b - tilt, (0, 0), false, &mut rng)
+            c.sample_into(a + tilt, b - tilt, &Bounces::first(0), false, &mut rng)
                 .path
                 .is_none()
         );
@@ -2959,7 +3269,9 @@ mod tests {
         let c = Connector::new(&glass, 1e-2, 1000);
         let x = a + DVec3::new(0.1, 0.25, 0.05);
         let y = b + DVec3::new(-0.2, -0.1, 0.15);
-        let e = c.solve_into(x, y, (y - x).normalize(), (0, 0)).unwrap();
+        let e = c
+            .solve_into(x, y, (y - x).normalize(), &Bounces::first(0))
+            .unwrap();
         assert!((e.surface - y).length() < 1e-8, "{e:?}");
         // by hand: out of ball a, straight to ball b, into it and on
         let out_of = |p: DVec3, w: DVec3, centre: DVec3| {
@@ -3017,7 +3329,7 @@ mod tests {
         let mut rng = crate::math::stream_rng(4, 0);
         let mut found = 0;
         for _ in 0..200 {
-            let Some(e) = c.solve_into(x, y, c.initial(x, y, &mut rng), (0, 0)) else {
+            let Some(e) = c.solve_into(x, y, c.initial(x, y, &mut rng), &Bounces::first(0)) else {
                 continue;
             };
             found += 1;
@@ -3099,19 +3411,19 @@ mod tests {
         let x = DVec3::new(0.3, -0.2, 0.1);
         let p = DVec3::new(2.0, 1.0, 1.5);
         let near = c
-            .solve_through(x, p, p - x, 0)
+            .solve_through(x, p, p - x, &Bounces::first(0))
             .expect("the near start converges");
         let away = c
-            .solve_through(x, p, x - p, 0)
+            .solve_through(x, p, x - p, &Bounces::first(0))
             .expect("the opposite start is steered round");
         assert!((near.direction - away.direction).length() < 1e-6);
         assert!((near.jacobian - away.jacobian).abs() < 1e-6 * near.jacobian);
         let dir = DVec3::new(1.0, 0.0, 0.0);
         let near = c
-            .solve_exit(x, dir, dir, 0)
+            .solve_exit(x, dir, dir, &Bounces::first(0))
             .expect("the near start converges");
         let away = c
-            .solve_exit(x, dir, -dir, 0)
+            .solve_exit(x, dir, -dir, &Bounces::first(0))
             .expect("the opposite start is steered round");
         assert!((near.direction - away.direction).length() < 1e-6);
         assert!(near.outgoing.dot(dir) > 1.0 - 1e-9);

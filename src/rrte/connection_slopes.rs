@@ -274,7 +274,7 @@ impl ParticleTracer<'_> {
                             bounces,
                         ),
                         InsidePath::Between(_, bounces) => InsidePath::Between(
-                            connector.solve_into(x, y, c.direction(), bounces)?,
+                            connector.solve_into(x, y, c.direction(), &bounces)?,
                             bounces,
                         ),
                     };
@@ -339,7 +339,7 @@ impl ParticleTracer<'_> {
                             ..Tools::new(volume, self.scene, t.colour, t.delay)
                         };
                         let e =
-                            self.camera_exit_from(&tools.connector, x, i, e.direction, bounces)?;
+                            self.camera_exit_from(&tools.connector, x, i, e.direction, &bounces)?;
                         let link = self.link_to_camera(&tools, i, &e, || carried(volume, &e))?;
                         let scale = weight * emit(volume, (x, w_in), link.direction);
                         Some((link, scale))

@@ -16,7 +16,7 @@
 //! the conservation of basic radiance `L/n²` of the RRTE expresses.
 
 use super::bidirectional::Subpaths;
-use super::connect::{Aim, Connector, Exit, InsidePath, Sampled};
+use super::connect::{Aim, Bounces, Connector, Exit, InsidePath, Sampled};
 use super::connection_slopes::{ShiftedFields, Vertex, emitted};
 use super::flight::{Flight, Flyer, fresnel, reflect};
 use super::scene::{
@@ -809,7 +809,7 @@ impl<'s> ParticleTracer<'s> {
     ) -> Option<CameraLink> {
         let (e, inverse_p, bounces) = self.camera_exit(t, x, i, way, rng, out)?;
         self.link_to_camera(t, i, &e, || {
-            let transmittance = self.exit_transmittance(t, &e, bounces, rng);
+            let transmittance = self.exit_transmittance(t, &e, bounces.first, rng);
             transmittance * e.transmission / e.jacobian * inverse_p
         })
     }
@@ -824,19 +824,20 @@ impl<'s> ParticleTracer<'s> {
         way: Way,
         rng: &mut Rng,
         out: &mut [C64],
-    ) -> Option<(Exit, f64, usize)> {
-        let Way::Bounces(bounces) = way else {
+    ) -> Option<(Exit, f64, Bounces)> {
+        let Way::Bounces(first) = way else {
             return None;
         };
+        let bounces = self.exit_bounces(t, first, rng);
         let first_only = self.scene.connections == Connections::First;
         let s = match self.scene.cameras.get(i) {
             Some(cam) => t
                 .connector
-                .sample_exit(x, cam.direction, bounces, first_only, rng),
+                .sample_exit(x, cam.direction, &bounces, first_only, rng),
             None => {
                 let cam = &self.scene.pinholes[i - self.scene.cameras.len()];
                 t.connector
-                    .sample_through(x, cam.position, bounces, first_only, rng)
+                    .sample_through(x, cam.position, &bounces, first_only, rng)
             }
         };
         self.tally(s, out)
@@ -851,7 +852,7 @@ impl<'s> ParticleTracer<'s> {
         x: DVec3,
         i: usize,
         w0: DVec3,
-        bounces: usize,
+        bounces: &Bounces,
     ) -> Option<Exit> {
         match self.scene.cameras.get(i) {
             Some(cam) => connector.solve_exit(x, cam.direction, w0, bounces),
@@ -967,7 +968,7 @@ impl<'s> ParticleTracer<'s> {
             InsidePath::Within(c, bounces) => {
                 self.transmittance(t, x, c.direction, (c.length, bounces), rng)
             }
-            InsidePath::Between(e, (bounces, _)) => self.exit_transmittance(t, &e, bounces, rng),
+            InsidePath::Between(e, bounces) => self.exit_transmittance(t, &e, bounces.first, rng),
         }
     }
 
@@ -1370,6 +1371,13 @@ impl<'s> ParticleTracer<'s> {
         (0..=bounces)
             .map(Way::Bounces)
             .chain(outside.into_iter().flatten())
+    }
+
+    /// The reflections of a connection through the surface that reflects `first` times inside
+    /// the part it starts from: in the parts it crosses after, as many as the rest of
+    /// [`Self::most_bounces`] allows, drawn ([`Bounces::draw`]).
+    pub(super) fn exit_bounces(&self, t: &Tools, first: usize, rng: &mut Rng) -> Bounces {
+        Bounces::draw(first, self.most_bounces(t).saturating_sub(first), rng)
     }
 
     /// Reflections inside the surface a connection follows at most: `render.reflections`, none

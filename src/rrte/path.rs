@@ -450,13 +450,14 @@ impl ParticleTracer<'_> {
                 pdf: intensity,
             })
         } else {
-            let s = t.connector.sample_through(x, q, bounces, first_only, rng);
+            let bounces = self.exit_bounces(t, bounces, rng);
+            let s = t.connector.sample_through(x, q, &bounces, first_only, rng);
             let (e, inverse_p) = self.tally(s, out)?;
             let to_q = (q - e.surface).dot(e.outgoing);
             if self.scene.blocked(e.surface, e.outgoing, to_q) {
                 return None;
             }
-            let transmittance = self.exit_transmittance(t, &e, bounces, rng);
+            let transmittance = self.exit_transmittance(t, &e, bounces.first, rng);
             // n_q = n_out: the camera's n_out² cancels it
             let intensity = light.intensity(-e.outgoing);
             // the path's optical length holds the straight stretch to the light
