@@ -2521,6 +2521,33 @@ mod tests {
         assert!((found.optical_path - 1.4 * s).abs() < 1e-9);
     }
 
+    /// Clear glass balls `(centre, radius, n)` in air as several volumes, each of constant index
+    /// in closed form, or `graded`: stepped through a linear profile of zero gradient.
+    fn clear_balls(balls: &[(DVec3, f64, f64)], graded: bool) -> Volume {
+        use crate::eikonal::Part;
+        use crate::rrte::Bulk;
+        let parts = balls.iter().map(|&(c, r, n)| {
+            let profile = if graded {
+                Profile::Linear {
+                    n0: n,
+                    gradient: DVec3::ZERO,
+                }
+            } else {
+                Profile::Constant { n }
+            };
+            let clear = Bulk {
+                sigma_s: 0.0,
+                sigma_a: 0.0,
+                scattering: Scattering::single(PhaseFunction::Isotropic),
+            };
+            (
+                Part::new(Bounds::Sphere { radius: r }, c, vec![profile]),
+                clear,
+            )
+        });
+        Volume::several(parts.collect(), 1.0)
+    }
+
     /// Snell's law by hand: `d` refracted at a surface with unit normal `n` facing it, `eta`
     /// the ratio of the indices before and after.
     fn snell(d: DVec3, n: DVec3, eta: f64) -> DVec3 {
@@ -2903,35 +2930,12 @@ mod tests {
     /// gives, `n_y² dA_y/dω_x = n_x² dA_x/dω_y` (the two-point étendue).
     #[test]
     fn a_path_between_two_volumes_crosses_a_third_and_spreads_as_traced_by_hand() {
-        use crate::eikonal::Part;
-        use crate::rrte::Bulk;
         let balls = [
             (DVec3::ZERO, 1.0, 1.5),
             (DVec3::new(2.2, 0.1, 0.0), 0.7, 1.4),
             (DVec3::new(4.2, 0.2, -0.1), 0.9, 1.3),
         ];
-        let scene = |graded: bool| {
-            let parts = balls.map(|(c, r, n)| {
-                let profile = if graded {
-                    Profile::Linear {
-                        n0: n,
-                        gradient: DVec3::ZERO,
-                    }
-                } else {
-                    Profile::Constant { n }
-                };
-                let clear = Bulk {
-                    sigma_s: 0.0,
-                    sigma_a: 0.0,
-                    scattering: Scattering::single(PhaseFunction::Isotropic),
-                };
-                (
-                    Part::new(Bounds::Sphere { radius: r }, c, vec![profile]),
-                    clear,
-                )
-            });
-            Volume::several(parts.to_vec(), 1.0)
-        };
+        let scene = |graded: bool| clear_balls(&balls, graded);
         // the hand's trace from `x` in ball `from` along `w` to the plane through `y` across
         // `o`: where it crosses it, the unit direction there, the length inside and the
         // transmission, and the index at both ends
@@ -3088,8 +3092,6 @@ mod tests {
     /// traced by hand do.
     #[test]
     fn a_path_reflected_inside_a_volume_it_crosses_spreads_as_traced_by_hand() {
-        use crate::eikonal::Part;
-        use crate::rrte::Bulk;
         let balls = [
             (DVec3::ZERO, 0.5, 1.3),
             (DVec3::new(3.0, 0.0, 0.0), 1.0, 1.5),
@@ -3133,24 +3135,7 @@ mod tests {
         };
         let (x, p) = (DVec3::new(0.1, 0.05, -0.05), DVec3::new(0.6, 0.8, 0.1));
         for graded in [false, true] {
-            let parts = balls.map(|(c, r, n)| {
-                let profile = if graded {
-                    Profile::Linear {
-                        n0: n,
-                        gradient: DVec3::ZERO,
-                    }
-                } else {
-                    Profile::Constant { n }
-                };
-                let clear = Bulk {
-                    sigma_s: 0.0,
-                    sigma_a: 0.0,
-                    scattering: Scattering::single(PhaseFunction::Isotropic),
-                };
-                let part = Part::new(Bounds::Sphere { radius: r }, c, vec![profile]);
-                (part, clear)
-            });
-            let v = Volume::several(parts.to_vec(), 1.0);
+            let v = clear_balls(&balls, graded);
             let connector = Connector::new(&v, 1e-3, 100_000);
             let mut rng = crate::math::stream_rng(7, 0);
             let reflected = Bounces::with(0, [1, 0, 0, 0], 0);
