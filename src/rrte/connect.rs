@@ -2563,6 +2563,27 @@ mod tests {
         0.5 * (rs * rs + rp * rp)
     }
 
+    /// By hand, the ray inside a ball `(centre, radius, n)` from `a` on its surface along unit
+    /// `inside` to the surface, reflected there: the reflection point, the reflected direction, the
+    /// chord's length and the Fresnel reflectance (1 beyond the critical angle).
+    fn bounce_in_ball(
+        (c, r, n): (DVec3, f64, f64),
+        a: DVec3,
+        inside: DVec3,
+    ) -> (DVec3, DVec3, f64, f64) {
+        let t = -2.0 * (a - c).dot(inside);
+        let e = a + inside * t;
+        let nrm = (e - c) / r;
+        let cos_i = nrm.dot(inside);
+        let sin_t2 = n * n * (1.0 - cos_i * cos_i);
+        let reflected = if sin_t2 >= 1.0 {
+            1.0
+        } else {
+            reflectance(cos_i, (1.0 - sin_t2).sqrt(), n)
+        };
+        (e, inside - nrm * (2.0 * cos_i), t, reflected)
+    }
+
     /// Assert that the path `found` to the point `p` is the one `hand` traces from its direction
     /// (exit point, outgoing direction, length inside, transmission), that it passes through
     /// `p`, and that its ray tube's cross-section at `p` equals that of neighbouring rays traced
@@ -2970,18 +2991,10 @@ mod tests {
                 if k == to {
                     let (mut a, mut inside) = (a, inside);
                     for _ in 0..bounces {
-                        let t1 = -2.0 * (a - c).dot(inside);
-                        let e = a + inside * t1;
-                        let nrm = (e - c) / r;
-                        let cos_i = nrm.dot(inside);
-                        let sin_t2 = n * n * (1.0 - cos_i * cos_i);
-                        transmission *= if sin_t2 >= 1.0 {
-                            1.0
-                        } else {
-                            reflectance(cos_i, (1.0 - sin_t2).sqrt(), n)
-                        };
+                        let (e, reflected, t1, r) = bounce_in_ball((c, r, n), a, inside);
+                        transmission *= r;
                         length += t1;
-                        (a, inside) = (e, inside - nrm * (2.0 * cos_i));
+                        (a, inside) = (e, reflected);
                     }
                     let reach = (y - a).dot(inside);
                     return (a + inside * reach, inside, length + reach, transmission);
@@ -3113,19 +3126,10 @@ mod tests {
             let t0 = -b - disc.max(0.0).sqrt();
             let a = at + d * t0;
             let nrm = (a - c) / r;
-            let mut inside = snell(d, nrm, 1.0 / n);
+            let inside = snell(d, nrm, 1.0 / n);
             transmission *= 1.0 - reflectance(-nrm.dot(d), -nrm.dot(inside), 1.0 / n);
-            let t1 = -2.0 * (a - c).dot(inside);
-            let e = a + inside * t1;
-            let nrm = (e - c) / r;
-            let cos_i = nrm.dot(inside);
-            let sin_t2 = n * n * (1.0 - cos_i * cos_i);
-            transmission *= if sin_t2 >= 1.0 {
-                1.0
-            } else {
-                reflectance(cos_i, (1.0 - sin_t2).sqrt(), n)
-            };
-            inside -= nrm * (2.0 * cos_i);
+            let (e, inside, t1, reflected) = bounce_in_ball((c, r, n), a, inside);
+            transmission *= reflected;
             let t2 = -2.0 * (e - c).dot(inside);
             let f = e + inside * t2;
             let nrm = (f - c) / r;
