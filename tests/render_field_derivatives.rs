@@ -259,7 +259,7 @@ fn probes_differentiate_as_their_differences() {
             .replacen("[render]\n", "[render]\nconnections = \"first\"\n", 1);
         scene(&text)
     };
-    let sizes = (40_000, 8, 10_000);
+    let sizes = (24_000, 6, 6_000);
     let names = |d: bool, names: &'static str| if d { names } else { "" };
     let field = "\"profiles[0].c2\"";
     agrees_with_differences(
@@ -322,7 +322,7 @@ fn cameras_differentiate_as_their_differences() {
     let (n0, c2, sigma_s) = (1.3, -0.25, 1.5);
     let ball =
         |c2, sigma_s, names: &str| scene(&with_cameras(&graded_ball(n0, c2, sigma_s, names)));
-    let sizes = (20_000, 8, 5_000);
+    let sizes = (12_000, 6, 3_000);
     let names = |d: bool, names: &'static str| if d { names } else { "" };
     let field = "\"profiles[0].c2\"";
     agrees_with_differences(|v, d| ball(v, sigma_s, names(d, field)), c2, 0.05, 0, sizes);
@@ -618,6 +618,9 @@ fn agrees_with_differences(
         let mean = fd.iter().sum::<f64>() / n;
         let sf = (fd.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0) / n).sqrt();
         resolved |= d.abs() > 4.0 * sd;
+        eprintln!(
+            "{param} of {name}: estimate {d:.4e} ± {sd:.1e}, differences {mean:.4e} ± {sf:.1e}"
+        );
         assert!(
             (d - mean).abs() < 4.0 * (sd * sd + sf * sf).sqrt(),
             "{param} of {name}: estimate {d:.4e} ± {sd:.1e}, differences {mean:.4e} ± {sf:.1e}"
@@ -633,7 +636,7 @@ fn a_graded_balls_targets_differentiate_as_their_differences() {
     let (n0, c2, sigma_s) = (1.3, -0.25, 1.5);
     let names = "\"profiles[0].n0\", \"profiles[0].c2\", \"sigma_s\"";
     let with = |d: bool| if d { names } else { "" };
-    let sizes = (200_000, 16, 40_000);
+    let sizes = (100_000, 12, 20_000);
     agrees_with_differences(
         |v, d| scene(&graded_ball(n0, v, sigma_s, with(d))),
         c2,

@@ -185,7 +185,7 @@ fn curved_rays_agree() {
         },
         camera(DVec3::new(3.0, 1.0, 2.0), DVec3::ZERO, 45.0),
     );
-    agree(s, 100_000, 20_000, true);
+    agree(s, 60_000, 12_000, true);
 }
 
 /// A white floor beside the sphere, lit by a spot light above: the camera sees the floor and
