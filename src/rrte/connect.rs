@@ -95,6 +95,14 @@ impl Exit {
         self.length - self.again.parts().iter().map(|p| p.length).sum::<f64>()
     }
 
+    /// Add a stretch inside a part entered again to the path (its length and optical path);
+    /// `false` if it has [`MAX_AGAIN`] already.
+    fn enter(&mut self, stretch: Reentry) -> bool {
+        self.length += stretch.length;
+        self.optical_path += stretch.optical_path;
+        self.again.push(stretch)
+    }
+
     /// The geometric length inside, part by part where `volume` is several.
     pub fn lengths(&self, volume: &Volume) -> PartLengths {
         let mut lengths = PartLengths::default();
@@ -1678,14 +1686,13 @@ impl<'v> Connector<'v> {
             reflections,
         )?;
         for &stretch in c.stretches.parts() {
-            if !exit.again.push(stretch) {
+            if !exit.enter(stretch) {
                 return None;
             }
         }
         exit.again.crossed += 1;
         exit.between += t0;
-        exit.length += c.length;
-        exit.optical_path += self.volume.field.n_out * t0 + c.optical_path;
+        exit.optical_path += self.volume.field.n_out * t0;
         exit.transmission *= c.transmission;
         exit.surface = c.end;
         exit.outgoing = c.outgoing;
@@ -1755,19 +1762,9 @@ impl<'v> Connector<'v> {
         exit.transmission *= entered;
         // the stretches inside `into`, each from its start with the sensitivities there
         let mut stretch = (inside, along, sensitivities);
-        let push = |exit: &mut Exit, (inside, along): (DVec3, DVec3), length, optical_path| {
-            exit.length += length;
-            exit.optical_path += optical_path;
-            exit.again.push(Reentry {
-                inside,
-                along,
-                length,
-                optical_path,
-            })
-        };
         for _ in 0..bounces.left_after(exit.again.crossed) {
             let (s, next, reflectance) = self.bounce(stretch)?;
-            if !push(&mut exit, (s.inside, s.along), s.length, s.optical_path) {
+            if !exit.enter(s) {
                 return None;
             }
             exit.transmission *= reflectance;
@@ -1776,7 +1773,13 @@ impl<'v> Connector<'v> {
         let (from, along, (xv, vv)) = stretch;
         let (end, xv, length, optical_path) =
             self.approach(Tangent::with(field, from, along, xv, vv), y)?;
-        if !push(&mut exit, (from, along), length, optical_path) {
+        let last = Reentry {
+            inside: from,
+            along,
+            length,
+            optical_path,
+        };
+        if !exit.enter(last) {
             return None;
         }
         exit.surface = end.x;
