@@ -14,7 +14,7 @@ use glam::DVec3;
 use lightpath::eikonal::{BoundedField, Bounds, Part, Profile};
 use lightpath::math::stream_rng;
 use lightpath::medium::{PhaseFunction, Scattering};
-use lightpath::rrte::{Bulk, Camera, Light, Pinhole, RenderScene, Sensor, Total, Volume};
+use lightpath::rrte::{Bulk, Camera, Light, Pinhole, RenderScene, Sensor, Surface, Total, Volume};
 
 /// A part and its bulk: a shape at `center` of constant index `n`.
 fn part(shape: Bounds, center: DVec3, n: f64, bulk: (f64, f64, f64)) -> (Part, Bulk) {
@@ -656,38 +656,45 @@ fn probes_in_one_volume_count_the_light_from_another_as_a_target_does() {
 /// reflection off its back face: light that crosses the slab, reflecting inside it on the way.
 /// The ball's mirror image in the slab's front face falls outside the camera's window (0.75
 /// aside), and so does the ball itself.
-fn ball_seen_in_a_slab_s_back_face() -> RenderScene {
-    let volume = Volume::several(
-        vec![
-            part(
-                Bounds::Sphere { radius: 0.15 },
-                DVec3::new(-1.5, 0.0, 2.0),
-                1.0,
-                (6.0, 0.0, 0.0),
-            ),
-            part(
-                Bounds::Box {
-                    half: DVec3::new(2.5, 1.5, 0.5),
-                },
-                DVec3::ZERO,
-                1.5,
-                (0.0, 0.0, 0.0),
-            ),
-        ],
-        1.0,
+/// Where light from [`IN_FRONT`] that meets a glass slab (n = 1.5, 1 thick, its front face at
+/// z = 0.5) at 45° is seen after one reflection off its back face: the slab, and an orthographic
+/// camera (0.5 × 0.5, 2 × 2 pixels) looking along (1, 0, 1)/√2 at where that light leaves the
+/// front face, 2 tan θ_t = 1.068 further along x than it met it. The slab's mirror image of
+/// `IN_FRONT` and the point itself fall outside the camera's window.
+fn slab_and_camera() -> ((Part, Bulk), Camera) {
+    let slab = part(
+        Bounds::Box {
+            half: DVec3::new(2.5, 1.5, 0.5),
+        },
+        DVec3::ZERO,
+        1.5,
+        (0.0, 0.0, 0.0),
     );
-    // light from the ball meets the front face at 45°, refracts, reflects off the back face and
-    // leaves the front face 2 tan θ_t = 1.068 further along x, along (1, 0, 1)/√2
     let c = DVec3::new(1.0, 0.0, 1.0).normalize();
     let window = DVec3::new(1.068, 0.0, 0.5) + c * 2.0;
+    let camera = Camera::new("slab".into(), c, window, [0.5, 0.5], [2, 2]);
+    (slab, camera)
+}
+
+/// The point whose light [`slab_and_camera`]'s camera sees after a reflection inside the slab.
+const IN_FRONT: DVec3 = DVec3::new(-1.5, 0.0, 2.0);
+
+fn ball_seen_in_a_slab_s_back_face() -> RenderScene {
+    let (slab, camera) = slab_and_camera();
+    let ball = part(
+        Bounds::Sphere { radius: 0.15 },
+        IN_FRONT,
+        1.0,
+        (6.0, 0.0, 0.0),
+    );
     RenderScene {
-        volume,
+        volume: Volume::several(vec![ball, slab], 1.0),
         light: Light::Beam {
-            center: DVec3::new(-1.5, 0.0, 3.0),
+            center: IN_FRONT + DVec3::Z,
             direction: -DVec3::Z,
             radius: 0.1,
         },
-        cameras: vec![Camera::new("slab".into(), c, window, [0.5, 0.5], [2, 2])],
+        cameras: vec![camera],
         reflections: 1,
         ..bare_scene(0.01)
     }
@@ -715,5 +722,73 @@ fn a_ball_seen_after_a_reflection_inside_a_slab_renders_alike_from_either_end() 
             (x - y).abs() < 4.0 * sx.hypot(sy),
             "{what}: particles {x} ± {sx}, bidirectional {y} ± {sy}"
         );
+    }
+}
+
+/// A white card (0.3 × 0.3, albedo 0.8) at [`IN_FRONT`] facing the slab along (1, 0, −1)/√2, lit
+/// by a spot in front of it: the camera sees it edge-on, and only after one reflection inside
+/// the slab.
+fn card_seen_in_a_slab_s_back_face() -> RenderScene {
+    let (slab, camera) = slab_and_camera();
+    let facing = DVec3::new(1.0, 0.0, -1.0).normalize();
+    RenderScene {
+        volume: Volume::several(vec![slab], 1.0),
+        light: Light::Spot {
+            position: IN_FRONT + facing * 0.6,
+            axis: -facing,
+            half_angle: 0.4,
+        },
+        surfaces: vec![Surface::new(
+            "card".into(),
+            IN_FRONT,
+            facing,
+            Some([0.3, 0.3]),
+            0.8,
+        )],
+        cameras: vec![camera],
+        reflections: 1,
+        ..bare_scene(0.01)
+    }
+}
+
+/// Path tracing, whose camera paths reflect inside the slab as Fresnel draws, particle tracing,
+/// whose connections from the card to the camera cross the slab reflecting once inside it, and
+/// bidirectional tracing (both, its weights counting those connections) agree on the camera's
+/// image of the card in the slab's back face: its total and each of its four pixels, within 4
+/// combined standard errors.
+#[test]
+fn a_card_seen_after_a_reflection_inside_a_slab_renders_alike_three_ways() {
+    use lightpath::rrte::Tracing;
+    let s = card_seen_in_a_slab_s_back_face();
+    let estimates: Vec<_> = [
+        Tracing::FromLight,
+        Tracing::FromCameras,
+        Tracing::Bidirectional,
+    ]
+    .into_iter()
+    .zip([(240_000, 1), (240_000, 2), (240_000, 3)])
+    .map(|(tracing, (samples, seed))| {
+        let mut t = s.clone();
+        t.tracing = tracing;
+        (tracing, render(&t, samples, seed).0)
+    })
+    .collect();
+    let est = lightpath::rrte::ParticleTracer::new(&s);
+    let image = est.camera_image(0);
+    let outputs = (0..4).map(|k| (format!("pixel {k}"), image.plane(None, 0) + k));
+    for (what, k) in std::iter::once(("total".to_string(), image.total())).chain(outputs) {
+        for (tracing, e) in &estimates {
+            eprintln!("{what}: {tracing:?} {} ± {}", e.mean[k].re, e.stderr[k]);
+            assert!(e.mean[k].re > 5.0 * e.stderr[k], "{what}: {tracing:?}");
+        }
+        for (i, (ta, a)) in estimates.iter().enumerate() {
+            for (tb, b) in &estimates[i + 1..] {
+                let (x, sx, y, sy) = (a.mean[k].re, a.stderr[k], b.mean[k].re, b.stderr[k]);
+                assert!(
+                    (x - y).abs() < 4.0 * sx.hypot(sy),
+                    "{what}: {ta:?} {x} ± {sx}, {tb:?} {y} ± {sy}"
+                );
+            }
+        }
     }
 }

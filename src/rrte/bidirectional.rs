@@ -219,7 +219,8 @@ impl Meetings {
     /// stays within it, only reflecting inside, or leaves it, crosses any other part it meets
     /// and enters it again where it first meets it, reflecting nowhere; between two points
     /// outside it either never meets the surface (straight, also across an index-matched
-    /// volume), refracts into and out of up to `1 + MAX_AGAIN` parts, or only
+    /// volume), refracts into and out of the parts it meets, reflecting inside them
+    /// `most_bounces` times in all, with `1 + MAX_AGAIN` stretches inside at most, or only
     /// reflects once off the outside. (A path off the outside that then crosses parts is made by
     /// particle and path tracing, not here: its reflection would have to come first from
     /// whichever end the connection starts.)
@@ -257,7 +258,9 @@ impl Meetings {
         } else {
             self.all == 0
                 || matched
-                || (self.bounces + self.glances == 0 && refractions <= 2 * (1 + MAX_AGAIN))
+                || (self.glances == 0
+                    && self.bounces <= most_bounces
+                    && refractions / 2 + self.bounces <= 1 + MAX_AGAIN)
                 || (self.all == 1 && self.glances == 1)
         }
     }
@@ -1203,6 +1206,7 @@ mod tests {
     /// A connection leaves the part it starts in after its reflections there, crossing parts
     /// met again after and reflecting inside them, two reflections in all and four stretches
     /// inside parts crossed at most; the same segment traced from outside in is the same path.
+    /// Between two points outside, a path across reflects inside the parts it crosses as often.
     /// More, or a reflection off the outside, are made by tracing alone.
     #[test]
     fn segments_are_connectible_as_the_connections_run() {
@@ -1247,10 +1251,31 @@ mod tests {
         assert!(inside("") && inside("BB") && !inside("BBB") && !inside("LE"));
         let outside =
             |events: &str, matched| met(events).connectible((false, false), None, 2, matched);
-        for events in ["", "EL", "ELEL", "ELELELELEL", "G"] {
+        // across: reflections inside the parts crossed, the same path from either end
+        for events in [
+            "",
+            "EL",
+            "ELEL",
+            "ELELELELEL",
+            "EBL",
+            "EBBL",
+            "ELEBBL",
+            "EBLEBL",
+            "ELELELEBL",
+            "G",
+        ] {
             assert!(outside(events, false), "{events}");
         }
-        for events in ["ELELELELELEL", "EBL", "GEL", "ELG", "GG"] {
+        for events in [
+            "ELELELELELEL",
+            "EBBBL",
+            "EBLEBLEBL",
+            "ELELELELEBL",
+            "GEL",
+            "ELG",
+            "EBLG",
+            "GG",
+        ] {
             assert!(!outside(events, false), "{events}");
         }
         assert!(outside("ELELELELELEL", true));

@@ -1398,10 +1398,18 @@ impl<'v> Connector<'v> {
 
     /// As [`Self::exit_map`] for the ray from `y` outside the volume: straight to the volume,
     /// refracted in (the entry point sliding along the surface as `w` turns, the refraction's
-    /// derivative by central differences of its closed form), across, refracted out. `None` if
-    /// it misses the volume or is reflected totally.
+    /// derivative by central differences of its closed form), across (reflected `reflections`
+    /// times inside the part it meets first, each stretch after the first one of the parts
+    /// entered again), refracted out; that part counts as the first crossed. `None` if it
+    /// misses the volume, is reflected totally or trapped, or runs more than [`MAX_AGAIN`]
+    /// stretches after the first.
     #[allow(clippy::type_complexity)]
-    fn across_map(&self, y: DVec3, w: DVec3) -> Option<(Exit, [DVec3; 2], [DVec3; 2])> {
+    fn across_map(
+        &self,
+        y: DVec3,
+        w: DVec3,
+        reflections: usize,
+    ) -> Option<(Exit, [DVec3; 2], [DVec3; 2])> {
         let Meet {
             t0,
             at,
@@ -1409,27 +1417,37 @@ impl<'v> Connector<'v> {
             slide,
             ..
         } = self.meet(y, w)?;
-        let c = self.cross((y + w * entry_parameter(t0), at, w), frame, slide, 0)?;
-        let first = c.stretches.parts()[0];
-        Some((
-            Exit {
-                direction: w,
-                surface: c.end,
-                outgoing: c.outgoing,
-                inside_from: first.inside,
-                inside_along: first.along,
-                before: t0,
-                length: c.length,
-                optical_path: self.volume.field.n_out * t0 + c.optical_path,
-                transmission: c.transmission,
-                jacobian: 0.0,
-                iterations: 0,
-                again: Again::default(),
-                between: 0.0,
+        let c = self.cross(
+            (y + w * entry_parameter(t0), at, w),
+            frame,
+            slide,
+            reflections,
+        )?;
+        let (first, after) = c.stretches.parts().split_first()?;
+        let mut exit = Exit {
+            direction: w,
+            surface: c.end,
+            outgoing: c.outgoing,
+            inside_from: first.inside,
+            inside_along: first.along,
+            before: t0,
+            length: first.length,
+            optical_path: self.volume.field.n_out * t0 + first.optical_path,
+            transmission: c.transmission,
+            jacobian: 0.0,
+            iterations: 0,
+            again: Again {
+                crossed: 1,
+                ..Again::default()
             },
-            c.turn,
-            c.moved,
-        ))
+            between: 0.0,
+        };
+        for &stretch in after {
+            if !exit.enter(stretch) {
+                return None;
+            }
+        }
+        Some((exit, c.turn, c.moved))
     }
 
     /// As [`Self::exit_map`] for the ray from `y` outside the volume that reflects off its
@@ -1522,10 +1540,7 @@ impl<'v> Connector<'v> {
         }
         let (outgoing, out, turn, moved) =
             self.refract_out(end, (xv, vv), [DVec3::X, DVec3::Y], n_end)?;
-        let parts = stretches.parts();
         Some(Crossing {
-            length: parts.iter().map(|p| p.length).sum(),
-            optical_path: parts.iter().map(|p| p.optical_path).sum(),
             stretches,
             end: end.x,
             outgoing,
@@ -1711,9 +1726,10 @@ impl<'v> Connector<'v> {
 
     /// As [`Self::solve_through`] for a path from `y` outside the volume that crosses it
     /// (refracted in and out, unscattered) on its way to `p`: a surface seen, or lit, through
-    /// the volume.
-    pub fn solve_across(&self, y: DVec3, p: DVec3, w0: DVec3) -> Option<Exit> {
-        self.aim_at(p, w0, &Bounces::default(), |w| self.across_map(y, w))
+    /// the volume. It reflects inside the parts it crosses as `bounces` says, the first it meets
+    /// the first crossed (`bounces.first` is not used).
+    pub fn solve_across(&self, y: DVec3, p: DVec3, w0: DVec3, bounces: &Bounces) -> Option<Exit> {
+        self.aim_at(p, w0, bounces, |w| self.across_map(y, w, bounces.across(0)))
     }
 
     /// As [`Self::solve_across`] for a path from `y` outside the volume that reflects off its
@@ -1955,13 +1971,15 @@ impl<'v> Connector<'v> {
         self.draw_crossing(first_only, start, solve, bounces, rng)
     }
 
-    /// A path from `y` outside the volume across it (refracted in and out, unscattered) to the
-    /// point `p` outside, or leaving it along the unit direction `c`, drawn like
-    /// [`Connector::sample`]. None through an index-matched volume, which a straight line crosses.
+    /// A path from `y` outside the volume across it (refracted in and out, unscattered; reflected
+    /// inside the parts it crosses as `bounces` drew, [`Self::solve_across`]) to the point `p`
+    /// outside, or leaving it along the unit direction `c`, drawn like [`Connector::sample`].
+    /// None through an index-matched volume, which a straight line crosses.
     pub fn sample_across(
         &self,
         y: DVec3,
         target: Aim,
+        bounces: &Bounces,
         first_only: bool,
         rng: &mut Rng,
     ) -> Sampled<Exit> {
@@ -1970,9 +1988,8 @@ impl<'v> Connector<'v> {
             Aim::Point(p) => (p - y).normalize(),
             Aim::Along(c) => c,
         };
-        self.sample_outside(y, target, (near, 0.5), first_only, rng, |w| {
-            self.across_map(y, w)
-        })
+        let map = |w| self.across_map(y, w, bounces.across(0));
+        self.sample_outside(y, target, (near, 0.5), bounces, first_only, rng, map)
     }
 
     /// A path from `y` outside the volume reflected off its surface (outside it) to the point
@@ -2001,6 +2018,7 @@ impl<'v> Connector<'v> {
             y,
             target,
             (to_near.normalize(), jitter),
+            &Bounces::default(),
             first_only,
             rng,
             |w| self.mirror_map(y, w),
@@ -2010,12 +2028,14 @@ impl<'v> Connector<'v> {
     /// A path from `y` outside the volume that `map` follows, to the point or along the
     /// direction of `target`: Newton starts half the time near the unit direction `near` (a
     /// uniform direction times `jitter` added), half the time towards a uniform point of the
-    /// volume's bounding box.
+    /// volume's bounding box. The path reflects inside the parts it crosses as `bounces` drew.
+    #[allow(clippy::too_many_arguments)]
     fn sample_outside(
         &self,
         y: DVec3,
         target: Aim,
         (near, jitter): (DVec3, f64),
+        bounces: &Bounces,
         first_only: bool,
         rng: &mut Rng,
         map: impl Fn(DVec3) -> Option<(Exit, [DVec3; 2], [DVec3; 2])>,
@@ -2038,12 +2058,12 @@ impl<'v> Connector<'v> {
         };
         let solve = |w| {
             match target {
-                Aim::Point(p) => self.aim_at(p, w, &Bounces::default(), &map),
-                Aim::Along(c) => self.aim_along(c, w, &Bounces::default(), &map),
+                Aim::Point(p) => self.aim_at(p, w, bounces, &map),
+                Aim::Along(c) => self.aim_along(c, w, bounces, &map),
             }
             .map(|e| (e, e.direction, e.iterations))
         };
-        self.draw(first_only, start, solve, rng)
+        self.draw_crossing(first_only, start, solve, bounces, rng)
     }
 
     /// The path Newton's method reaches from `w0` that leaves the volume along unit `c`.
@@ -2110,10 +2130,7 @@ struct Crossing {
     /// Where it leaves, and its direction after refraction there.
     end: DVec3,
     outgoing: DVec3,
-    /// Geometric length and optical path inside, and `(1 − R)` of the entry and the exit times
-    /// the reflectance `R` of each reflection inside.
-    length: f64,
-    optical_path: f64,
+    /// `(1 − R)` of the entry and the exit times the reflectance `R` of each reflection inside.
     transmission: f64,
     /// The derivatives of the outgoing direction and of the exit point along the perturbations.
     turn: [DVec3; 2],
@@ -2657,8 +2674,56 @@ mod tests {
         };
         on_glass_balls(|c| {
             let start = ((p - y).normalize() + DVec3::X * 0.3).normalize();
-            let found = c.solve_across(y, p, start).expect("converges");
+            let found = c
+                .solve_across(y, p, start, &Bounces::default())
+                .expect("converges");
             traced_by_hand(&found, p, hand);
+        });
+    }
+
+    /// Across a glass ball (n = 1.5 in air) reflected once inside it (a rainbow's path), in
+    /// closed form and stepped: each path Newton finds from random starts between two points
+    /// outside on the same side of the ball refracts in by Snell's law, reflects off the far side
+    /// by the law of reflection, refracts out, passes through the point, carries the Fresnel
+    /// factors of all three meetings, runs its two stretches inside the ball (the second as one
+    /// after the first), and spreads as neighbouring rays traced by hand do. Unreflected, no
+    /// such path exists.
+    #[test]
+    fn a_path_across_a_glass_ball_reflected_inside_it_spreads_as_traced_by_hand() {
+        let (y, p) = (DVec3::new(0.3, -0.2, -2.5), DVec3::new(-0.3, 0.4, -2.8));
+        let hand = |w: DVec3| {
+            let b = y.dot(w);
+            let t0 = -b - (b * b - (y.length_squared() - 1.0)).sqrt();
+            let a = y + w * t0;
+            let d = snell(w, a, 1.0 / 1.5);
+            let (e, r, t1, reflected) = bounce_in_ball((DVec3::ZERO, 1.0, 1.5), a, d);
+            let t2 = -2.0 * e.dot(r);
+            let f = e + r * t2;
+            let o = snell(r, -f, 1.5);
+            let transmission = (1.0 - reflectance(-a.dot(w), -a.dot(d), 1.0 / 1.5))
+                * reflected
+                * (1.0 - reflectance(f.dot(r), f.dot(o), 1.5));
+            (f, o, t1 + t2, transmission)
+        };
+        on_glass_balls(|c| {
+            let mut rng = crate::math::stream_rng(5, 0);
+            let start = |rng: &mut Rng| {
+                let u = crate::math::uniform_sphere(uniform(rng), uniform(rng));
+                (-y.normalize() + u * 0.4).normalize()
+            };
+            let reflected = Bounces::with(0, [1, 0, 0, 0], 0);
+            let found: Vec<Exit> = (0..200)
+                .filter_map(|_| c.solve_across(y, p, start(&mut rng), &reflected))
+                .collect();
+            assert!(found.len() >= 5, "{} of 200 starts converge", found.len());
+            for f in &found {
+                assert_eq!((f.again.crossed(), f.again.parts().len()), (1, 1));
+                traced_by_hand(f, p, hand);
+            }
+            let unreflected = (0..200)
+                .filter_map(|_| c.solve_across(y, p, start(&mut rng), &Bounces::default()))
+                .count();
+            assert_eq!(unreflected, 0);
         });
     }
 

@@ -1391,8 +1391,9 @@ impl<'s> ParticleTracer<'s> {
     }
 
     /// A path from `y` outside the volume to `aim` across it (refracted in and out,
-    /// unscattered) or, with `way` = [`Way::Mirror`], reflected off its outside; its stretch
-    /// before the volume past every surface (the caller checks the one after), and what it
+    /// unscattered, reflected inside the parts it crosses as [`Self::exit_bounces`] draws from
+    /// [`Self::most_bounces`]) or, with `way` = [`Way::Mirror`], reflected off its outside; its
+    /// stretch before the volume past every surface (the caller checks the one after), and what it
     /// carries per unit intensity leaving `y`: `T (1 − R_in)(1 − R_out) / jacobian` (`R /
     /// jacobian` off the outside) over the inverse probability of drawing it, the `jacobian` of
     /// [`Connector::solve_across`] for a point, of [`Connector::solve_exit`] for a direction.
@@ -1408,7 +1409,10 @@ impl<'s> ParticleTracer<'s> {
         let first_only = self.scene.connections == Connections::First;
         let s = match way {
             Way::Mirror => t.connector.sample_mirror(y, aim, first_only, rng),
-            _ => t.connector.sample_across(y, aim, first_only, rng),
+            _ => {
+                let bounces = self.exit_bounces(t, 0, rng);
+                t.connector.sample_across(y, aim, &bounces, first_only, rng)
+            }
         };
         let (e, inverse_p) = self.tally(s, out)?;
         if self.scene.blocked(y, e.direction, e.before) {
@@ -1660,7 +1664,8 @@ pub(super) enum Way {
     /// through the surface between a point inside and one outside after this many reflections
     /// inside it.
     Bounces(usize),
-    /// Across the volume between two points outside it, refracted in and out.
+    /// Across the volume between two points outside it, refracted into and out of each part it
+    /// meets, reflected inside them as drawn ([`ParticleTracer::exit_bounces`]).
     Across,
     /// Off the volume's surface between two points outside it, reflected once outside it.
     Mirror,
