@@ -766,7 +766,7 @@ fn a_card_seen_after_a_reflection_inside_a_slab_renders_alike_three_ways() {
         Tracing::Bidirectional,
     ]
     .into_iter()
-    .zip([(240_000, 1), (240_000, 2), (240_000, 3)])
+    .zip([(400_000, 1), (400_000, 2), (400_000, 3)])
     .map(|(tracing, (samples, seed))| {
         let mut t = s.clone();
         t.tracing = tracing;
