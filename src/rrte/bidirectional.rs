@@ -213,11 +213,14 @@ impl Meetings {
     /// crossed one of [`MAX_AGAIN`] at most; it reflects nowhere outside; between two points
     /// inside one volume it only reflects
     /// inside, as often; between points inside two of several volumes (`between`: their parts)
-    /// it leaves the one, crosses any other it meets (in and out, up to `MAX_AGAIN − 1` of them)
-    /// and enters the other, reflecting nowhere (so it is the same path from either end);
-    /// between two points in one part that is not convex (`between` names it twice) it either
-    /// stays within it, only reflecting inside, or leaves it, crosses any other part it meets
-    /// and enters it again where it first meets it, reflecting nowhere; between two points
+    /// it leaves the one, crosses any other it meets (in and out) and enters the other,
+    /// reflecting inside any of them `most_bounces` times in all, its stretches after the one it
+    /// starts with (each part crossed one and one per reflection inside it, the end's part one
+    /// and its reflections) [`MAX_AGAIN`] at most from either end (so the connection, which
+    /// keeps to that, makes the same paths from either end); between two points in one part
+    /// that is not convex (`between` names it twice) it either stays within it, only reflecting
+    /// inside, or leaves it, crosses any other part it meets and enters it again where it first
+    /// meets it, reflecting as between two parts; between two points
     /// outside it either never meets the surface (straight, also across an index-matched
     /// volume), refracts into and out of the parts it meets, reflecting inside them
     /// `most_bounces` times in all, with `1 + MAX_AGAIN` stretches inside at most, or only
@@ -236,10 +239,14 @@ impl Meetings {
             if from == to && !self.left {
                 return self.all == self.bounces && self.bounces <= most_bounces;
             }
+            // out of one part and into the other: two refractions more than the parts crossed
+            let crossed = refractions.saturating_sub(2) / 2;
+            let fewest_at_an_end = self.bounces_before_leaving.min(self.bounces_since_entry);
             return ends_inside
-                && self.bounces + self.glances == 0
+                && self.glances == 0
+                && self.bounces <= most_bounces
                 && self.entered_before & (1 << from | 1 << to) == 0
-                && refractions <= 2 * MAX_AGAIN;
+                && crossed + 1 + self.bounces - fewest_at_an_end <= MAX_AGAIN;
         }
         if began_inside != ends_inside {
             let first_part = if began_inside {
@@ -609,15 +616,14 @@ impl ParticleTracer<'_> {
                 })
             }
             (None, None, Way::Bounces(bounces)) => {
-                // between two of several volumes unreflected only: none to try (or count)
-                if bounces > 0 && t.connector.apart(z.x, y.x) {
-                    return None;
-                }
                 let first_only = self.scene.connections == Connections::First;
                 let sampled = t
                     .connector
-                    .sample_inside(z.x, y.x, bounces, first_only, false, rng);
+                    .sample_inside(z.x, y.x, bounces, first_only, true, rng);
                 let (path, inverse_p) = self.tally(sampled, out)?;
+                if !path.fits_either_way() {
+                    return None;
+                }
                 let transmittance = self.path_transmittance(t, z.x, &path, rng);
                 let n_y = t.flyer.n(y.x);
                 Some(Joint {
@@ -1282,22 +1288,36 @@ mod tests {
     }
 
     /// Between points in two of several volumes (0 and 1) a connection leaves the one, crosses
-    /// any other it meets and enters the other, reflecting nowhere, so it is the same path from
-    /// either end: a traced segment that enters either end's volume before its last entry, or
-    /// reflects anywhere, is made by tracing alone.
+    /// any other it meets and enters the other, reflecting inside any of them, two reflections
+    /// in all, and its stretches after the first fitting [`MAX_AGAIN`] from either end: a traced
+    /// segment that enters either end's volume before its last entry, reflects more or off an
+    /// outside, or runs more stretches, is made by tracing alone.
     #[test]
     fn segments_between_two_volumes_are_connectible_as_the_connections_run() {
         let between = |events: &str| met(events).connectible((true, true), Some((0, 1)), 2, false);
-        for events in ["LE1", "LE2LE1", "LE2LE3LE4LE1"] {
+        for events in [
+            "LE1",
+            "LE2LE1",
+            "LE2LE3LE4LE1",
+            "BLE1",
+            "LE1B",
+            "BBLE1",
+            "LE2BLE1",
+            "LE2LE3BLE1",
+            "BLE2LE3LE1B",
+        ] {
             assert!(between(events), "{events}");
         }
         for events in [
-            "BLE1",
-            "LE1B",
+            "BBBLE1",
+            "BLE1BB",
             "LGE1",
             "LE0LE1",
             "LE1LE2LE1",
             "LE2LE3LE4LE5LE1",
+            "LE2LE3LE4BLE1",
+            "BLE2LE3LE4LE1",
+            "LE2LE3LE4LE1B",
         ] {
             assert!(!between(events), "{events}");
         }

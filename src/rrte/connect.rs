@@ -340,6 +340,19 @@ impl InsidePath {
         }
     }
 
+    /// Whether a path between two parts (or out of one part and back in) keeps within
+    /// [`MAX_AGAIN`] stretches after its first from either end: run the other way, its first
+    /// part's reflections and its last part's trade places. A path within one part always does.
+    pub fn fits_either_way(&self) -> bool {
+        match self {
+            InsidePath::Within(..) => true,
+            InsidePath::Between(e, bounces) => {
+                let end = bounces.left_after(e.again.crossed);
+                e.again.parts().len() + bounces.first <= MAX_AGAIN + end
+            }
+        }
+    }
+
     /// Its geometric length inside, part by part where `volume` is several.
     pub fn lengths(&self, volume: &Volume) -> PartLengths {
         match self {
