@@ -459,8 +459,9 @@ impl ParticleTracer<'_> {
         let z = zs[zs.len() - 1];
         for way in self.ways(t, z.facing.is_some()) {
             let link = match z.facing {
-                // between two of several volumes, unreflected only (see `Meetings::connectible`)
-                None => self.light_link(t, z.x, way, false, rng, out),
+                // between two of several volumes, as it fits from either end (see
+                // `Meetings::connectible`)
+                None => self.light_link(t, z.x, way, true, rng, out),
                 Some(n) => self.surface_light_link(t, z.x, n, way, rng, out),
             };
             let Some(link) = link.filter(|l| !crosses_after_mirror(way, l.inside.total())) else {
@@ -619,7 +620,7 @@ impl ParticleTracer<'_> {
                 let first_only = self.scene.connections == Connections::First;
                 let sampled = t
                     .connector
-                    .sample_inside(z.x, y.x, bounces, first_only, true, rng);
+                    .sample_inside(z.x, y.x, bounces, first_only, rng);
                 let (path, inverse_p) = self.tally(sampled, out)?;
                 if !path.fits_either_way() {
                     return None;

@@ -1313,15 +1313,12 @@ impl<'v> Connector<'v> {
     /// splits them: an unbiased estimate of the sum over the ways. In a part that is not convex
     /// a path may also leave it and come back ([`Connector::solve_into`]): one of the two kinds
     /// is drawn ([`Self::around_chance`]), its inverse probability divided by the kind's chance.
-    /// Without `reflected_out` a path that leaves the start's part does not reflect: with
-    /// `bounces` > 0 only one within the part is drawn.
     pub fn sample_inside(
         &self,
         x: DVec3,
         y: DVec3,
         bounces: usize,
         first_only: bool,
-        reflected_out: bool,
         rng: &mut Rng,
     ) -> Sampled<InsidePath> {
         let within = |rng: &mut Rng| {
@@ -1331,9 +1328,6 @@ impl<'v> Connector<'v> {
         let apart = self.apart(x, y);
         if !apart && !self.around(x) {
             return within(rng);
-        }
-        if bounces > 0 && !reflected_out {
-            return if apart { Sampled::none() } else { within(rng) };
         }
         let chance = if apart { 1.0 } else { self.around_chance(x, y) };
         if chance < 1.0 && (chance == 0.0 || uniform(rng) >= chance) {
@@ -3311,7 +3305,7 @@ mod tests {
         let c = Connector::new(&matched, 1e-2, 1000);
         let lift = DVec3::new(0.0, 0.2, 0.0);
         let (x, y) = (a + lift, b + lift);
-        let s = c.sample_inside(x, y, 0, false, true, &mut rng);
+        let s = c.sample_inside(x, y, 0, false, &mut rng);
         let Some((InsidePath::Between(e, _), inverse_p)) = s.path else {
             panic!("{s:?}")
         };
@@ -3328,7 +3322,7 @@ mod tests {
                 .is_none()
         );
         // within one ball, the straight line inside
-        let s = c.sample_inside(x, a - lift, 0, false, true, &mut rng);
+        let s = c.sample_inside(x, a - lift, 0, false, &mut rng);
         assert!(
             matches!(s.path, Some((InsidePath::Within(..), p)) if p == 1.0),
             "{s:?}"

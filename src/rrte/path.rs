@@ -387,7 +387,7 @@ impl ParticleTracer<'_> {
         out: &mut [C64],
     ) {
         for way in self.ways(t, false) {
-            let Some(link) = self.light_link(t, x, way, true, rng, out) else {
+            let Some(link) = self.light_link(t, x, way, false, rng, out) else {
                 continue;
             };
             let phase = t.flyer.volume.scattering_at(x).eval(link.direction.dot(u));
@@ -403,15 +403,16 @@ impl ParticleTracer<'_> {
 
     /// The connection from the light to `x` inside the volume: the basic radiance it brings to
     /// `x` per unit phase function, times the camera's `n_out²` (see the module's notes); after
-    /// the `way`'s reflections inside the surface of `x`'s volume (on a path that leaves it —
-    /// from a light in another of several volumes, or around a part that is not convex — only
-    /// if `reflected_out`).
+    /// the `way`'s reflections inside the surface of `x`'s volume and inside the parts it meets
+    /// (on a path that leaves it — from a light in another of several volumes, or around a part
+    /// that is not convex — only one that fits [`super::connect::MAX_AGAIN`] from either end
+    /// where `either_end`, as bidirectional tracing's weights count it).
     pub(super) fn light_link(
         &self,
         t: &Tools,
         x: DVec3,
         way: Way,
-        reflected_out: bool,
+        either_end: bool,
         rng: &mut Rng,
         out: &mut [C64],
     ) -> Option<LightLink> {
@@ -421,20 +422,17 @@ impl ParticleTracer<'_> {
         let volume = t.flyer.volume;
         let q = self.light_point(rng)?;
         let inside = volume.field.bounds.contains(q);
-        // none to try (and none counted): see `Connector::sample_inside`
-        if inside && bounces > 0 && !reflected_out && t.connector.apart(x, q) {
-            return None;
-        }
         let first_only = self.scene.connections == super::Connections::First;
         let n_out = volume.field.n_out;
         let light = &self.scene.light;
         if inside {
             // a curved connection inside (after the way's reflections inside the surface), or
             // out of x's volume and into the light's: dA_q/dω_x is its spread
-            let s = t
-                .connector
-                .sample_inside(x, q, bounces, first_only, reflected_out, rng);
+            let s = t.connector.sample_inside(x, q, bounces, first_only, rng);
             let (path, inverse_p) = self.tally(s, out)?;
+            if either_end && !path.fits_either_way() {
+                return None;
+            }
             let leaving_q = -path.arrival().1;
             let n_q = t.flyer.n(q);
             let transmittance = self.path_transmittance(t, x, &path, rng);
