@@ -3241,6 +3241,67 @@ mod tests {
         }
     }
 
+    /// A path out of one part, across others and into a second, reflected `first` times inside
+    /// the first, `across[i]` inside the `i`th crossed and `end` inside the second, fits
+    /// [`MAX_AGAIN`] stretches after its first from either end exactly when both counts do: the
+    /// crossed parts' `1 + k` each, then the last part's `1 + end`, or run the other way its
+    /// `1 + first`. Paths the connection cannot hold from its own end are not found at all.
+    #[test]
+    fn paths_between_parts_fit_from_either_end_as_their_stretches_say() {
+        let exit = |across: &[usize], end: usize| -> Option<Exit> {
+            let mut e = Exit {
+                direction: DVec3::X,
+                surface: DVec3::X,
+                outgoing: DVec3::X,
+                inside_from: DVec3::ZERO,
+                inside_along: DVec3::X,
+                before: 0.0,
+                length: 1.0,
+                optical_path: 1.5,
+                transmission: 1.0,
+                again: Again::default(),
+                between: 0.0,
+                jacobian: 1.0,
+                iterations: 0,
+            };
+            for &k in across {
+                for _ in 0..=k {
+                    e.enter(Reentry::default()).then_some(())?;
+                }
+                e.again.crossed += 1;
+            }
+            for _ in 0..=end {
+                e.enter(Reentry::default()).then_some(())?;
+            }
+            Some(e)
+        };
+        let mut checked = 0;
+        for first in 0..4 {
+            for end in 0..4 {
+                for across in [
+                    vec![],
+                    vec![0],
+                    vec![2],
+                    vec![0, 1],
+                    vec![1, 0, 0],
+                    vec![0; 3],
+                ] {
+                    let Some(e) = exit(&across, end) else {
+                        continue;
+                    };
+                    let mut drawn = [0; MAX_AGAIN];
+                    drawn[..across.len()].copy_from_slice(&across);
+                    let path = InsidePath::Between(e, Bounces::with(first, drawn, end));
+                    let crossed: usize = across.iter().map(|k| 1 + k).sum();
+                    let fits = crossed + 1 + first.max(end) <= MAX_AGAIN;
+                    assert_eq!(path.fits_either_way(), fits, "{first} {across:?} {end}");
+                    checked += 1;
+                }
+            }
+        }
+        assert_eq!(checked, 40, "paths a connection holds from its own end");
+    }
+
     /// [`Bounces::draw`] draws each way of splitting a budget of reflections among the parts
     /// crossed as often as [`Bounces::inverse_probability`] says.
     #[test]
