@@ -2,7 +2,7 @@
 //! frequency, and a phased array of transducer elements rendering as the Bessel pattern its ring
 //! sculpts (Graf's addition theorem), path for path; bad acoustic keys refused by name.
 
-mod common;
+use crate::common;
 
 use common::render;
 use lightpath::config::{Task, load_text};

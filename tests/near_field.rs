@@ -1,7 +1,7 @@
 //! Near-field speckle (paper 000): focused lights and views in the Monte Carlo covariance, checked
 //! against the Foldy–Lax wave solver and against quadrature of the aperture integrals.
 
-mod common;
+use crate::common;
 
 use common::{estimate, wave_statistics};
 use glam::DVec3;

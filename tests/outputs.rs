@@ -4,7 +4,7 @@
 
 use std::process::Command;
 
-mod common;
+use crate::common;
 
 const SCENE: &str = r#"
 wavelength = 1.0

@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-mod common;
+use crate::common;
 
 fn lightpath(args: &[&str]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_lightpath"))

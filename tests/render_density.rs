@@ -5,7 +5,7 @@
 //! reflectance, absorption and the fluence at a probe against a tracer written here that inverts
 //! the optical depth of the linear density in closed form (no null collisions).
 
-mod common;
+use crate::common;
 
 use common::{bare_scene, flux};
 use glam::DVec3;

@@ -6,7 +6,7 @@
 //! camera; several volumes, each differentiated by its own medium (an absorber before a slab
 //! exactly per photon, two slabs apart against central differences).
 
-mod common;
+use crate::common;
 
 use common::{bare_scene, flux, render};
 use glam::DVec3;

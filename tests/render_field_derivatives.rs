@@ -13,7 +13,7 @@
 //!   parameters and the medium's σ_s;
 //! - scenes the derivatives do not cover refused by key.
 
-mod common;
+use crate::common;
 
 use common::render;
 use lightpath::config::{Task, load_text};

@@ -8,7 +8,7 @@
 //! its outside (a floor seen in a dark glass ball's mirror image, the lamp's reflection on it);
 //! and a glass shape that is not convex, one part of it seen through another.
 
-mod common;
+use crate::common;
 
 use common::{bare_scene, render};
 use glam::DVec3;

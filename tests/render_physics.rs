@@ -3,7 +3,7 @@
 //! with mismatched faces against the plain layered tracer of `common`, a Luneburg lens focusing a beam
 //! on its antipode, and a beam bending along the closed-form ray of a linear-gradient tank.
 
-mod common;
+use crate::common;
 
 use common::{Layer, bare_scene, flux, intensity_in_cone, plain_layers, render};
 use glam::DVec3;

@@ -4,7 +4,7 @@
 //! given as a triangle mesh against the analytic ball; and free flights with the inside–outside
 //! tests skipped by the clearance equal, bit for bit, to flights testing after every step.
 
-mod common;
+use crate::common;
 
 use common::bare_scene;
 use glam::DVec3;

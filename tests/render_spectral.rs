@@ -3,7 +3,7 @@
 //! weights integrated over the spectrum), and a render at one line of a dispersive crown/flint
 //! mixture equals the render of the field written out by hand at that wavelength.
 
-mod common;
+use crate::common;
 
 use common::bare_scene;
 use glam::DVec3;

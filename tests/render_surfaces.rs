@@ -4,7 +4,7 @@
 //! it, predicts what the camera sees of the floor; a black floor stops light from reaching what
 //! lies behind it; and the power balance holds with light bouncing between floor and volume.
 
-mod common;
+use crate::common;
 
 use common::bare_scene;
 use glam::DVec3;

@@ -7,7 +7,7 @@
 //! sampled volume against the analytic one, and a volume placed away from the origin against the
 //! same volume at the origin with the rest of the scene moved.
 
-mod common;
+use crate::common;
 
 use common::{Layer, bare_scene, flux, intensity_in_cone, plain_layers, render};
 use glam::DVec3;

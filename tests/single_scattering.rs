@@ -3,7 +3,7 @@
 //! transmission, a mixture of complex amplitudes, absorption), against paper 004's Claim 1 (Eq. 3)
 //! in its paraxial regime, and through the command line.
 
-mod common;
+use crate::common;
 
 use common::estimate;
 use glam::DVec3;

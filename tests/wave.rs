@@ -1,7 +1,7 @@
 //! The Foldy–Lax wave solver: exact identities (reciprocity, optical theorem, the focused-beam closed
 //! form) and agreement with the Monte Carlo estimators where the independent-scattering model holds.
 
-mod common;
+use crate::common;
 
 use glam::DVec3;
 use lightpath::math::{C64, rotate, stream_rng, uniform};
