@@ -1,13 +1,13 @@
 //! The integration tests, one module per subject, built as one test binary (one link, and one
 //! pool of test threads across every subject): `cargo test --release` runs them all, and
-//! `cargo test --release -- render_volumes::` the tests of one subject.
+//! `cargo test --release render_volumes::` the tests of one subject.
 
-mod common;
 mod acoustic;
 mod acquire_phase;
 mod adjoint_memory;
 mod burn_bridge;
 mod cli_errors;
+mod common;
 mod configs;
 mod determinism;
 mod eikonal;
