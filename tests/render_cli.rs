@@ -515,7 +515,12 @@ fn path_tracing_is_checked_and_runs() {
         (
             light,
             "kind = \"beam\"\ncenter = [0.0, 0.0, -2.0]\ndirection = [0.0, 0.0, 1.0]",
-            "light.kind",
+            "light.radius = 0",
+        ),
+        (
+            light,
+            "kind = \"beam\"\ncenter = [0.0, 0.0, 0.0]\ndirection = [0.0, 0.0, 1.0]\nradius = 0.1",
+            "light.center",
         ),
         (
             "[render]",

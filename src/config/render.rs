@@ -1636,10 +1636,18 @@ impl RenderConfig {
         if scene.tracing == Tracing::Bidirectional {
             return Ok(());
         }
-        if matches!(scene.light, Light::Beam { .. }) {
-            return err(
-                "light.kind = \"beam\": a beam's directions are a delta, so paths from the cameras cannot be connected to it; use render.estimator = \"particle\"",
-            );
+        if let Light::Beam { center, radius, .. } = scene.light {
+            // paths from the cameras connect to the beam's disc, from outside the volume
+            if radius <= 0.0 {
+                return err(format!(
+                    "light.radius = {radius}: a beam of radius 0 is a single ray, which paths from the cameras never meet; give it a radius, or use render.estimator = \"particle\""
+                ));
+            }
+            if scene.volume.field.bounds.contains(center) {
+                return err(format!(
+                    "light.center = {center:?}: render.estimator = \"{name}\" connects paths to a beam's disc outside the volume, and this one starts inside it; move it out, or use render.estimator = \"particle\""
+                ));
+            }
         }
         Ok(())
     }

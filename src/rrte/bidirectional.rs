@@ -412,15 +412,22 @@ impl ParticleTracer<'_> {
         let scene = self.scene;
         let light = &scene.light;
         let (x, d) = light.sample([uniform(rng), uniform(rng), uniform(rng), uniform(rng)]);
-        if t.flyer.volume.field.bounds.contains(x) {
+        let beam = matches!(light, Light::Beam { .. });
+        let inside = t.flyer.volume.field.bounds.contains(x);
+        if inside {
             // cameras and probes: unscattered light is made one way
             self.connect(t, x, 1.0, 0.0, |d| light.intensity(d), rng, out);
         }
-        let light_pdf = light.intensity(d);
+        // a beam's per unit area of its disc, where the camera subpaths can connect to it
+        let light_pdf = match (beam, inside) {
+            (true, true) => 0.0,
+            (true, false) => light.beam_density(),
+            (false, _) => light.intensity(d),
+        };
         let start = Start {
             x,
             d,
-            parallel: matches!(light, Light::Beam { .. }),
+            parallel: beam,
             photon: true,
         };
         self.subpath(t, &start, &mut subpaths.light, rng, out);
@@ -457,6 +464,8 @@ impl ParticleTracer<'_> {
         out: &mut [C64],
     ) {
         let z = zs[zs.len() - 1];
+        // a beam's rays are parallel: the first segment's tube does not spread
+        let beam = matches!(self.scene.light, Light::Beam { .. });
         for way in self.ways(t, z.facing.is_some()) {
             let link = match z.facing {
                 // between two of several volumes, as it fits from either end (see
@@ -475,7 +484,7 @@ impl ParticleTracer<'_> {
                 camera: zs,
                 light_pdf: link.pdf,
                 camera_pdf: pixel.pdf,
-                link: Segment::new(volume, &link.inside, link.outside, false, true)
+                link: Segment::new(volume, &link.inside, link.outside, beam, true)
                     .with_cos(1.0, cos_z),
                 rho_light: f64::NAN,
                 rho_camera,

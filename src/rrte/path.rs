@@ -298,6 +298,9 @@ impl ParticleTracer<'_> {
         rng: &mut Rng,
         out: &mut [C64],
     ) -> Option<LightLink> {
+        if let Light::Beam { direction, .. } = self.scene.light {
+            return self.surface_beam_link(t, y, facing, -direction, way, rng, out);
+        }
         let volume = t.flyer.volume;
         let n_out = volume.field.n_out;
         let light = &self.scene.light;
@@ -419,6 +422,9 @@ impl ParticleTracer<'_> {
         let Way::Bounces(bounces) = way else {
             return None;
         };
+        if let Light::Beam { direction, .. } = self.scene.light {
+            return self.beam_link(t, x, -direction, bounces, rng, out);
+        }
         let volume = t.flyer.volume;
         let q = self.light_point(rng)?;
         let inside = volume.field.bounds.contains(q);
@@ -469,6 +475,121 @@ impl ParticleTracer<'_> {
                 pdf: intensity,
             })
         }
+    }
+
+    /// The connection from a collimated beam to `x` inside the volume: the path leaving `x` along
+    /// unit `back` (against the beam), after `bounces` reflections inside the surface of its
+    /// part, out of the volume (refracted, and across the parts it meets) and straight to the
+    /// beam's disc. It is an orthographic camera's connection ([`ParticleTracer::camera_link`])
+    /// run the other way: the disc's rays reach `x` with the irradiance `T (1 − R) n_x² /
+    /// (n_out² A dω_out/dω)` per unit power (`A` the disc's area, `dω_out/dω` the spread of the
+    /// directions leaving `x` the connection solves for; the étendue `n_x² dA_x dω_x = n_out² dA
+    /// dω_out`), so in basic radiance, times the camera's `n_out²`, it brings `T (1 − R) /
+    /// (A dω_out/dω)`.
+    fn beam_link(
+        &self,
+        t: &Tools,
+        x: DVec3,
+        back: DVec3,
+        bounces: usize,
+        rng: &mut Rng,
+        out: &mut [C64],
+    ) -> Option<LightLink> {
+        let density = self.scene.light.beam_density();
+        if density == 0.0 {
+            return None;
+        }
+        let volume = t.flyer.volume;
+        let first_only = self.scene.connections == super::Connections::First;
+        let bounces = self.exit_bounces(t, bounces, rng);
+        let s = t.connector.sample_exit(x, back, &bounces, first_only, rng);
+        let (e, inverse_p) = self.tally(s, out)?;
+        let to_disc = self.from_beam(t, e.surface)?;
+        let transmittance = self.exit_transmittance(t, &e, bounces.first, rng);
+        let outside = e.outside() + to_disc;
+        Some(LightLink {
+            direction: e.direction,
+            radiance: density * transmittance * e.transmission / e.jacobian * inverse_p,
+            delay: t.exit_delay(&e, volume.field.n_out * outside),
+            inside: e.lengths(volume),
+            outside,
+            pdf: density,
+        })
+    }
+
+    /// The connection from a collimated beam to the lit point `y` of a surface (as
+    /// [`Self::surface_light_link`]): straight back along unit `back` (against the beam) to its
+    /// disc, past no other surface and through the volume only where it is index-matched, `T
+    /// cos θ / A`; or across the volume or off its outside (`way`), leaving it along `back`,
+    /// `T (1 − R) cos θ / (A dω_out/dω)` (both ends in `n_out`).
+    #[allow(clippy::too_many_arguments)]
+    fn surface_beam_link(
+        &self,
+        t: &Tools,
+        y: DVec3,
+        facing: DVec3,
+        back: DVec3,
+        way: Way,
+        rng: &mut Rng,
+        out: &mut [C64],
+    ) -> Option<LightLink> {
+        let density = self.scene.light.beam_density();
+        if density == 0.0 {
+            return None;
+        }
+        let volume = t.flyer.volume;
+        let n_out = volume.field.n_out;
+        match way {
+            Way::Across | Way::Mirror => {
+                let (e, carried) = self.across(t, y, Aim::Along(back), way, rng, out)?;
+                let cos = e.direction.dot(facing);
+                if cos <= 0.0 {
+                    return None;
+                }
+                let to_disc = self.from_beam(t, e.surface)?;
+                let outside = e.outside() + to_disc;
+                Some(LightLink {
+                    direction: e.direction,
+                    radiance: density * cos * carried,
+                    delay: t.exit_delay(&e, n_out * outside),
+                    inside: e.lengths(volume),
+                    outside,
+                    pdf: density,
+                })
+            }
+            Way::Bounces(0) => {
+                let cos = back.dot(facing);
+                if cos <= 0.0 {
+                    return None;
+                }
+                let to_disc = self.from_beam(t, y)?;
+                let (transmittance, inside) = self.past_volume(t, y, back, to_disc, rng)?;
+                Some(LightLink {
+                    direction: back,
+                    radiance: density * cos * transmittance,
+                    delay: t.delay.outside(n_out * to_disc),
+                    inside,
+                    outside: to_disc - inside.total(),
+                    pdf: density,
+                })
+            }
+            Way::Bounces(_) => None,
+        }
+    }
+
+    /// The distance from `p` (outside the volume) back along a collimated beam to where its ray
+    /// through `p` starts, if the beam lights `p` from there: a point of its disc outside the
+    /// volume, past no surface on the way.
+    fn from_beam(&self, t: &Tools, p: DVec3) -> Option<f64> {
+        let light = &self.scene.light;
+        let Light::Beam { direction, .. } = *light else {
+            return None;
+        };
+        let to_disc = light.beam_source(p)?;
+        let start = p - direction * to_disc;
+        let clear = !t.flyer.volume.field.bounds.contains(start)
+            && !self.scene.blocked(p, -direction, to_disc);
+        clear.then_some(to_disc)
     }
 
     /// Free flights and scattering of the camera path inside the volume.

@@ -433,6 +433,34 @@ impl Light {
             Light::Area { normal, .. } => d.dot(normal).max(0.0) / PI,
         }
     }
+
+    /// The density a collimated beam draws its start points with, per unit area of its disc
+    /// (what a connection from the beam to a point carries, as [`Self::intensity`] for a point
+    /// source); 0 for other lights and for a beam of radius 0, a single ray no connection meets.
+    pub fn beam_density(&self) -> f64 {
+        match *self {
+            Light::Beam { radius, .. } if radius > 0.0 => 1.0 / (PI * radius * radius),
+            _ => 0.0,
+        }
+    }
+
+    /// For a collimated beam of non-zero radius, the distance from `p` back along the beam to its
+    /// disc, if the line from `p` against the beam's direction meets the disc (`p` downstream of
+    /// it): the straight stretch a connection from the beam to a point ends with.
+    pub fn beam_source(&self, p: DVec3) -> Option<f64> {
+        let Light::Beam {
+            center,
+            direction,
+            radius,
+        } = *self
+        else {
+            return None;
+        };
+        let to_disc = (p - center).dot(direction);
+        let off = p - direction * to_disc - center;
+        (radius > 0.0 && to_disc >= 0.0 && off.length_squared() <= radius * radius)
+            .then_some(to_disc)
+    }
 }
 
 /// A fluence-rate probe at a point inside the volume: power per unit area arriving from all
