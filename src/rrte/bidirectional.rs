@@ -32,8 +32,9 @@
 //! crosses, or reflects once off its outside (and no more). Which segments a connection makes is
 //! read from the surface events met while tracing them, in order ([`Meetings`]). A
 //! segment that no connection makes is made only by tracing: the strategies that would connect
-//! across it are left out of the sum, as is the light's own (`s = 0`) for a beam, whose directions
-//! are a delta. The weights use the straight-ray density of each segment — `ρ σ_t e^{−σ_t ℓ}/ℓ²`
+//! across it are left out of the sum; for a beam the light's own (`s = 0`, its disc joined to a
+//! camera event as path tracing joins it) is tried and counted only near the beam
+//! ([`super::scene::BEAM_REACH`]). The weights use the straight-ray density of each segment — `ρ σ_t e^{−σ_t ℓ}/ℓ²`
 //! over its geometric length `ℓ` (the tube of parallel rays from a beam or an orthographic camera:
 //! no `1/ℓ²`; per unit area at a surface, times `|cos θ|` there), the phase functions or the
 //! surfaces' `cos θ / π` at both ends, and the sources' own densities — so in a graded index they
@@ -286,8 +287,8 @@ pub struct Subpaths {
 struct Joined<'a> {
     light: &'a [Vertex],
     camera: &'a [Vertex],
-    /// The light's density of the first segment's direction (0 for a beam), the camera's of
-    /// the last.
+    /// The light's density of the first segment's direction (for a beam, of its start per unit
+    /// area of the disc), the camera's of the last.
     light_pdf: f64,
     camera_pdf: f64,
     /// The connecting segment, from `y_s` (or the light) to `z_t` (or the camera).
@@ -464,8 +465,12 @@ impl ParticleTracer<'_> {
         out: &mut [C64],
     ) {
         let z = zs[zs.len() - 1];
-        // a beam's rays are parallel: the first segment's tube does not spread
+        // a beam's rays are parallel: the first segment's tube does not spread; it is tried only
+        // near the beam (as `subpath` counts the light's own strategy)
         let beam = matches!(self.scene.light, Light::Beam { .. });
+        if beam && !self.scene.light.near_beam(z.x) {
+            return;
+        }
         for way in self.ways(t, z.facing.is_some()) {
             let link = match z.facing {
                 // between two of several volumes, as it fits from either end (see
@@ -778,6 +783,10 @@ impl ParticleTracer<'_> {
         let connectible = |met: &Meetings, began_inside: bool, ends_inside: bool| {
             met.connectible((began_inside, ends_inside), None, most_bounces, matched)
         };
+        // a beam's first segment is connected only to events near it
+        // (see `light_to_camera_event`)
+        let beam = start.photon && start.parallel;
+        let reached = |first: bool, x: DVec3| !(first && beam) || self.scene.light.near_beam(x);
         let mut leg = if began_inside {
             Leg::Inside(Ray {
                 x: start.x,
@@ -828,15 +837,16 @@ impl ParticleTracer<'_> {
                                 -s.normal
                             };
                             let first = vertices.is_empty();
+                            let at = x + d * distance;
                             let segment = Segment::new(
                                 volume,
                                 &inside,
                                 outside,
                                 first && start.parallel,
-                                connectible(&met, began_inside, false),
+                                connectible(&met, began_inside, false) && reached(first, at),
                             );
                             vertices.push(Vertex {
-                                x: x + d * distance,
+                                x: at,
                                 arrive: d,
                                 rho: f64::NAN,
                                 beta,
@@ -895,7 +905,8 @@ impl ParticleTracer<'_> {
                         &inside,
                         outside,
                         first && start.parallel,
-                        met.connectible(made, between, most_bounces, matched),
+                        met.connectible(made, between, most_bounces, matched)
+                            && reached(first, hit.x),
                     );
                     vertices.push(Vertex {
                         x: hit.x,

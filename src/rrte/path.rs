@@ -20,7 +20,9 @@
 //! `n_x² dA_x dω_x = n_q² dA_q dω_q`); in basic radiance the `n_x²` cancels. The camera sees
 //! `L = n_out² B`.
 //!
-//! A beam cannot be connected to (its directions are a delta); a light inside the volume is
+//! A collimated beam is joined to an event by the path leaving it back along the beam to the
+//! beam's disc (an orthographic camera's connection run the other way); a focused beam, whose
+//! rays converge, is not. A light inside the volume is
 //! connected to the cameras directly, as in particle tracing, and one outside is not imaged
 //! itself (nor its mirror image in the volume). The connections reflect inside the surface at
 //! most `render.reflections` times, so light that reaches its first scattering event only after

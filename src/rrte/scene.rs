@@ -320,6 +320,15 @@ impl PixelWindow {
     }
 }
 
+/// How far from a collimated beam's straight tube, per unit length along it, bidirectional
+/// tracing tries to connect the beam to an event (a slope of one in five, about 11°). The
+/// connection solves for a path out of the volume back along the beam and keeps it only if it
+/// meets the beam's disc: for a thin beam nearly every try fails, each at the cost of a Newton
+/// solve. Which events are tried is a fixed function of the event's position, counted alike by
+/// the weights, so the estimate stays unbiased; light bent further from the tube is made by the
+/// other strategies. (Path tracing, which has no other, tries every event.)
+pub const BEAM_REACH: f64 = 0.2;
+
 /// Where light comes from; power 1 in total (results are fractions of the emitted power).
 #[derive(Clone, Debug, PartialEq)]
 pub enum Light {
@@ -442,6 +451,23 @@ impl Light {
             Light::Beam { radius, .. } if radius > 0.0 => 1.0 / (PI * radius * radius),
             _ => 0.0,
         }
+    }
+
+    /// Whether `p` lies near a collimated beam of non-zero radius: downstream of its disc and
+    /// within its straight tube widened by [`BEAM_REACH`] per unit length along it (where
+    /// bidirectional tracing tries to connect the beam to an event; see there).
+    pub fn near_beam(&self, p: DVec3) -> bool {
+        let Light::Beam {
+            center,
+            direction,
+            radius,
+        } = *self
+        else {
+            return false;
+        };
+        let along = (p - center).dot(direction);
+        let off = (p - direction * along - center).length();
+        radius > 0.0 && along >= 0.0 && off <= radius + BEAM_REACH * along
     }
 
     /// For a collimated beam of non-zero radius, the distance from `p` back along the beam to its
