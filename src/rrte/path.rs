@@ -506,7 +506,7 @@ impl ParticleTracer<'_> {
         let bounces = self.exit_bounces(t, bounces, rng);
         let s = t.connector.sample_exit(x, back, &bounces, first_only, rng);
         let (e, inverse_p) = self.tally(s, out)?;
-        let to_disc = self.from_beam(t, e.surface)?;
+        let to_disc = self.to_beam_disc(t, e.surface)?;
         let transmittance = self.exit_transmittance(t, &e, bounces.first, rng);
         let outside = e.outside() + to_disc;
         Some(LightLink {
@@ -548,7 +548,7 @@ impl ParticleTracer<'_> {
                 if cos <= 0.0 {
                     return None;
                 }
-                let to_disc = self.from_beam(t, e.surface)?;
+                let to_disc = self.to_beam_disc(t, e.surface)?;
                 let outside = e.outside() + to_disc;
                 Some(LightLink {
                     direction: e.direction,
@@ -564,7 +564,7 @@ impl ParticleTracer<'_> {
                 if cos <= 0.0 {
                     return None;
                 }
-                let to_disc = self.from_beam(t, y)?;
+                let to_disc = self.to_beam_disc(t, y)?;
                 let (transmittance, inside) = self.past_volume(t, y, back, to_disc, rng)?;
                 Some(LightLink {
                     direction: back,
@@ -582,7 +582,7 @@ impl ParticleTracer<'_> {
     /// The distance from `p` (outside the volume) back along a collimated beam to where its ray
     /// through `p` starts, if the beam lights `p` from there: a point of its disc outside the
     /// volume, past no surface on the way.
-    fn from_beam(&self, t: &Tools, p: DVec3) -> Option<f64> {
+    fn to_beam_disc(&self, t: &Tools, p: DVec3) -> Option<f64> {
         let light = &self.scene.light;
         let Light::Beam { direction, .. } = *light else {
             return None;
