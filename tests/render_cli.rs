@@ -523,6 +523,11 @@ fn path_tracing_is_checked_and_runs() {
             "light.center",
         ),
         (
+            light,
+            "kind = \"beam\"\ncenter = [0.0, 1.2, 0.0]\ndirection = [0.0, 0.0, 1.0]\nradius = 0.5",
+            "light.radius = 0.5",
+        ),
+        (
             "[render]",
             "[[sensor]]\nkind = \"flux\"\nname = \"below\"\ncenter = [0.0, 0.0, -3.0]\nnormal = [0.0, 0.0, -1.0]\n\n[render]",
             "sensor[1].kind",
