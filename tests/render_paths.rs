@@ -437,16 +437,15 @@ fn a_floor_mirrored_in_a_dark_glass_ball_agrees() {
     agree(s, 2_000_000, 200_000, true);
 }
 
-/// Light leaving a scattering glass cube (n = 1.5 in air) after reflecting inside it, with a
-/// lamp inside and a pinhole looking at a corner. A cube keeps the size of each component of a
-/// direction it reflects, so light that meets one face beyond the critical angle leaves through
-/// another: much of what the camera sees has reflected inside before leaving. Particle tracing
-/// with `reflections = 3` joins every event to the camera after up to three reflections inside,
-/// and agrees with bidirectional tracing (which joins them so too, and makes the rest by
-/// tracing; paths reflecting more often on their last segment carry less than the noise here);
-/// with none it reads 11 % less (9 standard errors at 200 000 photons and 40 000 samples; 7 at the 60 % of those run here). Path tracing is left out: a cube traps
-/// light by total internal reflection on every face, so much of what reaches the first event
-/// has reflected more often than any connection does.
+/// Light leaving a scattering glass cube (n = 1.5 in air) after reflecting inside it, with a lamp
+/// inside and a pinhole looking at a corner. A cube keeps the size of each component of a direction
+/// it reflects, so light that meets one face beyond the critical angle leaves through another: much
+/// of what the camera sees has reflected inside before leaving. Particle tracing with `reflections
+/// = 3` joins every event to the camera after up to three reflections inside, and agrees with
+/// bidirectional tracing (which joins them so too, and makes the rest by tracing; paths reflecting
+/// more often on their last segment carry less than the noise here); with none it reads 9 % less
+/// (7 standard errors). Path tracing is left out: a cube traps light by total internal reflection on every face, so much of
+/// what reaches the first event has reflected more often than any connection does.
 #[test]
 fn light_reflected_inside_a_glass_cube_agrees() {
     let mut s = scene(

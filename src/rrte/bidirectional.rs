@@ -34,14 +34,14 @@
 //! segment that no connection makes is made only by tracing: the strategies that would connect
 //! across it are left out of the sum; for a beam the light's own (`s = 0`, its disc joined to a
 //! camera event as path tracing joins it) is tried and counted only near the beam
-//! ([`super::scene::BEAM_REACH`]). The weights use the straight-ray density of each segment — `ρ σ_t e^{−σ_t ℓ}/ℓ²`
-//! over its geometric length `ℓ` (the tube of parallel rays from a beam or an orthographic camera:
-//! no `1/ℓ²`; per unit area at a surface, times `|cos θ|` there), the phase functions or the
-//! surfaces' `cos θ / π` at both ends, and the sources' own densities — so in a graded index they
-//! are an approximation of the true densities; any weights that sum to one over the strategies that
-//! can make each path keep the estimate unbiased, and these are the same function of the path
-//! whichever strategy made it. The contributions themselves carry the exact connections (ray tubes,
-//! transmittance, Fresnel).
+//! ([`super::scene::BEAM_REACH`]). The weights use the straight-ray density of each segment —
+//! `ρ σ_t e^{−σ_t ℓ}/ℓ²` over its geometric length `ℓ` (the tube of parallel rays from a beam or an
+//! orthographic camera: no `1/ℓ²`; per unit area at a surface, times `|cos θ|` there), the phase
+//! functions or the surfaces' `cos θ / π` at both ends, and the sources' own densities — so in a
+//! graded index they are an approximation of the true densities; any weights that sum to one over
+//! the strategies that can make each path keep the estimate unbiased, and these are the same
+//! function of the path whichever strategy made it. The contributions themselves carry the exact
+//! connections (ray tubes, transmittance, Fresnel).
 //!
 //! What no strategy makes: paths on which every segment reflects at the surface, or refracts
 //! there, more often than a connection does (with an index-matched surface there are none).

@@ -29,7 +29,7 @@
 //! more reflections is missed (particle tracing misses the mirror case, light leaving its last event so): with
 //! index-matched surfaces the two estimate the same images.
 
-use super::connect::Aim;
+use super::connect::{Aim, Exit};
 use super::particle::{Leg, ParticleTracer, Reflections, Stop, Tools, Way};
 use super::scene::{Light, PartLengths, grid_pixel};
 use crate::eikonal::Ray;
@@ -501,18 +501,33 @@ impl ParticleTracer<'_> {
         if density == 0.0 {
             return None;
         }
-        let volume = t.flyer.volume;
         let first_only = self.scene.connections == super::Connections::First;
         let bounces = self.exit_bounces(t, bounces, rng);
         let s = t.connector.sample_exit(x, back, &bounces, first_only, rng);
         let (e, inverse_p) = self.tally(s, out)?;
+        self.link_from_disc(t, &e, || {
+            let transmittance = self.exit_transmittance(t, &e, bounces.first, rng);
+            transmittance * e.transmission / e.jacobian * inverse_p
+        })
+    }
+
+    /// The link from a collimated beam's disc of the path `e` that has left the volume back along
+    /// the beam, if it meets the disc ([`Self::to_beam_disc`]): `carried()` is what the path
+    /// carries per unit irradiance on the disc, asked for only then.
+    fn link_from_disc(
+        &self,
+        t: &Tools,
+        e: &Exit,
+        carried: impl FnOnce() -> f64,
+    ) -> Option<LightLink> {
         let to_disc = self.to_beam_disc(t, e.surface)?;
-        let transmittance = self.exit_transmittance(t, &e, bounces.first, rng);
+        let volume = t.flyer.volume;
+        let density = self.scene.light.beam_density();
         let outside = e.outside() + to_disc;
         Some(LightLink {
             direction: e.direction,
-            radiance: density * transmittance * e.transmission / e.jacobian * inverse_p,
-            delay: t.exit_delay(&e, volume.field.n_out * outside),
+            radiance: density * carried(),
+            delay: t.exit_delay(e, volume.field.n_out * outside),
             inside: e.lengths(volume),
             outside,
             pdf: density,
@@ -548,16 +563,7 @@ impl ParticleTracer<'_> {
                 if cos <= 0.0 {
                     return None;
                 }
-                let to_disc = self.to_beam_disc(t, e.surface)?;
-                let outside = e.outside() + to_disc;
-                Some(LightLink {
-                    direction: e.direction,
-                    radiance: density * cos * carried,
-                    delay: t.exit_delay(&e, n_out * outside),
-                    inside: e.lengths(volume),
-                    outside,
-                    pdf: density,
-                })
+                self.link_from_disc(t, &e, || cos * carried)
             }
             Way::Bounces(0) => {
                 let cos = back.dot(facing);

@@ -453,39 +453,37 @@ impl Light {
         }
     }
 
+    /// For a collimated beam of non-zero radius, where `p` lies about it: its distance along the
+    /// beam from the disc's plane (negative upstream), its distance from the beam's axis, and the
+    /// beam's radius.
+    fn beam_coordinates(&self, p: DVec3) -> Option<(f64, f64, f64)> {
+        match *self {
+            Light::Beam {
+                center,
+                direction,
+                radius,
+            } if radius > 0.0 => {
+                let along = (p - center).dot(direction);
+                Some((along, (p - direction * along - center).length(), radius))
+            }
+            _ => None,
+        }
+    }
+
     /// Whether `p` lies near a collimated beam of non-zero radius: downstream of its disc and
     /// within its straight tube widened by [`BEAM_REACH`] per unit length along it (where
     /// bidirectional tracing tries to connect the beam to an event; see there).
     pub fn near_beam(&self, p: DVec3) -> bool {
-        let Light::Beam {
-            center,
-            direction,
-            radius,
-        } = *self
-        else {
-            return false;
-        };
-        let along = (p - center).dot(direction);
-        let off = (p - direction * along - center).length();
-        radius > 0.0 && along >= 0.0 && off <= radius + BEAM_REACH * along
+        self.beam_coordinates(p)
+            .is_some_and(|(along, off, radius)| along >= 0.0 && off <= radius + BEAM_REACH * along)
     }
 
     /// For a collimated beam of non-zero radius, the distance from `p` back along the beam to its
     /// disc, if the line from `p` against the beam's direction meets the disc (`p` downstream of
     /// it): the straight stretch a connection from the beam to a point ends with.
     pub fn beam_source(&self, p: DVec3) -> Option<f64> {
-        let Light::Beam {
-            center,
-            direction,
-            radius,
-        } = *self
-        else {
-            return None;
-        };
-        let to_disc = (p - center).dot(direction);
-        let off = p - direction * to_disc - center;
-        (radius > 0.0 && to_disc >= 0.0 && off.length_squared() <= radius * radius)
-            .then_some(to_disc)
+        let (along, off, radius) = self.beam_coordinates(p)?;
+        (along >= 0.0 && off <= radius).then_some(along)
     }
 }
 
