@@ -138,12 +138,6 @@ fn compare_images(a: &Estimate, b: &Estimate, image: ImageLayout, blocks: bool) 
         }
         return;
     }
-    if std::env::var("DUMP").is_ok() {
-        for k in 0..image.pixels {
-            let (z, x, sx, y, sy) = compare(image.plane(None, 0) + k);
-            eprintln!("{k}: {x:.3e}±{sx:.1e} {y:.3e}±{sy:.1e} z={z:.1}");
-        }
-    }
     let mut stray = 0;
     let mut lit = 0;
     for k in 0..image.pixels {

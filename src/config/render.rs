@@ -1636,24 +1636,15 @@ impl RenderConfig {
         if scene.tracing == Tracing::Bidirectional {
             return Ok(());
         }
-        if let Light::Beam {
-            center,
-            direction,
-            radius,
-        } = scene.light
-        {
+        if let Light::Beam { center, radius, .. } = scene.light {
             // paths from the cameras connect to the beam's disc, from outside the volume
             if radius <= 0.0 {
                 return err(format!(
                     "light.radius = {radius}: a beam of radius 0 is a single ray, which paths from the cameras never meet; give it a radius, or use render.estimator = \"particle\""
                 ));
             }
-            // its centre and 32 points of its rim
-            let (a, b) = crate::math::orthonormal_basis(direction);
-            let rim = (0..32).map(|k| {
-                let phi = std::f64::consts::TAU * k as f64 / 32.0;
-                center + (a * phi.cos() + b * phi.sin()) * radius
-            });
+            // its centre and 32 points of its rim, as the beam draws its start points
+            let rim = (0..32).map(|k| scene.light.sample([1.0, k as f64 / 32.0, 0.0, 0.0]).0);
             if std::iter::once(center)
                 .chain(rim)
                 .any(|p| scene.volume.field.bounds.contains(p))
