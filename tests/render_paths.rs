@@ -232,6 +232,74 @@ fn a_beam_agrees() {
     agree(s, 400_000, 40_000, false);
 }
 
+/// A focused beam through the side of the index-matched scattering sphere onto the white floor,
+/// seen by a pinhole and from above by an orthographic camera. Focused below the floor, its rays
+/// converge through the sphere onto the floor: paths from the cameras leave along lines through
+/// the focus, which lies ahead of the beam, behind where they leave. Focused inside the sphere, its rays
+/// meet at a point of the scattering medium, where the irradiance grows as `1/r²` (path
+/// tracing's variance without bound): bidirectional tracing, whose weights count the light's
+/// rays spreading from the focus, against particle tracing.
+#[test]
+fn a_focused_beam_agrees() {
+    let focused = |focus: DVec3| {
+        let mut s = scene(
+            Profile::Constant { n: 1.0 },
+            Light::FocusedBeam {
+                center: DVec3::new(0.3, 0.0, 2.5),
+                direction: -DVec3::Z,
+                radius: 0.8,
+                focus,
+            },
+            camera(DVec3::new(2.5, -2.0, 2.5), DVec3::new(0.3, 0.0, -0.8), 30.0),
+        );
+        s.surfaces.push(floor());
+        s.cameras.push(Camera::new(
+            "top".into(),
+            DVec3::Z,
+            DVec3::new(0.3, 0.0, 2.0),
+            [3.0, 3.0],
+            [10, 10],
+        ));
+        s
+    };
+    agree(focused(DVec3::new(0.2, 0.0, -4.5)), 400_000, 40_000, false);
+    let mut s = focused(DVec3::new(0.2, 0.0, 0.0));
+    s.tracing = Tracing::FromLight;
+    let (a, est) = render(&s, 400_000, 1);
+    let mut b = s.clone();
+    b.tracing = Tracing::Bidirectional;
+    let (c, _) = render(&b, 40_000, 3);
+    for image in [est.pinhole_image(0), est.camera_image(0)] {
+        compare_images(&a, &c, image, false);
+    }
+}
+
+/// A focused beam and curved rays: a beam focused below a scattering Luneburg lens, which
+/// bends its converging rays further on the way, and a beam focused before a glass sphere
+/// (n = 1.3, Fresnel at its surface: its rays cross at a real focus, then spread into it); the
+/// connections solve for the path out of the volume whose line passes through the focus.
+#[test]
+fn focused_beams_through_curved_and_glass_agree() {
+    let focused = |focus: DVec3| Light::FocusedBeam {
+        center: DVec3::new(0.0, 0.0, 3.0),
+        direction: -DVec3::Z,
+        radius: 0.5,
+        focus,
+    };
+    let s = scene(
+        Profile::Luneburg { radius: 1.0 },
+        focused(DVec3::new(0.0, 0.0, -1.5)),
+        camera(DVec3::new(3.0, 1.0, 2.0), DVec3::ZERO, 45.0),
+    );
+    agree(s, 60_000, 12_000, true);
+    let s = scene(
+        Profile::Constant { n: 1.3 },
+        focused(DVec3::new(0.0, 0.0, 1.8)),
+        camera(DVec3::new(3.0, 1.0, 2.0), DVec3::ZERO, 45.0),
+    );
+    agree(s, 60_000, 12_000, true);
+}
+
 /// Fresnel faces: a scattering slab of n = 1.4 in air under a beam at normal incidence, seen
 /// along its normal by orthographic cameras on both sides. A plane keeps `|cos|` of a ray it
 /// reflects, so no path reaching these cameras reflects inside a face on its last segment

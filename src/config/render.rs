@@ -1628,15 +1628,21 @@ impl RenderConfig {
                 "render.estimator = \"{name}\": no camera to trace paths from ([[sensor]] kind = \"pinhole\" or \"camera\")",
             ));
         }
-        if matches!(scene.light, Light::FocusedBeam { .. }) {
-            return err(format!(
-                "light.focus: a focused beam's directions are a delta and its rays converge, which render.estimator = \"{name}\" does not connect; use render.estimator = \"particle\""
-            ));
-        }
         if scene.tracing == Tracing::Bidirectional {
             return Ok(());
         }
-        if let Light::Beam { center, radius, .. } = scene.light {
+        if let Light::FocusedBeam { focus, .. } = scene.light {
+            let volume = &scene.volume;
+            if volume.field.bounds.contains(focus) && volume.homogeneous() && volume.index_matched()
+            {
+                return err(format!(
+                    "light.focus = {focus:?}: the beam's rays meet at a point inside the index-matched volume, where the light's irradiance grows without bound and render.estimator = \"path\" would estimate it with unbounded variance; use render.estimator = \"bidirectional\" (its weights give the events near the focus to the light's own strategies) or \"particle\""
+                ));
+            }
+        }
+        if let Light::Beam { center, radius, .. } | Light::FocusedBeam { center, radius, .. } =
+            scene.light
+        {
             // paths from the cameras connect to the beam's disc, from outside the volume
             if radius <= 0.0 {
                 return err(format!(

@@ -48,7 +48,7 @@
 
 use super::connect::{Aim, MAX_AGAIN};
 use super::particle::{Leg, MAX_EVENTS, ParticleTracer, Reflections, Stop, Tools, Way, roulette};
-use super::scene::{Connections, Light, PartLengths, Volume};
+use super::scene::{Connections, Light, PartLengths, Rays, Volume};
 use crate::eikonal::Ray;
 use crate::math::{C64, Rng, uniform};
 use glam::DVec3;
@@ -110,7 +110,8 @@ fn crosses_after_mirror(way: Way, inside: f64) -> bool {
 struct Segment {
     /// `e^{−∫σ_t}/ℓ²` over its geometric length (`∫σ_t` inside: through several volumes each
     /// stretch at its own volume's `σ_t`; `ℓ` counts the straight stretches outside too), without
-    /// the `1/ℓ²` from a beam or an orthographic camera.
+    /// the `1/ℓ²` from a collimated beam or an orthographic camera, `ℓ` from the focus of a
+    /// focused beam.
     g: f64,
     /// `|cos θ|` at its start and at its end where they lie on a surface (1 elsewhere): the
     /// density per unit area there is the solid angle's times `g` times it.
@@ -125,11 +126,10 @@ impl Segment {
         volume: &Volume,
         inside: &PartLengths,
         outside: f64,
-        parallel: bool,
+        rays: Rays,
         connectible: bool,
     ) -> Self {
-        let length = inside.total() + outside;
-        let spread = if parallel { 1.0 } else { length * length };
+        let spread = rays.spread(inside.total() + outside);
         Segment {
             g: (-inside.depth(volume)).exp() / spread,
             cos_start: 1.0,
@@ -392,9 +392,9 @@ impl Joined<'_> {
 struct Start {
     x: DVec3,
     d: DVec3,
-    /// Its rays are parallel (a beam, an orthographic camera): the first segment's tube does not
-    /// spread.
-    parallel: bool,
+    /// How its rays spread (parallel from a collimated beam or an orthographic camera, through
+    /// the focus of a focused beam).
+    rays: Rays,
     /// A subpath from the light: it records the sensor planes it crosses and connects its events
     /// to the probes, as particle tracing does (the one way to make those paths).
     photon: bool,
@@ -413,22 +413,21 @@ impl ParticleTracer<'_> {
         let scene = self.scene;
         let light = &scene.light;
         let (x, d) = light.sample([uniform(rng), uniform(rng), uniform(rng), uniform(rng)]);
-        let beam = matches!(light, Light::Beam { .. });
         let inside = t.flyer.volume.field.bounds.contains(x);
         if inside {
             // cameras and probes: unscattered light is made one way
             self.connect(t, x, 1.0, 0.0, |d| light.intensity(d), rng, out);
         }
-        // a beam's per unit area of its disc, where the camera subpaths can connect to it
-        let light_pdf = match (beam, inside) {
-            (true, true) => 0.0,
-            (true, false) => light.beam_density(),
-            (false, _) => light.intensity(d),
-        };
+        // a beam's per unit area of its disc, or per solid angle at its focus, where the camera
+        // subpaths can connect to it: from outside the volume
+        let (mut light_pdf, rays) = light.start_density(x, d);
+        if inside && light.beam_aim().is_some() {
+            light_pdf = 0.0;
+        }
         let start = Start {
             x,
             d,
-            parallel: beam,
+            rays,
             photon: true,
         };
         self.subpath(t, &start, &mut subpaths.light, rng, out);
@@ -437,7 +436,11 @@ impl ParticleTracer<'_> {
             let start = Start {
                 x,
                 d,
-                parallel: camera < scene.cameras.len(),
+                rays: if camera < scene.cameras.len() {
+                    Rays::Parallel
+                } else {
+                    Rays::Spreading
+                },
                 photon: false,
             };
             self.subpath(t, &start, &mut subpaths.camera, rng, out);
@@ -489,7 +492,7 @@ impl ParticleTracer<'_> {
                 camera: zs,
                 light_pdf: link.pdf,
                 camera_pdf: pixel.pdf,
-                link: Segment::new(volume, &link.inside, link.outside, beam, true)
+                link: Segment::new(volume, &link.inside, link.outside, link.rays, true)
                     .with_cos(1.0, cos_z),
                 rho_light: f64::NAN,
                 rho_camera,
@@ -525,14 +528,18 @@ impl ParticleTracer<'_> {
             };
             let volume = t.flyer.volume;
             let rho_light = y.rho_towards(volume, link.direction);
-            let orthographic = camera < self.scene.cameras.len();
+            let rays = if camera < self.scene.cameras.len() {
+                Rays::Parallel
+            } else {
+                Rays::Spreading
+            };
             let cos_y = y.facing.map_or(1.0, |n| n.dot(link.direction));
             let joined = Joined {
                 light: ys,
                 camera: &[],
                 light_pdf,
                 camera_pdf: link.pdf,
-                link: Segment::new(volume, &link.inside, link.outside, orthographic, true)
+                link: Segment::new(volume, &link.inside, link.outside, rays, true)
                     .with_cos(cos_y, 1.0),
                 rho_light,
                 rho_camera: f64::NAN,
@@ -624,7 +631,7 @@ impl ParticleTracer<'_> {
                         volume,
                         &e.lengths(volume),
                         e.outside() + to_y,
-                        false,
+                        Rays::Spreading,
                         true,
                     )
                     .with_cos(cos_y, cos_z),
@@ -652,7 +659,7 @@ impl ParticleTracer<'_> {
                         volume,
                         &path.lengths(volume),
                         path.outside(),
-                        false,
+                        Rays::Spreading,
                         true,
                     ),
                 })
@@ -697,8 +704,14 @@ impl ParticleTracer<'_> {
                     leave_z: w,
                     carried: transmittance * cos_z / (distance * distance),
                     delay: t.delay.outside(n_out * distance),
-                    segment: Segment::new(volume, &inside, distance - inside.total(), false, true)
-                        .with_cos(cos_y, cos_z),
+                    segment: Segment::new(
+                        volume,
+                        &inside,
+                        distance - inside.total(),
+                        Rays::Spreading,
+                        true,
+                    )
+                    .with_cos(cos_y, cos_z),
                 })
             }
             _ => None,
@@ -723,7 +736,9 @@ impl ParticleTracer<'_> {
         let volume = t.flyer.volume;
         let first_only = self.scene.connections == Connections::First;
         let bounces = self.exit_bounces(t, bounces, rng);
-        let s = t.connector.sample_through(x, p, &bounces, first_only, rng);
+        let s = t
+            .connector
+            .sample_through(x, Aim::Point(p), &bounces, first_only, rng);
         let (exit, inverse_p) = self.tally(s, out)?;
         let to_p = (p - exit.surface).dot(exit.outgoing);
         let cos = -facing.dot(exit.outgoing);
@@ -744,7 +759,7 @@ impl ParticleTracer<'_> {
                 volume,
                 &exit.lengths(volume),
                 exit.outside() + to_p,
-                false,
+                Rays::Spreading,
                 true,
             ),
             outside: exit.outside() + to_p,
@@ -785,7 +800,7 @@ impl ParticleTracer<'_> {
         };
         // a beam's first segment is connected only to events near it
         // (see `light_to_camera_event`)
-        let beam = start.photon && start.parallel;
+        let beam = start.photon && start.rays == Rays::Parallel;
         let reached = |first: bool, x: DVec3| !(first && beam) || self.scene.light.near_beam(x);
         let mut leg = if began_inside {
             Leg::Inside(Ray {
@@ -842,7 +857,7 @@ impl ParticleTracer<'_> {
                                 volume,
                                 &inside,
                                 outside,
-                                first && start.parallel,
+                                if first { start.rays } else { Rays::Spreading },
                                 connectible(&met, began_inside, false) && reached(first, at),
                             );
                             vertices.push(Vertex {
@@ -904,7 +919,7 @@ impl ParticleTracer<'_> {
                         volume,
                         &inside,
                         outside,
-                        first && start.parallel,
+                        if first { start.rays } else { Rays::Spreading },
                         met.connectible(made, between, most_bounces, matched)
                             && reached(first, hit.x),
                     );
@@ -1008,10 +1023,10 @@ mod tests {
         let volume = Volume::several(vec![ball(-1.0, 2.0, 0.1), ball(1.0, 0.8, 0.3)], 1.0);
         let mut inside = PartLengths::one(Some(0), 0.4);
         inside.add(Some(1), 0.7);
-        let s = Segment::new(&volume, &inside, 0.9, false, true);
+        let s = Segment::new(&volume, &inside, 0.9, Rays::Spreading, true);
         let want = (-(2.1 * 0.4 + 1.1 * 0.7f64)).exp() / (2.0f64 * 2.0);
         assert!((s.g - want).abs() < 1e-15 * want, "{} vs {want}", s.g);
-        let parallel = Segment::new(&volume, &inside, 0.9, true, true);
+        let parallel = Segment::new(&volume, &inside, 0.9, Rays::Parallel, true);
         assert!((parallel.g - want * 4.0).abs() < 1e-15 * want);
     }
 

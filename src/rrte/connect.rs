@@ -1722,13 +1722,20 @@ impl<'v> Connector<'v> {
     }
 
     /// The path Newton's method reaches from `w0` that leaves the volume and passes through the
-    /// point `p` outside it (a pinhole), in a straight line from the surface. Its `jacobian` is the
-    /// ray tube's cross-section at `p` per unit solid angle at `x` (`dA⊥/dω`): the irradiance at
-    /// `p` of a source of intensity `I` at `x` is `I · transmission / jacobian`.
-    /// With `bounces`, the path reflects that many times inside the surface before it leaves
-    /// and inside the parts it crosses after.
-    pub fn solve_through(&self, x: DVec3, p: DVec3, w0: DVec3, bounces: &Bounces) -> Option<Exit> {
-        self.aim_at(p, w0, bounces, |w| self.exit_map(x, w, bounces.first))
+    /// point `p` outside it (a pinhole; `target` [`Aim::Point`]), in a straight line from the
+    /// surface, or runs back along a focused beam's rays ([`Aim::Focus`]: the line through its
+    /// focus `p`). Its `jacobian` is the ray tube's cross-section at `p` per unit solid angle at
+    /// `x` (`dA⊥/dω`): the irradiance at `p` of a source of intensity `I` at `x` is
+    /// `I · transmission / jacobian`. With `bounces`, the path reflects that many times inside
+    /// the surface before it leaves and inside the parts it crosses after.
+    pub fn solve_through(
+        &self,
+        x: DVec3,
+        target: Aim,
+        w0: DVec3,
+        bounces: &Bounces,
+    ) -> Option<Exit> {
+        self.aim_at(target, w0, bounces, |w| self.exit_map(x, w, bounces.first))
     }
 
     /// As [`Self::solve_through`] for a path from `y` outside the volume that crosses it
@@ -1736,13 +1743,16 @@ impl<'v> Connector<'v> {
     /// the volume. It reflects inside the parts it crosses as `bounces` says, the first it meets
     /// the first crossed (`bounces.first` is not used).
     pub fn solve_across(&self, y: DVec3, p: DVec3, w0: DVec3, bounces: &Bounces) -> Option<Exit> {
-        self.aim_at(p, w0, bounces, |w| self.across_map(y, w, bounces.across(0)))
+        let map = |w| self.across_map(y, w, bounces.across(0));
+        self.aim_at(Aim::Point(p), w0, bounces, map)
     }
 
     /// As [`Self::solve_across`] for a path from `y` outside the volume that reflects off its
     /// surface on its way to `p`: a surface seen, or lit, in the volume's mirror image.
     pub fn solve_mirror(&self, y: DVec3, p: DVec3, w0: DVec3) -> Option<Exit> {
-        self.aim_at(p, w0, &Bounces::default(), |w| self.mirror_map(y, w))
+        self.aim_at(Aim::Point(p), w0, &Bounces::default(), |w| {
+            self.mirror_map(y, w)
+        })
     }
 
     /// The ray from `x` (inside one of several volumes) along unit `w`, after `bounces.first`
@@ -1910,20 +1920,25 @@ impl<'v> Connector<'v> {
     }
 
     /// Newton's method on the direction `w` given to `map` (from `w0`) for the path that passes
-    /// through `p` after leaving the volume.
+    /// through the point of `target` after leaving the volume (or whose line passes through a
+    /// focused beam's focus, leaving against the beam: [`Aim::Focus`]).
     fn aim_at(
         &self,
-        p: DVec3,
+        target: Aim,
         w0: DVec3,
         bounces: &Bounces,
         map: impl Fn(DVec3) -> Option<(Exit, [DVec3; 2], [DVec3; 2])>,
     ) -> Option<Exit> {
+        let p = match target {
+            Aim::Point(p) | Aim::Focus { focus: p, .. } => p,
+            Aim::Along(_) => return None,
+        };
         let mut w = w0.normalize();
         // the last direction the map took, to step back towards when a step leaves its domain
         let mut last = None;
         let mut polished = false;
-        // the path ends at p: a part of the volume beyond it is not entered
-        let until = |e: &Exit| (p - e.surface).dot(e.outgoing);
+        // the path ends at p (or the beam's disc): a part of the volume beyond it is not entered
+        let until = |e: &Exit| target.reach(e.surface, e.outgoing);
         for iteration in 0..self.max_iterations {
             let Some((mut exit, dout, dsurf)) = self.onwards(map(w), until, bounces) else {
                 w = step_back(last?, w)?;
@@ -1933,20 +1948,23 @@ impl<'v> Connector<'v> {
             let o = exit.outgoing;
             let to_p = p - exit.surface;
             let distance = to_p.length();
-            let g = to_p / distance;
+            // towards p; back along a focused beam, away from a focus behind the exit
+            let g = target.toward(exit.surface);
             if o.dot(g) < STEER {
-                // leaving far from the pinhole's direction (even away from it): turn towards it
-                // by the angle between them; `dg` follows the exit point's move
-                let dg = dsurf.map(|ds| -(ds - g * g.dot(ds)) / distance);
+                // leaving far from the wanted direction (even away from it): turn towards it by
+                // the angle between them; `dg` follows the exit point's move
+                let sign = g.dot(to_p).signum();
+                let dg = dsurf.map(|ds| -(ds - g * g.dot(ds)) * (sign / distance));
                 w = steer(w, o, g, dout, dg)?;
                 continue;
             }
+            // (negative for a focus behind the exit: the line's extension passes through it)
             let t = to_p.dot(o);
             // the line's displacement at p: the exit point's plus the turn of its direction
             let moved = [0, 1].map(|k| dsurf[k] + dout[k] * t);
             let miss = Miss::across(o, exit.surface + o * t - p, moved);
             if self.converged(miss.size(), self.tolerance, &mut polished) {
-                exit.optical_path += self.volume.field.n_out * t;
+                exit.optical_path += self.volume.field.n_out * target.reach(exit.surface, o);
                 return miss.solved(exit, iteration);
             }
             w = miss.turn(w)?;
@@ -1954,28 +1972,45 @@ impl<'v> Connector<'v> {
         None
     }
 
-    /// A path from `x` through the point `p` outside after `bounces` reflections inside the
-    /// surface (and inside the parts it crosses after), drawn as [`Connector::sample_exit`].
+    /// A path from `x` through the point outside of `target` (or back along a focused beam's
+    /// rays, [`Aim::Focus`]) after `bounces` reflections inside the surface (and inside the
+    /// parts it crosses after), drawn as [`Connector::sample_exit`].
     pub fn sample_through(
         &self,
         x: DVec3,
-        p: DVec3,
+        target: Aim,
         bounces: &Bounces,
         first_only: bool,
         rng: &mut Rng,
     ) -> Sampled<Exit> {
         if self.matched {
-            return match bounces.first {
-                0 => self.straight_to(x, p),
+            return match (bounces.first, target) {
+                (0, Aim::Point(p)) => self.straight_to(x, p),
+                (0, Aim::Focus { focus, .. }) => self.straight_from_focus(x, focus, target),
                 _ => Sampled::none(),
             };
         }
-        let start = |rng: &mut Rng| self.initial(x, p, rng);
+        // Newton starts near the straight line the target asks for
+        let ahead = x + target.toward(x);
+        let start = |rng: &mut Rng| self.initial(x, ahead, rng);
         let solve = |w| {
-            self.solve_through(x, p, w, bounces)
+            self.solve_through(x, target, w, bounces)
                 .map(|e| (e, e.direction, e.iterations))
         };
         self.draw_crossing(first_only, start, solve, bounces, rng)
+    }
+
+    /// The straight path from `x` inside an index-matched volume back along the ray of a beam
+    /// aimed at `focus` (`target`): its `jacobian` the spread `|x − f|²` at the focus, its
+    /// optical path to the beam's disc.
+    fn straight_from_focus(&self, x: DVec3, focus: DVec3, target: Aim) -> Sampled<Exit> {
+        let w = target.toward(x);
+        let mut s = self.straight_exit(x, w, None);
+        if let Some((e, _)) = &mut s.path {
+            e.jacobian = (x - focus).length_squared();
+            e.optical_path += self.volume.field.n_out * target.reach(e.surface, w);
+        }
+        s
     }
 
     /// A path from `y` outside the volume across it (refracted in and out, unscattered; reflected
@@ -1991,10 +2026,7 @@ impl<'v> Connector<'v> {
         rng: &mut Rng,
     ) -> Sampled<Exit> {
         // most paths across leave near the straight line
-        let near = match target {
-            Aim::Point(p) => (p - y).normalize(),
-            Aim::Along(c) => c,
-        };
+        let near = target.toward(y);
         let map = |w| self.across_map(y, w, bounces.across(0));
         self.sample_outside(y, target, (near, 0.5), bounces, first_only, rng, map)
     }
@@ -2016,7 +2048,7 @@ impl<'v> Connector<'v> {
         };
         let bisector = match target {
             Aim::Point(p) => y.normalize_or_zero() + p.normalize_or_zero(),
-            Aim::Along(c) => y.normalize_or_zero() + c,
+            _ => y.normalize_or_zero() + target.toward(y),
         };
         let to_near = half * bisector.normalize_or_zero() - y;
         // jittered by a fraction of the box's angular size
@@ -2065,8 +2097,8 @@ impl<'v> Connector<'v> {
         };
         let solve = |w| {
             match target {
-                Aim::Point(p) => self.aim_at(p, w, bounces, &map),
                 Aim::Along(c) => self.aim_along(c, w, bounces, &map),
+                _ => self.aim_at(target, w, bounces, &map),
             }
             .map(|e| (e, e.direction, e.iterations))
         };
@@ -2171,13 +2203,51 @@ struct Reflected {
     reflectance: f64,
 }
 
-/// Where a path across the volume goes once it has left it.
+/// Where a path through the volume's surface goes once it has left it.
 #[derive(Clone, Copy, Debug)]
 pub enum Aim {
     /// Through a point (a pinhole, a point light, a point of a surface).
     Point(DVec3),
-    /// Along a unit direction (an orthographic camera's).
+    /// Along a unit direction (an orthographic camera's, back along a collimated beam).
     Along(DVec3),
+    /// Back along the rays of a beam aimed at `focus`: along the line through the focus,
+    /// against the beam's unit `direction`, to the plane of its disc through `disc` (normal to
+    /// `direction`). The focus may lie behind where the path leaves, inside the volume, as the
+    /// point the rays would meet without it.
+    Focus {
+        focus: DVec3,
+        disc: DVec3,
+        direction: DVec3,
+    },
+}
+
+impl Aim {
+    /// The unit direction the path is to take from `y`: towards the point, along the
+    /// direction, or along the line through the focus against the beam.
+    pub fn toward(&self, y: DVec3) -> DVec3 {
+        match *self {
+            Aim::Point(p) => (p - y).normalize(),
+            Aim::Along(c) => c,
+            Aim::Focus {
+                focus, direction, ..
+            } => {
+                let v = (focus - y).normalize();
+                if v.dot(direction) <= 0.0 { v } else { -v }
+            }
+        }
+    }
+
+    /// How far the path leaving the volume at `y` along unit `o` runs to its end: to the point
+    /// (along `o`), to the beam's disc's plane; unbounded along a direction.
+    pub fn reach(&self, y: DVec3, o: DVec3) -> f64 {
+        match *self {
+            Aim::Point(p) => (p - y).dot(o),
+            Aim::Along(_) => f64::INFINITY,
+            Aim::Focus {
+                disc, direction, ..
+            } => (disc - y).dot(direction) / o.dot(direction),
+        }
+    }
 }
 
 /// Step of the central differences of the refractions' closed forms.
@@ -2485,8 +2555,10 @@ mod tests {
         let (x, p) = (DVec3::new(0.2, 0.1, -0.1), DVec3::new(4.5, 0.4, 0.2));
         let w0 = (p - x).normalize();
         let (e, f) = (
-            a.solve_through(x, p, w0, &Bounces::first(0)).unwrap(),
-            b.solve_through(x, p, w0, &Bounces::first(0)).unwrap(),
+            a.solve_through(x, Aim::Point(p), w0, &Bounces::first(0))
+                .unwrap(),
+            b.solve_through(x, Aim::Point(p), w0, &Bounces::first(0))
+                .unwrap(),
         );
         assert_eq!(e.again.parts().len(), 1);
         exits(&e, &f);
@@ -2765,7 +2837,14 @@ mod tests {
         on_glass_balls(|c| {
             let mut rng = crate::math::stream_rng(3, 0);
             let found = (0..200)
-                .find_map(|_| c.solve_through(x, p, c.initial(x, p, &mut rng), &Bounces::first(1)))
+                .find_map(|_| {
+                    c.solve_through(
+                        x,
+                        Aim::Point(p),
+                        c.initial(x, p, &mut rng),
+                        &Bounces::first(1),
+                    )
+                })
                 .expect("some start converges");
             traced_by_hand(&found, p, hand);
         });
@@ -3221,7 +3300,7 @@ mod tests {
             let found: Vec<Exit> = (0..400)
                 .filter_map(|_| {
                     let w0 = connector.initial(x, p, &mut rng);
-                    connector.solve_through(x, p, w0, &reflected)
+                    connector.solve_through(x, Aim::Point(p), w0, &reflected)
                 })
                 .collect();
             // the path straight out of the first ball to the point crosses nothing: the
@@ -3536,10 +3615,10 @@ mod tests {
         let x = DVec3::new(0.3, -0.2, 0.1);
         let p = DVec3::new(2.0, 1.0, 1.5);
         let near = c
-            .solve_through(x, p, p - x, &Bounces::first(0))
+            .solve_through(x, Aim::Point(p), p - x, &Bounces::first(0))
             .expect("the near start converges");
         let away = c
-            .solve_through(x, p, x - p, &Bounces::first(0))
+            .solve_through(x, Aim::Point(p), x - p, &Bounces::first(0))
             .expect("the opposite start is steered round");
         assert!((near.direction - away.direction).length() < 1e-6);
         assert!((near.jacobian - away.jacobian).abs() < 1e-6 * near.jacobian);

@@ -837,7 +837,7 @@ impl<'s> ParticleTracer<'s> {
             None => {
                 let cam = &self.scene.pinholes[i - self.scene.cameras.len()];
                 t.connector
-                    .sample_through(x, cam.position, &bounces, first_only, rng)
+                    .sample_through(x, Aim::Point(cam.position), &bounces, first_only, rng)
             }
         };
         self.tally(s, out)
@@ -858,7 +858,7 @@ impl<'s> ParticleTracer<'s> {
             Some(cam) => connector.solve_exit(x, cam.direction, w0, bounces),
             None => {
                 let cam = &self.scene.pinholes[i - self.scene.cameras.len()];
-                connector.solve_through(x, cam.position, w0, bounces)
+                connector.solve_through(x, Aim::Point(cam.position), w0, bounces)
             }
         }
     }

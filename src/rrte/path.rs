@@ -31,7 +31,7 @@
 
 use super::connect::{Aim, Exit};
 use super::particle::{Leg, ParticleTracer, Reflections, Stop, Tools, Way};
-use super::scene::{Light, PartLengths, grid_pixel};
+use super::scene::{Light, PartLengths, Rays, grid_pixel};
 use crate::eikonal::Ray;
 use crate::math::{C64, Rng, uniform};
 use glam::DVec3;
@@ -81,8 +81,10 @@ pub(super) struct LightLink {
     /// Geometric length inside the volume (part by part) and straight outside it.
     pub(super) inside: PartLengths,
     pub(super) outside: f64,
-    /// The light's own density of emitting along the path (per solid angle).
+    /// The light's own density of emitting along the path (per solid angle; per unit area of a
+    /// collimated beam's disc), and how its rays spread from where they start.
     pub(super) pdf: f64,
+    pub(super) rays: Rays,
 }
 
 impl ParticleTracer<'_> {
@@ -300,8 +302,8 @@ impl ParticleTracer<'_> {
         rng: &mut Rng,
         out: &mut [C64],
     ) -> Option<LightLink> {
-        if let Light::Beam { direction, .. } = self.scene.light {
-            return self.surface_beam_link(t, y, facing, -direction, way, rng, out);
+        if let Some(aim) = self.scene.light.beam_aim() {
+            return self.surface_beam_link(t, y, facing, aim, way, rng, out);
         }
         let volume = t.flyer.volume;
         let n_out = volume.field.n_out;
@@ -324,6 +326,7 @@ impl ParticleTracer<'_> {
                 inside: e.lengths(volume),
                 outside: e.outside() + to_q,
                 pdf: intensity,
+                rays: Rays::Spreading,
             });
         }
         if inside {
@@ -339,6 +342,7 @@ impl ParticleTracer<'_> {
                 inside: o.exit.lengths(volume),
                 outside: o.outside,
                 pdf: intensity,
+                rays: Rays::Spreading,
             });
         }
         if way != Way::Bounces(0) {
@@ -360,6 +364,7 @@ impl ParticleTracer<'_> {
             inside,
             outside: distance - inside.total(),
             pdf: intensity,
+            rays: Rays::Spreading,
         })
     }
 
@@ -424,8 +429,8 @@ impl ParticleTracer<'_> {
         let Way::Bounces(bounces) = way else {
             return None;
         };
-        if let Light::Beam { direction, .. } = self.scene.light {
-            return self.beam_link(t, x, -direction, bounces, rng, out);
+        if let Some(aim) = self.scene.light.beam_aim() {
+            return self.beam_link(t, x, aim, bounces, rng, out);
         }
         let volume = t.flyer.volume;
         let q = self.light_point(rng)?;
@@ -454,10 +459,13 @@ impl ParticleTracer<'_> {
                 inside: path.lengths(volume),
                 outside: path.outside(),
                 pdf: intensity,
+                rays: Rays::Spreading,
             })
         } else {
             let bounces = self.exit_bounces(t, bounces, rng);
-            let s = t.connector.sample_through(x, q, &bounces, first_only, rng);
+            let s = t
+                .connector
+                .sample_through(x, Aim::Point(q), &bounces, first_only, rng);
             let (e, inverse_p) = self.tally(s, out)?;
             let to_q = (q - e.surface).dot(e.outgoing);
             if self.scene.blocked(e.surface, e.outgoing, to_q) {
@@ -475,35 +483,42 @@ impl ParticleTracer<'_> {
                 inside: e.lengths(volume),
                 outside: e.outside() + to_q,
                 pdf: intensity,
+                rays: Rays::Spreading,
             })
         }
     }
 
-    /// The connection from a collimated beam to `x` inside the volume: the path leaving `x` along
-    /// unit `back` (against the beam), after `bounces` reflections inside the surface of its
-    /// part, out of the volume (refracted, and across the parts it meets) and straight to the
-    /// beam's disc. It is an orthographic camera's connection ([`ParticleTracer::camera_link`])
-    /// run the other way: the disc's rays reach `x` with the irradiance `T (1 − R) n_x² /
-    /// (n_out² A dω_out/dω)` per unit power (`A` the disc's area, `dω_out/dω` the spread of the
-    /// directions leaving `x` the connection solves for; the étendue `n_x² dA_x dω_x = n_out² dA
-    /// dω_out`), so in basic radiance, times the camera's `n_out²`, it brings `T (1 − R) /
-    /// (A dω_out/dω)`.
+    /// The connection from a beam to `x` inside the volume: the path leaving `x` back along the
+    /// beam (`aim`), after `bounces` reflections inside the surface of its part, out of the
+    /// volume (refracted, and across the parts it meets) and straight to the beam's disc.
+    /// From a collimated beam it is an orthographic camera's connection
+    /// ([`ParticleTracer::camera_link`]) run the other way: the disc's rays reach `x` with the
+    /// irradiance `T (1 − R) n_x² / (n_out² A dω_out/dω)` per unit power (`A` the disc's area,
+    /// `dω_out/dω` the spread of the directions leaving `x` the connection solves for; the
+    /// étendue `n_x² dA_x dω_x = n_out² dA dω_out`), so in basic radiance, times the camera's
+    /// `n_out²`, it brings `T (1 − R) / (A dω_out/dω)`. A focused beam's rays outside the volume
+    /// are the lines through its focus, those of a point light there of intensity
+    /// [`Light::focus_intensity`] `I`: the path leaves along the line through the focus (which
+    /// may lie behind the exit, inside the volume: the étendue holds along the lines' straight
+    /// extension) and brings `I T (1 − R) / (dA⊥/dω)`, `dA⊥/dω` the tube's cross-section at the
+    /// focus, as from a point light outside.
     fn beam_link(
         &self,
         t: &Tools,
         x: DVec3,
-        back: DVec3,
+        aim: Aim,
         bounces: usize,
         rng: &mut Rng,
         out: &mut [C64],
     ) -> Option<LightLink> {
-        let density = self.scene.light.beam_density();
-        if density == 0.0 {
-            return None;
-        }
         let first_only = self.scene.connections == super::Connections::First;
         let bounces = self.exit_bounces(t, bounces, rng);
-        let s = t.connector.sample_exit(x, back, &bounces, first_only, rng);
+        let s = match aim {
+            Aim::Along(back) => t.connector.sample_exit(x, back, &bounces, first_only, rng),
+            _ => t
+                .connector
+                .sample_through(x, aim, &bounces, first_only, rng),
+        };
         let (e, inverse_p) = self.tally(s, out)?;
         self.link_from_disc(t, &e, || {
             let transmittance = self.exit_transmittance(t, &e, bounces.first, rng);
@@ -511,54 +526,57 @@ impl ParticleTracer<'_> {
         })
     }
 
-    /// The link from a collimated beam's disc of the path `e` that has left the volume back along
-    /// the beam, if it meets the disc ([`Self::to_beam_disc`]): `carried()` is what the path
-    /// carries per unit irradiance on the disc, asked for only then.
+    /// The link from a beam's disc of the path `e` that has left the volume back along the
+    /// beam, if it meets the disc ([`Self::to_beam_disc`]): `carried()` is what the path
+    /// carries per unit density of the beam there, asked for only then.
     fn link_from_disc(
         &self,
         t: &Tools,
         e: &Exit,
         carried: impl FnOnce() -> f64,
     ) -> Option<LightLink> {
-        let to_disc = self.to_beam_disc(t, e.surface)?;
+        let ray = self.to_beam_disc(t, e.surface, e.outgoing)?;
         let volume = t.flyer.volume;
-        let density = self.scene.light.beam_density();
-        let outside = e.outside() + to_disc;
+        let n_out = volume.field.n_out;
+        // a path aimed at a focus holds the stretch to the disc in its optical path, one that
+        // leaves along a direction ends where it leaves
+        let delay = match ray.rays {
+            Rays::Focused(_) => t.exit_delay(e, n_out * (e.outside() + ray.to_disc)),
+            _ => t.exit_delay(e, n_out * e.outside()) + t.delay.outside(n_out * ray.to_disc),
+        };
         Some(LightLink {
             direction: e.direction,
-            radiance: density * carried(),
-            delay: t.exit_delay(e, volume.field.n_out * outside),
+            radiance: ray.density * carried(),
+            delay,
             inside: e.lengths(volume),
-            outside,
-            pdf: density,
+            outside: e.outside() + ray.to_disc,
+            pdf: ray.density,
+            rays: ray.rays,
         })
     }
 
-    /// The connection from a collimated beam to the lit point `y` of a surface (as
-    /// [`Self::surface_light_link`]): straight back along unit `back` (against the beam) to its
-    /// disc, past no other surface and through the volume only where it is index-matched, `T
-    /// cos θ / A`; or across the volume or off its outside (`way`), leaving it along `back`,
-    /// `T (1 − R) cos θ / (A dω_out/dω)` (both ends in `n_out`).
+    /// The connection from a beam to the lit point `y` of a surface (as
+    /// [`Self::surface_light_link`]): straight back along the beam (`aim`) to its disc, past no
+    /// other surface and through the volume only where it is index-matched, `T cos θ / A` from
+    /// a collimated beam, `I T cos θ / r²` from a focused one `r` from its focus; or across the
+    /// volume or off its outside (`way`), leaving it back along the beam, `T (1 − R) cos θ /
+    /// (A dω_out/dω)` or `I T (1 − R) cos θ / (dA⊥/dω)` (both ends in `n_out`).
     #[allow(clippy::too_many_arguments)]
     fn surface_beam_link(
         &self,
         t: &Tools,
         y: DVec3,
         facing: DVec3,
-        back: DVec3,
+        aim: Aim,
         way: Way,
         rng: &mut Rng,
         out: &mut [C64],
     ) -> Option<LightLink> {
-        let density = self.scene.light.beam_density();
-        if density == 0.0 {
-            return None;
-        }
         let volume = t.flyer.volume;
         let n_out = volume.field.n_out;
         match way {
             Way::Across | Way::Mirror => {
-                let (e, carried) = self.across(t, y, Aim::Along(back), way, rng, out)?;
+                let (e, carried) = self.across(t, y, aim, way, rng, out)?;
                 let cos = e.direction.dot(facing);
                 if cos <= 0.0 {
                     return None;
@@ -566,38 +584,43 @@ impl ParticleTracer<'_> {
                 self.link_from_disc(t, &e, || cos * carried)
             }
             Way::Bounces(0) => {
+                let back = aim.toward(y);
                 let cos = back.dot(facing);
                 if cos <= 0.0 {
                     return None;
                 }
-                let to_disc = self.to_beam_disc(t, y)?;
-                let (transmittance, inside) = self.past_volume(t, y, back, to_disc, rng)?;
+                let ray = self.to_beam_disc(t, y, back)?;
+                let spread = match ray.rays {
+                    Rays::Focused(s) => Rays::Spreading.spread(ray.to_disc - s),
+                    _ => 1.0,
+                };
+                if spread <= 0.0 {
+                    return None;
+                }
+                let (transmittance, inside) = self.past_volume(t, y, back, ray.to_disc, rng)?;
                 Some(LightLink {
                     direction: back,
-                    radiance: density * cos * transmittance,
-                    delay: t.delay.outside(n_out * to_disc),
+                    radiance: ray.density * cos * transmittance / spread,
+                    delay: t.delay.outside(n_out * ray.to_disc),
                     inside,
-                    outside: to_disc - inside.total(),
-                    pdf: density,
+                    outside: ray.to_disc - inside.total(),
+                    pdf: ray.density,
+                    rays: ray.rays,
                 })
             }
             Way::Bounces(_) => None,
         }
     }
 
-    /// The distance from `p` (outside the volume) back along a collimated beam to where its ray
-    /// through `p` starts, if the beam lights `p` from there: a point of its disc outside the
+    /// The beam's ray through `p` (outside the volume) that arrives travelling along `−back`, if
+    /// the beam lights `p` along it ([`Light::beam_ray`]): from a point of its disc outside the
     /// volume, past no surface on the way.
-    fn to_beam_disc(&self, t: &Tools, p: DVec3) -> Option<f64> {
-        let light = &self.scene.light;
-        let Light::Beam { direction, .. } = *light else {
-            return None;
-        };
-        let to_disc = light.beam_source(p)?;
-        let start = p - direction * to_disc;
+    fn to_beam_disc(&self, t: &Tools, p: DVec3, back: DVec3) -> Option<super::scene::BeamRay> {
+        let ray = self.scene.light.beam_ray(p, back)?;
+        let start = p + back * ray.to_disc;
         let clear = !t.flyer.volume.field.bounds.contains(start)
-            && !self.scene.blocked(p, -direction, to_disc);
-        clear.then_some(to_disc)
+            && !self.scene.blocked(p, back, ray.to_disc);
+        clear.then_some(ray)
     }
 
     /// Free flights and scattering of the camera path inside the volume.

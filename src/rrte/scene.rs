@@ -1,6 +1,7 @@
 //! What a refractive render holds: a scattering volume with an index field, a light, and sensors
 //! outside the volume that record the light leaving it.
 
+use super::connect::Aim;
 use crate::eikonal::grid::{GridField, Interp};
 use crate::eikonal::{BoundedField, Bounds, Part, Profile};
 use crate::math::{orthonormal_basis, uniform_sphere};
@@ -485,6 +486,132 @@ impl Light {
         let (along, off, radius) = self.beam_coordinates(p)?;
         (along >= 0.0 && off <= radius).then_some(along)
     }
+
+    /// Where a path from a point joined to a beam of non-zero radius goes once it has left the
+    /// volume: back along a collimated beam, or along the line through a focused beam's focus
+    /// against the beam ([`Aim::Focus`]); `None` for other lights.
+    pub fn beam_aim(&self) -> Option<Aim> {
+        match *self {
+            Light::Beam {
+                direction, radius, ..
+            } if radius > 0.0 => Some(Aim::Along(-direction)),
+            Light::FocusedBeam {
+                center,
+                direction,
+                radius,
+                focus,
+            } if radius > 0.0 => Some(Aim::Focus {
+                focus,
+                disc: center,
+                direction,
+            }),
+            _ => None,
+        }
+    }
+
+    /// A focused beam's intensity per unit emitted power at its focus along unit `d` (the
+    /// direction of travel): its rays through the disc's area `A`, uniformly lit, are lines
+    /// through the focus, so a ray starting `s` from the focus at `cos θ = d·direction` carries
+    /// `s² / (A cos θ)` per solid angle there (0 off the disc, and for other lights). A focused
+    /// beam is seen from outside the volume as a point light at its focus.
+    pub fn focus_intensity(&self, d: DVec3) -> f64 {
+        let Light::FocusedBeam {
+            center,
+            direction,
+            radius,
+            focus,
+        } = *self
+        else {
+            return 0.0;
+        };
+        let cos = d.dot(direction);
+        if radius <= 0.0 || cos <= 0.0 {
+            return 0.0;
+        }
+        let s = (focus - center).dot(direction) / cos;
+        if (focus - d * s - center).length() > radius {
+            return 0.0;
+        }
+        s * s / (PI * radius * radius * cos)
+    }
+
+    /// The density the light draws the first segment of a photon starting at `x` along unit `d`
+    /// with: per unit area of a collimated beam's disc, per solid angle at a focused beam's
+    /// focus, per solid angle at other lights; and how the rays spread from there.
+    pub fn start_density(&self, x: DVec3, d: DVec3) -> (f64, Rays) {
+        match *self {
+            Light::Beam { .. } => (self.beam_density(), Rays::Parallel),
+            Light::FocusedBeam { focus, .. } => {
+                (self.focus_intensity(d), Rays::Focused((focus - x).length()))
+            }
+            _ => (self.intensity(d), Rays::Spreading),
+        }
+    }
+
+    /// The ray of a beam of non-zero radius that reaches `p` travelling along `−back` (given by
+    /// [`Self::beam_aim`]), if it starts on the disc upstream of `p`: the distance back to the
+    /// disc, the beam's density there ([`Self::start_density`]) and how its rays spread.
+    pub fn beam_ray(&self, p: DVec3, back: DVec3) -> Option<BeamRay> {
+        match *self {
+            Light::Beam { .. } => Some(BeamRay {
+                to_disc: self.beam_source(p)?,
+                density: self.beam_density(),
+                rays: Rays::Parallel,
+            }),
+            Light::FocusedBeam {
+                center,
+                direction,
+                radius,
+                focus,
+            } if radius > 0.0 => {
+                let cos = -back.dot(direction);
+                let to_disc = (p - center).dot(direction) / cos;
+                if !(cos > 0.0 && to_disc >= 0.0) {
+                    return None;
+                }
+                let start = p + back * to_disc;
+                if (start - center).length() > radius {
+                    return None;
+                }
+                Some(BeamRay {
+                    to_disc,
+                    density: self.focus_intensity(-back),
+                    rays: Rays::Focused((focus - start).length()),
+                })
+            }
+            _ => None,
+        }
+    }
+}
+
+/// How the rays leaving the start of a segment spread, for the density of its end: from that
+/// point (a point light, a scattering event), not at all (a collimated beam, an orthographic
+/// camera), or through a focus this far along them (a focused beam's, from its disc).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Rays {
+    Spreading,
+    Parallel,
+    Focused(f64),
+}
+
+impl Rays {
+    /// The spread `dA⊥/dω` of the rays `length` along them (1 for parallel rays, whose density is
+    /// per unit area).
+    pub fn spread(self, length: f64) -> f64 {
+        match self {
+            Rays::Spreading => length * length,
+            Rays::Parallel => 1.0,
+            Rays::Focused(s) => (length - s) * (length - s),
+        }
+    }
+}
+
+/// A beam's ray through a point ([`Light::beam_ray`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BeamRay {
+    pub to_disc: f64,
+    pub density: f64,
+    pub rays: Rays,
 }
 
 /// A fluence-rate probe at a point inside the volume: power per unit area arriving from all
