@@ -558,3 +558,85 @@ fn a_pulse_through_two_glasses_arrives_at_each_ones_group_delay() {
         group_path - phase_path
     );
 }
+
+/// Path tracing joins a camera path's events to a beam's disc through the surface and straight
+/// on outside: a pulse from the disc 28.5 in front of a weakly scattering N-BK7 slab (3 thick),
+/// scattered forward into an orthographic camera 1 behind it, arrives at the group path
+/// `29.5 + 3 n_g(BK7)` (air outside), from a collimated beam and from one focused beyond the
+/// camera (its rays tilted by less than 1/100). Taking the stretch to the disc out of the
+/// glass's share of the delay (as if the path's optical length held it) puts it 172 bins early.
+#[test]
+fn a_pulse_joined_to_a_beam_arrives_at_the_group_delay() {
+    let l = 450.0;
+    let h = 1e-3;
+    let group = |m: &Material| m.index(l) - l * (m.index(l + h) - m.index(l - h)) / (2.0 * h);
+    let group_path = 29.5 + 3.0 * group(&bk7());
+    let width = group_path / 200.5;
+    let bins = 260;
+    let beam = |focus: Option<DVec3>| {
+        let (center, direction, radius) = (DVec3::new(0.0, 0.0, -30.0), DVec3::Z, 0.5);
+        match focus {
+            None => Light::Beam {
+                center,
+                direction,
+                radius,
+            },
+            Some(focus) => Light::FocusedBeam {
+                center,
+                direction,
+                radius,
+                focus,
+            },
+        }
+    };
+    for focus in [None, Some(DVec3::new(0.0, 0.0, 20.0))] {
+        let scene = RenderScene {
+            volume: Volume {
+                field: BoundedField::single(
+                    Profile::Constant {
+                        n: bk7().index(REFERENCE_NM),
+                    },
+                    Bounds::Box {
+                        half: DVec3::new(50.0, 50.0, 1.5),
+                    },
+                    1.0,
+                ),
+                sigma_s: 0.05,
+                sigma_a: 0.0,
+                scattering: Scattering::single(PhaseFunction::Isotropic),
+                density: None,
+                parts: Vec::new(),
+            },
+            light: beam(focus),
+            cameras: vec![lightpath::rrte::Camera::new(
+                "behind".into(),
+                DVec3::Z,
+                DVec3::new(0.0, 0.0, 2.5),
+                [2.0, 2.0],
+                [1, 1],
+            )],
+            spectrum: Some(Spectrum::new(
+                [l, l],
+                REFERENCE_NM,
+                Some(Dispersion::Scaled(bk7())),
+                None,
+            )),
+            transient: Some(lightpath::rrte::Transient {
+                bins,
+                max_path: bins as f64 * width,
+            }),
+            tracing: lightpath::rrte::Tracing::FromCameras,
+            ..bare_scene(0.01)
+        };
+        let (e, est) = render(&scene, 4_000);
+        let image = est.camera_image(0);
+        let brightest = (0..bins)
+            .max_by(|&a, &b| {
+                e.mean[image.plane(Some(a), 0)]
+                    .re
+                    .total_cmp(&e.mean[image.plane(Some(b), 0)].re)
+            })
+            .unwrap();
+        assert_eq!(brightest, 200, "focus {focus:?}: group path {group_path}");
+    }
+}
