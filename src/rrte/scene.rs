@@ -1486,7 +1486,7 @@ mod tests {
 
     /// A focused beam's intensity at its focus integrates to its power over the directions of
     /// its rays (a tilted cone: the focus off the disc's axis), by quadrature over the sphere;
-    /// without the `1/cos θ` of its disc seen obliquely it would come to 0.93.
+    /// without the `1/cos θ` of its disc seen obliquely it would come to 0.94.
     #[test]
     fn a_focused_beams_intensity_integrates_to_its_power() {
         let light = Light::FocusedBeam {
