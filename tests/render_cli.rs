@@ -183,16 +183,6 @@ fn bad_render_scenes_are_refused_by_key() {
         }
         refused(&dir.join(format!("bad{i}.toml")), &text, key);
     }
-    // a focused beam is rendered by particle tracing alone
-    let pinhole = "[[sensor]]\nkind = \"pinhole\"\nname = \"eye\"\nposition = [0.0, 0.0, 3.0]\nlook_at = [0.0, 0.0, 0.0]\nfov_deg = 30.0\npixels = [4, 4]\n[render]\nestimator = \"bidirectional\"";
-    let text = base
-        .replacen("radius = 0.0", "radius = 0.1\nfocus = [0.0, 0.0, 0.0]", 1)
-        .replacen("[render]", pinhole, 1);
-    refused(
-        &dir.join("focused.toml"),
-        &text,
-        "light.focus: a focused beam",
-    );
     let _ = std::fs::remove_dir_all(dir);
 }
 
@@ -528,6 +518,16 @@ fn path_tracing_is_checked_and_runs() {
             "light.radius = 0.5",
         ),
         (
+            light,
+            "kind = \"beam\"\ncenter = [0.0, 0.0, -2.0]\ndirection = [0.0, 0.0, 1.0]\nfocus = [0.0, 0.0, 0.0]",
+            "light.radius = 0",
+        ),
+        (
+            light,
+            "kind = \"beam\"\ncenter = [0.0, 0.0, 0.5]\ndirection = [0.0, 0.0, 1.0]\nradius = 0.3\nfocus = [0.0, 0.0, 2.0]",
+            "light.center",
+        ),
+        (
             "[render]",
             "[[sensor]]\nkind = \"flux\"\nname = \"below\"\ncenter = [0.0, 0.0, -3.0]\nnormal = [0.0, 0.0, -1.0]\n\n[render]",
             "sensor[1].kind",
@@ -551,12 +551,42 @@ fn path_tracing_is_checked_and_runs() {
         };
         refused(&dir.join(format!("bad{i}.toml")), &text, key);
     }
+    // a beam focused inside an index-matched ball: its rays meet at a point of the medium
+    let focused = "kind = \"beam\"\ncenter = [0.0, 0.0, -3.0]\ndirection = [0.0, 0.0, 1.0]\nradius = 0.5\nfocus = [0.0, 0.0, 0.2]";
+    let matched = base.replacen(light, focused, 1).replacen(
+        "{ kind = \"luneburg\", radius = 1.0 }",
+        "{ kind = \"constant\", n = 1.0 }",
+        1,
+    );
+    refused(
+        &dir.join("focus.toml"),
+        &matched,
+        "light.focus = [0.0, 0.0, 0.2]",
+    );
     let out = dir.join("run");
     render_ok(&config("render_path.toml"), &out, 2000);
     let r = results(&out);
     assert_eq!(r["estimator"], "path_tracing");
     assert!(r.get("absorbed").is_none() && r.get("surfaces").is_none());
     assert!(r["cameras"][0]["irradiance"]["mean"].as_f64().unwrap() > 0.0);
+    // the same beam focused inside the lens, which bends its rays apart, renders both ways
+    for estimator in ["path", "bidirectional"] {
+        let text = base.replacen(light, focused, 1).replacen(
+            "estimator = \"path\"",
+            &format!("estimator = \"{estimator}\""),
+            1,
+        );
+        let path = dir.join(format!("focused_{estimator}.toml"));
+        std::fs::write(&path, text).unwrap();
+        let out = dir.join(format!("focused_{estimator}"));
+        render_ok(&path.display().to_string(), &out, 2000);
+        assert!(
+            results(&out)["cameras"][0]["irradiance"]["mean"]
+                .as_f64()
+                .unwrap()
+                > 0.0
+        );
+    }
     let _ = std::fs::remove_dir_all(dir);
 }
 

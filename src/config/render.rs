@@ -1636,7 +1636,8 @@ impl RenderConfig {
             if volume.field.bounds.contains(focus) && volume.homogeneous() && volume.index_matched()
             {
                 return err(format!(
-                    "light.focus = {focus:?}: the beam's rays meet at a point inside the index-matched volume, where the light's irradiance grows without bound and render.estimator = \"path\" would estimate it with unbounded variance; use render.estimator = \"bidirectional\" (its weights give the events near the focus to the light's own strategies) or \"particle\""
+                    "light.focus = {:?}: the beam's rays meet at a point inside the index-matched volume, where the light's irradiance grows without bound and render.estimator = \"path\" would estimate it with unbounded variance; use render.estimator = \"bidirectional\" (its weights give the events near the focus to the light's own strategies) or \"particle\"",
+                    focus.to_array()
                 ));
             }
         }
@@ -1656,7 +1657,8 @@ impl RenderConfig {
                 .any(|p| scene.volume.field.bounds.contains(p))
             {
                 return err(format!(
-                    "light.center = {center:?}, light.radius = {radius}: render.estimator = \"{name}\" connects paths to a beam's disc outside the volume, and this one reaches inside it; move it out, or use render.estimator = \"particle\""
+                    "light.center = {:?}, light.radius = {radius}: render.estimator = \"{name}\" connects paths to a beam's disc outside the volume, and this one reaches inside it; move it out, or use render.estimator = \"particle\"",
+                    center.to_array()
                 ));
             }
         }

@@ -36,7 +36,8 @@
 //! camera event as path tracing joins it) is tried and counted only near the beam
 //! ([`super::scene::BEAM_REACH`]). The weights use the straight-ray density of each segment —
 //! `ρ σ_t e^{−σ_t ℓ}/ℓ²` over its geometric length `ℓ` (the tube of parallel rays from a beam or an
-//! orthographic camera: no `1/ℓ²`; per unit area at a surface, times `|cos θ|` there), the phase
+//! orthographic camera: no `1/ℓ²`; `ℓ` from the focus of a focused beam, whose density is per
+//! solid angle there; per unit area at a surface, times `|cos θ|` there), the phase
 //! functions or the surfaces' `cos θ / π` at both ends, and the sources' own densities — so in a
 //! graded index they are an approximation of the true densities; any weights that sum to one over
 //! the strategies that can make each path keep the estimate unbiased, and these are the same
@@ -287,8 +288,9 @@ pub struct Subpaths {
 struct Joined<'a> {
     light: &'a [Vertex],
     camera: &'a [Vertex],
-    /// The light's density of the first segment's direction (for a beam, of its start per unit
-    /// area of the disc), the camera's of the last.
+    /// The light's density of the first segment's direction (for a collimated beam, of its start
+    /// per unit area of the disc; for a focused one, per solid angle at its focus), the camera's
+    /// of the last.
     light_pdf: f64,
     camera_pdf: f64,
     /// The connecting segment, from `y_s` (or the light) to `z_t` (or the camera).

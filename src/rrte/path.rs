@@ -22,7 +22,9 @@
 //!
 //! A collimated beam is joined to an event by the path leaving it back along the beam to the
 //! beam's disc (an orthographic camera's connection run the other way); a focused beam, whose
-//! rays converge, is not. A light inside the volume is
+//! rays outside the volume are the lines through its focus, as a point light there, by the path
+//! leaving along the line through the focus (which may lie behind where it leaves). A light
+//! inside the volume is
 //! connected to the cameras directly, as in particle tracing, and one outside is not imaged
 //! itself (nor its mirror image in the volume). The connections reflect inside the surface at
 //! most `render.reflections` times, so light that reaches its first scattering event only after
