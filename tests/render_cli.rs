@@ -226,6 +226,19 @@ fn probes_and_cameras_are_checked_by_key() {
             "pixels = [64, 0]",
             "sensor[0].pixels[1]",
         ),
+        // an orthographic camera's image plane through the lens, and before it
+        (
+            "render_camera.toml",
+            "center = [2.0, 0.0, 0.0]",
+            "center = [0.5, 0.0, 0.0]",
+            "sensor[0].center = [0.5, 0.0, 0.0]: the camera's image plane",
+        ),
+        (
+            "render_camera.toml",
+            "center = [2.0, 0.0, 0.0]",
+            "center = [-2.0, 0.0, 0.0]",
+            "lies before it (move it 3.000",
+        ),
         (
             "render_camera.toml",
             "position = [2.5, 1.0, 2.5]",

@@ -967,6 +967,24 @@ impl RenderConfig {
                 let key = |k: &str| format!("sensor[{i}].{k}");
                 let direction = unit(&key("direction"), *direction)?;
                 let center = finite(&key("center"), *center)?;
+                // the light it records leaves the volume along `direction` and runs on to the
+                // image plane: all of the volume lies behind the plane
+                let ahead = center.dot(direction) - volume.support(direction);
+                if ahead < -1e-9 * (1.0 + center.dot(direction).abs()) {
+                    return err(format!(
+                        "{} = {:?}: the camera's image plane (through its center, normal to {} = {:?}) must lie beyond the volume along that direction, which the light it records travels; this one {} it (move it {ahead:.3} along the direction, or more)",
+                        key("center"),
+                        center.to_array(),
+                        key("direction"),
+                        direction.to_array(),
+                        if center.dot(direction) > -volume.support(-direction) {
+                            "cuts"
+                        } else {
+                            "lies before"
+                        },
+                        ahead = -ahead
+                    ));
+                }
                 for (a, v) in size.iter().enumerate() {
                     positive(&key(&format!("size[{a}]")), *v)?;
                 }
