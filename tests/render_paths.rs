@@ -189,7 +189,9 @@ fn curved_rays_agree() {
 }
 
 /// A white floor beside the sphere, lit by a spot light above: the camera sees the floor and
-/// the light it sends back into the sphere (all three estimators).
+/// the light it sends back into the sphere (all three estimators); and an orthographic camera
+/// looking down at 45° from just beyond the sphere, whose image plane the floor reaches through
+/// (the floor beyond it is out of its view, as a path from the camera never meets it).
 #[test]
 fn a_floor_agrees() {
     let mut s = scene(
@@ -202,6 +204,13 @@ fn a_floor_agrees() {
         camera(DVec3::new(2.5, -2.0, 1.0), DVec3::new(1.5, 0.0, -1.3), 40.0),
     );
     s.surfaces.push(floor());
+    s.cameras.push(Camera::new(
+        "slanted".into(),
+        DVec3::new(1.0, 0.0, 1.0).normalize(),
+        DVec3::new(1.2, 0.0, 0.3),
+        [7.0, 7.0],
+        [10, 10],
+    ));
     agree(s, 400_000, 40_000, false);
 }
 

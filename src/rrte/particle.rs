@@ -882,8 +882,8 @@ impl<'s> ParticleTracer<'s> {
             if pixels.1 == 0 {
                 return None;
             }
-            let to_plane = (cam.center - e.surface).dot(cam.direction).max(0.0);
-            if self.scene.blocked(e.surface, cam.direction, to_plane) {
+            let to_plane = (cam.center - e.surface).dot(cam.direction);
+            if to_plane < 0.0 || self.scene.blocked(e.surface, cam.direction, to_plane) {
                 return None;
             }
             let radiance = carried() / cam.pixel_area();
@@ -1454,8 +1454,9 @@ impl<'s> ParticleTracer<'s> {
             if pixels.1 == 0 {
                 return None;
             }
-            let to_plane = (cam.center - y).dot(w).max(0.0);
-            if w.dot(facing) <= 0.0 || self.scene.blocked(y, w, to_plane) {
+            // a point beyond the image plane is not in the camera's view
+            let to_plane = (cam.center - y).dot(w);
+            if to_plane < 0.0 || w.dot(facing) <= 0.0 || self.scene.blocked(y, w, to_plane) {
                 return None;
             }
             let (transmittance, inside) = self.past_volume(t, y, w, f64::INFINITY, rng)?;
