@@ -128,6 +128,9 @@ pub struct Again {
     parts: [Reentry; MAX_AGAIN],
     count: usize,
     crossed: usize,
+    /// Whether the path ended before a part of the volume it would meet beyond its end (a part
+    /// it would reflect inside could bring it back): it took the draw of no reflections there.
+    declined: bool,
 }
 
 /// A path's way across a part it enters again: the entry point (just inside), the unit
@@ -239,9 +242,11 @@ impl Bounces {
         self.after - self.across[..crossed.min(MAX_AGAIN)].iter().sum::<usize>()
     }
 
-    /// `1/p` of having drawn the numbers of the first `crossed` parts crossed.
-    pub fn inverse_probability(&self, crossed: usize) -> f64 {
-        (0..crossed.min(MAX_AGAIN))
+    /// `1/p` of having drawn the numbers of the first `crossed` parts crossed, and, for a path
+    /// that `declined` a part beyond its end, no reflections inside the next.
+    pub fn inverse_probability(&self, crossed: usize, declined: bool) -> f64 {
+        let declined = declined && crossed < MAX_AGAIN;
+        (0..crossed.min(MAX_AGAIN) + usize::from(declined))
             .map(|i| match (self.left_after(i), self.across[i]) {
                 (0, _) => 1.0,
                 (_, 0) => 1.0 / THROUGH,
@@ -739,7 +744,7 @@ impl<'v> Connector<'v> {
     ) -> Sampled<Exit> {
         let mut s = self.draw(first_only, start, solve, rng);
         if let Some((e, inverse_p)) = &mut s.path {
-            *inverse_p *= bounces.inverse_probability(e.again.crossed);
+            *inverse_p *= bounces.inverse_probability(e.again.crossed, e.again.declined);
         }
         s
     }
@@ -749,14 +754,20 @@ impl<'v> Connector<'v> {
     fn straight_to(&self, x: DVec3, p: DVec3) -> Sampled<Exit> {
         let d = p - x;
         let s = d.length();
-        self.straight_exit(x, d / s, Some(s))
+        self.straight_exit(x, d / s, Some(s), s)
     }
 
     /// The straight path from `x` inside an index-matched volume along unit `w`, leaving it (and
     /// reaching the point `to_point` away): its exit, with `jacobian` the spread `s²` at that
-    /// point (1 for a direction), through every part of a non-convex volume it enters again on
-    /// the way.
-    fn straight_exit(&self, x: DVec3, w: DVec3, to_point: Option<f64>) -> Sampled<Exit> {
+    /// point (1 for a direction), through every part of a non-convex volume, or of several
+    /// volumes, it enters again on the way, up to `limit` from `x`.
+    fn straight_exit(
+        &self,
+        x: DVec3,
+        w: DVec3,
+        to_point: Option<f64>,
+        limit: f64,
+    ) -> Sampled<Exit> {
         let n = self.volume.field.n_out;
         let bounds = &self.volume.field.bounds;
         let path = bounds.exit(x, w).and_then(|t1| {
@@ -767,7 +778,7 @@ impl<'v> Connector<'v> {
                 None => (n * exit, 1.0),
             };
             let (mut again, mut between, mut length) = (Again::default(), 0.0, exit);
-            let end = to_point.unwrap_or(f64::INFINITY);
+            let end = limit;
             while let Some(t0) = bounds.reentry(x + w * exit, w) {
                 let entry = exit + t0;
                 if entry >= end {
@@ -823,22 +834,24 @@ impl<'v> Connector<'v> {
         }
     }
 
-    /// A path from `x` leaving the volume along unit `c` after `bounces` reflections inside the
-    /// surface (and inside the parts it crosses after), drawn like [`Connector::sample`]
-    /// (`first`: the biased variant), its inverse probability also that of the reflections
-    /// drawn for the parts it crosses ([`Bounces::inverse_probability`]).
+    /// A path from `x` leaving the volume along the unit direction `c` of `target` (an
+    /// [`Aim::Along`] or [`Aim::Back`]) after `bounces` reflections inside the surface (and
+    /// inside the parts it crosses after), drawn like [`Connector::sample`] (`first`: the
+    /// biased variant), its inverse probability also that of the reflections drawn for the
+    /// parts it crosses ([`Bounces::inverse_probability`]).
     pub fn sample_exit(
         &self,
         x: DVec3,
-        c: DVec3,
+        target: Aim,
         bounces: &Bounces,
         first_only: bool,
         rng: &mut Rng,
     ) -> Sampled<Exit> {
+        let c = target.toward(x);
         if self.matched {
             // nothing reflects at an index-matched surface
             return match bounces.first {
-                0 => self.straight_exit(x, c, None),
+                0 => self.straight_exit(x, c, None, target.reach(x, c)),
                 _ => Sampled::none(),
             };
         }
@@ -854,7 +867,7 @@ impl<'v> Connector<'v> {
             }
         };
         let solve = |w| {
-            self.solve_exit(x, c, w, bounces)
+            self.solve_exit(x, target, w, bounces)
                 .map(|e| (e, e.direction, e.iterations))
         };
         self.draw_crossing(first_only, start, solve, bounces, rng)
@@ -914,7 +927,7 @@ impl<'v> Connector<'v> {
         out.distinct = found;
         if let Some(start) = chosen {
             out.solves = 1;
-            if let Some(e) = self.solve_exit(x, c, start, &Bounces::first(bounces))
+            if let Some(e) = self.solve_exit(x, Aim::Along(c), start, &Bounces::first(bounces))
                 && (e.direction - start).length() < SAME_PATH
             {
                 out.iterations = e.iterations;
@@ -1649,6 +1662,7 @@ impl<'v> Connector<'v> {
             };
             // beyond the point the path ends at, only a part it reflects inside brings it back
             if t0 >= until(&exit) && bounces.across(exit.again.crossed) == 0 {
+                exit.again.declined = true;
                 return Some((exit, dout, moved));
             }
             (dout, moved) = self.cross_again(&mut exit, (dout, moved), t0, bounces)?;
@@ -1931,7 +1945,7 @@ impl<'v> Connector<'v> {
     ) -> Option<Exit> {
         let p = match target {
             Aim::Point(p) | Aim::Focus { focus: p, .. } => p,
-            Aim::Along(_) => return None,
+            Aim::Along(_) | Aim::Back { .. } => return None,
         };
         let mut w = w0.normalize();
         // the last direction the map took, to step back towards when a step leaves its domain
@@ -2005,7 +2019,7 @@ impl<'v> Connector<'v> {
     /// optical path to the beam's disc.
     fn straight_from_focus(&self, x: DVec3, focus: DVec3, target: Aim) -> Sampled<Exit> {
         let w = target.toward(x);
-        let mut s = self.straight_exit(x, w, None);
+        let mut s = self.straight_exit(x, w, None, target.reach(x, w));
         if let Some((e, _)) = &mut s.path {
             e.jacobian = (x - focus).length_squared();
             e.optical_path += self.volume.field.n_out * target.reach(e.surface, w);
@@ -2097,7 +2111,7 @@ impl<'v> Connector<'v> {
         };
         let solve = |w| {
             match target {
-                Aim::Along(c) => self.aim_along(c, w, bounces, &map),
+                Aim::Along(_) | Aim::Back { .. } => self.aim_along(target, w, bounces, &map),
                 _ => self.aim_at(target, w, bounces, &map),
             }
             .map(|e| (e, e.direction, e.iterations))
@@ -2105,27 +2119,34 @@ impl<'v> Connector<'v> {
         self.draw_crossing(first_only, start, solve, bounces, rng)
     }
 
-    /// The path Newton's method reaches from `w0` that leaves the volume along unit `c`.
-    /// With `bounces`, the path reflects that many times inside the surface before it leaves
-    /// and inside the parts it crosses after.
-    pub fn solve_exit(&self, x: DVec3, c: DVec3, w0: DVec3, bounces: &Bounces) -> Option<Exit> {
-        self.aim_along(c, w0, bounces, |w| self.exit_map(x, w, bounces.first))
+    /// The path Newton's method reaches from `w0` that leaves the volume along the unit
+    /// direction of `target` ([`Aim::Along`], or [`Aim::Back`]: then crossing no part beyond the
+    /// beam's disc). With `bounces`, the path reflects that many times inside the surface before
+    /// it leaves and inside the parts it crosses after.
+    pub fn solve_exit(&self, x: DVec3, target: Aim, w0: DVec3, bounces: &Bounces) -> Option<Exit> {
+        self.aim_along(target, w0, bounces, |w| self.exit_map(x, w, bounces.first))
     }
 
     /// Newton's method on the direction `w` given to `map` (from `w0`) for the path that leaves
-    /// the volume along unit `c`.
+    /// the volume along the unit direction of `target` ([`Aim::Along`] or [`Aim::Back`]).
     fn aim_along(
         &self,
-        c: DVec3,
+        target: Aim,
         w0: DVec3,
         bounces: &Bounces,
         map: impl Fn(DVec3) -> Option<(Exit, [DVec3; 2], [DVec3; 2])>,
     ) -> Option<Exit> {
+        let c = match target {
+            Aim::Along(c) | Aim::Back { back: c, .. } => c,
+            _ => return None,
+        };
         let mut w = w0.normalize();
         let mut last = None;
         let mut polished = false;
+        // a path back along a beam ends at its disc: a part beyond it is not entered
+        let until = |e: &Exit| target.reach(e.surface, e.outgoing);
         for iteration in 0..self.max_iterations {
-            let Some((exit, [d1, d2], _)) = self.onwards(map(w), |_| f64::INFINITY, bounces) else {
+            let Some((exit, [d1, d2], _)) = self.onwards(map(w), until, bounces) else {
                 w = step_back(last?, w)?;
                 continue;
             };
@@ -2208,8 +2229,11 @@ struct Reflected {
 pub enum Aim {
     /// Through a point (a pinhole, a point light, a point of a surface).
     Point(DVec3),
-    /// Along a unit direction (an orthographic camera's, back along a collimated beam).
+    /// Along a unit direction (an orthographic camera's).
     Along(DVec3),
+    /// Back along a collimated beam: along unit `back` (against the beam), to the plane of its
+    /// disc through `disc` (normal to `back`).
+    Back { back: DVec3, disc: DVec3 },
     /// Back along the rays of a beam aimed at `focus`: along the line through the focus,
     /// against the beam's unit `direction`, to the plane of its disc through `disc` (normal to
     /// `direction`). The focus may lie behind where the path leaves, inside the volume, as the
@@ -2227,7 +2251,7 @@ impl Aim {
     pub fn toward(&self, y: DVec3) -> DVec3 {
         match *self {
             Aim::Point(p) => (p - y).normalize(),
-            Aim::Along(c) => c,
+            Aim::Along(c) | Aim::Back { back: c, .. } => c,
             Aim::Focus {
                 focus, direction, ..
             } => {
@@ -2238,11 +2262,12 @@ impl Aim {
     }
 
     /// How far the path leaving the volume at `y` along unit `o` runs to its end: to the point
-    /// (along `o`), to the beam's disc's plane; unbounded along a direction.
+    /// (along `o`), to the beam's disc's plane; unbounded along a camera's direction.
     pub fn reach(&self, y: DVec3, o: DVec3) -> f64 {
         match *self {
             Aim::Point(p) => (p - y).dot(o),
             Aim::Along(_) => f64::INFINITY,
+            Aim::Back { back, disc } => (disc - y).dot(back) / o.dot(back),
             Aim::Focus {
                 disc, direction, ..
             } => (disc - y).dot(direction) / o.dot(direction),
@@ -2548,8 +2573,10 @@ mod tests {
         // out of the block along a direction, refracted at its surface
         let c = DVec3::new(0.3, 1.0, 0.2).normalize();
         exits(
-            &a.solve_exit(x, c, c, &Bounces::first(0)).unwrap(),
-            &b.solve_exit(x, c, c, &Bounces::first(0)).unwrap(),
+            &a.solve_exit(x, Aim::Along(c), c, &Bounces::first(0))
+                .unwrap(),
+            &b.solve_exit(x, Aim::Along(c), c, &Bounces::first(0))
+                .unwrap(),
         );
         // out of the graded ball, across the block and on to a point beyond it
         let (x, p) = (DVec3::new(0.2, 0.1, -0.1), DVec3::new(4.5, 0.4, 0.2));
@@ -3056,7 +3083,7 @@ mod tests {
                 let mut paths: Vec<Exit> = Vec::new();
                 for _ in 0..3000 {
                     let w = uniform_sphere(uniform(&mut rng), uniform(&mut rng));
-                    if let Some(e) = c.solve_exit(x, out, w, &Bounces::first(bounces))
+                    if let Some(e) = c.solve_exit(x, Aim::Along(out), w, &Bounces::first(bounces))
                         && !paths
                             .iter()
                             .any(|p| (p.direction - e.direction).length() < SAME_PATH)
@@ -3382,23 +3409,44 @@ mod tests {
     }
 
     /// [`Bounces::draw`] draws each way of splitting a budget of reflections among the parts
-    /// crossed as often as [`Bounces::inverse_probability`] says.
+    /// crossed as often as [`Bounces::inverse_probability`] says, and no reflections inside the
+    /// part after them (where a path that ends before a part beyond its end goes) as often.
     #[test]
     fn reflections_among_parts_crossed_are_drawn_as_often_as_their_probability_says() {
         let mut rng = crate::math::stream_rng(3, 0);
         let draws = 200_000;
-        for (after, crossed) in [(1, 1), (2, 2), (3, 3)] {
+        for (after, crossed) in [(1, 0), (1, 1), (2, 1), (2, 2), (3, 3)] {
             let mut counts = std::collections::HashMap::new();
+            let mut ended = std::collections::HashMap::new();
+            let mut ends = std::collections::HashMap::new();
             for _ in 0..draws {
                 let b = Bounces::draw(0, after, &mut rng);
                 let key: Vec<usize> = (0..crossed).map(|i| b.across(i)).collect();
-                let p = 1.0 / b.inverse_probability(crossed);
+                let p = 1.0 / b.inverse_probability(crossed, false);
+                // a path that ends before a part beyond its end takes the draws that reflect
+                // inside none there
+                let declining = b.across(crossed) == 0;
+                *ended.entry((key.clone(), declining)).or_insert(0usize) += 1;
+                if declining {
+                    ends.insert(key.clone(), (p, 1.0 / b.inverse_probability(crossed, true)));
+                }
                 let entry = counts.entry(key).or_insert((0usize, p));
                 assert_eq!(entry.1, p, "one way, one probability");
                 entry.0 += 1;
                 assert_eq!(
                     b.left_after(crossed) + (0..crossed).map(|i| b.across(i)).sum::<usize>(),
                     after
+                );
+            }
+            for ((key, declining), n) in &ended {
+                let (p, declined) = ends.get(key).copied().unwrap_or((counts[key].1, 0.0));
+                let p = if *declining { declined } else { p - declined };
+                let expected = p * draws as f64;
+                let error = (expected * (1.0 - p)).sqrt().max(1.0);
+                assert!(
+                    (*n as f64 - expected).abs() < 4.0 * error,
+                    "{key:?}, ending before another part {declining}: {n} drawn, {expected} \
+                     ± {error} expected"
                 );
             }
             let total: f64 = counts.values().map(|(_, p)| p).sum();
@@ -3408,14 +3456,14 @@ mod tests {
             );
             for (key, (n, p)) in &counts {
                 let expected = p * draws as f64;
-                let error = (expected * (1.0 - p)).sqrt();
+                let error = (expected * (1.0 - p)).sqrt().max(1.0);
                 assert!(
                     (*n as f64 - expected).abs() < 4.0 * error,
                     "{key:?}: {n} drawn, {expected} ± {error} expected"
                 );
             }
         }
-        assert_eq!(Bounces::first(2).inverse_probability(3), 1.0);
+        assert_eq!(Bounces::first(2).inverse_probability(3, true), 1.0);
     }
 
     #[test]
@@ -3624,10 +3672,10 @@ mod tests {
         assert!((near.jacobian - away.jacobian).abs() < 1e-6 * near.jacobian);
         let dir = DVec3::new(1.0, 0.0, 0.0);
         let near = c
-            .solve_exit(x, dir, dir, &Bounces::first(0))
+            .solve_exit(x, Aim::Along(dir), dir, &Bounces::first(0))
             .expect("the near start converges");
         let away = c
-            .solve_exit(x, dir, -dir, &Bounces::first(0))
+            .solve_exit(x, Aim::Along(dir), -dir, &Bounces::first(0))
             .expect("the opposite start is steered round");
         assert!((near.direction - away.direction).length() < 1e-6);
         assert!(near.outgoing.dot(dir) > 1.0 - 1e-9);

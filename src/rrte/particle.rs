@@ -831,9 +831,10 @@ impl<'s> ParticleTracer<'s> {
         let bounces = self.exit_bounces(t, first, rng);
         let first_only = self.scene.connections == Connections::First;
         let s = match self.scene.cameras.get(i) {
-            Some(cam) => t
-                .connector
-                .sample_exit(x, cam.direction, &bounces, first_only, rng),
+            Some(cam) => {
+                t.connector
+                    .sample_exit(x, Aim::Along(cam.direction), &bounces, first_only, rng)
+            }
             None => {
                 let cam = &self.scene.pinholes[i - self.scene.cameras.len()];
                 t.connector
@@ -855,7 +856,7 @@ impl<'s> ParticleTracer<'s> {
         bounces: &Bounces,
     ) -> Option<Exit> {
         match self.scene.cameras.get(i) {
-            Some(cam) => connector.solve_exit(x, cam.direction, w0, bounces),
+            Some(cam) => connector.solve_exit(x, Aim::Along(cam.direction), w0, bounces),
             None => {
                 let cam = &self.scene.pinholes[i - self.scene.cameras.len()];
                 connector.solve_through(x, Aim::Point(cam.position), w0, bounces)

@@ -516,10 +516,10 @@ impl ParticleTracer<'_> {
         let first_only = self.scene.connections == super::Connections::First;
         let bounces = self.exit_bounces(t, bounces, rng);
         let s = match aim {
-            Aim::Along(back) => t.connector.sample_exit(x, back, &bounces, first_only, rng),
-            _ => t
+            Aim::Point(_) | Aim::Focus { .. } => t
                 .connector
                 .sample_through(x, aim, &bounces, first_only, rng),
+            _ => t.connector.sample_exit(x, aim, &bounces, first_only, rng),
         };
         let (e, inverse_p) = self.tally(s, out)?;
         self.link_from_disc(t, &e, || {

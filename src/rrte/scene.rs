@@ -493,8 +493,13 @@ impl Light {
     pub fn beam_aim(&self) -> Option<Aim> {
         match *self {
             Light::Beam {
-                direction, radius, ..
-            } if radius > 0.0 => Some(Aim::Along(-direction)),
+                center,
+                direction,
+                radius,
+            } if radius > 0.0 => Some(Aim::Back {
+                back: -direction,
+                disc: center,
+            }),
             Light::FocusedBeam {
                 center,
                 direction,
