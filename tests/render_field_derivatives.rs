@@ -1038,15 +1038,19 @@ fn derivatives_by_either_of_two_volumes_fields_are_the_estimates_difference_quot
     is_the_difference_quotient(|v| balls(n0, c2, v), n_glass, 1e-5, 2);
 }
 
-/// The cameras of [`CAMERAS`] over the two balls: connections from events in either ball leave
-/// it and cross the other on their way to the camera (refracted in and out), and land in pixels
-/// whose tent shares move with them; to 1e-3 over `h` = 1e-5 as for one ball (the stepped
-/// connection's kinks at the integrator's size).
+/// The cameras of [`CAMERAS`] over the two balls (the orthographic one's image plane raised
+/// above the upper ball): connections from events in either ball leave it and cross the other
+/// on their way to the camera (refracted in and out), and land in pixels whose tent shares move
+/// with them; to 1e-3 over `h` = 1e-5 as for one ball (the stepped connection's kinks at the
+/// integrator's size).
 #[test]
 fn cameras_over_two_volumes_differentiate_as_their_estimates_difference_quotients() {
     let names = "\"volume[0].profiles[0].c2\", \"volume[1].profiles[0].n\"";
     let (n0, c2, n_glass) = (1.3, -0.25, 1.5);
-    let balls = |c2, n_glass| scene(&with_cameras(&two_balls(n0, c2, n_glass, names)));
+    let balls = |c2, n_glass| {
+        let text = with_cameras(&two_balls(n0, c2, n_glass, names));
+        scene(&text.replacen("center = [0.0, 0.0, 2.0]", "center = [0.0, 0.0, 2.5]", 1))
+    };
     is_the_difference_quotient_within(|v| balls(v, n_glass), c2, 1e-5, 0, 1e-3);
     is_the_difference_quotient_within(|v| balls(c2, v), n_glass, 1e-5, 1, 1e-3);
 }
