@@ -174,8 +174,10 @@ pub const MAX_AGAIN: usize = 4;
 /// drawn before Newton's method runs (the path must be one function of its start's direction),
 /// from the `after` left of its budget; and inside the part it ends in (between two points
 /// inside) what the crossings have left. A path is drawn with the chance of its crossings'
-/// numbers ([`Bounces::inverse_probability`]), so the estimate divided by it counts every path
-/// with at most `first + after` reflections once.
+/// numbers ([`Bounces::inverse_probability`]) — and a path that ends before a part lying beyond
+/// its end (a point, a beam's disc) with the chance that the part's number is none, since a
+/// part it would reflect inside could bring it back and it would go on into it — so the
+/// estimate divided by it counts every path with at most `first + after` reflections once.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Bounces {
     pub first: usize,
