@@ -153,6 +153,11 @@ fn slabs_apart_scaled_by_a_density_match_the_plain_tracer() {
 /// A glass ball (n = 1.5, forward scattering) beside a glass cube (n = 1.3, isotropic, more
 /// absorbing), lit by a lamp above them and seen by a pinhole in front.
 fn ball_and_cube() -> RenderScene {
+    ball_and_cube_of(1.3)
+}
+
+/// [`ball_and_cube`] with the cube's index `n_cube`.
+fn ball_and_cube_of(n_cube: f64) -> RenderScene {
     let volume = Volume::several(
         vec![
             part(
@@ -166,7 +171,7 @@ fn ball_and_cube() -> RenderScene {
                     half: DVec3::new(0.5, 0.6, 0.5),
                 },
                 DVec3::new(1.1, 0.2, 0.0),
-                1.3,
+                n_cube,
                 (0.8, 0.3, 0.0),
             ),
         ],
@@ -224,26 +229,7 @@ fn the_three_estimators_agree_with_the_lamp_inside_one_of_two_volumes() {
 /// three estimators agree as above.
 #[test]
 fn the_three_estimators_agree_under_a_beam_between_two_volumes() {
-    let mut s = ball_and_cube();
-    s.volume = Volume::several(
-        vec![
-            part(
-                Bounds::Sphere { radius: 0.8 },
-                DVec3::new(-1.1, 0.0, 0.0),
-                1.5,
-                (2.0, 0.1, 0.7),
-            ),
-            part(
-                Bounds::Box {
-                    half: DVec3::new(0.5, 0.6, 0.5),
-                },
-                DVec3::new(1.1, 0.2, 0.0),
-                1.0,
-                (0.8, 0.3, 0.0),
-            ),
-        ],
-        1.0,
-    );
+    let mut s = ball_and_cube_of(1.0);
     s.light = Light::Beam {
         center: DVec3::new(0.0, 0.2, 0.0),
         direction: DVec3::X,
