@@ -762,14 +762,8 @@ impl<'v> Connector<'v> {
     /// The straight path from `x` inside an index-matched volume along unit `w`, leaving it (and
     /// reaching the point `to_point` away): its exit, with `jacobian` the spread `s²` at that
     /// point (1 for a direction), through every part of a non-convex volume, or of several
-    /// volumes, it enters again on the way, up to `limit` from `x`.
-    fn straight_exit(
-        &self,
-        x: DVec3,
-        w: DVec3,
-        to_point: Option<f64>,
-        limit: f64,
-    ) -> Sampled<Exit> {
+    /// volumes, it enters again on the way, up to `end` from `x`.
+    fn straight_exit(&self, x: DVec3, w: DVec3, to_point: Option<f64>, end: f64) -> Sampled<Exit> {
         let n = self.volume.field.n_out;
         let bounds = &self.volume.field.bounds;
         let path = bounds.exit(x, w).and_then(|t1| {
@@ -780,7 +774,6 @@ impl<'v> Connector<'v> {
                 None => (n * exit, 1.0),
             };
             let (mut again, mut between, mut length) = (Again::default(), 0.0, exit);
-            let end = limit;
             while let Some(t0) = bounds.reentry(x + w * exit, w) {
                 let entry = exit + t0;
                 if entry >= end {

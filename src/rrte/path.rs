@@ -592,10 +592,8 @@ impl ParticleTracer<'_> {
                     return None;
                 }
                 let ray = self.to_beam_disc(t, y, back)?;
-                let spread = match ray.rays {
-                    Rays::Focused(s) => Rays::Spreading.spread(ray.to_disc - s),
-                    _ => 1.0,
-                };
+                // |y − f|² from a focus, 1 for parallel rays
+                let spread = ray.rays.spread(ray.to_disc);
                 if spread <= 0.0 {
                     return None;
                 }
