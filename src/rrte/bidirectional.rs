@@ -403,6 +403,16 @@ struct Start {
 }
 
 impl ParticleTracer<'_> {
+    /// How the rays of camera `camera` spread (the orthographic cameras first, then the
+    /// pinholes): parallel from an orthographic camera, from the point of a pinhole.
+    fn camera_rays(&self, camera: usize) -> Rays {
+        if camera < self.scene.cameras.len() {
+            Rays::Parallel
+        } else {
+            Rays::Spreading
+        }
+    }
+
     /// One bidirectional sample: a subpath from the light, one from each camera, every way of
     /// joining them, weighted.
     pub(super) fn bidirectional(
@@ -438,11 +448,7 @@ impl ParticleTracer<'_> {
             let start = Start {
                 x,
                 d,
-                rays: if camera < scene.cameras.len() {
-                    Rays::Parallel
-                } else {
-                    Rays::Spreading
-                },
+                rays: self.camera_rays(camera),
                 photon: false,
             };
             self.subpath(t, &start, &mut subpaths.camera, rng, out);
@@ -530,11 +536,7 @@ impl ParticleTracer<'_> {
             };
             let volume = t.flyer.volume;
             let rho_light = y.rho_towards(volume, link.direction);
-            let rays = if camera < self.scene.cameras.len() {
-                Rays::Parallel
-            } else {
-                Rays::Spreading
-            };
+            let rays = self.camera_rays(camera);
             let cos_y = y.facing.map_or(1.0, |n| n.dot(link.direction));
             let joined = Joined {
                 light: ys,
