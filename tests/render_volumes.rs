@@ -814,3 +814,101 @@ fn a_card_seen_after_a_reflection_inside_a_slab_renders_alike_three_ways() {
         }
     }
 }
+
+/// A scattering ball (index-matched, radius 0.4) at [`IN_FRONT`] above the glass slab of
+/// [`slab_and_camera`], and two orthographic cameras: one looks at the ball from the side, the
+/// other sees it only in the slab's top face (its light leaves the ball off the glass's
+/// outside). With `off_the_face` the light is a narrow spot at the ball's mirror position
+/// across the face, aimed at the point of the face between them, so that the ball is lit only
+/// off the glass (its light reaches the ball's events off the glass's outside); else a beam
+/// straight down onto the ball (part of it back off the face).
+fn ball_above_a_glass_face(off_the_face: bool) -> RenderScene {
+    let (slab, _) = slab_and_camera();
+    let ball = part(
+        Bounds::Sphere { radius: 0.4 },
+        IN_FRONT,
+        1.0,
+        (3.0, 0.0, 0.3),
+    );
+    let mirror = DVec3::new(-IN_FRONT.x, 0.0, IN_FRONT.z);
+    let face = DVec3::new(0.0, 0.0, 0.5);
+    let c = (mirror - face).normalize();
+    let side = Camera::new(
+        "side".into(),
+        -DVec3::X,
+        IN_FRONT - DVec3::X * 1.5,
+        [1.0, 1.0],
+        [2, 2],
+    );
+    let in_face = Camera::new("in face".into(), c, face + c * 2.0, [1.0, 1.0], [2, 2]);
+    let light = match off_the_face {
+        true => Light::Spot {
+            position: mirror,
+            axis: -c,
+            half_angle: 0.15,
+        },
+        false => Light::Beam {
+            center: IN_FRONT + DVec3::Z,
+            direction: -DVec3::Z,
+            radius: 0.3,
+        },
+    };
+    RenderScene {
+        volume: Volume::several(vec![ball, slab], 1.0),
+        light,
+        cameras: vec![side, in_face],
+        reflections: 1,
+        ..bare_scene(0.01)
+    }
+}
+
+/// Particle tracing, path tracing and bidirectional tracing agree on the images of a ball
+/// lit and seen off a glass face: lit off it, the side camera's (path tracing's connections
+/// to the spot reflect off the glass's outside; particle and bidirectional tracing trace that
+/// reflection); under the beam, the image in the face (particle tracing's connections to the
+/// camera reflect off the glass's outside; path and bidirectional tracing trace it; and path
+/// tracing joins the ball's events to the beam back off the face). Each camera's total and
+/// pixels, within 4 combined standard errors.
+#[test]
+fn a_ball_lit_and_seen_off_a_glass_face_renders_alike_three_ways() {
+    use lightpath::rrte::Tracing;
+    // samples of particle, path and bidirectional tracing (under the beam every photon
+    // scatters in the ball, and makes many connections)
+    let lit_off_the_face = [
+        (true, 0, [400_000, 100_000, 100_000]),
+        (false, 1, [100_000, 100_000, 50_000]),
+    ];
+    for (off_the_face, camera, samples) in lit_off_the_face {
+        let s = ball_above_a_glass_face(off_the_face);
+        let estimates: Vec<_> = [
+            Tracing::FromLight,
+            Tracing::FromCameras,
+            Tracing::Bidirectional,
+        ]
+        .into_iter()
+        .zip(samples)
+        .zip(1..)
+        .map(|((tracing, samples), seed)| {
+            let mut t = s.clone();
+            t.tracing = tracing;
+            (tracing, render(&t, samples, seed).0)
+        })
+        .collect();
+        let image = lightpath::rrte::ParticleTracer::new(&s).camera_image(camera);
+        let pixels = (0..4).map(|k| (format!("pixel {k}"), image.plane(None, 0) + k));
+        for (what, k) in std::iter::once(("total".to_string(), image.total())).chain(pixels) {
+            let what = format!("camera {camera} {what}");
+            for (i, (ta, a)) in estimates.iter().enumerate() {
+                eprintln!("{what}: {ta:?} {} ± {}", a.mean[k].re, a.stderr[k]);
+                assert!(a.mean[k].re > 5.0 * a.stderr[k], "{what}: {ta:?}");
+                for (tb, b) in &estimates[i + 1..] {
+                    let (x, sx, y, sy) = (a.mean[k].re, a.stderr[k], b.mean[k].re, b.stderr[k]);
+                    assert!(
+                        (x - y).abs() < 4.0 * sx.hypot(sy),
+                        "{what}: {ta:?} {x} ± {sx}, {tb:?} {y} ± {sy}"
+                    );
+                }
+            }
+        }
+    }
+}

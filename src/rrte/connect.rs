@@ -183,6 +183,11 @@ pub struct Bounces {
     pub first: usize,
     after: usize,
     across: [usize; MAX_AGAIN],
+    /// The parts crossed the path reflects off from outside instead of entering (one
+    /// reflection of the budget, counted in `across`).
+    mirrored: [bool; MAX_AGAIN],
+    /// Whether the draw offered that reflection off the outside of each part met.
+    mirrors: bool,
 }
 
 /// The chance that a connection crosses a part without reflecting inside it where its budget
@@ -203,20 +208,36 @@ impl Bounces {
     /// crossed none with chance [`THROUGH`], else one of `1 ..= left` evenly; the end's part
     /// takes what is left. Draws nothing where `after` is 0.
     pub fn draw(first: usize, after: usize, rng: &mut Rng) -> Self {
+        Self::drawn(first, after, false, rng)
+    }
+
+    /// As [`Self::draw`], with one more way to meet each part crossed where the budget lets it
+    /// reflect: off its outside (a reflection of the budget), the other ways of not going
+    /// through unreflected sharing the rest evenly with it.
+    pub fn draw_with_mirrors(first: usize, after: usize, rng: &mut Rng) -> Self {
+        Self::drawn(first, after, true, rng)
+    }
+
+    fn drawn(first: usize, after: usize, mirrors: bool, rng: &mut Rng) -> Self {
         let mut b = Bounces {
             first,
             after,
-            across: [0; MAX_AGAIN],
+            mirrors,
+            ..Bounces::default()
         };
         let mut left = after;
-        for k in b.across.iter_mut() {
+        for (k, mirrored) in b.across.iter_mut().zip(&mut b.mirrored) {
             if left == 0 {
                 break;
             }
             let u = uniform(rng);
             if u >= THROUGH {
                 let share = (u - THROUGH) / (1.0 - THROUGH);
-                *k = 1 + ((share * left as f64) as usize).min(left - 1);
+                let ways = left + usize::from(mirrors);
+                let way = ((share * ways as f64) as usize).min(ways - 1);
+                // ways 0 … left − 1 reflect inside 1 … left times, way `left` off the outside
+                *mirrored = way == left;
+                *k = if *mirrored { 1 } else { 1 + way };
                 left -= *k;
             }
         }
@@ -231,12 +252,20 @@ impl Bounces {
             first,
             after: across.iter().sum::<usize>() + end,
             across,
+            ..Bounces::default()
         }
     }
 
-    /// Reflections inside the `i`th part crossed.
+    /// Reflections at the surface of the `i`th part crossed: inside it, or its one off its
+    /// outside ([`Self::mirrored`]).
     fn across(&self, i: usize) -> usize {
         self.across.get(i).copied().unwrap_or(0)
+    }
+
+    /// Whether the path reflects off the outside of the `i`th part it meets after leaving its
+    /// own, instead of crossing it.
+    fn mirrored(&self, i: usize) -> bool {
+        self.mirrored.get(i).copied().unwrap_or(false)
     }
 
     /// What is left of the budget after the first `crossed` parts crossed.
@@ -252,7 +281,7 @@ impl Bounces {
             .map(|i| match (self.left_after(i), self.across[i]) {
                 (0, _) => 1.0,
                 (_, 0) => 1.0 / THROUGH,
-                (left, _) => left as f64 / (1.0 - THROUGH),
+                (left, _) => (left + usize::from(self.mirrors)) as f64 / (1.0 - THROUGH),
             })
             .product()
     }
@@ -1423,7 +1452,7 @@ impl<'v> Connector<'v> {
         &self,
         y: DVec3,
         w: DVec3,
-        reflections: usize,
+        (reflections, mirrored): (usize, bool),
     ) -> Option<(Exit, [DVec3; 2], [DVec3; 2])> {
         let Meet {
             t0,
@@ -1432,6 +1461,10 @@ impl<'v> Connector<'v> {
             slide,
             ..
         } = self.meet(y, w)?;
+        if mirrored {
+            // off the outside of the first part met: the path of [`Self::mirror_map`]
+            return None;
+        }
         let c = self.cross(
             (y + w * entry_parameter(t0), at, w),
             frame,
@@ -1709,6 +1742,9 @@ impl<'v> Connector<'v> {
         bounces: &Bounces,
     ) -> Option<([DVec3; 2], [DVec3; 2])> {
         let (inside, at, slide) = self.meet_again(exit, derivatives, t0)?;
+        if bounces.mirrored(exit.again.crossed) {
+            return self.mirror_again(exit, derivatives.0, (inside, at, slide), t0);
+        }
         let reflections = bounces.across(exit.again.crossed);
         let c = self.cross(
             (inside, at, exit.outgoing),
@@ -1728,6 +1764,44 @@ impl<'v> Connector<'v> {
         exit.surface = c.end;
         exit.outgoing = c.outgoing;
         Some((c.turn, c.moved))
+    }
+
+    /// The path that has left the volume (as [`Self::cross_again`]) reflects off the outside of
+    /// the part it meets `t0` ahead, at `at` (`inside`: a point just past it; `slide`: how it
+    /// moves along the surface along the two angles of the path's start): `exit` extended to
+    /// it and turned by the law of reflection, its `transmission` times the Fresnel reflectance
+    /// from outside, and the derivatives of the new outgoing direction (the mirror's by central
+    /// differences: the normal turns as the point slides) and of the reflection point. The
+    /// reflection counts as a part crossed (its draw). `None` where nothing reflects there.
+    fn mirror_again(
+        &self,
+        exit: &mut Exit,
+        dout: [DVec3; 2],
+        (inside, at, slide): (DVec3, DVec3, [DVec3; 2]),
+        t0: f64,
+    ) -> Option<([DVec3; 2], [DVec3; 2])> {
+        let field = &self.volume.field;
+        let o = exit.outgoing;
+        let cos = field.bounds.normal(at)?.dot(o);
+        let reflectance = fresnel(cos, field.n_out / field.n(inside));
+        if reflectance <= 0.0 {
+            return None;
+        }
+        let mirror = |d: DVec3, at: DVec3| Some(reflect(d, field.bounds.normal(at)?));
+        let mut turn = [DVec3::ZERO; 2];
+        for k in 0..2 {
+            let (dd, dx) = (dout[k] * DIFF_STEP, slide[k] * DIFF_STEP);
+            let plus = mirror((o + dd).normalize(), at + dx)?;
+            let minus = mirror((o - dd).normalize(), at - dx)?;
+            turn[k] = (plus - minus) / (2.0 * DIFF_STEP);
+        }
+        exit.again.crossed += 1;
+        exit.between += t0;
+        exit.optical_path += field.n_out * t0;
+        exit.transmission *= reflectance;
+        exit.surface = at;
+        exit.outgoing = mirror(o, at)?;
+        Some((turn, slide))
     }
 
     /// The path Newton's method reaches from `w0` that leaves the volume and passes through the
@@ -1752,7 +1826,7 @@ impl<'v> Connector<'v> {
     /// the volume. It reflects inside the parts it crosses as `bounces` says, the first it meets
     /// the first crossed (`bounces.first` is not used).
     pub fn solve_across(&self, y: DVec3, p: DVec3, w0: DVec3, bounces: &Bounces) -> Option<Exit> {
-        let map = |w| self.across_map(y, w, bounces.across(0));
+        let map = |w| self.across_map(y, w, (bounces.across(0), bounces.mirrored(0)));
         self.aim_at(Aim::Point(p), w0, bounces, map)
     }
 
@@ -2036,7 +2110,7 @@ impl<'v> Connector<'v> {
     ) -> Sampled<Exit> {
         // most paths across leave near the straight line
         let near = target.toward(y);
-        let map = |w| self.across_map(y, w, bounces.across(0));
+        let map = |w| self.across_map(y, w, (bounces.across(0), bounces.mirrored(0)));
         self.sample_outside(y, target, (near, 0.5), bounces, first_only, rng, map)
     }
 
@@ -2925,6 +2999,65 @@ mod tests {
         });
     }
 
+    /// Out of one glass ball (n = 1.3) and off the outside of another (n = 1.5) beside it, in
+    /// closed form and stepped: the path from a point inside the first to a point outside,
+    /// drawn to reflect off the first part it meets, refracts out by Snell's law, reflects off
+    /// the second ball by the law of reflection, passes through the point, carries `1 − R` of
+    /// the exit times the reflectance from outside, and spreads as neighbouring rays traced by
+    /// hand do. Drawn to reflect once inside that ball instead, a path enters it.
+    #[test]
+    fn a_path_out_of_one_ball_off_anothers_outside_spreads_as_traced_by_hand() {
+        let (ca, cb) = (DVec3::ZERO, DVec3::new(2.6, 0.0, 0.0));
+        let (x, p) = (DVec3::new(0.2, 0.1, -0.1), DVec3::new(0.5, 2.0, 0.3));
+        let hand = |w: DVec3| {
+            let b = (x - ca).dot(w);
+            let t0 = -b + (b * b - ((x - ca).length_squared() - 1.0)).sqrt();
+            let a = x + w * t0;
+            let na = a - ca;
+            let d = snell(w, -na, 1.3);
+            let exit = 1.0 - reflectance(na.dot(w), na.dot(d), 1.3);
+            let b = (a - cb).dot(d);
+            let t1 = -b - (b * b - ((a - cb).length_squared() - 1.0)).sqrt();
+            let m = a + d * t1;
+            let nb = m - cb;
+            let cos_i = -nb.dot(d);
+            let cos_t = (1.0 - (1.0 - cos_i * cos_i) / (1.5 * 1.5)).sqrt();
+            let o = d + nb * (2.0 * cos_i);
+            (m, o, t0, exit * reflectance(cos_i, cos_t, 1.0 / 1.5))
+        };
+        let off = Bounces {
+            after: 1,
+            across: [1, 0, 0, 0],
+            mirrored: [true, false, false, false],
+            mirrors: true,
+            ..Bounces::default()
+        };
+        let across = Bounces {
+            mirrored: [false; MAX_AGAIN],
+            ..off
+        };
+        for graded in [false, true] {
+            let v = clear_balls(&[(ca, 1.0, 1.3), (cb, 1.0, 1.5)], graded);
+            let c = Connector::new(&v, 1e-3, 100_000);
+            let mut rng = crate::math::stream_rng(7, 0);
+            // (a start may find the straight path to the point too, meeting no part)
+            let solve = |b: &Bounces, rng: &mut Rng| {
+                c.solve_through(x, Aim::Point(p), c.initial(x, p, rng), b)
+                    .filter(|e| e.again.crossed() > 0)
+            };
+            let found = (0..400)
+                .find_map(|_| solve(&off, &mut rng))
+                .expect("some start converges");
+            assert_eq!((found.again.crossed(), found.again.parts().len()), (1, 0));
+            traced_by_hand(&found, p, hand);
+            // drawn to cross the ball, a path is never the one off its outside
+            for e in (0..100).filter_map(|_| solve(&across, &mut rng)) {
+                assert!(!e.again.parts().is_empty());
+                assert!((e.direction - found.direction).length() > 1e-3);
+            }
+        }
+    }
+
     /// Off a face of a glass cube, a flat mirror: the path between two points outside it runs
     /// through the face's point on the line from the mirror image of the first point to the
     /// second, and spreads as a straight line from that image, `(|y − a| + |a − p|)²`; its
@@ -3405,18 +3538,28 @@ mod tests {
 
     /// [`Bounces::draw`] draws each way of splitting a budget of reflections among the parts
     /// crossed as often as [`Bounces::inverse_probability`] says, and no reflections inside the
-    /// part after them (where a path that ends before a part beyond its end goes) as often.
+    /// part after them (where a path that ends before a part beyond its end goes) as often; so
+    /// does [`Bounces::draw_with_mirrors`], whose ways also reflect off a part's outside.
     #[test]
     fn reflections_among_parts_crossed_are_drawn_as_often_as_their_probability_says() {
         let mut rng = crate::math::stream_rng(3, 0);
         let draws = 200_000;
-        for (after, crossed) in [(1, 0), (1, 1), (2, 1), (2, 2), (3, 3)] {
+        let cases = [(1, 0), (1, 1), (2, 1), (2, 2), (3, 3)];
+        for (mirrors, (after, crossed)) in [false, true]
+            .into_iter()
+            .flat_map(|m| cases.map(|c| (m, c)))
+        {
             let mut counts = std::collections::HashMap::new();
             let mut ended = std::collections::HashMap::new();
             let mut ends = std::collections::HashMap::new();
             for _ in 0..draws {
-                let b = Bounces::draw(0, after, &mut rng);
-                let key: Vec<usize> = (0..crossed).map(|i| b.across(i)).collect();
+                let b = match mirrors {
+                    false => Bounces::draw(0, after, &mut rng),
+                    true => Bounces::draw_with_mirrors(0, after, &mut rng),
+                };
+                let key: Vec<(usize, bool)> =
+                    (0..crossed).map(|i| (b.across(i), b.mirrored(i))).collect();
+                assert!(mirrors || !key.iter().any(|k| k.1));
                 let p = 1.0 / b.inverse_probability(crossed, false);
                 // a path that ends before a part beyond its end takes the draws that reflect
                 // inside none there
@@ -3457,6 +3600,17 @@ mod tests {
                     "{key:?}: {n} drawn, {expected} ± {error} expected"
                 );
             }
+            // every way is drawn: with mirrors one more per part the budget reaches
+            fn ways(left: usize, parts: usize, mirrors: bool) -> usize {
+                if parts == 0 || left == 0 {
+                    return 1;
+                }
+                let inside: usize = (1..=left).map(|k| ways(left - k, parts - 1, mirrors)).sum();
+                let off = usize::from(mirrors) * ways(left - 1, parts - 1, mirrors);
+                ways(left, parts - 1, mirrors) + inside + off
+            }
+            let all = ways(after, crossed, mirrors);
+            assert_eq!(counts.len(), all, "{mirrors}, {after}, {crossed}");
         }
         assert_eq!(Bounces::first(2).inverse_probability(3, true), 1.0);
     }

@@ -1375,10 +1375,17 @@ impl<'s> ParticleTracer<'s> {
     }
 
     /// The reflections of a connection through the surface that reflects `first` times inside
-    /// the part it starts from: in the parts it crosses after, as many as the rest of
-    /// [`Self::most_bounces`] allows, drawn ([`Bounces::draw`]).
+    /// the part it starts from: in the parts it meets after, as many as the rest of
+    /// [`Self::most_bounces`] allows, drawn — inside them, or off their outside
+    /// ([`Bounces::draw_with_mirrors`]); bidirectional tracing's connections, whose weights
+    /// leave a reflection off an outside to its traced strategies, only inside
+    /// ([`Bounces::draw`]).
     pub(super) fn exit_bounces(&self, t: &Tools, first: usize, rng: &mut Rng) -> Bounces {
-        Bounces::draw(first, self.most_bounces(t).saturating_sub(first), rng)
+        let after = self.most_bounces(t).saturating_sub(first);
+        match self.scene.tracing {
+            Tracing::Bidirectional => Bounces::draw(first, after, rng),
+            _ => Bounces::draw_with_mirrors(first, after, rng),
+        }
     }
 
     /// Reflections inside the surface a connection follows at most: `render.reflections`, none
