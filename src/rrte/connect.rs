@@ -5,7 +5,8 @@
 //! [`Connector::sample_exit`]), and two points outside across the volume (refracted in and out,
 //! [`Connector::sample_across`]): a surface seen or lit through it; and two points outside by the
 //! path reflected off the volume's outside ([`Connector::sample_mirror`]): a surface seen or lit
-//! in its mirror image.
+//! in its mirror image. A path that has left its part crosses the parts it meets after, or
+//! reflects off their outside ([`Bounces`]).
 //!
 //! A ray from `x` with unit direction `w` (velocity `v0 = n(x) w` in the σ-form) is traced to its
 //! closest approach to `y`, where `(x_s − y)·v_s = 0` (the type-2 condition of Sec. 4 and App. B).
@@ -169,9 +170,10 @@ impl Again {
 /// first leaves (a part it reflects inside counts once more per reflection).
 pub const MAX_AGAIN: usize = 4;
 
-/// The reflections inside the surface a connection through it follows: `first` inside the part
-/// it starts from before it first leaves; then, inside each part it crosses after that, a number
-/// drawn before Newton's method runs (the path must be one function of its start's direction),
+/// The reflections at the surface a connection through it follows: `first` inside the part
+/// it starts from before it first leaves; then, inside each part it crosses after that (or, where
+/// drawn so, one off the outside of a part it meets instead), a number drawn before Newton's
+/// method runs (the path must be one function of its start's direction),
 /// from the `after` left of its budget; and inside the part it ends in (between two points
 /// inside) what the crossings have left. A path is drawn with the chance of its crossings'
 /// numbers ([`Bounces::inverse_probability`]) — and a path that ends before a part lying beyond
