@@ -645,7 +645,7 @@ impl ParticleTracer<'_> {
                 let first_only = self.scene.connections == Connections::First;
                 let sampled = t
                     .connector
-                    .sample_inside(z.x, y.x, bounces, first_only, rng);
+                    .sample_inside(z.x, y.x, (bounces, false), first_only, rng);
                 let (path, inverse_p) = self.tally(sampled, out)?;
                 if !path.fits_either_way() {
                     return None;

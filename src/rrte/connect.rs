@@ -1349,14 +1349,15 @@ impl<'v> Connector<'v> {
     /// and into the other ([`Connector::sample_into`]), the reflections split at random: the
     /// first part's one of the `bounces + 1` numbers alike (the inverse probability times
     /// `bounces + 1`), the rest among the parts crossed and the other as [`Bounces::draw`]
-    /// splits them: an unbiased estimate of the sum over the ways. In a part that is not convex
+    /// splits them (with `mirrors`, as [`Bounces::draw_with_mirrors`]: also off the outside of
+    /// the parts met on the way): an unbiased estimate of the sum over the ways. In a part that is not convex
     /// a path may also leave it and come back ([`Connector::solve_into`]): one of the two kinds
     /// is drawn ([`Self::around_chance`]), its inverse probability divided by the kind's chance.
     pub fn sample_inside(
         &self,
         x: DVec3,
         y: DVec3,
-        bounces: usize,
+        (bounces, mirrors): (usize, bool),
         first_only: bool,
         rng: &mut Rng,
     ) -> Sampled<InsidePath> {
@@ -1378,7 +1379,10 @@ impl<'v> Connector<'v> {
         }
         let ways = bounces + 1;
         let first = ((uniform(rng) * ways as f64) as usize).min(bounces);
-        let split = Bounces::draw(first, bounces - first, rng);
+        let split = match mirrors {
+            true => Bounces::draw_with_mirrors(first, bounces - first, rng),
+            false => Bounces::draw(first, bounces - first, rng),
+        };
         let mut s = self.sample_into(x, y, &split, first_only, rng);
         if let Some((_, inverse_p)) = &mut s.path {
             *inverse_p *= ways as f64 / chance;
@@ -1842,7 +1846,8 @@ impl<'v> Connector<'v> {
 
     /// The ray from `x` (inside one of several volumes) along unit `w`, after `bounces.first`
     /// reflections inside the surface, out of its volume and across every other it meets (each
-    /// refracted in and out, reflected inside as `bounces` drew) until it meets the part `into`:
+    /// refracted in and out, reflected inside as `bounces` drew, or off its outside where drawn
+    /// so) until it meets the part `into`:
     /// refracted into it, reflected inside its surface as often as the budget has left, and
     /// traced to its closest approach to `y`. Returns
     /// the path as an [`Exit`] ending there (`surface`: the point of closest approach,
@@ -1865,6 +1870,11 @@ impl<'v> Connector<'v> {
             let Some(t0) = field.bounds.reentry(exit.surface, exit.outgoing) else {
                 return Some(Toward::Missed(exit, dout, moved));
             };
+            if bounces.mirrored(exit.again.crossed) {
+                let met = self.meet_again(&exit, (dout, moved), t0)?;
+                (dout, moved) = self.mirror_again(&mut exit, dout, met, t0)?;
+                continue;
+            }
             match self.part_of(exit.surface + exit.outgoing * entry_parameter(t0)) {
                 part if part == into => break t0,
                 // the same path from either end: into each of its two parts once
@@ -3644,7 +3654,7 @@ mod tests {
         let c = Connector::new(&matched, 1e-2, 1000);
         let lift = DVec3::new(0.0, 0.2, 0.0);
         let (x, y) = (a + lift, b + lift);
-        let s = c.sample_inside(x, y, 0, false, &mut rng);
+        let s = c.sample_inside(x, y, (0, false), false, &mut rng);
         let Some((InsidePath::Between(e, _), inverse_p)) = s.path else {
             panic!("{s:?}")
         };
@@ -3661,7 +3671,7 @@ mod tests {
                 .is_none()
         );
         // within one ball, the straight line inside
-        let s = c.sample_inside(x, a - lift, 0, false, &mut rng);
+        let s = c.sample_inside(x, a - lift, (0, false), false, &mut rng);
         assert!(
             matches!(s.path, Some((InsidePath::Within(..), p)) if p == 1.0),
             "{s:?}"

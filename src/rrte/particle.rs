@@ -736,7 +736,7 @@ impl<'s> ParticleTracer<'s> {
             for bounces in 0..=self.most_bounces(t) {
                 let s = t
                     .connector
-                    .sample_inside(x, probe.position, bounces, first_only, rng);
+                    .sample_inside(x, probe.position, (bounces, true), first_only, rng);
                 if let Some((path, inverse_p)) = self.tally(s, out) {
                     visit(out, i, &path, inverse_p, rng);
                 }

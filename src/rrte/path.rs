@@ -443,7 +443,11 @@ impl ParticleTracer<'_> {
         if inside {
             // a curved connection inside (after the way's reflections inside the surface), or
             // out of x's volume and into the light's: dA_q/dω_x is its spread
-            let s = t.connector.sample_inside(x, q, bounces, first_only, rng);
+            // (bidirectional tracing's weights leave reflections off an outside to tracing)
+            let mirrors = !either_end;
+            let s = t
+                .connector
+                .sample_inside(x, q, (bounces, mirrors), first_only, rng);
             let (path, inverse_p) = self.tally(s, out)?;
             if either_end && !path.fits_either_way() {
                 return None;
