@@ -2,10 +2,11 @@
 //! plain layered tracer of `common` (Fresnel at all four faces, the gap between them; with and
 //! without a density), particle, path and bidirectional tracing on the same images of a glass
 //! ball beside a glass cube (the lamp above them or inside the ball), fluence probes in one
-//! glass ball lit from another against a target about them (values and derivatives), cameras against a collimated detector
-//! through a second volume, a
-//! sampled volume against the analytic one, and a volume placed away from the origin against the
-//! same volume at the origin with the rest of the scene moved.
+//! glass ball lit from another against a target about them (values and derivatives), and in a
+//! ball lit only off a glass slab's outside, cameras against a collimated detector through a
+//! second volume, a sampled volume against the analytic one, a volume placed away from the
+//! origin against the same volume at the origin with the rest of the scene moved, and the three
+//! estimators on light seen after reflections inside a glass slab or off its outside.
 
 use crate::common;
 
@@ -680,7 +681,7 @@ fn probes_in_one_volume_count_the_light_from_another_as_a_target_does() {
 /// ball, reflect off the slab's outside or cross it reflecting inside it, and enter the
 /// probes' ball; the target counts the photons' tracks. The probes' mean and the target agree
 /// within 4 combined standard errors (without the reflection off the outside the probes read
-/// 0.12 of the target).
+/// 0.54 of the target).
 #[test]
 fn probes_lit_off_a_glass_slab_count_the_light_as_a_target_does() {
     let clear = (0.0, 0.0, 0.0);
@@ -730,24 +731,19 @@ fn probes_lit_off_a_glass_slab_count_the_light_as_a_target_does() {
         reflections: 1,
         ..bare_scene(0.01)
     };
-    let (e, est) = render(&scene, 200_000, 11);
+    let (e, est) = render(&scene, 100_000, 11);
     // the probes' mean, its error taken at its largest (the same photons light them all)
     let probe = (0..4).map(|i| e.mean[est.probe_total(i)].re).sum::<f64>() / 4.0;
     let sp = (0..4).map(|i| e.stderr[est.probe_total(i)]).sum::<f64>() / 4.0;
     let (target, st) = (e.mean[est.power(0)].re, e.stderr[est.power(0)]);
     eprintln!("fluence: probes {probe} ± {sp}, target {target} ± {st}");
-    assert!(sp < 0.05 * probe && st < 0.05 * target, "{sp} {st}");
+    assert!(sp < 0.06 * probe && st < 0.06 * target, "{sp} {st}");
     assert!(
         (probe - target).abs() < 4.0 * sp.hypot(st),
         "probes {probe} ± {sp}, target {target} ± {st}"
     );
 }
 
-/// A small scattering ball (index-matched, lit from above by a beam) beside a glass slab (n =
-/// 1.5, 1 thick), and an orthographic camera that sees the ball's light leave the slab after one
-/// reflection off its back face: light that crosses the slab, reflecting inside it on the way.
-/// The ball's mirror image in the slab's front face falls outside the camera's window (0.75
-/// aside), and so does the ball itself.
 /// Where light from [`IN_FRONT`] that meets a glass slab (n = 1.5, 1 thick, its front face at
 /// z = 0.5) at 45° is seen after one reflection off its back face: the slab, and an orthographic
 /// camera (0.5 × 0.5, 2 × 2 pixels) looking along (1, 0, 1)/√2 at where that light leaves the
@@ -771,6 +767,11 @@ fn slab_and_camera() -> ((Part, Bulk), Camera) {
 /// The point whose light [`slab_and_camera`]'s camera sees after a reflection inside the slab.
 const IN_FRONT: DVec3 = DVec3::new(-1.5, 0.0, 2.0);
 
+/// A small scattering ball (index-matched, lit from above by a beam) beside a glass slab (n =
+/// 1.5, 1 thick), and an orthographic camera that sees the ball's light leave the slab after one
+/// reflection off its back face: light that crosses the slab, reflecting inside it on the way.
+/// The ball's mirror image in the slab's front face falls outside the camera's window (0.75
+/// aside), and so does the ball itself.
 fn ball_seen_in_a_slab_s_back_face() -> RenderScene {
     let (slab, camera) = slab_and_camera();
     let ball = part(

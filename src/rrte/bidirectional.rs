@@ -643,9 +643,9 @@ impl ParticleTracer<'_> {
             }
             (None, None, Way::Bounces(bounces)) => {
                 let first_only = self.scene.connections == Connections::First;
-                let sampled = t
-                    .connector
-                    .sample_inside(z.x, y.x, (bounces, false), first_only, rng);
+                let sampled =
+                    t.connector
+                        .sample_inside(z.x, y.x, (bounces, false), first_only, rng);
                 let (path, inverse_p) = self.tally(sampled, out)?;
                 if !path.fits_either_way() {
                     return None;

@@ -734,9 +734,9 @@ impl<'s> ParticleTracer<'s> {
         let first_only = self.scene.connections == Connections::First;
         for (i, probe) in self.scene.probes.iter().enumerate() {
             for bounces in 0..=self.most_bounces(t) {
-                let s = t
-                    .connector
-                    .sample_inside(x, probe.position, (bounces, true), first_only, rng);
+                let s =
+                    t.connector
+                        .sample_inside(x, probe.position, (bounces, true), first_only, rng);
                 if let Some((path, inverse_p)) = self.tally(s, out) {
                     visit(out, i, &path, inverse_p, rng);
                 }
