@@ -132,6 +132,9 @@ pub struct Again {
     /// Whether the path ended before a part of the volume it would meet beyond its end (a part
     /// it would reflect inside could bring it back): it took the draw of no reflections there.
     declined: bool,
+    /// Whether the path ended inside the part it met after its crossings (between two points
+    /// inside): it took the draw of not reflecting off that part's outside.
+    entered: bool,
 }
 
 /// A path's way across a part it enters again: the entry point (just inside), the unit
@@ -286,6 +289,20 @@ impl Bounces {
                 (left, _) => (left + usize::from(self.mirrors)) as f64 / (1.0 - THROUGH),
             })
             .product()
+    }
+
+    /// `1/p` of having drawn the numbers the path `again` describes took: its parts crossed and
+    /// any it declined beyond its end ([`Self::inverse_probability`]), and, for a path that
+    /// entered the part it ends in where the draw offered a reflection off its outside, not
+    /// that reflection.
+    pub fn inverse_probability_of(&self, again: &Again) -> f64 {
+        let crossings = self.inverse_probability(again.crossed, again.declined);
+        let left = self.left_after(again.crossed);
+        if !(again.entered && self.mirrors && again.crossed < MAX_AGAIN && left > 0) {
+            return crossings;
+        }
+        // the reflection off the outside is one of the `left + 1` ways past the quarter
+        crossings / (1.0 - (1.0 - THROUGH) / (left + 1) as f64)
     }
 }
 
@@ -777,7 +794,7 @@ impl<'v> Connector<'v> {
     ) -> Sampled<Exit> {
         let mut s = self.draw(first_only, start, solve, rng);
         if let Some((e, inverse_p)) = &mut s.path {
-            *inverse_p *= bounces.inverse_probability(e.again.crossed, e.again.declined);
+            *inverse_p *= bounces.inverse_probability_of(&e.again);
         }
         s
     }
@@ -1876,7 +1893,10 @@ impl<'v> Connector<'v> {
                 continue;
             }
             match self.part_of(exit.surface + exit.outgoing * entry_parameter(t0)) {
-                part if part == into => break t0,
+                part if part == into => {
+                    exit.again.entered = true;
+                    break t0;
+                }
                 // the same path from either end: into each of its two parts once
                 part if part == from => return None,
                 _ => (dout, moved) = self.cross_again(&mut exit, (dout, moved), t0, bounces)?,
@@ -3564,6 +3584,9 @@ mod tests {
             let mut counts = std::collections::HashMap::new();
             let mut ended = std::collections::HashMap::new();
             let mut ends = std::collections::HashMap::new();
+            // a path that enters the part after them to end there takes the draws that do not
+            // reflect off its outside
+            let mut entering = std::collections::HashMap::new();
             for _ in 0..draws {
                 let b = match mirrors {
                     false => Bounces::draw(0, after, &mut rng),
@@ -3579,6 +3602,17 @@ mod tests {
                 *ended.entry((key.clone(), declining)).or_insert(0usize) += 1;
                 if declining {
                     ends.insert(key.clone(), (p, 1.0 / b.inverse_probability(crossed, true)));
+                }
+                if !b.mirrored(crossed) {
+                    let again = Again {
+                        crossed,
+                        entered: true,
+                        ..Again::default()
+                    };
+                    let p = 1.0 / b.inverse_probability_of(&again);
+                    let entry = entering.entry(key.clone()).or_insert((0usize, p));
+                    assert_eq!(entry.1, p, "one way, one probability");
+                    entry.0 += 1;
                 }
                 let entry = counts.entry(key).or_insert((0usize, p));
                 assert_eq!(entry.1, p, "one way, one probability");
@@ -3604,7 +3638,7 @@ mod tests {
                 (total - 1.0).abs() < 1e-12,
                 "the ways' probabilities sum to {total}"
             );
-            for (key, (n, p)) in &counts {
+            for (key, (n, p)) in counts.iter().chain(&entering) {
                 let expected = p * draws as f64;
                 let error = (expected * (1.0 - p)).sqrt().max(1.0);
                 assert!(
