@@ -642,7 +642,7 @@ fn probes_in_one_volume_count_the_light_from_another_as_a_target_does() {
     scene.probes = common::probes_about(p, radius);
     let region = lightpath::rrte::Region::Sphere { center: p, radius };
     scene.sensors = vec![Sensor::target("around".into(), region)];
-    let (e, est) = render(&scene, 64_000, 7);
+    let (e, est) = render(&scene, 64_000, 8);
     // the probes' mean, its error from the errors of each (their covariance left out: the
     // same photons light them all, so it is taken at its largest, the errors added)
     let probes = |k: &dyn Fn(usize) -> usize| {

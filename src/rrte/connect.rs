@@ -231,6 +231,7 @@ impl Bounces {
             ..Bounces::default()
         };
         let mut left = after;
+        let mut mirrored_before = false;
         for (k, mirrored) in b.across.iter_mut().zip(&mut b.mirrored) {
             if left == 0 {
                 break;
@@ -238,12 +239,14 @@ impl Bounces {
             let u = uniform(rng);
             if u >= THROUGH {
                 let share = (u - THROUGH) / (1.0 - THROUGH);
+                let mirrors = mirrors && !mirrored_before;
                 let ways = left + usize::from(mirrors);
                 let way = ((share * ways as f64) as usize).min(ways - 1);
                 // ways 0 … left − 1 reflect inside 1 … left times, way `left` off the outside
-                *mirrored = way == left;
+                *mirrored = mirrors && way == left;
                 *k = if *mirrored { 1 } else { 1 + way };
                 left -= *k;
+                mirrored_before |= *mirrored;
             }
         }
         b
@@ -273,6 +276,13 @@ impl Bounces {
         self.mirrored.get(i).copied().unwrap_or(false)
     }
 
+    /// Whether the draw offered a reflection off the outside of the `i`th part met: one per
+    /// path at most (a second, between two convex outsides, is rare and found by Newton's
+    /// method seldom, its weight large).
+    fn offers_mirror(&self, i: usize) -> bool {
+        self.mirrors && i < MAX_AGAIN && !self.mirrored[..i].contains(&true)
+    }
+
     /// What is left of the budget after the first `crossed` parts crossed.
     pub fn left_after(&self, crossed: usize) -> usize {
         self.after - self.across[..crossed.min(MAX_AGAIN)].iter().sum::<usize>()
@@ -286,7 +296,7 @@ impl Bounces {
             .map(|i| match (self.left_after(i), self.across[i]) {
                 (0, _) => 1.0,
                 (_, 0) => 1.0 / THROUGH,
-                (left, _) => (left + usize::from(self.mirrors)) as f64 / (1.0 - THROUGH),
+                (left, _) => (left + usize::from(self.offers_mirror(i))) as f64 / (1.0 - THROUGH),
             })
             .product()
     }
@@ -298,7 +308,7 @@ impl Bounces {
     pub fn inverse_probability_of(&self, again: &Again) -> f64 {
         let crossings = self.inverse_probability(again.crossed, again.declined);
         let left = self.left_after(again.crossed);
-        if !(again.entered && self.mirrors && again.crossed < MAX_AGAIN && left > 0) {
+        if !(again.entered && self.offers_mirror(again.crossed) && left > 0) {
             return crossings;
         }
         // the reflection off the outside is one of the `left + 1` ways past the quarter
@@ -3652,7 +3662,8 @@ mod tests {
                     return 1;
                 }
                 let inside: usize = (1..=left).map(|k| ways(left - k, parts - 1, mirrors)).sum();
-                let off = usize::from(mirrors) * ways(left - 1, parts - 1, mirrors);
+                // one reflection off an outside at most
+                let off = usize::from(mirrors) * ways(left - 1, parts - 1, false);
                 ways(left, parts - 1, mirrors) + inside + off
             }
             let all = ways(after, crossed, mirrors);
