@@ -6,6 +6,8 @@
                                         placement out/NAME_design/render_design.json found
     python3 configure.py lens           out/lens.toml: no ultrasound, the beam focused on the
                                         25 mm target by a lens outside the medium
+    python3 configure.py continued      out/continued_design.toml: the full design again for 40
+                                        steps, starting where out/full_design ended
 """
 import json
 import math
@@ -43,16 +45,23 @@ if what == "full":
     last = '  { name = "profiles[0].amplitude_3", min = 0.0, max = 4e6 },\n'
     assert last in default
     open("out/full_design.toml", "w").write(default.replace(last, last + "\n".join(more) + "\n"))
-elif what == "designed":
-    name = sys.argv[2]
+elif what in ("designed", "continued"):
+    name = sys.argv[2] if what == "designed" else "full"
     d = json.load(open(f"out/{name}_design/render_design.json"))
     p = {q["name"].removeprefix("profiles[0]."): q["designed"] for q in d["parameters"]}
     amplitudes = [p.get(f"amplitude_{j}", 2e6) for j in range(4)]
     phases = [p.get(f"phase_{j}", 0.0) for j in range(4)]
     positions = [(p.get(f"x_{j}", x), p.get(f"y_{j}", y)) for j, (x, y) in enumerate(ELEMENTS)]
-    text = with_elements(default, amplitudes, phases, positions)
-    text = text.replace("frequency = 813e3", f"frequency = {p['frequency']!r}")
-    open(f"out/{name}.toml", "w").write(without_design(text))
+    if what == "designed":
+        text = with_elements(default, amplitudes, phases, positions)
+        text = text.replace("frequency = 813e3", f"frequency = {p['frequency']!r}")
+        open(f"out/{name}.toml", "w").write(without_design(text))
+    else:
+        text = with_elements(open("out/full_design.toml").read(), amplitudes, phases, positions)
+        text = text.replace("frequency = 813e3", f"frequency = {p['frequency']!r}")
+        assert "iterations = 60" in text
+        text = text.replace("iterations = 60", "iterations = 40")
+        open("out/continued_design.toml", "w").write(text)
 elif what == "lens":
     text = with_elements(default, [0.0] * 4, [0.0] * 4, ELEMENTS)
     text = text.replace("radius = 2.0\n", "radius = 2.0\nfocus = [0.0, 0.0, 10.0]\n", 1)
