@@ -1377,9 +1377,10 @@ impl<'v> Connector<'v> {
     /// first part's one of the `bounces + 1` numbers alike (the inverse probability times
     /// `bounces + 1`), the rest among the parts crossed and the other as [`Bounces::draw`]
     /// splits them (with `mirrors`, as [`Bounces::draw_with_mirrors`]: also off the outside of
-    /// the parts met on the way): an unbiased estimate of the sum over the ways. In a part that is not convex
-    /// a path may also leave it and come back ([`Connector::solve_into`]): one of the two kinds
-    /// is drawn ([`Self::around_chance`]), its inverse probability divided by the kind's chance.
+    /// the parts met on the way): an unbiased estimate of the sum over the ways. In a part that
+    /// is not convex a path may also leave it and come back ([`Connector::solve_into`]): one of
+    /// the two kinds is drawn ([`Self::around_chance`]), its inverse probability divided by the
+    /// kind's chance.
     pub fn sample_inside(
         &self,
         x: DVec3,
