@@ -230,23 +230,19 @@ impl Bounces {
             mirrors,
             ..Bounces::default()
         };
-        let mut left = after;
-        let mut mirrored_before = false;
-        for (k, mirrored) in b.across.iter_mut().zip(&mut b.mirrored) {
+        for i in 0..MAX_AGAIN {
+            let left = b.left_after(i);
             if left == 0 {
                 break;
             }
             let u = uniform(rng);
             if u >= THROUGH {
                 let share = (u - THROUGH) / (1.0 - THROUGH);
-                let mirrors = mirrors && !mirrored_before;
-                let ways = left + usize::from(mirrors);
+                let ways = b.ways(i);
                 let way = ((share * ways as f64) as usize).min(ways - 1);
                 // ways 0 … left − 1 reflect inside 1 … left times, way `left` off the outside
-                *mirrored = mirrors && way == left;
-                *k = if *mirrored { 1 } else { 1 + way };
-                left -= *k;
-                mirrored_before |= *mirrored;
+                b.mirrored[i] = way == left;
+                b.across[i] = if b.mirrored[i] { 1 } else { 1 + way };
             }
         }
         b
@@ -276,11 +272,17 @@ impl Bounces {
         self.mirrored.get(i).copied().unwrap_or(false)
     }
 
-    /// Whether the draw offered a reflection off the outside of the `i`th part met: one per
-    /// path at most (a second, between two convex outsides, is rare and found by Newton's
-    /// method seldom, its weight large).
+    /// Whether the draw offers a reflection off the outside of the `i`th part met (drawn
+    /// after the first `i`): one per path at most (a second, between two convex outsides, is
+    /// rare and found by Newton's method seldom, its weight large).
     fn offers_mirror(&self, i: usize) -> bool {
         self.mirrors && i < MAX_AGAIN && !self.mirrored[..i].contains(&true)
+    }
+
+    /// The ways the draw for the `i`th part met shares the chance `1 − THROUGH` among evenly:
+    /// 1 … `left` reflections inside, and off its outside where offered.
+    fn ways(&self, i: usize) -> usize {
+        self.left_after(i) + usize::from(self.offers_mirror(i))
     }
 
     /// What is left of the budget after the first `crossed` parts crossed.
@@ -296,7 +298,7 @@ impl Bounces {
             .map(|i| match (self.left_after(i), self.across[i]) {
                 (0, _) => 1.0,
                 (_, 0) => 1.0 / THROUGH,
-                (left, _) => (left + usize::from(self.offers_mirror(i))) as f64 / (1.0 - THROUGH),
+                _ => self.ways(i) as f64 / (1.0 - THROUGH),
             })
             .product()
     }
@@ -307,12 +309,12 @@ impl Bounces {
     /// that reflection.
     pub fn inverse_probability_of(&self, again: &Again) -> f64 {
         let crossings = self.inverse_probability(again.crossed, again.declined);
-        let left = self.left_after(again.crossed);
-        if !(again.entered && self.offers_mirror(again.crossed) && left > 0) {
+        let i = again.crossed;
+        if !(again.entered && self.offers_mirror(i) && self.left_after(i) > 0) {
             return crossings;
         }
-        // the reflection off the outside is one of the `left + 1` ways past the quarter
-        crossings / (1.0 - (1.0 - THROUGH) / (left + 1) as f64)
+        // the reflection off the outside is one of the ways past `THROUGH`
+        crossings / (1.0 - (1.0 - THROUGH) / self.ways(i) as f64)
     }
 }
 
@@ -1468,7 +1470,6 @@ impl<'v> Connector<'v> {
         Some(Meet {
             t0,
             at,
-            cos,
             frame: [e1, e2],
             slide,
         })
@@ -1540,27 +1541,15 @@ impl<'v> Connector<'v> {
     #[allow(clippy::type_complexity)]
     fn mirror_map(&self, y: DVec3, w: DVec3) -> Option<(Exit, [DVec3; 2], [DVec3; 2])> {
         let field = &self.volume.field;
-        let bounds = &field.bounds;
         let Meet {
             t0,
             at,
-            cos: nw,
             frame,
             slide: dx,
+            ..
         } = self.meet(y, w)?;
-        let reflectance = fresnel(nw, field.n_out / field.n(y + w * entry_parameter(t0)));
-        if reflectance <= 0.0 {
-            return None;
-        }
-        let mirror =
-            |d: DVec3, at: DVec3| -> Option<DVec3> { Some(reflect(d, bounds.normal(at)?)) };
-        let mut dout = [DVec3::ZERO; 2];
-        for (k, e) in frame.into_iter().enumerate() {
-            let plus = mirror((w + e * DIFF_STEP).normalize(), at + dx[k] * DIFF_STEP)?;
-            let minus = mirror((w - e * DIFF_STEP).normalize(), at - dx[k] * DIFF_STEP)?;
-            dout[k] = (plus - minus) / (2.0 * DIFF_STEP);
-        }
-        let outgoing = mirror(w, at)?;
+        let inside = y + w * entry_parameter(t0);
+        let (outgoing, reflectance, dout) = self.off_outside((inside, at, w), frame, dx)?;
         Some((
             Exit {
                 direction: w,
@@ -1803,10 +1792,10 @@ impl<'v> Connector<'v> {
     /// The path that has left the volume (as [`Self::cross_again`]) reflects off the outside of
     /// the part it meets `t0` ahead, at `at` (`inside`: a point just past it; `slide`: how it
     /// moves along the surface along the two angles of the path's start): `exit` extended to
-    /// it and turned by the law of reflection, its `transmission` times the Fresnel reflectance
-    /// from outside, and the derivatives of the new outgoing direction (the mirror's by central
-    /// differences: the normal turns as the point slides) and of the reflection point. The
-    /// reflection counts as a part crossed (its draw). `None` where nothing reflects there.
+    /// it and turned by the law of reflection ([`Self::off_outside`]), its `transmission` times
+    /// the Fresnel reflectance from outside, and the derivatives of the new outgoing direction
+    /// and of the reflection point. The reflection counts as a part crossed (its draw). `None`
+    /// where nothing reflects there.
     fn mirror_again(
         &self,
         exit: &mut Exit,
@@ -1814,28 +1803,44 @@ impl<'v> Connector<'v> {
         (inside, at, slide): (DVec3, DVec3, [DVec3; 2]),
         t0: f64,
     ) -> Option<([DVec3; 2], [DVec3; 2])> {
+        let (outgoing, reflectance, turn) =
+            self.off_outside((inside, at, exit.outgoing), dout, slide)?;
+        exit.again.crossed += 1;
+        exit.between += t0;
+        exit.optical_path += self.volume.field.n_out * t0;
+        exit.transmission *= reflectance;
+        exit.surface = at;
+        exit.outgoing = outgoing;
+        Some((turn, slide))
+    }
+
+    /// The straight ray along unit `w` meeting the volume's surface from outside at `at`
+    /// (`inside`: a point just past it) reflects there: its unit direction after, the Fresnel
+    /// reflectance from outside, and that direction's derivatives along two perturbations of
+    /// the ray — `turn` of `w` and `slide` of the point along the surface — by central
+    /// differences of the mirror (the normal turns as the point slides). `None` where nothing
+    /// reflects (`n` matched there).
+    fn off_outside(
+        &self,
+        (inside, at, w): (DVec3, DVec3, DVec3),
+        turn: [DVec3; 2],
+        slide: [DVec3; 2],
+    ) -> Option<(DVec3, f64, [DVec3; 2])> {
         let field = &self.volume.field;
-        let o = exit.outgoing;
-        let cos = field.bounds.normal(at)?.dot(o);
+        let cos = field.bounds.normal(at)?.dot(w);
         let reflectance = fresnel(cos, field.n_out / field.n(inside));
         if reflectance <= 0.0 {
             return None;
         }
         let mirror = |d: DVec3, at: DVec3| Some(reflect(d, field.bounds.normal(at)?));
-        let mut turn = [DVec3::ZERO; 2];
+        let mut dout = [DVec3::ZERO; 2];
         for k in 0..2 {
-            let (dd, dx) = (dout[k] * DIFF_STEP, slide[k] * DIFF_STEP);
-            let plus = mirror((o + dd).normalize(), at + dx)?;
-            let minus = mirror((o - dd).normalize(), at - dx)?;
-            turn[k] = (plus - minus) / (2.0 * DIFF_STEP);
+            let (dw, dx) = (turn[k] * DIFF_STEP, slide[k] * DIFF_STEP);
+            let plus = mirror((w + dw).normalize(), at + dx)?;
+            let minus = mirror((w - dw).normalize(), at - dx)?;
+            dout[k] = (plus - minus) / (2.0 * DIFF_STEP);
         }
-        exit.again.crossed += 1;
-        exit.between += t0;
-        exit.optical_path += field.n_out * t0;
-        exit.transmission *= reflectance;
-        exit.surface = at;
-        exit.outgoing = mirror(o, at)?;
-        Some((turn, slide))
+        Some((mirror(w, at)?, reflectance, dout))
     }
 
     /// The path Newton's method reaches from `w0` that leaves the volume and passes through the
@@ -1898,20 +1903,18 @@ impl<'v> Connector<'v> {
             let Some(t0) = field.bounds.reentry(exit.surface, exit.outgoing) else {
                 return Some(Toward::Missed(exit, dout, moved));
             };
-            if bounces.mirrored(exit.again.crossed) {
-                let met = self.meet_again(&exit, (dout, moved), t0)?;
-                (dout, moved) = self.mirror_again(&mut exit, dout, met, t0)?;
-                continue;
-            }
             match self.part_of(exit.surface + exit.outgoing * entry_parameter(t0)) {
+                // a part drawn to be reflected off is, whichever it is
+                _ if bounces.mirrored(exit.again.crossed) => {}
                 part if part == into => {
                     exit.again.entered = true;
                     break t0;
                 }
                 // the same path from either end: into each of its two parts once
                 part if part == from => return None,
-                _ => (dout, moved) = self.cross_again(&mut exit, (dout, moved), t0, bounces)?,
+                _ => {}
             }
+            (dout, moved) = self.cross_again(&mut exit, (dout, moved), t0, bounces)?;
         };
         let (inside, at, slide) = self.meet_again(&exit, (dout, moved), t0)?;
         let (along, sensitivities, entered) =
@@ -2314,8 +2317,6 @@ struct Meet {
     /// The distance to it, and the point.
     t0: f64,
     at: DVec3,
-    /// The ray's cosine with the outward normal there (negative).
-    cos: f64,
     /// The two angles of the ray's direction (`e1`, `e2` of its frame), and how the point slides
     /// along the surface as the direction turns along each.
     frame: [DVec3; 2],
@@ -3093,8 +3094,10 @@ mod tests {
                 .expect("some start converges");
             assert_eq!((found.again.crossed(), found.again.parts().len()), (1, 0));
             traced_by_hand(&found, p, hand);
-            // drawn to cross the ball, a path is never the one off its outside
-            for e in (0..100).filter_map(|_| solve(&across, &mut rng)) {
+            // drawn to reflect inside the ball, a path enters it and is not the one off it
+            let inside: Vec<Exit> = (0..400).filter_map(|_| solve(&across, &mut rng)).collect();
+            assert!(!inside.is_empty(), "some start converges");
+            for e in inside {
                 assert!(!e.again.parts().is_empty());
                 assert!((e.direction - found.direction).length() > 1e-3);
             }
