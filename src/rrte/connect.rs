@@ -323,6 +323,11 @@ impl Bounces {
 /// line stays inside; [`Connector::sample_inside`]).
 const AROUND_LIKELY: f64 = 0.9;
 
+/// Between two points in one convex part beside others, where the budget lets a path reflect,
+/// the chance of drawing one that leaves the part and comes back (off another part's outside,
+/// or reflected inside one) rather than one that reflects inside the part alone.
+const RETURN_CHANCE: f64 = 0.5;
+
 /// How a [`Connector::sample`] went: the path (if the solver converged) with its inverse
 /// probability, and the work done.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -1344,6 +1349,18 @@ impl<'v> Connector<'v> {
         self.not_convex(self.part_of(x))
     }
 
+    /// Whether the volume is several parts, its index unmatched somewhere: a path out of one
+    /// part may come back into it off another.
+    fn beside_others(&self) -> bool {
+        !self.matched
+            && self
+                .volume
+                .field
+                .bounds
+                .parts()
+                .is_some_and(|p| p.len() > 1)
+    }
+
     /// Whether part `k` ([`Self::part_of`]) is not convex.
     pub fn not_convex(&self, k: usize) -> bool {
         match self.volume.field.bounds.parts() {
@@ -1382,7 +1399,8 @@ impl<'v> Connector<'v> {
     /// the parts met on the way): an unbiased estimate of the sum over the ways. In a part that
     /// is not convex a path may also leave it and come back ([`Connector::solve_into`]): one of
     /// the two kinds is drawn ([`Self::around_chance`]), its inverse probability divided by the
-    /// kind's chance.
+    /// kind's chance. So may one in a convex part beside others, with `mirrors` and a reflection
+    /// to spend after leaving (off another part's outside or inside it; [`RETURN_CHANCE`]).
     pub fn sample_inside(
         &self,
         x: DVec3,
@@ -1396,10 +1414,17 @@ impl<'v> Connector<'v> {
                 .map(|c| InsidePath::Within(c, bounces))
         };
         let apart = self.apart(x, y);
-        if !apart && !self.around(x) {
+        let around = self.around(x);
+        // out of a convex part and back: only by a reflection after leaving it
+        let returns = !apart && !around && mirrors && bounces > 0 && self.beside_others();
+        if !apart && !around && !returns {
             return within(rng);
         }
-        let chance = if apart { 1.0 } else { self.around_chance(x, y) };
+        let chance = match (apart, returns) {
+            (true, _) => 1.0,
+            (false, true) => RETURN_CHANCE,
+            (false, false) => self.around_chance(x, y),
+        };
         if chance < 1.0 && (chance == 0.0 || uniform(rng) >= chance) {
             let mut s = within(rng);
             if let Some((_, inverse_p)) = &mut s.path {
@@ -1407,8 +1432,10 @@ impl<'v> Connector<'v> {
             }
             return s;
         }
-        let ways = bounces + 1;
-        let first = ((uniform(rng) * ways as f64) as usize).min(bounces);
+        // the reflections inside the start's part before it leaves: 0 … bounces alike (one fewer
+        // for a path back into a convex part, which must keep one for after)
+        let ways = bounces + usize::from(!returns);
+        let first = ((uniform(rng) * ways as f64) as usize).min(ways - 1);
         let split = match mirrors {
             true => Bounces::draw_with_mirrors(first, bounces - first, rng),
             false => Bounces::draw(first, bounces - first, rng),
@@ -1955,14 +1982,17 @@ impl<'v> Connector<'v> {
     /// surface, across every volume it meets between them (refracted in and out, reflected inside
     /// as `bounces` drew), into the second and, after the reflections left inside its surface, on
     /// to `y` ([`Self::map_into`]); for
-    /// `x` and `y` in one part that is not convex, out of it and back into it where the path
-    /// first meets it again. Its `jacobian` is the ray tube's cross-section at `y` per unit
+    /// `x` and `y` in one part, out of it and back into it where the path first meets it again
+    /// (into a convex part only off another part's outside or reflected inside one, as
+    /// `bounces` drew). Its `jacobian` is the ray tube's cross-section at `y` per unit
     /// solid angle at `x`, `dA⊥/dω` (the irradiance at `y` of a source of intensity `I` at `x`
     /// is `I · transmission / jacobian`); `surface` is `y` (within the tolerance) and
-    /// `outgoing` the direction of arrival there. `None` for points in one convex part.
+    /// `outgoing` the direction of arrival there. `None` for points in one convex part that
+    /// `bounces` leaves no reflection after leaving it.
     pub fn solve_into(&self, x: DVec3, y: DVec3, w0: DVec3, bounces: &Bounces) -> Option<Exit> {
         let into = self.part_of(y);
-        if self.part_of(x) == into && !self.around(x) {
+        // out of a convex part and back in only by reflections after leaving it
+        if self.part_of(x) == into && !self.around(x) && bounces.after == 0 {
             return None;
         }
         let mut w = w0.normalize();
@@ -2010,8 +2040,9 @@ impl<'v> Connector<'v> {
     /// A path from `x` inside one of several volumes to `y` inside another
     /// ([`Self::solve_into`]), reflected inside the first, the parts it crosses and the second
     /// as `bounces` says, drawn as [`Connector::sample_exit`] (`first_only`: the biased variant);
-    /// through index-matched volumes the straight line. Also between two points in one part
-    /// that is not convex, out of it and back in; none for points in one convex part.
+    /// through index-matched volumes the straight line. Also between two points in one part,
+    /// out of it and back in; none for points in one convex part that `bounces` leaves no
+    /// reflection after leaving it.
     pub fn sample_into(
         &self,
         x: DVec3,
@@ -2020,7 +2051,7 @@ impl<'v> Connector<'v> {
         first_only: bool,
         rng: &mut Rng,
     ) -> Sampled<Exit> {
-        if !self.apart(x, y) && !self.around(x) {
+        if !self.apart(x, y) && !self.around(x) && bounces.after == 0 {
             return Sampled::none();
         }
         if self.matched {
