@@ -3613,6 +3613,70 @@ mod tests {
         assert_eq!(checked, 40, "paths a connection holds from its own end");
     }
 
+    /// Between two points on the axis of a glass block (n = 1.2) under a glass slab (n = 2.5),
+    /// the paths out of the block and back in after one reflection — off the slab's underside,
+    /// or inside it off its top face — sum, drawn at random with their inverse probabilities, to
+    /// what their mirror images give in closed form: `T_block² R (1 − R_slab)^k / s²`, where
+    /// every face is met at normal incidence and `s`, the length that spreads the ray tube,
+    /// counts each stretch at `n_x / n` of its length (Snell's law for small angles).
+    #[test]
+    fn paths_out_of_a_block_and_back_off_a_slab_sum_to_their_mirror_images() {
+        use crate::eikonal::Part;
+        use crate::rrte::Bulk;
+        let clear = || Bulk {
+            sigma_s: 0.0,
+            sigma_a: 0.0,
+            scattering: Scattering::single(PhaseFunction::Isotropic),
+        };
+        let block = Bounds::Box {
+            half: DVec3::new(1.2, 1.2, 0.6),
+        };
+        let slab = Bounds::Box {
+            half: DVec3::new(3.0, 3.0, 0.25),
+        };
+        let constant = |n| vec![Profile::Constant { n }];
+        let v = Volume::several(
+            vec![
+                (Part::new(block, DVec3::ZERO, constant(1.2)), clear()),
+                (Part::new(slab, DVec3::Z * 1.1, constant(2.5)), clear()),
+            ],
+            1.0,
+        );
+        let c = Connector::new(&v, 1e-2, 100_000);
+        let (x, q) = (DVec3::new(0.0, 0.0, -0.3), DVec3::ZERO);
+        let normal = |n1: f64, n2: f64| ((n1 - n2) / (n1 + n2)).powi(2);
+        let (t_block, r_slab) = (1.0 - normal(1.2, 1.0), normal(1.0, 2.5));
+        // up 0.9 and back down 0.6 inside the block, 0.25 up and down in air, 1 across the slab
+        let spread = |across: f64| (1.5 + 0.5 * 1.2 + across * 1.2 / 2.5).powi(2);
+        let off = t_block * t_block * r_slab / spread(0.0);
+        let inside = t_block * t_block * (1.0 - r_slab).powi(2) * r_slab / spread(1.0);
+        let draws = 200_000;
+        let mut sums = [[0.0; 2]; 2];
+        let mut rng = crate::math::stream_rng(1, 0);
+        for _ in 0..draws {
+            let s = c.sample_inside(x, q, (1, true), false, &mut rng);
+            let Some((InsidePath::Between(e, b), inverse_p)) = s.path else {
+                continue;
+            };
+            let w = e.transmission / e.jacobian * inverse_p;
+            let k = usize::from(!b.mirrored[0]);
+            sums[k][0] += w;
+            sums[k][1] += w * w;
+        }
+        for (([sum, sum2], expected), what) in
+            sums.into_iter().zip([off, inside]).zip(["off", "inside"])
+        {
+            let mean = sum / draws as f64;
+            let se = ((sum2 / draws as f64 - mean * mean) / draws as f64).sqrt();
+            eprintln!("{what} the slab: {mean} ± {se}, mirror image {expected}");
+            assert!(se < 0.02 * expected, "{what}: {se}");
+            assert!(
+                (mean - expected).abs() < 4.0 * se,
+                "{what}: {mean} ± {se} against {expected}"
+            );
+        }
+    }
+
     /// [`Bounces::draw`] draws each way of splitting a budget of reflections among the parts
     /// crossed as often as [`Bounces::inverse_probability`] says, and no reflections inside the
     /// part after them (where a path that ends before a part beyond its end goes) as often; so
