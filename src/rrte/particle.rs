@@ -1857,9 +1857,11 @@ impl Estimator for ParticleTracer<'_> {
         }
     }
 
-    /// A scattering event costs its flight's leapfrog steps (each about a hundred output updates'
-    /// worth for analytic fields: the flight's length, a mean free path or the volume's size, over
-    /// the geometric length of a step) and a pass over the sensors.
+    /// A scattering event costs at least its flight's leapfrog steps (each about a hundred output
+    /// updates' worth for analytic fields: the flight's length, a mean free path or the volume's
+    /// size, over the geometric length of a step), as many again for each connection (Newton's
+    /// method traces the path at least once), and a pass over the sensors. A lower bound: the
+    /// budget's pilot times the rest, and takes this as the floor of its measurement.
     fn event_cost(&self) -> f64 {
         let v = &self.scene.volume;
         let steps = if v.homogeneous() {
@@ -1879,13 +1881,11 @@ impl Estimator for ParticleTracer<'_> {
         };
         // each step evaluates the field (an ultrasonic profile sums many plane waves)
         let steps = steps * v.field.evaluation_cost();
-        // a connection: a few Newton solves of a few iterations, each a flight's worth of steps
-        let mut connections = self.scene.probes.len() as f64
-            * if v.homogeneous() { 1.0 } else { 30.0 }
-            + (self.scene.cameras.len() + self.scene.pinholes.len()) as f64 * 30.0;
+        let mut connections =
+            (self.scene.probes.len() + self.scene.cameras.len() + self.scene.pinholes.len()) as f64;
         if self.scene.tracing == Tracing::Bidirectional {
-            // an event is joined to the other subpath's events too (a few in a typical scene)
-            connections *= 3.0;
+            // an event is joined to the other subpath's events too
+            connections *= 2.0;
         }
         STEP_COST * steps * (1.0 + connections) + self.scene.sensors.len() as f64
     }
