@@ -135,6 +135,9 @@ pub struct Again {
     /// Whether the path ended inside the part it met after its crossings (between two points
     /// inside): it took the draw of not reflecting off that part's outside.
     entered: bool,
+    /// The crossings (bits by index) that crossed the part the path ends in, drawn to pass it
+    /// ([`Bounces::passes`]).
+    passed: u8,
 }
 
 /// A path's way across a part it enters again: the entry point (just inside), the unit
@@ -191,9 +194,21 @@ pub struct Bounces {
     /// The parts crossed the path reflects off from outside instead of entering (one
     /// reflection of the budget, counted in `across`).
     mirrored: [bool; MAX_AGAIN],
-    /// Whether the draw offered that reflection off the outside of each part met.
+    /// Whether the draw offered that reflection off the outside of each part met; a path so
+    /// drawn (particle and path tracing's) also crosses the part it started from where it meets
+    /// it again.
     mirrors: bool,
+    /// For a path into a part that is not convex, the crossings (bits by index) at which, if
+    /// that part is the one met, the path crosses it and goes on instead of ending in it (drawn
+    /// each with chance [`PASS`], where `passing`).
+    passes: u8,
+    passing: bool,
 }
+
+/// The chance, drawn for each part a path meets, that a path into a shape that is not convex
+/// crosses it there if it is that shape, and ends in it only where it meets it again (a
+/// stretch of the shape lies between its ends).
+const PASS: f64 = 0.25;
 
 /// The chance that a connection crosses a part without reflecting inside it where its budget
 /// lets it reflect (the other numbers share the rest evenly): most light crosses a dielectric
@@ -246,6 +261,22 @@ impl Bounces {
             }
         }
         b
+    }
+
+    /// Draw, for a path that ends in a part that is not convex, where it crosses that part
+    /// instead of ending in it ([`PASS`] at each crossing).
+    pub fn draw_passes(&mut self, rng: &mut Rng) {
+        self.passing = true;
+        for i in 0..MAX_AGAIN {
+            if uniform(rng) < PASS {
+                self.passes |= 1 << i;
+            }
+        }
+    }
+
+    /// Whether the path crosses the part it ends in if that is the `i`th part it meets.
+    fn passes(&self, i: usize) -> bool {
+        i < MAX_AGAIN && self.passes & (1 << i) != 0
     }
 
     /// `first` reflections inside the start's part, `across` inside the parts crossed, `end`
@@ -308,7 +339,13 @@ impl Bounces {
     /// entered the part it ends in where the draw offered a reflection off its outside, not
     /// that reflection.
     pub fn inverse_probability_of(&self, again: &Again) -> f64 {
-        let crossings = self.inverse_probability(again.crossed, again.declined);
+        let mut crossings = self.inverse_probability(again.crossed, again.declined);
+        if self.passing {
+            crossings /= PASS.powi(again.passed.count_ones() as i32);
+            if again.entered && again.crossed < MAX_AGAIN {
+                crossings /= 1.0 - PASS;
+            }
+        }
         let i = again.crossed;
         if !(again.entered && self.offers_mirror(i) && self.left_after(i) > 0) {
             return crossings;
@@ -1440,6 +1477,10 @@ impl<'v> Connector<'v> {
             true => Bounces::draw_with_mirrors(first, bounces - first, rng),
             false => Bounces::draw(first, bounces - first, rng),
         };
+        let mut split = split;
+        if mirrors && self.not_convex(self.part_of(y)) {
+            split.draw_passes(rng);
+        }
         let mut s = self.sample_into(x, y, &split, first_only, rng);
         if let Some((_, inverse_p)) = &mut s.path {
             *inverse_p *= ways as f64 / chance;
@@ -1934,11 +1975,16 @@ impl<'v> Connector<'v> {
                 // a part drawn to be reflected off is, whichever it is
                 _ if bounces.mirrored(exit.again.crossed) => {}
                 part if part == into => {
-                    exit.again.entered = true;
-                    break t0;
+                    let crossed = exit.again.crossed;
+                    if !bounces.passes(crossed) {
+                        exit.again.entered = true;
+                        break t0;
+                    }
+                    exit.again.passed |= 1 << crossed;
                 }
-                // the same path from either end: into each of its two parts once
-                part if part == from => return None,
+                // bidirectional tracing's connections, the same path from either end, enter each
+                // of their two parts once; tracing's cross the start's part again
+                part if part == from && !bounces.mirrors => return None,
                 _ => {}
             }
             (dout, moved) = self.cross_again(&mut exit, (dout, moved), t0, bounces)?;
