@@ -422,16 +422,10 @@ fn probes_in_one_ball_of_a_dumbbell_count_the_light_from_the_other_as_a_target_d
         // each photon's events connect to every probe by Newton's method where n ≠ 1
         let photons = if n == 1.0 { 60_000 } else { 20_000 };
         let (e, est) = common::render(&probed, photons, 8);
-        let probe = (0..4).map(|i| e.mean[est.probe_total(i)].re).sum::<f64>() / 4.0;
-        // their covariance left out: the same photons light them all, so the errors are added
-        let sp = (0..4).map(|i| e.stderr[est.probe_total(i)]).sum::<f64>() / 4.0;
-        eprintln!("n = {n}: probes {probe} ± {sp}, target {target} ± {st}");
+        eprintln!("n = {n}");
         // a point's estimate from events near it is heavy-tailed: its error falls slowly
-        assert!(sp < 0.12 * probe && st < 0.04 * target, "{sp} {st}");
-        assert!(
-            (probe - target).abs() < 4.0 * sp.hypot(st),
-            "n = {n}: probes {probe} ± {sp}, target {target} ± {st}"
-        );
+        let probes = common::probes_mean(&e, &est);
+        common::assert_probes_count_as_target(probes, (target, st), (0.12, 0.04));
     }
 }
 
@@ -475,14 +469,8 @@ fn probes_in_the_last_of_three_glass_balls_count_the_light_from_the_first_throug
     let mut probed = scene;
     probed.probes = common::probes_about(p, radius);
     let (e, est) = common::render(&probed, 20_000, 8);
-    let probe = (0..4).map(|i| e.mean[est.probe_total(i)].re).sum::<f64>() / 4.0;
-    let sp = (0..4).map(|i| e.stderr[est.probe_total(i)]).sum::<f64>() / 4.0;
-    eprintln!("probes {probe} ± {sp}, target {target} ± {st}");
-    assert!(sp < 0.1 * probe && st < 0.04 * target, "{sp} {st}");
-    assert!(
-        (probe - target).abs() < 4.0 * sp.hypot(st),
-        "probes {probe} ± {sp}, target {target} ± {st}"
-    );
+    let probes = common::probes_mean(&e, &est);
+    common::assert_probes_count_as_target(probes, (target, st), (0.1, 0.04));
 }
 
 /// Particle tracing, path tracing and bidirectional tracing agree on a pinhole's image of the

@@ -732,16 +732,8 @@ fn probes_lit_off_a_glass_slab_count_the_light_as_a_target_does() {
         ..bare_scene(0.01)
     };
     let (e, est) = render(&scene, 100_000, 11);
-    // the probes' mean, its error taken at its largest (the same photons light them all)
-    let probe = (0..4).map(|i| e.mean[est.probe_total(i)].re).sum::<f64>() / 4.0;
-    let sp = (0..4).map(|i| e.stderr[est.probe_total(i)]).sum::<f64>() / 4.0;
-    let (target, st) = (e.mean[est.power(0)].re, e.stderr[est.power(0)]);
-    eprintln!("fluence: probes {probe} ± {sp}, target {target} ± {st}");
-    assert!(sp < 0.06 * probe && st < 0.06 * target, "{sp} {st}");
-    assert!(
-        (probe - target).abs() < 4.0 * sp.hypot(st),
-        "probes {probe} ± {sp}, target {target} ± {st}"
-    );
+    let target = (e.mean[est.power(0)].re, e.stderr[est.power(0)]);
+    common::assert_probes_count_as_target(common::probes_mean(&e, &est), target, (0.06, 0.06));
 }
 
 /// Fluence probes in a clear glass cube (n = 1.2) lit off a glass slab above it (n = 2.5) count
@@ -792,16 +784,8 @@ fn probes_lit_off_a_glass_slab_from_their_own_cube_count_the_light_as_a_target_d
         ..bare_scene(0.01)
     };
     let (e, est) = render(&scene, 100_000, 11);
-    // the probes' mean, its error taken at its largest (the same photons light them all)
-    let probe = (0..4).map(|i| e.mean[est.probe_total(i)].re).sum::<f64>() / 4.0;
-    let sp = (0..4).map(|i| e.stderr[est.probe_total(i)]).sum::<f64>() / 4.0;
-    let (target, st) = (e.mean[est.power(0)].re, e.stderr[est.power(0)]);
-    eprintln!("fluence: probes {probe} ± {sp}, target {target} ± {st}");
-    assert!(sp < 0.06 * probe && st < 0.06 * target, "{sp} {st}");
-    assert!(
-        (probe - target).abs() < 4.0 * sp.hypot(st),
-        "probes {probe} ± {sp}, target {target} ± {st}"
-    );
+    let target = (e.mean[est.power(0)].re, e.stderr[est.power(0)]);
+    common::assert_probes_count_as_target(common::probes_mean(&e, &est), target, (0.06, 0.06));
 }
 
 /// Particle tracing, path tracing and bidirectional tracing agree on the image of a glass block

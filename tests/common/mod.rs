@@ -94,6 +94,28 @@ pub fn render(
     (e, est)
 }
 
+/// The mean of the four probes of [`probes_about`] and its error, taken at its largest (the same
+/// photons light them all).
+pub fn probes_mean(e: &Estimate, est: &lightpath::rrte::ParticleTracer) -> (f64, f64) {
+    let mean = |f: &dyn Fn(usize) -> f64| (0..4).map(f).sum::<f64>() / 4.0;
+    (
+        mean(&|i| e.mean[est.probe_total(i)].re),
+        mean(&|i| e.stderr[est.probe_total(i)]),
+    )
+}
+
+/// The probes' mean `(value, error)` agrees with a target's within 4 combined standard errors,
+/// each error below its share `bounds` of its value.
+pub fn assert_probes_count_as_target(probes: (f64, f64), target: (f64, f64), bounds: (f64, f64)) {
+    let ((probe, sp), (target, st)) = (probes, target);
+    eprintln!("fluence: probes {probe} ± {sp}, target {target} ± {st}");
+    assert!(sp < bounds.0 * probe && st < bounds.1 * target, "{sp} {st}");
+    assert!(
+        (probe - target).abs() < 4.0 * sp.hypot(st),
+        "probes {probe} ± {sp}, target {target} ± {st}"
+    );
+}
+
 /// Channel `name` of an EXR file's first layer (top row first) and the image's (width, height).
 pub fn exr_channel(path: &std::path::Path, name: &str) -> ((usize, usize), Vec<f32>) {
     let img = exr::prelude::read_first_flat_layer_from_file(path).unwrap();
