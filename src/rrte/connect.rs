@@ -1473,11 +1473,10 @@ impl<'v> Connector<'v> {
         // for a path back into a convex part, which must keep one for after)
         let ways = bounces + usize::from(!returns);
         let first = ((uniform(rng) * ways as f64) as usize).min(ways - 1);
-        let split = match mirrors {
+        let mut split = match mirrors {
             true => Bounces::draw_with_mirrors(first, bounces - first, rng),
             false => Bounces::draw(first, bounces - first, rng),
         };
-        let mut split = split;
         if mirrors && self.not_convex(self.part_of(y)) {
             split.draw_passes(rng);
         }
