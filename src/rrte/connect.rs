@@ -2104,11 +2104,11 @@ impl<'v> Connector<'v> {
             // as `map_into`: into each of its two parts once, at its end (tracing's connections,
             // the one straight line, across any part on the way)
             let once = |e: &Exit| {
+                if bounces.mirrors {
+                    return e.again.parts().last().map(|p| self.part_of(p.inside)) == Some(into);
+                }
                 let entered = e.again.parts().iter().map(|p| self.part_of(p.inside));
                 let last = e.again.parts().len().saturating_sub(1);
-                if bounces.mirrors {
-                    return entered.last() == Some(into);
-                }
                 entered
                     .enumerate()
                     .all(|(k, part)| (k == last) == (part == into) && (part != from || k == last))
