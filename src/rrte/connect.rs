@@ -1398,6 +1398,13 @@ impl<'v> Connector<'v> {
                 .is_some_and(|p| p.len() > 1)
     }
 
+    /// Whether a path out of the part holding `x` and into the one holding `y` can exist as
+    /// `bounces` drew it: between two parts, or out of a shape that is not convex and back; out
+    /// of a convex part and back only by reflections after leaving it.
+    fn joins_out_and_in(&self, x: DVec3, y: DVec3, bounces: &Bounces) -> bool {
+        self.apart(x, y) || self.around(x) || bounces.after > 0
+    }
+
     /// Whether part `k` ([`Self::part_of`]) is not convex.
     pub fn not_convex(&self, k: usize) -> bool {
         match self.volume.field.bounds.parts() {
@@ -2036,8 +2043,7 @@ impl<'v> Connector<'v> {
     /// `bounces` leaves no reflection after leaving it.
     pub fn solve_into(&self, x: DVec3, y: DVec3, w0: DVec3, bounces: &Bounces) -> Option<Exit> {
         let into = self.part_of(y);
-        // out of a convex part and back in only by reflections after leaving it
-        if self.part_of(x) == into && !self.around(x) && bounces.after == 0 {
+        if !self.joins_out_and_in(x, y, bounces) {
             return None;
         }
         let mut w = w0.normalize();
@@ -2096,7 +2102,7 @@ impl<'v> Connector<'v> {
         first_only: bool,
         rng: &mut Rng,
     ) -> Sampled<Exit> {
-        if !self.apart(x, y) && !self.around(x) && bounces.after == 0 {
+        if !self.joins_out_and_in(x, y, bounces) {
             return Sampled::none();
         }
         if self.matched {
