@@ -639,3 +639,83 @@ fn a_glass_ball_seen_through_a_glass_plate_agrees() {
         totals_agree(&a, &c, image.total(), "camera total, bidirectional");
     }
 }
+
+/// Bidirectional tracing tallies each camera's total by strategy: the tallies sum to it, and
+/// the single-scattering ones (`k = 1`: the beam joined to a camera event, a light event to the
+/// camera) sum to single scattering in closed form. A collimated beam (power 1) crosses a thin
+/// index-matched slab (`σ_s = 0.2`, `σ_a = 0.1`, depth 0.5, HG `g = 0.5`) at normal incidence;
+/// an orthographic camera records the light leaving its far face at 40° to the beam: its
+/// intensity from one event at depth `z` is `σ_s p(cos 40°) e^{−σ_t z} e^{−σ_t (d − z)/cos 40°}`,
+/// integrated over `z`. The camera's whole intensity, multiple scattering included, lies well
+/// above it.
+#[test]
+fn a_thin_slabs_single_scattering_is_the_sum_of_its_one_event_strategies() {
+    let (sigma_s, sigma_a, depth, g) = (0.2, 0.1, 0.5, 0.5);
+    let theta = 40f64.to_radians();
+    let direction = DVec3::new(theta.sin(), 0.0, theta.cos());
+    let mut s = RenderScene {
+        volume: Volume {
+            field: BoundedField::single(
+                Profile::Constant { n: 1.0 },
+                Bounds::Box {
+                    half: DVec3::new(3.0, 3.0, depth / 2.0),
+                },
+                1.0,
+            ),
+            sigma_s,
+            sigma_a,
+            scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g }),
+            density: None,
+            parts: Vec::new(),
+        },
+        light: Light::Beam {
+            center: DVec3::new(0.0, 0.0, -1.0),
+            direction: DVec3::Z,
+            radius: 0.2,
+        },
+        ..bare_scene(0.004)
+    };
+    s.cameras.push(Camera::new(
+        "slanted".into(),
+        direction,
+        DVec3::new(0.3, 0.0, 1.0),
+        [2.0, 2.0],
+        [8, 8],
+    ));
+    s.tracing = Tracing::Bidirectional;
+    let (e, est) = render(&s, 800_000, 5);
+    let area = s.cameras[0].pixel_area();
+    let intensity = |k: usize| (e.mean[k].re * area, e.stderr[k] * area);
+    let (total, total_error) = intensity(est.camera_image(0).total());
+    let mut sum = 0.0;
+    for k in 1..=lightpath::rrte::STRATEGY_EVENTS {
+        for j in 0..=k {
+            sum += intensity(est.strategy_total(0, k, j)).0;
+        }
+    }
+    sum += intensity(est.strategy_total(0, lightpath::rrte::STRATEGY_EVENTS + 1, 0)).0;
+    assert!((sum - total).abs() < 1e-12 * total, "{sum} against {total}");
+
+    let (beam, beam_error) = intensity(est.strategy_total(0, 1, 0));
+    let (photons, photons_error) = intensity(est.strategy_total(0, 1, 1));
+    let single = beam + photons;
+    let error = beam_error.hypot(photons_error);
+    let sigma_t = sigma_s + sigma_a;
+    let mu = theta.cos();
+    let p = (1.0 - g * g) / (4.0 * std::f64::consts::PI * (1.0 + g * g - 2.0 * g * mu).powf(1.5));
+    let rate = sigma_t * (1.0 - 1.0 / mu);
+    let closed = sigma_s * p * (-sigma_t * depth / mu).exp() * (1.0 - (-rate * depth).exp()) / rate;
+    eprintln!(
+        "single scattering: {single:.5e} ± {error:.1e} (beam {beam:.3e}, photons {photons:.3e}), \
+         closed form {closed:.5e}; all {total:.5e} ± {total_error:.1e}"
+    );
+    assert!(error < 0.01 * closed, "{error}");
+    assert!(
+        (single - closed).abs() < 4.0 * error,
+        "{single} ± {error} against {closed}"
+    );
+    assert!(
+        total - closed > 8.0 * total_error.hypot(error),
+        "{total} ± {total_error}"
+    );
+}

@@ -10,12 +10,13 @@ use crate::error::{Error, Result};
 use crate::io::ResultFile;
 use crate::io::results::{
     CameraRecord, ConnectionStatistics, Measured, ProbeRecord, RenderFile, RenderStatistics,
-    SensorRecord, SurfaceRecord, TargetRecord, WindowRecord,
+    SensorRecord, StrategyRecord, SurfaceRecord, TargetRecord, WindowRecord,
 };
 use crate::mc::{Block, Checkpoint, Estimate, Plan, merge, resume};
 use crate::medium::{Geometry, Medium};
 use crate::rrte::{
-    Filter, ImageLayout, MAX_REFLECTIONS, ParticleTracer, Region, SensorKind, Total,
+    Filter, ImageLayout, MAX_REFLECTIONS, ParticleTracer, Region, STRATEGY_EVENTS, SensorKind,
+    Total,
 };
 use std::path::Path;
 
@@ -535,6 +536,51 @@ pub fn rendered(
             })
             .collect()
     };
+    // camera `i`'s total by bidirectional strategy, times `scale` (as its total's), and a
+    // summary line naming the one with the largest share of the variance
+    let strategies = |i: usize,
+                      scale: f64,
+                      orthographic: bool,
+                      summary: &mut Vec<String>|
+     -> Vec<StrategyRecord> {
+        if scene.tracing != crate::rrte::Tracing::Bidirectional {
+            return Vec::new();
+        }
+        let events = (1..=STRATEGY_EVENTS).flat_map(|k| (0..=k).map(move |s| (k, Some(s))));
+        let records: Vec<StrategyRecord> = events
+            .chain([(STRATEGY_EVENTS + 1, None)])
+            .map(|(k, s)| {
+                let m = measured(est.strategy_total(i, k, s.unwrap_or(0)));
+                let total = Measured {
+                    mean: m.mean * scale,
+                    stderr: m.stderr * scale,
+                };
+                StrategyRecord {
+                    events: k,
+                    from_light: s,
+                    intensity: orthographic.then_some(total),
+                    irradiance: (!orthographic).then_some(total),
+                }
+            })
+            .collect();
+        let error = |r: &StrategyRecord| r.intensity.or(r.irradiance).map_or(0.0, |m| m.stderr);
+        let variance: f64 = records.iter().map(|r| error(r).powi(2)).sum();
+        if let Some(most) = records
+            .iter()
+            .max_by(|a, b| error(a).total_cmp(&error(b)))
+            .filter(|_| variance > 0.0)
+        {
+            let which = match most.from_light {
+                Some(s) => format!("{} events, {s} from the light", most.events),
+                None => format!("{} or more events", most.events),
+            };
+            summary.push(format!(
+                "  most of the variance: {which} ({:.0} %)",
+                100.0 * error(most).powi(2) / variance
+            ));
+        }
+        records
+    };
     for (i, c) in scene.cameras.iter().enumerate() {
         let image = est.camera_image(i);
         let intensity = Measured {
@@ -547,6 +593,7 @@ pub fn rendered(
         ));
         let (names, derivatives) = camera_images(&c.name, i, c.pixels, c.pixel_area());
         let windows = windows(i, c.pixel_area(), true, &mut summary);
+        let strategies = strategies(i, c.pixel_area(), true, &mut summary);
         cameras.push(CameraRecord {
             name: c.name.clone(),
             kind: "orthographic".into(),
@@ -562,6 +609,7 @@ pub fn rendered(
             filter: filter(c.filter),
             derivatives,
             windows,
+            strategies,
         });
     }
     for (i, c) in scene.pinholes.iter().enumerate() {
@@ -574,6 +622,7 @@ pub fn rendered(
         let camera = scene.cameras.len() + i;
         let (names, derivatives) = camera_images(&c.name, camera, c.pixels, 1.0);
         let windows = windows(camera, 1.0, false, &mut summary);
+        let strategies = strategies(camera, 1.0, false, &mut summary);
         cameras.push(CameraRecord {
             name: c.name.clone(),
             kind: "pinhole".into(),
@@ -589,6 +638,7 @@ pub fn rendered(
             filter: filter(c.filter),
             derivatives,
             windows,
+            strategies,
         });
     }
     // path tracing from the cameras follows no light to the surfaces; bidirectional tracing's

@@ -935,6 +935,25 @@ pub struct CameraRecord {
     /// Its pixel windows (`[[sensor.window]]`), each summed with its own standard error.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub windows: Vec<WindowRecord>,
+    /// Bidirectional tracing: the part of its `intensity` or `irradiance` each strategy brings,
+    /// weighted, with its own standard error (where the noise comes from).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub strategies: Vec<StrategyRecord>,
+}
+
+/// What one strategy of bidirectional tracing brings a camera: paths of `events` scattering
+/// events, `from_light` of them traced from the light (the rest from the camera), weighted by
+/// the balance heuristic; without `from_light`, every strategy's paths of `events` events or
+/// more.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct StrategyRecord {
+    pub events: usize,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub from_light: Option<usize>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub intensity: Option<Measured>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub irradiance: Option<Measured>,
 }
 
 /// A camera's pixel window: the part of the camera's `intensity` (orthographic) or `irradiance`

@@ -511,7 +511,8 @@ impl ParticleTracer<'_> {
                 rho_camera
             };
             let radiance = joined.weight() * z.beta * scatters * link.radiance;
-            self.record_sample(t, pixel, radiance, z.opl + link.delay, out);
+            let added = self.record_sample(t, pixel, radiance, z.opl + link.delay, out);
+            out[self.strategy_total(pixel.camera, zs.len(), 0)].re += added;
         }
     }
 
@@ -549,7 +550,9 @@ impl ParticleTracer<'_> {
                 rho_camera: f64::NAN,
             };
             let scale = joined.weight() * y.beta * rho_light;
-            self.record_link(t, &link, scale, y.opl, out);
+            if let Some(added) = self.record_link(t, &link, scale, y.opl, out) {
+                out[self.strategy_total(camera, ys.len(), ys.len())].re += added;
+            }
         }
     }
 
@@ -587,7 +590,8 @@ impl ParticleTracer<'_> {
                 rho_camera
             };
             let radiance = joined.weight() * z.beta * scatters * y.beta * rho_light * j.carried;
-            self.record_sample(t, pixel, radiance, y.opl + j.delay + z.opl, out);
+            let added = self.record_sample(t, pixel, radiance, y.opl + j.delay + z.opl, out);
+            out[self.strategy_total(pixel.camera, ys.len() + zs.len(), ys.len())].re += added;
         }
     }
 

@@ -369,7 +369,7 @@ impl ParticleTracer<'_> {
         event: Option<(DVec3, DVec3)>,
         out: &mut [C64],
     ) -> bool {
-        if !self.record_link(t, link, scale, opl, out) {
+        if self.record_link(t, link, scale, opl, out).is_none() {
             return false;
         }
         let volume = t.flyer.volume;

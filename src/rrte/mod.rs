@@ -29,7 +29,7 @@ pub mod scene;
 pub mod spectrum;
 pub mod tangent;
 
-pub use particle::{ImageLayout, MAX_REFLECTIONS, ParticleTracer, Total};
+pub use particle::{ImageLayout, MAX_REFLECTIONS, ParticleTracer, STRATEGY_EVENTS, Total};
 pub use scene::{
     Bulk, Camera, Connections, Density, Derivative, FieldDerivative, Filter, Light,
     MAX_DERIVATIVES, MAX_TARGETS, MediumDerivative, Modulation, PartLengths, Pinhole, PixelWindow,

@@ -72,6 +72,13 @@ pub enum Total {
 /// How many totals follow the sensors.
 pub const TOTALS: usize = 11;
 
+/// Bidirectional tracing tallies each camera's total by strategy for paths of up to this many
+/// scattering events (`s` of `k` events from the light, `s = 0 … k`), longer ones together.
+pub const STRATEGY_EVENTS: usize = 4;
+
+/// The strategy tallies per camera: `k + 1` for each `k = 1 … STRATEGY_EVENTS`, and one more.
+pub const STRATEGY_SLOTS: usize = STRATEGY_EVENTS * (STRATEGY_EVENTS + 3) / 2 + 1;
+
 /// The integrators of one volume (free flights and connections), and the photon's weights in
 /// the colour channels (its wavelength's, see [`super::spectrum`]).
 pub(super) struct Tools<'v> {
@@ -362,6 +369,8 @@ pub struct ParticleTracer<'s> {
     /// numbers, and its derivative its difference quotient, which tests check. Off by default:
     /// the outcomes' own probabilities, clamped, give less noise.
     pub even_draws: bool,
+    /// The first of bidirectional tracing's strategy tallies ([`Self::strategy_total`]).
+    strategies: usize,
     /// Outputs in all.
     outputs: usize,
 }
@@ -447,6 +456,10 @@ impl<'s> ParticleTracer<'s> {
         at += count;
         let window_derivatives = at;
         at += scene.derivatives.len() * count;
+        let strategies = at;
+        if scene.tracing == Tracing::Bidirectional {
+            at += (scene.cameras.len() + scene.pinholes.len()) * STRATEGY_SLOTS;
+        }
         ParticleTracer {
             scene,
             tools: Tools::new(&scene.volume, scene, [1.0; 3], Delay::NONE),
@@ -468,6 +481,7 @@ impl<'s> ParticleTracer<'s> {
                 .filter_map(|(i, s)| s.region.map(|r| (i, r)))
                 .collect(),
             even_draws: false,
+            strategies,
             outputs: at,
         }
     }
@@ -533,6 +547,20 @@ impl<'s> ParticleTracer<'s> {
     /// then the pinholes): what its image's total takes from those pixels.
     pub fn window_total(&self, i: usize, k: usize) -> usize {
         self.windows + self.first_window[i] + k
+    }
+
+    /// Of a bidirectional render, the output holding the part of camera `i`'s total (the
+    /// orthographic cameras first) that strategy `s` brings from paths of `k ≥ 1` scattering
+    /// events (`s` of them traced from the light), weighted; for `k` beyond
+    /// [`STRATEGY_EVENTS`], every strategy's (`s` ignored). Unscattered light from a light
+    /// inside the volume, made one way, is in none.
+    pub fn strategy_total(&self, i: usize, k: usize, s: usize) -> usize {
+        let slot = if k <= STRATEGY_EVENTS {
+            k * (k + 1) / 2 - 1 + s.min(k)
+        } else {
+            STRATEGY_SLOTS - 1
+        };
+        self.strategies + i * STRATEGY_SLOTS + slot
     }
 
     /// The output holding the derivative of [`Self::window_total`] with respect to
@@ -774,22 +802,22 @@ impl<'s> ParticleTracer<'s> {
         scale: f64,
         opl: f64,
         out: &mut [C64],
-    ) -> bool {
+    ) -> Option<f64> {
         let radiance = scale * link.radiance;
         if !(radiance > 0.0 && radiance.is_finite()) {
-            return false;
+            return None;
         }
-        let Some(bin) = self.bin(opl + link.delay) else {
-            return false;
-        };
+        let bin = self.bin(opl + link.delay)?;
         let image = self.images[self.scene.sensors.len() + link.camera];
+        let mut added = 0.0;
         for &(pixel, share) in &link.pixels.0[..link.pixels.1] {
             image.add(out, bin, pixel, radiance * share, &t.colour);
             let total = scale * link.total * share;
             out[image.total()].re += total;
+            added += total;
             self.add_to_windows(link.camera, pixel, total, self.windows, out);
         }
-        true
+        Some(added)
     }
 
     /// The connection from `x` (inside) to camera `i` (the orthographic cameras first, then the

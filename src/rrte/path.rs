@@ -57,7 +57,7 @@ impl Walk {
 /// What a camera path adds to its pixel: radiance samples in their time bins.
 pub(super) struct Pixel {
     /// The camera (the orthographic cameras first, then the pinholes).
-    camera: usize,
+    pub(super) camera: usize,
     image: super::ImageLayout,
     pixel: usize,
     /// Pixels of the camera: a uniformly drawn pixel's sample counts this many times.
@@ -151,7 +151,8 @@ impl ParticleTracer<'_> {
         (cam.position, d, pixel)
     }
 
-    /// Record the radiance sample `radiance` (at the camera) arriving with optical path `opl`.
+    /// Record the radiance sample `radiance` (at the camera) arriving with optical path `opl`;
+    /// what it added to the camera's total.
     pub(super) fn record_sample(
         &self,
         t: &Tools,
@@ -159,18 +160,19 @@ impl ParticleTracer<'_> {
         radiance: f64,
         opl: f64,
         out: &mut [C64],
-    ) {
+    ) -> f64 {
         if !(radiance > 0.0 && radiance.is_finite()) {
-            return;
+            return 0.0;
         }
         let Some(bin) = self.bin(opl) else {
-            return;
+            return 0.0;
         };
         p.image
             .add(out, bin, p.pixel, radiance * p.count, &t.colour);
         let total = radiance * p.to_total;
         out[p.image.total()].re += total;
         self.add_to_windows(p.camera, p.pixel, total, self.windows, out);
+        total
     }
 
     /// Trace the camera path leaving `x` along unit `d` (outside the volume).
