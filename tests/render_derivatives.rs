@@ -8,9 +8,9 @@
 
 use crate::common;
 
-use common::{bare_scene, flux, render};
+use common::{bare_scene, flux, hg_box, render};
 use glam::DVec3;
-use lightpath::eikonal::{BoundedField, Bounds, Profile};
+use lightpath::eikonal::{Bounds, Profile};
 use lightpath::medium::params::Param;
 use lightpath::medium::{PhaseFunction, Scattering};
 use lightpath::rrte::{Derivative, Light, MediumDerivative, ParticleTracer, RenderScene, Volume};
@@ -19,20 +19,7 @@ use lightpath::rrte::{Derivative, Light, MediumDerivative, ParticleTracer, Rende
 /// beam, with flux sensors on both faces: transmitted (0) and reflected (1).
 fn slab(n: f64, sigma_s: f64, sigma_a: f64, g: f64, derivatives: Vec<Param>) -> RenderScene {
     RenderScene {
-        volume: Volume {
-            field: BoundedField::single(
-                Profile::Constant { n },
-                Bounds::Box {
-                    half: DVec3::new(30.0, 30.0, 0.5),
-                },
-                1.0,
-            ),
-            sigma_s,
-            sigma_a,
-            scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g }),
-            density: None,
-            parts: Vec::new(),
-        },
+        volume: hg_box(n, DVec3::new(30.0, 30.0, 0.5), sigma_s, sigma_a, g),
         light: Light::Beam {
             center: DVec3::new(0.0, 0.0, -1.0),
             direction: DVec3::Z,

@@ -654,20 +654,7 @@ fn a_thin_slabs_single_scattering_is_the_sum_of_its_one_event_strategies() {
     let theta = 40f64.to_radians();
     let direction = DVec3::new(theta.sin(), 0.0, theta.cos());
     let mut s = RenderScene {
-        volume: Volume {
-            field: BoundedField::single(
-                Profile::Constant { n: 1.0 },
-                Bounds::Box {
-                    half: DVec3::new(3.0, 3.0, depth / 2.0),
-                },
-                1.0,
-            ),
-            sigma_s,
-            sigma_a,
-            scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g }),
-            density: None,
-            parts: Vec::new(),
-        },
+        volume: common::hg_box(1.0, DVec3::new(3.0, 3.0, depth / 2.0), sigma_s, sigma_a, g),
         light: Light::Beam {
             center: DVec3::new(0.0, 0.0, -1.0),
             direction: DVec3::Z,

@@ -30,6 +30,27 @@ pub fn wave_statistics(scene: &Scene, reals: u64, seed: u64) -> wave::WaveStatis
     wave::WaveStatistics::from_fields(&root.kept, est.fields())
 }
 
+/// A box of half-extents `half` about the origin, of constant index `n` in air, holding a
+/// homogeneous medium with a Henyey–Greenstein phase function.
+pub fn hg_box(
+    n: f64,
+    half: glam::DVec3,
+    sigma_s: f64,
+    sigma_a: f64,
+    g: f64,
+) -> lightpath::rrte::Volume {
+    use lightpath::eikonal::{BoundedField, Bounds, Profile};
+    use lightpath::medium::{PhaseFunction, Scattering};
+    lightpath::rrte::Volume {
+        field: BoundedField::single(Profile::Constant { n }, Bounds::Box { half }, 1.0),
+        sigma_s,
+        sigma_a,
+        scattering: Scattering::single(PhaseFunction::HenyeyGreenstein { g }),
+        density: None,
+        parts: Vec::new(),
+    }
+}
+
 /// A render scene with nothing but its step set: a clear unit sphere of `n = 1`, a point light at
 /// its centre, no sensors; tests give what they need (`RenderScene { volume, light,
 /// ..bare_scene(step) }`).
