@@ -570,9 +570,13 @@ pub fn rendered(
             .max_by(|a, b| error(a).total_cmp(&error(b)))
             .filter(|_| variance > 0.0)
         {
+            let k = most.events;
             let which = match most.from_light {
-                Some(s) => format!("{} events, {s} from the light", most.events),
-                None => format!("{} or more events", most.events),
+                Some(s) => format!(
+                    "{k} event{}, {s} from the light",
+                    if k == 1 { "" } else { "s" }
+                ),
+                None => format!("{k} or more events"),
             };
             summary.push(format!(
                 "  most of the variance: {which} ({:.0} %)",
