@@ -59,6 +59,24 @@ def test_render_takes_several_volumes_from_a_dict(repo):
         lp.render(scene, samples=100)
 
 
+def test_a_bidirectional_render_splits_each_cameras_total_by_strategy(repo):
+    # the glass ball over its floor, lit from above: every path the camera sees scatters at least
+    # once (in the ball or on the floor), so the strategies' parts sum to its irradiance
+    scene = read_toml(repo / "configs" / "render_glass.toml")
+    scene["light"]["position"] = [0.0, 0.0, 2.0]
+    camera = lp.render(scene, samples=2000, seed=3, threads=2).result["cameras"][0]
+    parts = camera["strategies"]
+    assert [(p["events"], p.get("from_light")) for p in parts[:3]] == [(1, 0), (1, 1), (2, 0)]
+    assert len(parts) == 15 and parts[-1]["events"] == 5 and "from_light" not in parts[-1]
+    total = sum(p["irradiance"]["mean"] for p in parts)
+    assert total == pytest.approx(camera["irradiance"]["mean"], rel=1e-9)
+    assert all(p["irradiance"]["stderr"] >= 0 for p in parts)
+    # particle tracing makes every path one way: no split
+    scene["render"]["estimator"] = "particle"
+    camera = lp.render(scene, samples=500, seed=3, threads=2).result["cameras"][0]
+    assert "strategies" not in camera
+
+
 def test_render_vjp_differentiates_each_volumes_medium(repo):
     # the example's three volumes, the view's left half a window (an output of its own)
     scene = read_toml(repo / "configs" / "render_volumes.toml")
