@@ -70,7 +70,9 @@ def test_a_bidirectional_render_splits_each_cameras_total_by_strategy(repo):
     assert len(parts) == 15 and parts[-1]["events"] == 5 and "from_light" not in parts[-1]
     total = sum(p["irradiance"]["mean"] for p in parts)
     assert total == pytest.approx(camera["irradiance"]["mean"], rel=1e-9)
-    assert all(p["irradiance"]["stderr"] >= 0 for p in parts)
+    # a one-event path is made both ways here: the lamp joined to a camera event, a lamp event
+    # seen by the camera
+    assert parts[0]["irradiance"]["mean"] > 0 and parts[1]["irradiance"]["mean"] > 0
     # particle tracing makes every path one way: no split
     scene["render"]["estimator"] = "particle"
     camera = lp.render(scene, samples=500, seed=3, threads=2).result["cameras"][0]

@@ -339,6 +339,11 @@ pub fn rendered(
         mean: e.mean[i].re,
         stderr: e.stderr[i],
     };
+    // output `i` times `scale` (an orthographic camera's pixel area turns its total into intensity)
+    let scaled = |i: usize, scale: f64| Measured {
+        mean: e.mean[i].re * scale,
+        stderr: e.stderr[i] * scale,
+    };
     let bins = scene.bins();
     let mut images = Vec::new();
     let mut sensors = Vec::new();
@@ -488,12 +493,7 @@ pub fn rendered(
             image.signed = true;
             names.extend(image.exr_names());
             images.push(image);
-            let total = measured(layout.total());
-            let total = Measured {
-                mean: total.mean * scale,
-                stderr: total.stderr * scale,
-            };
-            derivatives.insert(p.name(), total);
+            derivatives.insert(p.name(), scaled(layout.total(), scale));
         }
         (names, derivatives)
     };
@@ -505,17 +505,10 @@ pub fn rendered(
                    summary: &mut Vec<String>|
      -> Vec<WindowRecord> {
         let height = scene.camera_pixels(i)[1];
-        let scaled = |k: usize| {
-            let m = measured(k);
-            Measured {
-                mean: m.mean * scale,
-                stderr: m.stderr * scale,
-            }
-        };
         let windows = scene.camera_windows(i).iter().enumerate();
         windows
             .map(|(k, w)| {
-                let sum = scaled(est.window_total(i, k));
+                let sum = scaled(est.window_total(i, k), scale);
                 summary.push(format!(
                     "  window {} {:.4e} ± {:.1e}",
                     w.name, sum.mean, sum.stderr
@@ -530,7 +523,7 @@ pub fn rendered(
                         .derivatives
                         .iter()
                         .enumerate()
-                        .map(|(j, p)| (p.name(), scaled(est.window_derivative(i, k, j))))
+                        .map(|(j, p)| (p.name(), scaled(est.window_derivative(i, k, j), scale)))
                         .collect(),
                 }
             })
@@ -550,11 +543,7 @@ pub fn rendered(
         let records: Vec<StrategyRecord> = events
             .chain([(STRATEGY_EVENTS + 1, None)])
             .map(|(k, s)| {
-                let m = measured(est.strategy_total(i, k, s.unwrap_or(0)));
-                let total = Measured {
-                    mean: m.mean * scale,
-                    stderr: m.stderr * scale,
-                };
+                let total = scaled(est.strategy_total(i, k, s.unwrap_or(0)), scale);
                 StrategyRecord {
                     events: k,
                     from_light: s,
