@@ -47,7 +47,7 @@
 //! What no strategy makes: paths on which every segment reflects at the surface, or refracts
 //! there, more often than a connection does (with an index-matched surface there are none).
 
-use super::connect::{Aim, MAX_AGAIN};
+use super::connect::{Aim, InsidePath, MAX_AGAIN};
 use super::particle::{Leg, MAX_EVENTS, ParticleTracer, Reflections, Stop, Tools, Way, roulette};
 use super::scene::{Connections, Light, PartLengths, Rays, Volume};
 use crate::eikonal::Ray;
@@ -120,6 +120,10 @@ struct Segment {
     cos_end: f64,
     /// Whether a connection can make it.
     connectible: bool,
+    /// Where it is one flight between two events inside the volume meeting no surface, and the
+    /// camera subpaths draw such flights from a beam's tube ([`super::beam_tube`]): the factor the
+    /// tube's mixture gives the density of its end from the camera's side (1 elsewhere).
+    forced: f64,
 }
 
 impl Segment {
@@ -136,7 +140,13 @@ impl Segment {
             cos_start: 1.0,
             cos_end: 1.0,
             connectible,
+            forced: 1.0,
         }
+    }
+
+    /// The segment with the tube's factor of the density of its end from the camera's side.
+    fn with_forced(self, forced: f64) -> Self {
+        Segment { forced, ..self }
     }
 
     /// The segment with the cosines at its ends.
@@ -350,7 +360,8 @@ impl Joined<'_> {
         start * segment.g * segment.cos_end
     }
 
-    /// The density of `v_i` traced from the camera.
+    /// The density of `v_i` traced from the camera (a flight from an event inside drawn from
+    /// the beam's tube where there is one).
     fn backward(&self, i: usize) -> f64 {
         let start = if i == self.k() {
             self.camera_pdf
@@ -358,7 +369,7 @@ impl Joined<'_> {
             self.rho(i + 1, false)
         };
         let segment = self.segment(i);
-        start * segment.g * segment.cos_start
+        start * segment.g * segment.forced * segment.cos_start
     }
 
     /// Whether strategy `j` (connecting segment `j`) can make the path.
@@ -656,6 +667,13 @@ impl ParticleTracer<'_> {
                 }
                 let transmittance = self.path_transmittance(t, z.x, &path, rng);
                 let n_y = t.flyer.n(y.x);
+                // the camera's density of y where its flights from z draw from the tube
+                let forced = match (&self.tube, &path) {
+                    (Some(tube), InsidePath::Within(c, 0)) => {
+                        tube.factor_along(t, z.x, c.direction, c.length).0
+                    }
+                    _ => 1.0,
+                };
                 Some(Joint {
                     leave_y: -path.arrival().1,
                     leave_z: path.direction(),
@@ -669,7 +687,8 @@ impl ParticleTracer<'_> {
                         path.outside(),
                         Rays::Spreading,
                         true,
-                    ),
+                    )
+                    .with_forced(forced),
                 })
             }
             (None, Some(facing), Way::Bounces(bounces)) => {
@@ -907,7 +926,20 @@ impl ParticleTracer<'_> {
                 }
                 Leg::Inside(ray) => ray,
             };
-            let (stop, travelled) = t.next_event(ray, rng);
+            // one flight on from an event inside: a camera subpath's is drawn from the tube
+            let tube = self.tube.as_ref();
+            let direct = tube.filter(|_| !vertices.is_empty() && began_inside && met.all == 0);
+            let (stop, travelled, mut forced) = match direct {
+                Some(tube) if !start.photon => {
+                    let (stop, travelled, factor) = tube.flight(t, ray, rng);
+                    beta /= factor;
+                    (stop, travelled, factor)
+                }
+                _ => {
+                    let (stop, travelled) = t.next_event(ray, rng);
+                    (stop, travelled, 1.0)
+                }
+            };
             steps += travelled.steps;
             opl += travelled.opl;
             inside.add(volume.part_index(ray.x), travelled.length);
@@ -916,6 +948,11 @@ impl ParticleTracer<'_> {
                     beta *= volume.albedo_at(hit.x);
                     let first = vertices.is_empty();
                     let u = hit.v.normalize();
+                    if let (Some(tube), true) = (direct, start.photon) {
+                        // as a camera subpath would have drawn the event before from this one
+                        let (factor, k) = tube.factor_along(t, hit.x, -u, inside.total());
+                        (forced, steps) = (factor, steps + k);
+                    }
                     let ends_in = Some(t.connector.part_of(hit.x));
                     // out of one part into another, or in a part that is not convex
                     let between = match (began_in, ends_in) {
@@ -930,7 +967,8 @@ impl ParticleTracer<'_> {
                         if first { start.rays } else { Rays::Spreading },
                         met.connectible(made, between, most_bounces, matched)
                             && reached(first, hit.x),
-                    );
+                    )
+                    .with_forced(forced);
                     vertices.push(Vertex {
                         x: hit.x,
                         arrive: u,
@@ -1082,6 +1120,11 @@ mod tests {
                     cos_start: 1.0,
                     cos_end: 1.0,
                     connectible: uniform(&mut rng) < 0.7,
+                    forced: if uniform(&mut rng) < 0.3 {
+                        0.5 + 100.0 * uniform(&mut rng)
+                    } else {
+                        1.0
+                    },
                 })
                 .collect();
             let light_pdf = if case % 3 == 0 {
@@ -1127,7 +1170,8 @@ mod tests {
     /// The same on paths laid out in space with events on surfaces (lit on the side facing both
     /// neighbours), whose densities of leaving differ by direction (`cos θ / π`) and which take
     /// `|cos θ|` per unit area: every split of the path must see the same densities, the
-    /// camera's subpath reversed.
+    /// camera's subpath reversed; and some flights between events inside drawn, from the
+    /// camera's side, from a beam's tube (a factor on the density from that side).
     #[test]
     fn weights_sum_to_one_with_surface_events() {
         let mut rng = stream_rng(11, 0);
@@ -1161,6 +1205,17 @@ mod tests {
                 })
                 .collect();
             let connectible: Vec<bool> = (0..=k).map(|_| uniform(&mut rng) < 0.8).collect();
+            // flights between two events inside, which a camera subpath draws from the tube
+            let forced: Vec<f64> = (0..=k)
+                .map(|c| {
+                    let inside = c > 0 && c < k && facing[c].is_none() && facing[c + 1].is_none();
+                    if inside && uniform(&mut rng) < 0.7 {
+                        0.5 + 100.0 * uniform(&mut rng)
+                    } else {
+                        1.0
+                    }
+                })
+                .collect();
             // the density of leaving v_i towards v_j having arrived from v_h
             let pdf = |h: usize, i: usize, j: usize| match facing[i] {
                 Some(n) => lambert(n, dir(i, j)),
@@ -1175,6 +1230,7 @@ mod tests {
                     cos_start: cos(facing[i]),
                     cos_end: cos(facing[j]),
                     connectible: connectible[c],
+                    forced: forced[c],
                 }
             };
             let vertex = |i: usize, from: usize, to: usize, last: bool, c: usize| Vertex {

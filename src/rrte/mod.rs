@@ -19,6 +19,7 @@
 //!   parameters in closed form, the index field's through the boundary-value problem);
 //! - [`spectrum`]: dispersive indices (Cauchy, Sellmeier, mixtures), wavelengths and colour.
 
+mod beam_tube;
 pub mod bidirectional;
 pub mod connect;
 mod connection_slopes;

@@ -15,6 +15,7 @@
 //! probes and cameras carry the tube's exact cross-section (see [`super::connect`]), which is what
 //! the conservation of basic radiance `L/n²` of the RRTE expresses.
 
+use super::beam_tube::BeamTube;
 use super::bidirectional::Subpaths;
 use super::connect::{Aim, Bounces, Connector, Exit, InsidePath, Sampled};
 use super::connection_slopes::{ShiftedFields, Vertex, emitted};
@@ -250,7 +251,7 @@ pub(super) struct Travelled {
 }
 
 impl Travelled {
-    fn add(&mut self, t: &Tools, part: usize, optical_path: f64, length: f64) {
+    pub(super) fn add(&mut self, t: &Tools, part: usize, optical_path: f64, length: f64) {
         self.opl += t.delay.inside(part, optical_path, length);
         self.length += length;
     }
@@ -373,6 +374,9 @@ pub struct ParticleTracer<'s> {
     strategies: usize,
     /// Outputs in all.
     outputs: usize,
+    /// Bidirectional tracing's beam tube, where its camera subpaths' flights from events draw
+    /// collisions (a collimated beam in a volume without a density).
+    pub(super) tube: Option<BeamTube>,
 }
 
 impl<'s> ParticleTracer<'s> {
@@ -463,6 +467,12 @@ impl<'s> ParticleTracer<'s> {
         ParticleTracer {
             scene,
             tools: Tools::new(&scene.volume, scene, [1.0; 3], Delay::NONE),
+            tube: (scene.tracing == Tracing::Bidirectional && scene.volume.density.is_none())
+                .then(|| {
+                    let flyer = Flyer::new(&scene.volume, scene.step, scene.max_steps);
+                    BeamTube::trace(&scene.light, &flyer)
+                })
+                .flatten(),
             images,
             probes,
             surface_offset,
@@ -1243,6 +1253,13 @@ impl<'s> ParticleTracer<'s> {
             }
         };
         (entry, self.scene.surface_hit(x, d))
+    }
+
+    /// The same tracer with bidirectional tracing's camera subpaths flying freely, never
+    /// drawing their collisions in a beam's tube (to measure what those draws save).
+    pub fn without_beam_tube(mut self) -> Self {
+        self.tube = None;
+        self
     }
 
     /// Trace one photon, adding its contributions to `out`.

@@ -1,0 +1,449 @@
+//! The tube a collimated beam fills inside the volume, and the free flights of bidirectional
+//! tracing's camera subpaths that draw their collision in it.
+//!
+//! In a weakly scattering medium a camera subpath's flight lands in a thin beam only now and
+//! then (with chance `σ_t` times the chord), so the paths that scatter twice — in the beam, then
+//! on the camera's line of sight — are made mostly by joining a light event in the beam to a
+//! camera event, and the phase function's forward peak at the camera event makes the few joins
+//! that land behind it carry much. So a flight from a camera event inside the volume draws its
+//! collision from a mixture: a free flight with chance [`FREE_SHARE`], else a point uniformly on
+//! the first stretch where its ray runs through the beam's tube (the forced collisions of
+//! Monte Carlo transport, aimed at the beam). The flight's weight divides by the mixture's
+//! density, so the estimate stays unbiased for any tube; the balance heuristic's densities of
+//! an event from the camera's side take the mixture too, along the curved ray between the
+//! events however the segment was made ([`BeamTube::factor_along`]).
+
+use super::flight::{Flight, Flyer};
+use super::particle::{Stop, Tools, Travelled};
+use super::scene::Light;
+use crate::eikonal::Ray;
+use crate::eikonal::trace::{entry_parameter, refract};
+use crate::math::{Rng, uniform};
+use glam::DVec3;
+
+/// The chance that a camera subpath's flight through the beam's tube is a plain free flight;
+/// otherwise its collision is drawn uniformly on the tube's first stretch.
+pub(super) const FREE_SHARE: f64 = 0.5;
+
+/// The most pieces of the tube's polyline.
+const MAX_PIECES: usize = 64;
+
+/// The beam's central ray inside the volume, as a polyline of few corners (within a tenth of
+/// the radius of the ray), widened by the beam's radius: the region the beam's unscattered light
+/// fills (up to the spread of its rays in a graded index).
+#[derive(Clone, Debug)]
+pub struct BeamTube {
+    corners: Vec<DVec3>,
+    radius: f64,
+    /// The tube's bounding box, for a quick miss.
+    lo: DVec3,
+    hi: DVec3,
+}
+
+impl BeamTube {
+    /// The tube of a collimated beam of non-zero radius through the volume `flyer` flies in:
+    /// its central ray refracted in where it meets the surface, and flown on to the surface
+    /// (along curved rays in a graded index). `None` for other lights, or a beam that misses
+    /// the volume.
+    pub fn trace(light: &Light, flyer: &Flyer) -> Option<Self> {
+        let Light::Beam {
+            center,
+            direction,
+            radius,
+        } = *light
+        else {
+            return None;
+        };
+        if radius <= 0.0 {
+            return None;
+        }
+        let field = &flyer.volume.field;
+        let (t0, _) = field
+            .bounds
+            .interval(center, direction)
+            .filter(|&(t0, t1)| t1 > 0.0 && t0 >= 0.0)?;
+        let at = center + direction * t0;
+        let inside = center + direction * entry_parameter(t0);
+        let n_in = flyer.n(inside);
+        let normal = field.bounds.normal(at).unwrap_or(-direction);
+        let w = refract(direction, normal, field.n_out / n_in).ok()?;
+        let mut points = vec![inside];
+        let ray = Ray {
+            x: inside,
+            v: w * n_in,
+        };
+        flyer.fly_visiting(ray, f64::INFINITY, |_, to| points.push(to));
+        // at most MAX_PIECES pieces: a coarser polyline where the ray curves much
+        let mut tolerance = 0.1 * radius;
+        let mut corners = simplify(&points, tolerance);
+        while corners.len() > MAX_PIECES + 1 {
+            tolerance *= 2.0;
+            corners = simplify(&points, tolerance);
+        }
+        let (mut lo, mut hi) = (corners[0], corners[0]);
+        for &c in &corners {
+            lo = lo.min(c);
+            hi = hi.max(c);
+        }
+        Some(BeamTube {
+            corners,
+            radius,
+            lo: lo - DVec3::splat(radius),
+            hi: hi + DVec3::splat(radius),
+        })
+    }
+
+    /// The first stretch `[a, b]` of the segment `p + t d`, `0 ≤ t ≤ length` (unit `d`), that
+    /// runs inside the tube.
+    pub fn first_stretch(&self, p: DVec3, d: DVec3, length: f64) -> Option<(f64, f64)> {
+        if !box_meets(self.lo, self.hi, p, d, length) {
+            return None;
+        }
+        // the capsules about each piece of the polyline: the first stretch is the earliest
+        // interval with every interval overlapping it merged in
+        let mut pieces = [(0.0, 0.0); MAX_PIECES];
+        let mut count = 0;
+        for pair in self.corners.windows(2) {
+            let Some((a, b)) = capsule(pair[0], pair[1], self.radius, p, d) else {
+                continue;
+            };
+            let (a, b) = (a.max(0.0), b.min(length));
+            if a < b {
+                pieces[count] = (a, b);
+                count += 1;
+            }
+        }
+        let pieces = &mut pieces[..count];
+        pieces.sort_by(|x, y| x.0.total_cmp(&y.0));
+        let mut first: Option<(f64, f64)> = None;
+        for &(a, b) in pieces.iter() {
+            match &mut first {
+                None => first = Some((a, b)),
+                Some(f) if a <= f.1 => f.1 = f.1.max(b),
+                Some(_) => break,
+            }
+        }
+        first
+    }
+
+    /// The ray flown to the surface (its steps), and the first stretch `[a, b]` of it, in
+    /// geometric length from its start, that runs through the tube.
+    fn flown(&self, t: &Tools, ray: Ray) -> (Flight, usize, Option<(f64, f64)>) {
+        let (mut along, mut stretch, mut open) = (0.0, None::<(f64, f64)>, true);
+        let (flight, steps) = t.flyer.fly_visiting(ray, f64::INFINITY, |from, to| {
+            let v = to - from;
+            let length = v.length();
+            if open && length > 0.0 {
+                match (self.first_stretch(from, v / length, length), &mut stretch) {
+                    (Some((a, b)), None) => stretch = Some((along + a, along + b)),
+                    // the stretch runs on from the chord before
+                    (Some((a, b)), Some(s)) if a <= 1e-9 * length => s.1 = along + b,
+                    (_, Some(_)) => open = false,
+                    (None, None) => {}
+                }
+                if let Some((_, b)) = stretch {
+                    open &= b >= along + length * (1.0 - 1e-9);
+                }
+            }
+            along += length;
+        });
+        let stretch = match flight {
+            Flight::Boundary { length: exit, .. } => stretch
+                .map(|(a, b)| (a, b.min(exit)))
+                .filter(|(a, b)| a < b),
+            _ => None,
+        };
+        (flight, steps, stretch)
+    }
+
+    /// A camera subpath's flight from its event inside a homogeneous volume along `ray`: the ray
+    /// flown to the surface and its first stretch through the tube found, then the collision
+    /// drawn from the mixture (a free flight with chance [`FREE_SHARE`], else uniformly on the
+    /// stretch; a free flight alone where the ray misses the tube) and the ray flown to it again.
+    /// Where it stopped, how far, and the factor the subpath's weight is divided by (the
+    /// mixture's density over the free flight's, [`Self::mixture_over_free`]), which the
+    /// balance heuristic's density of the collision from the camera's side takes too.
+    pub(super) fn flight(&self, t: &Tools, ray: Ray, rng: &mut Rng) -> (Stop, Travelled, f64) {
+        let volume = t.flyer.volume;
+        let part = volume.part_index(ray.x).unwrap_or(0);
+        let sigma_t = volume.sigma_t_at(ray.x);
+        let (flight, steps, stretch) = self.flown(t, ray);
+        let stretch = stretch.filter(|_| sigma_t > 0.0);
+        let mut travelled = Travelled {
+            steps,
+            ..Travelled::default()
+        };
+        let Flight::Boundary {
+            ray: end,
+            optical_path,
+            length: exit,
+        } = flight
+        else {
+            return (Stop::Stuck, travelled, 1.0);
+        };
+        let s = match stretch {
+            Some((a, b)) if uniform(rng) >= FREE_SHARE => a + (b - a) * uniform(rng),
+            _ if sigma_t > 0.0 => -(1.0 - uniform(rng)).ln() / sigma_t,
+            _ => f64::INFINITY,
+        };
+        if s < exit {
+            let (again, steps) = t.flyer.fly(ray, s);
+            travelled.steps += steps;
+            if let Flight::Collision {
+                ray: hit,
+                optical_path,
+                length,
+            } = again
+            {
+                travelled.add(t, part, optical_path, length);
+                let factor = Self::mixture_over_free(stretch, s, sigma_t, true);
+                return (Stop::Collision(hit), travelled, factor);
+            }
+        }
+        travelled.add(t, part, optical_path, exit);
+        let factor = Self::mixture_over_free(stretch, exit, sigma_t, false);
+        (Stop::Boundary(end), travelled, factor)
+    }
+
+    /// The factor [`Self::flight`] gives a collision `length` along the ray from `x` inside the
+    /// volume along unit `d` (a segment between two events made some other way, as a camera
+    /// subpath would have drawn it), and the leapfrog steps that took.
+    pub(super) fn factor_along(&self, t: &Tools, x: DVec3, d: DVec3, length: f64) -> (f64, usize) {
+        let sigma_t = t.flyer.volume.sigma_t_at(x);
+        if sigma_t <= 0.0 {
+            return (1.0, 0);
+        }
+        let ray = Ray {
+            x,
+            v: d * t.flyer.n(x),
+        };
+        let (_, steps, stretch) = self.flown(t, ray);
+        (
+            Self::mixture_over_free(stretch, length, sigma_t, true),
+            steps,
+        )
+    }
+
+    /// The flight's own mixture at its collision `s` along its ray (whose first stretch through
+    /// the tube is `stretch`), over the free flight's density `σ_t e^{−σ_t s}` there: the factor
+    /// its weight is divided by. At the surface (`s` the exit, `collided` false) the chance of
+    /// reaching it, over `e^{−σ_t s}`.
+    pub fn mixture_over_free(
+        stretch: Option<(f64, f64)>,
+        s: f64,
+        sigma_t: f64,
+        collided: bool,
+    ) -> f64 {
+        let Some((a, b)) = stretch else {
+            return 1.0;
+        };
+        if !collided {
+            return FREE_SHARE;
+        }
+        let free = sigma_t * (-sigma_t * s).exp();
+        let forced = if a <= s && s <= b { 1.0 / (b - a) } else { 0.0 };
+        FREE_SHARE + (1.0 - FREE_SHARE) * forced / free
+    }
+}
+
+/// Ramer–Douglas–Peucker: the corners of `points` that keep the polyline within `tolerance`.
+fn simplify(points: &[DVec3], tolerance: f64) -> Vec<DVec3> {
+    let mut keep = vec![false; points.len()];
+    keep[0] = true;
+    keep[points.len() - 1] = true;
+    let mut stack = vec![(0, points.len() - 1)];
+    while let Some((i, j)) = stack.pop() {
+        if j <= i + 1 {
+            continue;
+        }
+        let (a, b) = (points[i], points[j]);
+        let (far, distance) = (i + 1..j)
+            .map(|k| (k, distance_to_segment(points[k], a, b)))
+            .fold((i, 0.0), |m, c| if c.1 > m.1 { c } else { m });
+        if distance > tolerance {
+            keep[far] = true;
+            stack.push((i, far));
+            stack.push((far, j));
+        }
+    }
+    points
+        .iter()
+        .zip(keep)
+        .filter_map(|(p, k)| k.then_some(*p))
+        .collect()
+}
+
+fn distance_to_segment(p: DVec3, a: DVec3, b: DVec3) -> f64 {
+    let ab = b - a;
+    let t = ((p - a).dot(ab) / ab.length_squared().max(f64::MIN_POSITIVE)).clamp(0.0, 1.0);
+    (p - a - ab * t).length()
+}
+
+/// Whether the segment `p + t d`, `0 ≤ t ≤ length`, meets the box `[lo, hi]` (slabs).
+fn box_meets(lo: DVec3, hi: DVec3, p: DVec3, d: DVec3, length: f64) -> bool {
+    let (mut t0, mut t1) = (0.0f64, length);
+    for k in 0..3 {
+        if d[k].abs() < 1e-300 {
+            if p[k] < lo[k] || p[k] > hi[k] {
+                return false;
+            }
+            continue;
+        }
+        let (a, b) = ((lo[k] - p[k]) / d[k], (hi[k] - p[k]) / d[k]);
+        t0 = t0.max(a.min(b));
+        t1 = t1.min(a.max(b));
+        if t0 > t1 {
+            return false;
+        }
+    }
+    true
+}
+
+/// The interval of the line `p + t d` (unit `d`) within `radius` of the segment `a b`: the
+/// capsule is convex, so the interval is the hull of those of its cylinder and its two balls.
+fn capsule(a: DVec3, b: DVec3, radius: f64, p: DVec3, d: DVec3) -> Option<(f64, f64)> {
+    let mut hull: Option<(f64, f64)> = None;
+    let mut add = |i: Option<(f64, f64)>| {
+        if let Some((x, y)) = i {
+            hull = Some(hull.map_or((x, y), |(u, v)| (u.min(x), v.max(y))));
+        }
+    };
+    add(ball(a, radius, p, d));
+    add(ball(b, radius, p, d));
+    // the cylinder between the two end planes
+    let axis = b - a;
+    let length = axis.length();
+    if length > 0.0 {
+        let u = axis / length;
+        let (q, e) = (p - a, d - u * d.dot(u));
+        let m = q - u * q.dot(u);
+        let (qa, qb, qc) = (e.dot(e), 2.0 * e.dot(m), m.dot(m) - radius * radius);
+        if qa > 1e-300 {
+            let disc = qb * qb - 4.0 * qa * qc;
+            if disc >= 0.0 {
+                let root = disc.sqrt();
+                let (t0, t1) = ((-qb - root) / (2.0 * qa), (-qb + root) / (2.0 * qa));
+                // clipped to the slab 0 ≤ (x − a)·u ≤ length
+                let (s0, sd) = (q.dot(u), d.dot(u));
+                let (mut lo, mut hi) = (t0, t1);
+                if sd.abs() > 1e-300 {
+                    let (c0, c1) = (-s0 / sd, (length - s0) / sd);
+                    lo = lo.max(c0.min(c1));
+                    hi = hi.min(c0.max(c1));
+                } else if s0 < 0.0 || s0 > length {
+                    lo = hi;
+                }
+                if lo < hi {
+                    add(Some((lo, hi)));
+                }
+            }
+        }
+    }
+    hull
+}
+
+/// The interval of the line `p + t d` (unit `d`) inside the ball about `c`.
+fn ball(c: DVec3, radius: f64, p: DVec3, d: DVec3) -> Option<(f64, f64)> {
+    let q = p - c;
+    let b = q.dot(d);
+    let disc = b * b - (q.length_squared() - radius * radius);
+    (disc > 0.0).then(|| (-b - disc.sqrt(), -b + disc.sqrt()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::math::{Rng, stream_rng, uniform, uniform_sphere};
+
+    /// The first stretch through a tube of two pieces agrees with points sampled along the
+    /// line: inside the tube exactly between its ends, outside just before and after.
+    #[test]
+    fn the_first_stretch_is_where_the_line_runs_inside_the_tube() {
+        let tube = BeamTube {
+            corners: vec![
+                DVec3::new(0.0, 0.0, -2.0),
+                DVec3::new(0.0, 0.0, 0.0),
+                DVec3::new(0.0, 0.5, 2.0),
+            ],
+            radius: 0.3,
+            lo: DVec3::splat(-3.0),
+            hi: DVec3::splat(3.0),
+        };
+        let inside = |x: DVec3| {
+            tube.corners
+                .windows(2)
+                .any(|w| distance_to_segment(x, w[0], w[1]) < tube.radius)
+        };
+        let mut rng: Rng = stream_rng(7, 0);
+        let mut met = 0;
+        for _ in 0..2000 {
+            let p = DVec3::new(
+                4.0 * uniform(&mut rng) - 2.0,
+                4.0 * uniform(&mut rng) - 2.0,
+                4.0 * uniform(&mut rng) - 2.0,
+            );
+            let d = uniform_sphere(uniform(&mut rng), uniform(&mut rng));
+            let Some((a, b)) = tube.first_stretch(p, d, 5.0) else {
+                // no point of the segment inside
+                assert!((0..=500).all(|k| !inside(p + d * (k as f64 * 0.01))));
+                continue;
+            };
+            met += 1;
+            assert!(a < b);
+            assert!((0..=20).all(|k| inside(p + d * (a + (b - a) * (k as f64 + 0.5) / 21.0))));
+            if a > 1e-6 {
+                assert!(!inside(p + d * (a - 1e-6)));
+                assert!((0..100).all(|k| !inside(p + d * (a * k as f64 / 100.0))));
+            }
+            if b < 5.0 - 1e-6 {
+                assert!(!inside(p + d * (b + 1e-6)), "{p} {d} {a} {b}");
+            }
+        }
+        assert!(met > 100, "{met}");
+    }
+
+    /// The flight's mixture: collisions drawn from it and weighted by `1 / mixture_over_free`
+    /// tally the free flight's collision density `σ_t e^{−σ_t s}` in every bin along the ray
+    /// (inside the stretch and outside it), and the surface's chance `e^{−σ_t S}`.
+    #[test]
+    fn the_mixtures_weights_give_the_free_flights_densities() {
+        let (sigma_t, exit, stretch) = (0.3, 4.0, Some((1.5, 1.7)));
+        let mut rng: Rng = stream_rng(3, 0);
+        let n = 400_000;
+        let bins = 20;
+        // per bin (the last: the surface), the weights' sum and sum of squares
+        let mut tally = vec![(0.0, 0.0); bins + 1];
+        for _ in 0..n {
+            let s = if uniform(&mut rng) < FREE_SHARE {
+                -(1.0 - uniform(&mut rng)).ln() / sigma_t
+            } else {
+                1.5 + 0.2 * uniform(&mut rng)
+            };
+            let (bin, w) = if s < exit {
+                let w = 1.0 / BeamTube::mixture_over_free(stretch, s, sigma_t, true);
+                (((s / exit) * bins as f64) as usize, w)
+            } else {
+                let w = 1.0 / BeamTube::mixture_over_free(stretch, exit, sigma_t, false);
+                (bins, w)
+            };
+            tally[bin].0 += w;
+            tally[bin].1 += w * w;
+        }
+        let width = exit / bins as f64;
+        for (k, &(sum, squares)) in tally.iter().enumerate() {
+            let (s0, s1) = (k as f64 * width, (k + 1) as f64 * width);
+            let want = if k < bins {
+                (-sigma_t * s0).exp() - (-sigma_t * s1).exp()
+            } else {
+                (-sigma_t * exit).exp()
+            };
+            let mean = sum / n as f64;
+            let error = ((squares / n as f64 - mean * mean) / n as f64).sqrt();
+            assert!(error < 0.03 * want, "bin {k}: error {error} of {want}");
+            assert!(
+                (mean - want).abs() < 4.0 * error,
+                "bin {k}: {mean} ± {error} vs {want}"
+            );
+        }
+    }
+}
