@@ -16,8 +16,8 @@
 use super::flight::{Flight, Flyer};
 use super::particle::{Stop, Tools, Travelled};
 use super::scene::Light;
-use crate::eikonal::Ray;
 use crate::eikonal::trace::{entry_parameter, refract};
+use crate::eikonal::{Bounds, Ray};
 use crate::math::{Rng, uniform};
 use glam::DVec3;
 
@@ -279,24 +279,12 @@ fn distance_to_segment(p: DVec3, a: DVec3, b: DVec3) -> f64 {
     (p - a - ab * t).length()
 }
 
-/// Whether the segment `p + t d`, `0 ≤ t ≤ length`, meets the box `[lo, hi]` (slabs).
+/// Whether the segment `p + t d`, `0 ≤ t ≤ length`, meets the box `[lo, hi]`.
 fn box_meets(lo: DVec3, hi: DVec3, p: DVec3, d: DVec3, length: f64) -> bool {
-    let (mut t0, mut t1) = (0.0f64, length);
-    for k in 0..3 {
-        if d[k].abs() < 1e-300 {
-            if p[k] < lo[k] || p[k] > hi[k] {
-                return false;
-            }
-            continue;
-        }
-        let (a, b) = ((lo[k] - p[k]) / d[k], (hi[k] - p[k]) / d[k]);
-        t0 = t0.max(a.min(b));
-        t1 = t1.min(a.max(b));
-        if t0 > t1 {
-            return false;
-        }
-    }
-    true
+    let (centre, half) = ((lo + hi) * 0.5, (hi - lo) * 0.5);
+    Bounds::Box { half }
+        .interval(p - centre, d)
+        .is_some_and(|(t0, t1)| t0 <= length && t1 >= 0.0)
 }
 
 /// The interval of the line `p + t d` (unit `d`) within `radius` of the segment `a b`: the
@@ -344,10 +332,7 @@ fn capsule(a: DVec3, b: DVec3, radius: f64, p: DVec3, d: DVec3) -> Option<(f64, 
 
 /// The interval of the line `p + t d` (unit `d`) inside the ball about `c`.
 fn ball(c: DVec3, radius: f64, p: DVec3, d: DVec3) -> Option<(f64, f64)> {
-    let q = p - c;
-    let b = q.dot(d);
-    let disc = b * b - (q.length_squared() - radius * radius);
-    (disc > 0.0).then(|| (-b - disc.sqrt(), -b + disc.sqrt()))
+    Bounds::Sphere { radius }.interval(p - c, d)
 }
 
 #[cfg(test)]
