@@ -23,7 +23,7 @@ use glam::DVec3;
 
 /// The chance that a camera subpath's flight through the beam's tube is a plain free flight;
 /// otherwise its collision is drawn uniformly on the tube's first stretch.
-pub(super) const FREE_SHARE: f64 = 0.5;
+const FREE_SHARE: f64 = 0.5;
 
 /// The optical depth across a beam (its diameter times `σ_t` where it enters) below which the
 /// camera paths' flights draw from its tube: a free flight that crosses a thicker beam collides
@@ -38,7 +38,7 @@ const MAX_PIECES: usize = 64;
 /// the radius of the ray), widened by the beam's radius: the region the beam's unscattered light
 /// fills (up to the spread of its rays in a graded index).
 #[derive(Clone, Debug)]
-pub struct BeamTube {
+pub(super) struct BeamTube {
     corners: Vec<DVec3>,
     radius: f64,
     /// The tube's bounding box, for a quick miss.
@@ -51,7 +51,7 @@ impl BeamTube {
     /// its central ray refracted in where it meets the surface, and flown on to the surface
     /// (along curved rays in a graded index). `None` for other lights, a beam that misses the
     /// volume, or one that is not thin for the medium where it enters ([`THIN_BEAM_DEPTH`]).
-    pub fn trace(light: &Light, flyer: &Flyer) -> Option<Self> {
+    pub(super) fn trace(light: &Light, flyer: &Flyer) -> Option<Self> {
         let Light::Beam {
             center,
             direction,
@@ -104,7 +104,7 @@ impl BeamTube {
 
     /// The first stretch `[a, b]` of the segment `p + t d`, `0 ≤ t ≤ length` (unit `d`), that
     /// runs inside the tube.
-    pub fn first_stretch(&self, p: DVec3, d: DVec3, length: f64) -> Option<(f64, f64)> {
+    pub(super) fn first_stretch(&self, p: DVec3, d: DVec3, length: f64) -> Option<(f64, f64)> {
         if !box_meets(self.lo, self.hi, p, d, length) {
             return None;
         }
@@ -237,7 +237,7 @@ impl BeamTube {
     /// the tube is `stretch`), over the free flight's density `σ_t e^{−σ_t s}` there: the factor
     /// its weight is divided by. At the surface (`s` the exit, `collided` false) the chance of
     /// reaching it, over `e^{−σ_t s}`.
-    pub fn mixture_over_free(
+    pub(super) fn mixture_over_free(
         stretch: Option<(f64, f64)>,
         s: f64,
         sigma_t: f64,

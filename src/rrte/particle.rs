@@ -375,7 +375,7 @@ pub struct ParticleTracer<'s> {
     /// Outputs in all.
     outputs: usize,
     /// Bidirectional tracing's beam tube, where its camera subpaths' flights from events draw
-    /// collisions (a collimated beam in a volume without a density).
+    /// collisions (a collimated beam thin for its medium, in a volume without a density).
     pub(super) tube: Option<BeamTube>,
 }
 
