@@ -5,8 +5,9 @@ every run. A median over each run's own bright set can rise with more photons, a
 rare large contribution had lit join the set; over a fixed set it falls as 1/sqrt(photons) once
 every pixel's estimate has settled.
 
-    python3 converge.py RUN [RUN ...]     runs in out/, fewest photons first (camera "view"; of a colour image, its red channel as
-                                          render.json's noise figures)
+    python3 converge.py RUN [RUN ...]     runs in out/, fewest photons first (camera "view"; of a
+                                          colour image, its red channel as render.json's noise
+                                          figures); RUN+RUN pools runs made at different seeds
 """
 import json
 import math
@@ -93,15 +94,30 @@ if not runs:
     sys.exit(__doc__)
 images, photons = {}, {}
 for run in runs:
-    exr = read_exr(f"out/{run}/camera_view.exr")
-    # render.json's noise figures read the first channel: Y, or R of a colour image
-    channel, error = ("Y", "stderr") if "Y" in exr else ("R", "stderr.R")
-    images[run] = (exr[channel], exr[error])
-    photons[run] = json.load(open(f"out/{run}/render.json"))["samples"]
-fixed = bright(images[runs[-1]][0])
+    # runs at different seeds joined by "+" are pooled: each pixel's mean weighted by the
+    # photons, its variance of the mean likewise
+    total, sums, squares = 0, None, None
+    for part in run.split("+"):
+        exr = read_exr(f"out/{part}/camera_view.exr")
+        # render.json's noise figures read the first channel: Y, or R of a colour image
+        channel, error = ("Y", "stderr") if "Y" in exr else ("R", "stderr.R")
+        n = json.load(open(f"out/{part}/render.json"))["samples"]
+        y, e = exr[channel], exr[error]
+        if sums is None:
+            sums, squares = [0.0] * len(y), [0.0] * len(y)
+        sums = [a + n * v for a, v in zip(sums, y)]
+        squares = [a + (n * v) ** 2 for a, v in zip(squares, e)]
+        total += n
+    images[run] = ([v / total for v in sums], [math.sqrt(v) / total for v in squares])
+    photons[run] = total
+largest = images[runs[-1]][0]
+fixed = bright(largest)
+# the brightest pixels alone (along a beam, the beam itself)
+brightest = sorted(range(len(largest)), key=lambda i: -largest[i])[:48]
 print(f"fixed set: the {len(fixed)} bright pixels of {runs[-1]}")
-print("| run | photons | own bright set: pixels, median | fixed set: median, unlit | slope |")
-print("| --- | --- | --- | --- | --- |")
+print("| run | photons | own bright set: pixels, median | fixed set: median, unlit | slope "
+      "| 48 brightest: median |")
+print("| --- | --- | --- | --- | --- | --- |")
 previous = None
 for run in runs:
     y, s = images[run]
@@ -112,7 +128,7 @@ for run in runs:
         slope = f"{math.log(noise / previous[1]) / math.log(photons[run] / previous[0]):.2f}"
     unlit = sum(1 for i in fixed if y[i] <= 0)
     print(f"| {run} | {photons[run]} | {len(own)}, {median(relative(y, s, i) for i in own):.3f} "
-          f"| {noise:.3f}, {unlit} | {slope} |")
+          f"| {noise:.3f}, {unlit} | {slope} | {median(relative(y, s, i) for i in brightest):.3f} |")
     previous = (photons[run], noise)
 if len(runs) > 1:
     (ya, sa), (yb, sb) = images[runs[0]], images[runs[-1]]
