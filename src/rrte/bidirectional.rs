@@ -2,16 +2,16 @@
 //! and Guibas 1995 and Lafortune and Willems 1996): the same camera images as particle and path
 //! tracing, from every way of joining a subpath from the light to one from the camera.
 //!
-//! Each sample traces one subpath from the light (a photon: power after the albedo at each
-//! event) and, per camera, one from the camera (throughput in basic radiance), both with the free
-//! flights, Fresnel splits, phase-function sampling and diffuse surfaces of the other two
-//! tracers (under a thin collimated beam, a camera subpath's flights from its events draw half
-//! their collisions in the beam's tube: see `beam_tube`). A path of `k` scattering events
-//! `v_1 … v_k` (inside the volume or on a surface) can then be made `k + 1` ways: `s` events
-//! from the light and `t = k − s` from the camera, joined by a connection: the light to a camera event (`s = 0`, path tracing's next event), a light
-//! event to the camera (`t = 0`, particle tracing's), or a light event to a camera event (the
-//! light event seen as a point source of intensity `w ρ`, or `w cos θ / π` on a surface, the
-//! camera event as a point sensor). Between two events inside the volume the connection runs
+//! Each sample traces one subpath from the light (a photon: power after the albedo at each event)
+//! and, per camera, one from the camera (throughput in basic radiance), both with the free flights,
+//! Fresnel splits, phase-function sampling and diffuse surfaces of the other two tracers (under a
+//! thin collimated beam, a camera subpath's flights from its events draw half their collisions in
+//! the beam's tube: see `beam_tube`). A path of `k` scattering events `v_1 … v_k` (inside the
+//! volume or on a surface) can then be made `k + 1` ways: `s` events from the light and `t = k − s`
+//! from the camera, joined by a connection: the light to a camera event (`s = 0`, path tracing's
+//! next event), a light event to the camera (`t = 0`, particle tracing's), or a light event to a
+//! camera event (the light event seen as a point source of intensity `w ρ`, or `w cos θ / π` on a
+//! surface, the camera event as a point sensor). Between two events inside the volume the connection runs
 //! along curved rays (see [`super::connect`]), reflected inside the surface up to
 //! `render.reflections` times; between an event inside and one on a surface it
 //! leaves the volume through its surface, refracted once; between two surfaces it is straight,
