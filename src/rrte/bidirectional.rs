@@ -11,8 +11,8 @@
 //! from the camera, joined by a connection: the light to a camera event (`s = 0`, path tracing's
 //! next event), a light event to the camera (`t = 0`, particle tracing's), or a light event to a
 //! camera event (the light event seen as a point source of intensity `w ρ`, or `w cos θ / π` on a
-//! surface, the camera event as a point sensor). Between two events inside the volume the connection runs
-//! along curved rays (see [`super::connect`]), reflected inside the surface up to
+//! surface, the camera event as a point sensor). Between two events inside the volume the
+//! connection runs along curved rays (see [`super::connect`]), reflected inside the surface up to
 //! `render.reflections` times; between an event inside and one on a surface it
 //! leaves the volume through its surface, refracted once; between two surfaces it is straight,
 //! past the volume only where it is index-matched, runs across the volume, refracted in and
