@@ -13,7 +13,9 @@
 //! camera event (the light event seen as a point source of intensity `w ρ`, or `w cos θ / π` on a
 //! surface, the camera event as a point sensor). Between two events inside the volume the
 //! connection runs along curved rays (see [`super::connect`]), reflected inside the surface up to
-//! `render.reflections` times; between an event inside and one on a surface it
+//! `render.reflections` times (between two events in one of several volumes, also out of it and
+//! back in, having reflected inside another or, in a shape that is not convex, unreflected);
+//! between an event inside and one on a surface it
 //! leaves the volume through its surface, refracted once; between two surfaces it is straight,
 //! past the volume only where it is index-matched, runs across the volume, refracted in and
 //! out, or reflects off its outside. Leaving or across, it also crosses every part of a shape
@@ -169,6 +171,28 @@ impl Segment {
     }
 }
 
+/// The parts holding the two ends of a segment between two points inside a volume of several
+/// parts or a shape that is not convex, as far as a connection's reach needs them.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Ends {
+    /// Two parts (`from`, `to`).
+    Apart(usize, usize),
+    /// One part that is not convex.
+    Around(usize),
+    /// One convex part beside others.
+    Back(usize),
+}
+
+impl Ends {
+    /// The parts the segment starts and ends in.
+    fn parts(self) -> (usize, usize) {
+        match self {
+            Ends::Apart(from, to) => (from, to),
+            Ends::Around(k) | Ends::Back(k) => (k, k),
+        }
+    }
+}
+
 /// The surface events of a traced segment, as far as a connection's reach needs them.
 #[derive(Clone, Copy, Debug, Default)]
 struct Meetings {
@@ -225,15 +249,18 @@ impl Meetings {
     /// reflecting inside them too, `most_bounces` times in all, each stretch inside a part
     /// crossed one of [`MAX_AGAIN`] at most; it reflects nowhere outside; between two points
     /// inside one volume it only reflects
-    /// inside, as often; between points inside two of several volumes (`between`: their parts)
+    /// inside, as often; between points inside two of several volumes ([`Ends::Apart`])
     /// it leaves the one, crosses any other it meets (in and out) and enters the other,
     /// reflecting inside any of them `most_bounces` times in all, its stretches after the one it
     /// starts with (each part crossed one and one per reflection inside it, the end's part one
     /// and its reflections) [`MAX_AGAIN`] at most from either end (so the connection, which
     /// keeps to that, makes the same paths from either end); between two points in one part
-    /// that is not convex (`between` names it twice) it either stays within it, only reflecting
+    /// that is not convex ([`Ends::Around`]) it either stays within it, only reflecting
     /// inside, or leaves it, crosses any other part it meets and enters it again where it first
-    /// meets it, reflecting as between two parts; between two points
+    /// meets it, reflecting as between two parts; between two points in one convex part of
+    /// several ([`Ends::Back`]) likewise, but it comes back only having reflected, and fewer
+    /// times in the part before it leaves and after it comes back than in all (so that it
+    /// makes the same paths from either end); between two points
     /// outside it either never meets the surface (straight, also across an index-matched
     /// volume), refracts into and out of the parts it meets, reflecting inside them
     /// `most_bounces` times in all, with `1 + MAX_AGAIN` stretches inside at most, or only
@@ -243,18 +270,23 @@ impl Meetings {
     fn connectible(
         &self,
         (began_inside, ends_inside): (bool, bool),
-        between: Option<(usize, usize)>,
+        between: Option<Ends>,
         most_bounces: usize,
         matched: bool,
     ) -> bool {
         let refractions = self.all - self.bounces - self.glances;
-        if let Some((from, to)) = between {
+        if let Some(ends) = between {
+            let (from, to) = ends.parts();
             if from == to && !self.left {
                 return self.all == self.bounces && self.bounces <= most_bounces;
             }
+            let fewest_at_an_end = self.bounces_before_leaving.min(self.bounces_since_entry);
+            let most_at_an_end = self.bounces_before_leaving.max(self.bounces_since_entry);
+            if matches!(ends, Ends::Back(_)) && most_at_an_end >= self.bounces {
+                return false;
+            }
             // out of one part and into the other: two refractions more than the parts crossed
             let crossed = refractions.saturating_sub(2) / 2;
-            let fewest_at_an_end = self.bounces_before_leaving.min(self.bounces_since_entry);
             return ends_inside
                 && self.glances == 0
                 && self.bounces <= most_bounces
@@ -819,6 +851,7 @@ impl ParticleTracer<'_> {
         // reflections inside since the last vertex (see `MAX_REFLECTIONS`)
         let mut reflections = Reflections::default();
         let most_bounces = self.most_bounces(t);
+        let several = volume.field.bounds.parts().is_some_and(|p| p.len() > 1);
         let mut began_inside = volume.field.bounds.contains(start.x);
         // of several volumes, the one the segment began in (0 for a volume of one part)
         let mut began_in = Some(t.connector.part_of(start.x)).filter(|_| began_inside);
@@ -957,7 +990,9 @@ impl ParticleTracer<'_> {
                     let ends_in = Some(t.connector.part_of(hit.x));
                     // out of one part into another, or in a part that is not convex
                     let between = match (began_in, ends_in) {
-                        (Some(a), Some(b)) if a != b || t.connector.not_convex(b) => Some((a, b)),
+                        (Some(a), Some(b)) if a != b => Some(Ends::Apart(a, b)),
+                        (Some(a), Some(_)) if t.connector.not_convex(a) => Some(Ends::Around(a)),
+                        (Some(a), Some(_)) if several => Some(Ends::Back(a)),
                         _ => None,
                     };
                     let made = (began_inside, true);
@@ -1395,7 +1430,8 @@ mod tests {
     /// outside, or runs more stretches, is made by tracing alone.
     #[test]
     fn segments_between_two_volumes_are_connectible_as_the_connections_run() {
-        let between = |events: &str| met(events).connectible((true, true), Some((0, 1)), 2, false);
+        let between =
+            |events: &str| met(events).connectible((true, true), Some(Ends::Apart(0, 1)), 2, false);
         for events in [
             "LE1",
             "LE2LE1",
@@ -1422,5 +1458,47 @@ mod tests {
         ] {
             assert!(!between(events), "{events}");
         }
+    }
+
+    /// Between two points in one convex part of several (0) a connection stays in it,
+    /// reflecting inside, or leaves it and comes back having reflected (inside a part it
+    /// crosses, or in its own before it leaves and after it comes back, fewer times at either
+    /// end than in all): two reflections in all. In a part that is not convex it may come back
+    /// unreflected.
+    #[test]
+    fn segments_back_into_a_convex_part_are_connectible_as_the_connections_run() {
+        let back =
+            |events: &str| met(events).connectible((true, true), Some(Ends::Back(0)), 2, false);
+        for events in [
+            "",
+            "BB",
+            "LE1BLE0",
+            "BLE1BLE0",
+            "LE1BLE0B",
+            "LE1BBLE0",
+            "BLE0B",
+            "LE1BLE2LE0",
+        ] {
+            assert!(back(events), "{events}");
+        }
+        for events in [
+            "BBB",
+            "LE1LE0",
+            "BLE0",
+            "LE0B",
+            "BLE1LE0",
+            "LE1LE0B",
+            "BBLE1LE0",
+            "LE1LE0BB",
+            "LGE0",
+            "LE1BLE0BB",
+            "LE1BLE2LE3LE0",
+            "LE0LE1BLE0",
+        ] {
+            assert!(!back(events), "{events}");
+        }
+        let around =
+            |events: &str| met(events).connectible((true, true), Some(Ends::Around(0)), 2, false);
+        assert!(around("LE0") && around("LE1LE0") && around("BLE0B"));
     }
 }

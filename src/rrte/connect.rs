@@ -1443,8 +1443,10 @@ impl<'v> Connector<'v> {
     /// the parts met on the way): an unbiased estimate of the sum over the ways. In a part that
     /// is not convex a path may also leave it and come back ([`Connector::solve_into`]): one of
     /// the two kinds is drawn ([`Self::around_chance`]), its inverse probability divided by the
-    /// kind's chance. So may one in a convex part beside others, with `mirrors` and a reflection
-    /// to spend after leaving (off another part's outside or inside it; [`RETURN_CHANCE`]).
+    /// kind's chance. So may one in a convex part beside others, with a reflection to spend
+    /// after leaving (inside another part or, with `mirrors`, off its outside;
+    /// [`RETURN_CHANCE`]); without `mirrors` (bidirectional tracing's joins, the same paths from
+    /// either end) only one that reflects after it comes back fewer times than in all.
     pub fn sample_inside(
         &self,
         x: DVec3,
@@ -1460,7 +1462,7 @@ impl<'v> Connector<'v> {
         let apart = self.apart(x, y);
         let around = self.around(x);
         // out of a convex part and back: only by a reflection after leaving it
-        let returns = !apart && !around && mirrors && bounces > 0 && self.beside_others();
+        let returns = !apart && !around && bounces > 0 && self.beside_others();
         if !apart && !around && !returns {
             return within(rng);
         }
@@ -1488,6 +1490,13 @@ impl<'v> Connector<'v> {
             split.draw_passes(rng);
         }
         let mut s = self.sample_into(x, y, &split, first_only, rng);
+        if returns && !mirrors {
+            // bidirectional tracing's, the same paths from either end: run the other way, the
+            // reflections inside the part after it comes back are those before it leaves
+            s.path = s
+                .path
+                .filter(|(e, _)| split.left_after(e.again.crossed()) < bounces);
+        }
         if let Some((_, inverse_p)) = &mut s.path {
             *inverse_p *= ways as f64 / chance;
         }
@@ -3670,8 +3679,9 @@ mod tests {
 
     /// Between two points on the axis of a glass block (n = 1.2) under a glass slab (n = 2.5),
     /// the paths out of the block and back in after one reflection — off the slab's underside,
-    /// or inside it off its top face — sum, drawn at random with their inverse probabilities, to
-    /// what their mirror images give in closed form: `T_block² R (1 − R_slab)^k / s²`, where
+    /// or inside it off its top face (bidirectional tracing's joins: that one alone) — sum,
+    /// drawn at random with their inverse probabilities, to what their mirror images give in
+    /// closed form: `T_block² R (1 − R_slab)^k / s²`, where
     /// every face is met at normal incidence and `s`, the length that spreads the ray tube,
     /// counts each stretch at `n_x / n` of its length (Snell's law for small angles).
     #[test]
@@ -3706,29 +3716,38 @@ mod tests {
         let off = t_block * t_block * r_slab / spread(0.0);
         let inside = t_block * t_block * (1.0 - r_slab).powi(2) * r_slab / spread(1.0);
         let draws = 200_000;
-        let mut sums = [[0.0; 2]; 2];
-        let mut rng = crate::math::stream_rng(1, 0);
-        for _ in 0..draws {
-            let s = c.sample_inside(x, q, (1, true), false, &mut rng);
-            let Some((InsidePath::Between(e, b), inverse_p)) = s.path else {
-                continue;
-            };
-            let w = e.transmission / e.jacobian * inverse_p;
-            let k = usize::from(!b.mirrored[0]);
-            sums[k][0] += w;
-            sums[k][1] += w * w;
-        }
-        for (([sum, sum2], expected), what) in
-            sums.into_iter().zip([off, inside]).zip(["off", "inside"])
-        {
-            let mean = sum / draws as f64;
-            let se = ((sum2 / draws as f64 - mean * mean) / draws as f64).sqrt();
-            eprintln!("{what} the slab: {mean} ± {se}, mirror image {expected}");
-            assert!(se < 0.02 * expected, "{what}: {se}");
-            assert!(
-                (mean - expected).abs() < 4.0 * se,
-                "{what}: {mean} ± {se} against {expected}"
-            );
+        // bidirectional tracing's joins (without `mirrors`) come back by the reflection inside
+        // the slab alone
+        for mirrors in [true, false] {
+            let mut sums = [[0.0; 2]; 2];
+            let mut rng = crate::math::stream_rng(1, 0);
+            for _ in 0..draws {
+                let s = c.sample_inside(x, q, (1, mirrors), false, &mut rng);
+                let Some((InsidePath::Between(e, b), inverse_p)) = s.path else {
+                    continue;
+                };
+                let w = e.transmission / e.jacobian * inverse_p;
+                let k = usize::from(!b.mirrored[0]);
+                sums[k][0] += w;
+                sums[k][1] += w * w;
+            }
+            let off = if mirrors { off } else { 0.0 };
+            for (([sum, sum2], expected), what) in
+                sums.into_iter().zip([off, inside]).zip(["off", "inside"])
+            {
+                let mean = sum / draws as f64;
+                let se = ((sum2 / draws as f64 - mean * mean) / draws as f64).sqrt();
+                eprintln!("{what} the slab ({mirrors}): {mean} ± {se}, mirror image {expected}");
+                if expected == 0.0 {
+                    assert_eq!(sum, 0.0, "{what} ({mirrors})");
+                    continue;
+                }
+                assert!(se < 0.02 * expected, "{what} ({mirrors}): {se}");
+                assert!(
+                    (mean - expected).abs() < 4.0 * se,
+                    "{what} ({mirrors}): {mean} ± {se} against {expected}"
+                );
+            }
         }
     }
 
