@@ -256,8 +256,8 @@ impl Meetings {
     /// and its reflections) [`MAX_AGAIN`] at most from either end (so the connection, which
     /// keeps to that, makes the same paths from either end); between two points in one part
     /// that is not convex ([`Ends::Around`]) it either stays within it, only reflecting
-    /// inside, or leaves it, crosses any other part it meets and enters it again where it first
-    /// meets it, reflecting as between two parts; between two points in one convex part of
+    /// inside, or leaves it, crosses any other part it meets (and other stretches of its own)
+    /// and enters it again, reflecting as between two parts; between two points in one convex part of
     /// several ([`Ends::Back`]) likewise, but it comes back only having reflected, and fewer
     /// times in the part before it leaves and after it comes back than in all (so that it
     /// makes the same paths from either end); between two points
@@ -290,7 +290,8 @@ impl Meetings {
             return ends_inside
                 && self.glances == 0
                 && self.bounces <= most_bounces
-                && self.entered_before & (1 << from | 1 << to) == 0
+                && (matches!(ends, Ends::Around(_))
+                    || self.entered_before & (1 << from | 1 << to) == 0)
                 && crossed + 1 + self.bounces - fewest_at_an_end <= MAX_AGAIN;
         }
         if began_inside != ends_inside {
@@ -1464,7 +1465,7 @@ mod tests {
     /// reflecting inside, or leaves it and comes back having reflected (inside a part it
     /// crosses, or in its own before it leaves and after it comes back, fewer times at either
     /// end than in all): two reflections in all. In a part that is not convex it may come back
-    /// unreflected.
+    /// unreflected, and cross other stretches of it on the way.
     #[test]
     fn segments_back_into_a_convex_part_are_connectible_as_the_connections_run() {
         let back =
@@ -1499,6 +1500,11 @@ mod tests {
         }
         let around =
             |events: &str| met(events).connectible((true, true), Some(Ends::Around(0)), 2, false);
-        assert!(around("LE0") && around("LE1LE0") && around("BLE0B"));
+        for events in ["LE0", "LE1LE0", "BLE0B", "LE0LE0", "LE0LE1BLE0"] {
+            assert!(around(events), "{events}");
+        }
+        for events in ["LE0LE0LE0LE0LE0", "LGE0", "BBLE0LE0B"] {
+            assert!(!around(events), "{events}");
+        }
     }
 }

@@ -1486,7 +1486,9 @@ impl<'v> Connector<'v> {
             true => Bounces::draw_with_mirrors(first, bounces - first, rng),
             false => Bounces::draw(first, bounces - first, rng),
         };
-        if mirrors && self.not_convex(self.part_of(y)) {
+        // bidirectional tracing's joins (without `mirrors`) cross a stretch of the end's part on
+        // the way only between two points in it (run the other way, that is the start's part)
+        if self.not_convex(self.part_of(y)) && (mirrors || !apart) {
             split.draw_passes(rng);
         }
         let mut s = self.sample_into(x, y, &split, first_only, rng);
