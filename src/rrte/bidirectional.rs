@@ -14,7 +14,8 @@
 //! surface, the camera event as a point sensor). Between two events inside the volume the
 //! connection runs along curved rays (see [`super::connect`]), reflected inside the surface up to
 //! `render.reflections` times (between two events in one of several volumes, also out of it and
-//! back in, having reflected inside another or, in a shape that is not convex, unreflected);
+//! back in, having reflected inside another or, in a shape that is not convex, unreflected and
+//! across other stretches of it);
 //! between an event inside and one on a surface it
 //! leaves the volume through its surface, refracted once; between two surfaces it is straight,
 //! past the volume only where it is index-matched, runs across the volume, refracted in and
