@@ -525,7 +525,7 @@ fn step_flops(interp: crate::eikonal::grid::Interp) -> (f64, f64) {
 
 /// One design iteration at the published GPU benchmark's scale, measured (not extrapolated): a
 /// 128³ grid (Luneburg samples), 128² rays × 10 (a collimated bundle), 400 leapfrog steps each,
-/// forward and backward of [`crate::eikonal::TraceOp`] (the gradient of every coefficient).
+/// forward and backward of [`crate::diff::TraceOp`] (the gradient of every coefficient).
 pub fn design_iteration() -> crate::Result<String> {
     use crate::diff::TraceOp;
     use crate::diff::bridge::Differentiable;

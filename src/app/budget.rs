@@ -134,7 +134,7 @@ const PILOT_RAYS: usize = 32;
 
 /// The time of a ray command, before it starts: `passes` traces of every ray in `rays` through
 /// `field` (at most `max_steps` steps each, or exactly that many with `fixed_steps`), timed on a
-/// pilot of a few rays spread over the bundle, each cut at [`PILOT_STEPS`] steps. An error naming
+/// pilot of a few rays spread over the bundle, each cut at `PILOT_STEPS` steps. An error naming
 /// `what` (and what a pass is, `pass`) when beyond `budget.max_minutes`.
 #[allow(clippy::too_many_arguments)]
 pub fn check_rays(

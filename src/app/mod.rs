@@ -12,7 +12,7 @@
 //! - [`render`]: refractive, scattering volumes by particle tracing
 //! - [`acquire_phase`]: the phase function read from speckle images
 //! - [`check`]: validate a config without running it
-//! - [`bench`]: throughput figures
+//! - [`bench`](mod@bench): throughput figures
 
 pub mod acquire_phase;
 pub mod bench;

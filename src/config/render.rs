@@ -1277,7 +1277,7 @@ impl RenderConfig {
     }
 
     /// The parameters `names` (listed under `list`) names, checked as
-    /// [`Self::derivatives`] says (for `render.derivatives`, a design, Python's `render_vjp`).
+    /// `Self::derivatives` says (for `render.derivatives`, a design, Python's `render_vjp`).
     pub fn parameters(
         &self,
         list: &str,

@@ -6,7 +6,7 @@
 //! triangles' signed solid angles (Van Oosterom and Strackee 1983): 1 inside a closed mesh whose
 //! faces are oriented outwards, 0 outside, and still near those values for meshes with small
 //! holes, duplicated or badly joined faces; a node is inside where `w > ½`. Clusters of triangles
-//! far from the node (beyond [`FAR`] times their radius) enter by their dipole term, the
+//! far from the node (beyond `FAR` times their radius) enter by their dipole term, the
 //! first-order expansion of Barill et al. (2018), `Ω ≈ A·(c − x)/|c − x|³` with `A` the cluster's
 //! summed area vector and `c` its area-weighted centre; nearer ones triangle by triangle.
 

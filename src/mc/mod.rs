@@ -290,7 +290,7 @@ impl<'a> Checkpoint<'a> {
 }
 
 /// [`run`], continuing from `done`: the blocks an interrupted run of the same range had reduced
-/// (contiguous from `range.start`, as [`Checkpoint::save`] received them), and saving checkpoints
+/// (contiguous from `range.start`, as `Checkpoint::save` received them), and saving checkpoints
 /// on the way. The blocks come out as the uninterrupted run's, bit for bit: the reduction tree
 /// depends only on chunk indices.
 pub fn resume<E: Estimator>(

@@ -378,7 +378,7 @@ fn log_density(kappa: f64, mu: f64) -> f64 {
     a.ln() + kappa * mu - a - (-(-2.0 * a).exp()).ln_1p()
 }
 
-/// Fit `s` with up to [`MAX_LOBES`] lobes, stopping at the first count within `tolerance`.
+/// Fit `s` with up to `MAX_LOBES` lobes, stopping at the first count within `tolerance`.
 pub fn fit(s: impl Fn(f64) -> C64, tolerance: f64) -> Lobes {
     let (mus, ws) = nodes();
     let values: Vec<C64> = mus.iter().map(|&m| s(m)).collect();

@@ -34,7 +34,7 @@
 //! out of each part it meets again), where it meets the surface no other way; between two points
 //! outside a volume that is not index-matched it refracts never, or in and out of each part it
 //! crosses, or reflects once off its outside (and no more). Which segments a connection makes is
-//! read from the surface events met while tracing them, in order ([`Meetings`]). A
+//! read from the surface events met while tracing them, in order (`Meetings`). A
 //! segment that no connection makes is made only by tracing: the strategies that would connect
 //! across it are left out of the sum; for a beam the light's own (`s = 0`, its disc joined to a
 //! camera event as path tracing joins it) is tried and counted only near the beam

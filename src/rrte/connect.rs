@@ -225,7 +225,7 @@ impl Bounces {
     }
 
     /// `first` reflections inside the start's part, then up to `after` more: inside each part
-    /// crossed none with chance [`THROUGH`], else one of `1 ..= left` evenly; the end's part
+    /// crossed none with chance `THROUGH`, else one of `1 ..= left` evenly; the end's part
     /// takes what is left. Draws nothing where `after` is 0.
     pub fn draw(first: usize, after: usize, rng: &mut Rng) -> Self {
         Self::drawn(first, after, false, rng)
@@ -264,7 +264,7 @@ impl Bounces {
     }
 
     /// Draw, for a path that ends in a part that is not convex, where it crosses that part
-    /// instead of ending in it ([`PASS`] at each crossing).
+    /// instead of ending in it (`PASS` at each crossing).
     pub fn draw_passes(&mut self, rng: &mut Rng) {
         self.passing = true;
         for i in 0..MAX_AGAIN {
@@ -1442,10 +1442,10 @@ impl<'v> Connector<'v> {
     /// splits them (with `mirrors`, as [`Bounces::draw_with_mirrors`]: also off the outside of
     /// the parts met on the way): an unbiased estimate of the sum over the ways. In a part that
     /// is not convex a path may also leave it and come back ([`Connector::solve_into`]): one of
-    /// the two kinds is drawn ([`Self::around_chance`]), its inverse probability divided by the
+    /// the two kinds is drawn (`Self::around_chance`), its inverse probability divided by the
     /// kind's chance. So may one in a convex part beside others, with a reflection to spend
     /// after leaving (inside another part or, with `mirrors`, off its outside;
-    /// [`RETURN_CHANCE`]); without `mirrors` (bidirectional tracing's joins, the same paths from
+    /// `RETURN_CHANCE`); without `mirrors` (bidirectional tracing's joins, the same paths from
     /// either end) only one that reflects after it comes back fewer times than in all.
     pub fn sample_inside(
         &self,
@@ -2044,7 +2044,7 @@ impl<'v> Connector<'v> {
     /// to `y` inside another: out of the first after `bounces.first` reflections inside its
     /// surface, across every volume it meets between them (refracted in and out, reflected inside
     /// as `bounces` drew), into the second and, after the reflections left inside its surface, on
-    /// to `y` ([`Self::map_into`]); for
+    /// to `y` (`Self::map_into`); for
     /// `x` and `y` in one part, out of it and back into it where the path first meets it again
     /// (into a convex part only off another part's outside or reflected inside one, as
     /// `bounces` drew). Its `jacobian` is the ray tube's cross-section at `y` per unit

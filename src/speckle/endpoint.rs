@@ -286,7 +286,7 @@ fn sphere_integral_special(c: f64, q2: C64) -> C64 {
 
 /// Many lobes' terms `e^{c} 4π sinh(q)/q` (Eq. 29, real `c`) at once, laid out by component so
 /// the loop vectorises (with AVX2 or AVX-512 where the CPU has them: the same operations in the same order,
-/// so the same bits as [`sphere_integral_scaled`] and [`Seen::amplitude`]); the rare lanes the
+/// so the same bits as `sphere_integral_scaled` and [`Seen::amplitude`]); the rare lanes the
 /// kernels do not cover are redone one by one. A vertex's connections to every focused light and
 /// view go through one batch.
 #[derive(Clone, Debug, Default)]
