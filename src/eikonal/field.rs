@@ -750,8 +750,8 @@ impl BoundedField {
     }
 
     /// [`Self::value_grad`] at `L` points at once: a single grid profile evaluates them side by
-    /// side in vector lanes ([`super::grid::GridField::value_grad_lanes`]); each point gets the bits of
-    /// [`Self::value_grad`].
+    /// side in vector lanes ([`super::grid::GridField::value_grad_lanes`]); each point gets the
+    /// bits of [`Self::value_grad`].
     #[inline(always)]
     pub fn value_grad_lanes<const L: usize>(&self, x: [DVec3; L]) -> [(f64, DVec3); L] {
         if L == 1 {

@@ -15,8 +15,7 @@
 //! connection runs along curved rays (see [`super::connect`]), reflected inside the surface up to
 //! `render.reflections` times (between two events in one of several volumes, also out of it and
 //! back in, having reflected inside another or, in a shape that is not convex, unreflected and
-//! across other stretches of it);
-//! between an event inside and one on a surface it
+//! across other stretches of it); between an event inside and one on a surface it
 //! leaves the volume through its surface, refracted once; between two surfaces it is straight,
 //! past the volume only where it is index-matched, runs across the volume, refracted in and
 //! out, or reflects off its outside. Leaving or across, it also crosses every part of a shape
@@ -258,10 +257,10 @@ impl Meetings {
     /// keeps to that, makes the same paths from either end); between two points in one part
     /// that is not convex ([`Ends::Around`]) it either stays within it, only reflecting
     /// inside, or leaves it, crosses any other part it meets (and other stretches of its own)
-    /// and enters it again, reflecting as between two parts; between two points in one convex part of
-    /// several ([`Ends::Back`]) likewise, but it comes back only having reflected, and fewer
-    /// times in the part before it leaves and after it comes back than in all (so that it
-    /// makes the same paths from either end); between two points
+    /// and enters it again, reflecting as between two parts; between two points in one convex
+    /// part of several ([`Ends::Back`]) likewise, but it comes back only having reflected, and
+    /// fewer times in the part before it leaves and after it comes back than in all (so that
+    /// it makes the same paths from either end); between two points
     /// outside it either never meets the surface (straight, also across an index-matched
     /// volume), refracts into and out of the parts it meets, reflecting inside them
     /// `most_bounces` times in all, with `1 + MAX_AGAIN` stretches inside at most, or only
