@@ -852,7 +852,8 @@ impl ParticleTracer<'_> {
         // reflections inside since the last vertex (see `MAX_REFLECTIONS`)
         let mut reflections = Reflections::default();
         let most_bounces = self.most_bounces(t);
-        let several = volume.field.bounds.parts().is_some_and(|p| p.len() > 1);
+        // of several parts, a segment may leave its part and come back into it
+        let beside_others = t.connector.beside_others();
         let mut began_inside = volume.field.bounds.contains(start.x);
         // of several volumes, the one the segment began in (0 for a volume of one part)
         let mut began_in = Some(t.connector.part_of(start.x)).filter(|_| began_inside);
@@ -993,7 +994,7 @@ impl ParticleTracer<'_> {
                     let between = match (began_in, ends_in) {
                         (Some(a), Some(b)) if a != b => Some(Ends::Apart(a, b)),
                         (Some(a), Some(_)) if t.connector.not_convex(a) => Some(Ends::Around(a)),
-                        (Some(a), Some(_)) if several => Some(Ends::Back(a)),
+                        (Some(a), Some(_)) if beside_others => Some(Ends::Back(a)),
                         _ => None,
                     };
                     let made = (began_inside, true);

@@ -1387,8 +1387,8 @@ impl<'v> Connector<'v> {
     }
 
     /// Whether the volume is several parts, its index unmatched somewhere: a path out of one
-    /// part may come back into it off another.
-    fn beside_others(&self) -> bool {
+    /// part may come back into it, off another's outside or reflected inside it.
+    pub fn beside_others(&self) -> bool {
         !self.matched
             && self
                 .volume
