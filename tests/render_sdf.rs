@@ -523,7 +523,8 @@ fn the_three_estimators_agree_on_three_balls_in_a_row_lit_from_the_first() {
         1.0,
     );
     // the middle ball clear: a density of the medium, 1 in the outer balls, 0 in the middle
-    let (spacing, counts) = (0.05, [71, 25, 25]);
+    // (the grid spans the shape: x in ±1.85)
+    let (spacing, counts) = (0.05, [75, 25, 25]);
     let corner = DVec3::new(-1.85, -0.6, -0.6);
     let values = (0..counts[2])
         .flat_map(|_| (0..counts[1]).flat_map(move |_| 0..counts[0]))
