@@ -725,6 +725,116 @@ impl IndexField for BoundedField {
     }
 }
 
+/// Bounds on `|∇n|` and on `n` (below) over the box `|x_i| ≤ half_i` of the sum of `profiles`
+/// mapped as `offset + scale · Σ`, where each profile gives them in closed form (constant,
+/// linear, polynomial and ultrasonic profiles); `None` otherwise.
+fn slope_and_floor(
+    profiles: &[Profile],
+    half: DVec3,
+    scale: f64,
+    offset: f64,
+) -> Option<(f64, f64)> {
+    if scale <= 0.0 {
+        return None;
+    }
+    // Σ_k |c_k| k t^{k-1} and Σ_k |c_k| t^k of a polynomial in t ≥ 0 without its constant
+    let polynomial = |c: &[f64], t: f64| {
+        c.iter()
+            .enumerate()
+            .fold((0.0, 0.0), |(slope, size), (i, c)| {
+                let k = (i + 1) as i32;
+                (
+                    slope + c.abs() * f64::from(k) * t.powi(k - 1),
+                    size + c.abs() * t.powi(k),
+                )
+            })
+    };
+    let (radius, rho) = (half.length(), half.x.hypot(half.y));
+    let (slope, floor) = profiles.iter().try_fold((0.0, 0.0), |(g, n), p| match *p {
+        Profile::Constant { n: c } => Some((g, n + c)),
+        Profile::Linear { n0, gradient } => {
+            Some((g + gradient.length(), n + n0 - gradient.abs().dot(half)))
+        }
+        Profile::SphericalPolynomial {
+            n0,
+            ref coefficients,
+        } => {
+            let (slope, size) = polynomial(coefficients, radius);
+            Some((g + slope, n + n0 - size))
+        }
+        // in q = ρ²: |dn/dρ| = 2ρ |dn/dq|
+        Profile::RadialPolynomial {
+            n0,
+            ref coefficients,
+        } => {
+            let (slope, size) = polynomial(coefficients, rho * rho);
+            Some((g + 2.0 * rho * slope, n + n0 - size))
+        }
+        // |∇(J_m(k r) cos mφ)|² ≤ k² (J_m'² + (m J_m / k r)²) = k² (J_{m−1}² + J_{m+1}²)/2 ≤ k²
+        Profile::Ultrasonic { n0, n_max, k_r, .. } => {
+            Some((g + (n_max * k_r).abs(), n + n0 - n_max.abs()))
+        }
+        _ => None,
+    })?;
+    Some((scale * slope, offset + scale * floor))
+}
+
+impl BoundedField {
+    /// A bound on how much a ray turns inside the region it starts in (the volume, or the
+    /// part of several holding `x`): `(κ, D)`, the ray's curvature `|∇n − (∇n·t)t|/n` at most
+    /// `κ = max|∇n| / min n` and the region within a box of diagonal `D`. `None` where the
+    /// profiles give no closed-form bound (see [`Self::start_cone`]).
+    pub fn turning_bound(&self, x: DVec3) -> Option<(f64, f64)> {
+        let (profiles, half, scale, offset) = match self.bounds.parts() {
+            Some(parts) => {
+                let part = &parts[part_at(parts, x)];
+                (
+                    part.profiles.as_slice(),
+                    part.shape.half_extent()?,
+                    self.scale * part.scale,
+                    self.offset + self.scale * part.offset,
+                )
+            }
+            None => (
+                self.profiles.as_slice(),
+                self.bounds.half_extent()?,
+                self.scale,
+                self.offset,
+            ),
+        };
+        let (slope, floor) = slope_and_floor(profiles, half, scale, offset)?;
+        (floor > 0.0).then(|| (slope / floor, 2.0 * half.length()))
+    }
+
+    /// The half-angle of a cone about the chord from `x` to any point of its region that holds
+    /// the initial direction of every ray from `x` to that point staying inside the region;
+    /// `None` where no such cone narrower than a hemisphere is proved.
+    ///
+    /// A ray of curvature at most `κ` has turned by at most `κ s` after a length `s`; while it
+    /// has turned by less than `θ` it advances along its initial direction by at least
+    /// `s cos θ`, which the region's diameter `D` bounds. So a ray inside the region never
+    /// turns by `θ₁`, the least root of `θ cos θ = κ D`, and the chord of any of its stretches,
+    /// the mean of its directions, lies within `θ₁` of where it started.
+    pub fn start_cone(&self, x: DVec3) -> Option<f64> {
+        let (kappa, diameter) = self.turning_bound(x)?;
+        let bend = kappa * diameter;
+        // θ cos θ rises to 0.561 at θ = 0.86: a root well below that, by the fixed point
+        // θ ← κD / cos θ (a contraction there)
+        if !(bend.is_finite() && bend <= 0.5) {
+            return None;
+        }
+        let mut theta = bend;
+        for _ in 0..200 {
+            let next = bend / theta.cos();
+            if (next - theta).abs() < 1e-12 {
+                break;
+            }
+            theta = next;
+        }
+        Some(theta)
+    }
+}
+
 impl BoundedField {
     /// Change each part of a field of several with `change(k, part)` (their shapes must stay):
     /// the parts are copied once if another field shares them, and changed in place after that.
@@ -1076,6 +1186,81 @@ mod tests {
                 depth: 0.8,
             },
         ]
+    }
+
+    /// Where a profile bounds `|∇n|` and `n` over a box in closed form (what the cone of a
+    /// connection's starts rests on), the bounds hold at every point drawn in the box, and are
+    /// within a factor of the largest slope and the lowest index found there.
+    #[test]
+    fn slope_and_floor_bound_the_field_in_a_box() {
+        let half = DVec3::new(1.0, 0.8, 1.2);
+        let mut rng = crate::math::stream_rng(4, 0);
+        let mut bounded = Vec::new();
+        for p in analytic_profiles() {
+            let Some((slope, floor)) = slope_and_floor(std::slice::from_ref(&p), half, 1.0, 0.0)
+            else {
+                continue;
+            };
+            let (mut steepest, mut lowest) = (0.0f64, f64::INFINITY);
+            for _ in 0..20_000 {
+                let u = DVec3::ZERO.map(|_| 2.0 * crate::math::uniform(&mut rng) - 1.0);
+                let (n, g, _) = p.eval(u * half);
+                steepest = steepest.max(g.length());
+                lowest = lowest.min(n);
+            }
+            assert!(
+                steepest <= slope * (1.0 + 1e-12),
+                "{}: {steepest} > {slope}",
+                p.kind()
+            );
+            assert!(lowest >= floor - 1e-12, "{}: {lowest} < {floor}", p.kind());
+            assert!(
+                slope <= 5.0 * steepest + 1e-12,
+                "{}: {slope} loose",
+                p.kind()
+            );
+            bounded.push(p.kind());
+        }
+        let expected = [
+            "constant",
+            "linear",
+            "ultrasonic",
+            "radial_polynomial",
+            "spherical_polynomial",
+        ];
+        assert_eq!(bounded, expected);
+        // a part of several volumes is bounded over its own shape, in its own frame, mapped
+        let linear = Profile::Linear {
+            n0: 1.5,
+            gradient: DVec3::new(0.0, 0.1, 0.0),
+        };
+        let block = Bounds::Box { half };
+        let mut single = BoundedField::single(linear.clone(), block.clone(), 1.0);
+        (single.scale, single.offset) = (1.1, -0.05);
+        let mut part = Part::new(block, DVec3::new(5.0, 0.0, 0.0), vec![linear]);
+        (part.scale, part.offset) = (1.1, -0.05);
+        let glass = vec![Profile::Constant { n: 1.2 }];
+        let other = Part::new(Bounds::Sphere { radius: 1.0 }, DVec3::ZERO, glass);
+        let parts: Arc<[Part]> = vec![other, part].into();
+        let several = BoundedField::new(
+            vec![Profile::Parts(parts.clone())],
+            Bounds::Parts(parts),
+            1.0,
+        );
+        let expected = (0.11 / (1.1 * (1.5 - 0.08) - 0.05), 2.0 * half.length());
+        let near = |(kappa, d): (f64, f64)| {
+            (kappa - expected.0).abs() < 1e-15 && (d - expected.1).abs() < 1e-15
+        };
+        assert!(single.turning_bound(DVec3::ZERO).is_some_and(near));
+        assert!(
+            several
+                .turning_bound(DVec3::new(5.2, 0.3, 0.0))
+                .is_some_and(near)
+        );
+        assert_eq!(
+            several.turning_bound(DVec3::ZERO),
+            Some((0.0, 2.0 * 3f64.sqrt()))
+        );
     }
 
     /// A unit sphere's signed distance on a grid of `spacing`.

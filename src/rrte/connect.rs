@@ -26,8 +26,9 @@ use super::flight::{fresnel, reflect};
 use super::scene::{PartLengths, Surface, Volume};
 use crate::eikonal::trace::{entry_parameter, jacobian_of, refract};
 use crate::eikonal::{BoundedField, Bounds, IndexField, Ray, Tracer, part_at};
-use crate::math::{Rng, orthonormal_basis, uniform, uniform_sphere};
+use crate::math::{Rng, direction_about, orthonormal_basis, uniform, uniform_sphere};
 use glam::{DMat3, DVec3};
+use std::f64::consts::{FRAC_PI_2, TAU};
 
 /// A stationary path from `x` to `y`.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -567,6 +568,45 @@ impl Tangent {
     }
 }
 
+/// A ray traced to its closest approach to a point ([`Connector::approach`]).
+#[derive(Clone, Copy, Debug)]
+struct Approach {
+    /// The ray there, `∂x/∂v0` there, the geometric length and optical path to it.
+    end: Ray,
+    xv: DMat3,
+    length: f64,
+    optical_path: f64,
+    /// Whether the ray left the volume before it and was carried on in a straight line: a
+    /// Newton iterate, never a path.
+    beyond: bool,
+}
+
+impl Approach {
+    /// The ray `last` (`length` along it), about to leave the volume, carried on in a straight
+    /// line `x + v σ` to its closest approach to `y` (the sensitivities moving as `∂x += ∂v σ`);
+    /// `None` if it is moving away from `y`.
+    fn carried_on(last: &Tangent, length: f64, y: DVec3) -> Option<Self> {
+        let r = last.r;
+        let sigma = (y - r.x).dot(r.v) / r.v.length_squared();
+        (sigma > 0.0).then(|| Approach {
+            end: Ray {
+                x: r.x + r.v * sigma,
+                v: r.v,
+            },
+            xv: last.xv + last.vv * sigma,
+            length: length + r.v.length() * sigma,
+            optical_path: f64::NAN,
+            beyond: true,
+        })
+    }
+}
+
+/// The chance that a connection's Newton start is drawn near the straight line
+/// ([`Connector::initial_along`]), and that chance for a path through the surface that reflects
+/// nowhere in a field that turns rays little ([`Connector::near_chance`]).
+const NEAR: f64 = 0.5;
+const NEAR_BOUNDED: f64 = 0.9;
+
 /// Largest change of direction of one Newton step (radians): keeps the solver in the basin it
 /// started in.
 const MAX_TURN: f64 = 0.3;
@@ -658,13 +698,16 @@ impl<'v> Connector<'v> {
         (exit >= c.length).then_some(c)
     }
 
-    fn shoot(&self, x: DVec3, w: DVec3, y: DVec3) -> Option<(Ray, DMat3, f64, f64)> {
+    fn shoot(&self, x: DVec3, w: DVec3, y: DVec3) -> Option<Approach> {
         self.approach(Tangent::start(&self.volume.field, x, w), y)
     }
 
     /// Trace the ray `s` with its sensitivities on to its closest approach to `y` (in closed form
-    /// through a constant index); `None` if it leaves the volume or runs out of steps first.
-    fn approach(&self, mut s: Tangent, y: DVec3) -> Option<(Ray, DMat3, f64, f64)> {
+    /// through a constant index); `None` if it runs out of steps first, or leaves the volume
+    /// moving away from `y`. A ray that leaves still approaching `y` is carried on in a straight
+    /// line to its closest approach ([`Approach::carried_on`]): not a path, but a miss Newton's
+    /// method can steer back from, where `y` lies near the surface and the ray strays across it.
+    fn approach(&self, mut s: Tangent, y: DVec3) -> Option<Approach> {
         let field = &self.volume.field;
         if self.straight_from(s.r.x) {
             // x(σ) = x + v σ: the sensitivities move as ∂x += ∂v σ
@@ -677,7 +720,13 @@ impl<'v> Connector<'v> {
                 x: s.r.x + d * along,
                 v: s.r.v,
             };
-            return Some((end, s.xv + s.vv * (along / s.n), along, s.n * along));
+            return Some(Approach {
+                end,
+                xv: s.xv + s.vv * (along / s.n),
+                length: along,
+                optical_path: s.n * along,
+                beyond: false,
+            });
         }
         let t = &self.tracer;
         let h = t.step;
@@ -688,10 +737,11 @@ impl<'v> Connector<'v> {
         let (mut length, mut opl) = (0.0, 0.0);
         for _ in 0..t.max_steps {
             let mut next = s.step(field, h);
-            if !field.bounds.contains(next.r.x) {
-                return None;
-            }
+            // a step across the surface may still hold the closest approach before it
             let closest = approached && away(&next.r) >= 0.0;
+            if !closest && !field.bounds.contains(next.r.x) {
+                return Approach::carried_on(&s, length, y);
+            }
             if closest {
                 // the closest approach lies in this step: bisect on (x − y)·v
                 let (mut lo, mut hi) = (0.0, h);
@@ -707,13 +757,22 @@ impl<'v> Connector<'v> {
                     }
                 }
                 next = s.step(field, lo);
+                if !field.bounds.contains(next.r.x) {
+                    return Approach::carried_on(&s, length, y);
+                }
             }
             let chord = (next.r.x - s.r.x).length();
             length += chord;
             opl += 0.5 * (s.n + next.n) * chord;
             s = next;
             if closest {
-                return Some((s.r, s.xv, length, opl));
+                return Some(Approach {
+                    end: s.r,
+                    xv: s.xv,
+                    length,
+                    optical_path: opl,
+                    beyond: false,
+                });
             }
             approached |= away(&s.r) < 0.0;
         }
@@ -729,13 +788,19 @@ impl<'v> Connector<'v> {
         let mut w = w0.normalize();
         let mut polished = false;
         for iteration in 0..self.max_iterations {
-            let (end, xv, length, optical_path) = self.shoot(x, w, y)?;
+            let Approach {
+                end,
+                xv,
+                length,
+                optical_path,
+                beyond,
+            } = self.shoot(x, w, y)?;
             let (e1, e2) = orthonormal_basis(w);
             // ∂(miss⊥)/∂(direction angles): the sensitivities times dv0/dw = n(x)
             let miss = Miss::across(end.v.normalize(), end.x - y, [xv * e1 * n_x, xv * e2 * n_x]);
             if self.converged(miss.size(), self.tolerance, &mut polished) {
                 let det = miss.det();
-                return (det.abs() > 0.0).then_some(Connection {
+                return (det.abs() > 0.0 && !beyond).then_some(Connection {
                     direction: w,
                     arrival: end,
                     length,
@@ -770,16 +835,47 @@ impl<'v> Connector<'v> {
         })
     }
 
-    /// A random initial direction at `x` for a path to `y`: half the time near the straight line
-    /// (where most paths start), half the time uniform (so every stationary path can be drawn).
+    /// A random initial direction at `x` for a path to `y`, [`Self::initial_along`] the chord.
     fn initial(&self, x: DVec3, y: DVec3, rng: &mut Rng) -> DVec3 {
+        self.initial_along((y - x).normalize(), NEAR, rng)
+    }
+
+    /// A random initial direction for a path that leaves roughly along unit `toward`: within
+    /// 30° of it (where most paths start) with chance `near`, else uniform (so that every
+    /// stationary path can be drawn).
+    fn initial_along(&self, toward: DVec3, near: f64, rng: &mut Rng) -> DVec3 {
         let u = uniform_sphere(uniform(rng), uniform(rng));
-        if uniform(rng) < 0.5 {
-            let toward = (y - x).normalize();
+        if uniform(rng) < near {
             (toward + u * 0.5).normalize()
         } else {
             u
         }
+    }
+
+    /// The chance of [`Self::initial_along`]'s start near the straight line for a path from
+    /// `x` through the surface as `bounces` drew: [`NEAR_BOUNDED`] for a path that reflects
+    /// nowhere in a field proved to turn rays little ([`BoundedField::start_cone`]), which
+    /// nearly always leaves near the straight line; [`NEAR`] otherwise.
+    fn near_chance(&self, x: DVec3, bounces: &Bounces) -> f64 {
+        let unreflected = bounces.first == 0 && bounces.after == 0;
+        if unreflected && self.volume.field.start_cone(x).is_some() {
+            NEAR_BOUNDED
+        } else {
+            NEAR
+        }
+    }
+
+    /// [`Self::initial`] for a path that stays inside the region holding `x` and `y`. Where the
+    /// field bounds how far a ray turns there ([`BoundedField::start_cone`]), uniform in a cone
+    /// about the chord that holds every such path's start (twice as wide as proved, for the
+    /// stepped ray's error), so that each start may find a path.
+    fn initial_inside(&self, x: DVec3, y: DVec3, rng: &mut Rng) -> DVec3 {
+        let Some(theta) = self.volume.field.start_cone(x) else {
+            return self.initial(x, y, rng);
+        };
+        let cone = (2.0 * theta).min(FRAC_PI_2);
+        let mu = 1.0 - uniform(rng) * (1.0 - cone.cos());
+        direction_about((y - x).normalize(), mu, TAU * uniform(rng))
     }
 
     /// The path Newton's method finds from one random start, counted once (the biased variant of
@@ -789,7 +885,7 @@ impl<'v> Connector<'v> {
             return self.sample(x, y, rng);
         }
         first(
-            |rng| self.initial(x, y, rng),
+            |rng| self.initial_inside(x, y, rng),
             |w| self.solve(x, y, w).map(|c| (c, c.direction, c.iterations)),
             rng,
         )
@@ -808,7 +904,7 @@ impl<'v> Connector<'v> {
         }
         restarts(
             self.max_restarts,
-            |rng| self.initial(x, y, rng),
+            |rng| self.initial_inside(x, y, rng),
             |w| self.solve(x, y, w).map(|c| (c, c.direction, c.iterations)),
             rng,
         )
@@ -955,14 +1051,8 @@ impl<'v> Connector<'v> {
         if let Some(s) = self.box_exit(x, c, bounces.first, rng) {
             return s;
         }
-        let start = |rng: &mut Rng| {
-            let u = uniform_sphere(uniform(rng), uniform(rng));
-            if uniform(rng) < 0.5 {
-                (c + u * 0.5).normalize()
-            } else {
-                u
-            }
-        };
+        let near = self.near_chance(x, bounces);
+        let start = |rng: &mut Rng| self.initial_along(c, near, rng);
         let solve = |w| {
             self.solve_exit(x, target, w, bounces)
                 .map(|e| (e, e.direction, e.iterations))
@@ -1316,15 +1406,22 @@ impl<'v> Connector<'v> {
                 let s = Tangent::with(field, r.from, r.along, xv, vv);
                 self.approach(s, y).map(|a| (r, a))
             });
-            let Some((r, (end, xv, length, optical_path))) = traced else {
+            let Some((r, a)) = traced else {
                 w = step_back(last?, w)?;
                 continue;
             };
+            let Approach {
+                end,
+                xv,
+                length,
+                optical_path,
+                beyond,
+            } = a;
             last = Some(w);
             let miss = Miss::across(end.v.normalize(), end.x - y, r.dv0.map(|dv| xv * dv));
             if self.converged(miss.size(), self.tolerance, &mut polished) {
                 let det = miss.det();
-                return (det.abs() > 0.0 && det.is_finite()).then_some(Connection {
+                return (det.abs() > 0.0 && det.is_finite() && !beyond).then_some(Connection {
                     direction: w,
                     arrival: end,
                     length: r.length + length,
@@ -2023,8 +2120,16 @@ impl<'v> Connector<'v> {
             stretch = next;
         }
         let (from, along, (xv, vv)) = stretch;
-        let (end, xv, length, optical_path) =
-            self.approach(Tangent::with(field, from, along, xv, vv), y)?;
+        let Approach {
+            end,
+            xv,
+            length,
+            optical_path,
+            beyond: false,
+        } = self.approach(Tangent::with(field, from, along, xv, vv), y)?
+        else {
+            return None;
+        };
         let last = Reentry {
             inside: from,
             along,
@@ -2217,8 +2322,8 @@ impl<'v> Connector<'v> {
             };
         }
         // Newton starts near the straight line the target asks for
-        let ahead = x + target.toward(x);
-        let start = |rng: &mut Rng| self.initial(x, ahead, rng);
+        let (ahead, near) = (target.toward(x), self.near_chance(x, bounces));
+        let start = |rng: &mut Rng| self.initial_along(ahead, near, rng);
         let solve = |w| {
             self.solve_through(x, target, w, bounces)
                 .map(|e| (e, e.direction, e.iterations))
@@ -4060,5 +4165,157 @@ mod tests {
             .expect("the opposite start is steered round");
         assert!((near.direction - away.direction).length() < 1e-6);
         assert!(near.outgoing.dot(dir) > 1.0 - 1e-9);
+    }
+
+    /// A linear field in a unit box, an ultrasonic one in a cylinder and a spherical polynomial
+    /// in a ball (`κ D` 0.37, 0.32, 0.24): every path found from uniform starts begins inside the
+    /// cone `BoundedField::start_cone` proves, and every start drawn in it (twice as wide) finds
+    /// the one path, points by the surface included: Alg. 3 counts 1 every time.
+    #[test]
+    fn every_path_in_a_gently_graded_field_starts_within_its_proved_cone() {
+        let fields = [
+            (
+                Profile::Linear {
+                    n0: 1.4,
+                    gradient: DVec3::new(0.12, 0.05, 0.0),
+                },
+                Bounds::Box { half: DVec3::ONE },
+                0.13 / 1.23,
+            ),
+            (
+                Profile::Ultrasonic {
+                    n0: 1.33,
+                    n_max: 0.04,
+                    k_r: 3.0,
+                    m: 2,
+                },
+                Bounds::Cylinder {
+                    radius: 1.0,
+                    half_length: 1.0,
+                },
+                0.12 / 1.29,
+            ),
+            (
+                Profile::SphericalPolynomial {
+                    n0: 1.6,
+                    coefficients: vec![-0.1],
+                },
+                Bounds::Sphere { radius: 1.0 },
+                0.1 / (1.6 - 0.1 * 3f64.sqrt()),
+            ),
+        ];
+        let mut rng = crate::math::stream_rng(5, 0);
+        for (profile, bounds, kappa) in fields {
+            let v = volume(profile, bounds, 1.0);
+            let theta = v.field.start_cone(DVec3::ZERO).expect("a bounded field");
+            let bend = kappa * 2.0 * 3f64.sqrt();
+            assert!(
+                (theta * theta.cos() - bend).abs() < 1e-9,
+                "{theta}, κD = {bend}"
+            );
+            let c = Connector::new(&v, 1e-3, 100_000);
+            let mut inside = || loop {
+                let x = DVec3::ZERO.map(|_| 2.0 * uniform(&mut rng) - 1.0);
+                if v.field.bounds.contains(x) {
+                    return x;
+                }
+            };
+            let pairs: Vec<_> = (0..60).map(|_| (inside(), inside())).collect();
+            let (mut found, mut widest) = (0, 0.0f64);
+            for &(x, y) in &pairs {
+                let chord = (y - x).normalize();
+                let mut first: Option<DVec3> = None;
+                for _ in 0..20 {
+                    let w = uniform_sphere(uniform(&mut rng), uniform(&mut rng));
+                    let Some(p) = c.solve(x, y, w) else { continue };
+                    assert!((p.arrival.x - y).length() <= c.tolerance * 1.0001);
+                    let angle = p.direction.dot(chord).clamp(-1.0, 1.0).acos();
+                    assert!(
+                        angle <= theta,
+                        "a path {angle} from the chord, the cone {theta}"
+                    );
+                    widest = widest.max(angle / theta);
+                    let first = *first.get_or_insert(p.direction);
+                    assert!((p.direction - first).length() < SAME_PATH, "a second path");
+                    found += 1;
+                }
+                let drawn = c.sample(x, y, &mut rng);
+                assert_eq!(drawn.path.map(|p| p.1), Some(1.0), "{x} to {y}");
+            }
+            let kind = v.field.profiles[0].kind();
+            eprintln!("{kind}: {found} paths, the widest {widest} of the cone");
+            assert!(
+                found > 300,
+                "{kind}: {found} paths from 1200 uniform starts"
+            );
+        }
+    }
+
+    /// Two points above the thin neck of a graded dumbbell (two balls joined by a rod): no path
+    /// joins them inside, though the ray leaving one ball along the chord, carried on in a
+    /// straight line past its surface, passes through the other: Newton's method would stop
+    /// there at once. Within one ball they are joined.
+    #[test]
+    fn no_path_is_found_that_leaves_the_volume_between_its_ends() {
+        use crate::eikonal::grid::Interp;
+        use crate::eikonal::sdf::{SdfGrid, Shape};
+        let (a, b) = (DVec3::new(-0.9, 0.0, 0.0), DVec3::new(0.9, 0.0, 0.0));
+        let ball = |center| Shape::Sphere {
+            center,
+            radius: 0.6,
+        };
+        let rod = Shape::Capsule {
+            from: a,
+            to: b,
+            radius: 0.08,
+        };
+        let grid = SdfGrid::from_shapes(&[ball(a), ball(b), rod], 0.0, 0.02, Interp::Tricubic);
+        let v = volume(
+            Profile::Linear {
+                n0: 1.3,
+                gradient: DVec3::new(0.0, 0.05, 0.0),
+            },
+            Bounds::Sdf(std::sync::Arc::new(grid.unwrap())),
+            1.0,
+        );
+        let c = Connector::new(&v, 1e-3, 100_000);
+        let lift = DVec3::new(0.0, 0.2, 0.0);
+        let (x, y) = (a + lift, b + lift);
+        assert!(c.shoot(x, (y - x).normalize(), y).expect("across").beyond);
+        assert_eq!(c.solve(x, y, (y - x).normalize()), None);
+        let mut rng = crate::math::stream_rng(6, 0);
+        for _ in 0..20 {
+            assert_eq!(c.sample(x, y, &mut rng).path, None);
+        }
+        let p = c.solve(x, a - lift, -lift).expect("a path inside one ball");
+        assert!((p.arrival.x - a + lift).length() <= c.tolerance * 1.0001);
+    }
+
+    /// In the tank of paper 002's Fig. 2, the ray started along the chord to a point 0.05 from
+    /// the wall it is bound for meets the wall before its closest approach, which Newton's
+    /// method then takes from the ray carried on in a straight line, and is steered back to the
+    /// path.
+    #[test]
+    fn a_start_straying_across_the_surface_is_steered_back_to_the_path() {
+        let v = volume(
+            Profile::Linear {
+                n0: 1.33,
+                gradient: DVec3::new(0.0, 0.02, 0.0),
+            },
+            Bounds::Box {
+                half: DVec3::splat(5.0),
+            },
+            1.0,
+        );
+        let c = Connector::new(&v, 1e-2, 100_000);
+        let (x, y) = (
+            DVec3::new(0.0, 0.0, 0.878),
+            DVec3::new(-0.284, -2.034, -4.946),
+        );
+        let chord = (y - x).normalize();
+        assert!(c.shoot(x, chord, y).expect("approaching").beyond);
+        let p = c.solve(x, y, chord).expect("steered back");
+        assert!((p.arrival.x - y).length() <= c.tolerance * 1.0001);
+        assert!(!c.shoot(x, p.direction, y).expect("inside").beyond);
     }
 }
