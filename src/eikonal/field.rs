@@ -725,15 +725,15 @@ impl IndexField for BoundedField {
     }
 }
 
-/// Bounds on `|∇n|` and on `n` (below) over the box `|x_i| ≤ half_i` of the sum of `profiles`
-/// mapped as `offset + scale · Σ`, where each profile gives them in closed form (constant,
-/// linear, polynomial and ultrasonic profiles); `None` otherwise.
-fn slope_and_floor(
+/// Bounds on `|∇n|` and on `n` (below and above) over the box `|x_i| ≤ half_i` of the sum of
+/// `profiles` mapped as `offset + scale · Σ`, where each profile gives them in closed form
+/// (constant, linear, polynomial and ultrasonic profiles); `None` otherwise.
+fn slope_and_range(
     profiles: &[Profile],
     half: DVec3,
     scale: f64,
     offset: f64,
-) -> Option<(f64, f64)> {
+) -> Option<(f64, f64, f64)> {
     if scale <= 0.0 {
         return None;
     }
@@ -750,17 +750,16 @@ fn slope_and_floor(
             })
     };
     let (radius, rho) = (half.length(), half.x.hypot(half.y));
-    let (slope, floor) = profiles.iter().try_fold((0.0, 0.0), |(g, n), p| match *p {
-        Profile::Constant { n: c } => Some((g, n + c)),
-        Profile::Linear { n0, gradient } => {
-            Some((g + gradient.length(), n + n0 - gradient.abs().dot(half)))
-        }
+    // each profile: its slope bound, its value at the centre, how far it strays from that
+    let mut bounds = profiles.iter().map(|p| match *p {
+        Profile::Constant { n } => Some((0.0, n, 0.0)),
+        Profile::Linear { n0, gradient } => Some((gradient.length(), n0, gradient.abs().dot(half))),
         Profile::SphericalPolynomial {
             n0,
             ref coefficients,
         } => {
             let (slope, size) = polynomial(coefficients, radius);
-            Some((g + slope, n + n0 - size))
+            Some((slope, n0, size))
         }
         // in q = ρ²: |dn/dρ| = 2ρ |dn/dq|
         Profile::RadialPolynomial {
@@ -768,15 +767,40 @@ fn slope_and_floor(
             ref coefficients,
         } => {
             let (slope, size) = polynomial(coefficients, rho * rho);
-            Some((g + 2.0 * rho * slope, n + n0 - size))
+            Some((2.0 * rho * slope, n0, size))
         }
         // |∇(J_m(k r) cos mφ)|² ≤ k² (J_m'² + (m J_m / k r)²) = k² (J_{m−1}² + J_{m+1}²)/2 ≤ k²
-        Profile::Ultrasonic { n0, n_max, k_r, .. } => {
-            Some((g + (n_max * k_r).abs(), n + n0 - n_max.abs()))
-        }
+        Profile::Ultrasonic { n0, n_max, k_r, .. } => Some(((n_max * k_r).abs(), n0, n_max.abs())),
         _ => None,
+    });
+    let (slope, centre, spread) = bounds.try_fold((0.0, 0.0, 0.0), |(g, n, d), b| {
+        b.map(|(bg, bn, bd)| (g + bg, n + bn, d + bd))
     })?;
-    Some((scale * slope, offset + scale * floor))
+    Some((
+        scale * slope,
+        offset + scale * (centre - spread),
+        offset + scale * (centre + spread),
+    ))
+}
+
+/// `θ₁`, the least root of `θ cos θ = bend`: how far a ray of curvature at most `κ` may have
+/// turned while it stays in a region of diameter `D`, `bend = κ D` (see
+/// [`BoundedField::start_cone`]); `None` past 0.5 (the root nears the hump of `θ cos θ`, 0.561
+/// at θ = 0.86, where no cone narrower than a hemisphere is proved).
+pub fn turning_angle(bend: f64) -> Option<f64> {
+    if !(bend.is_finite() && (0.0..=0.5).contains(&bend)) {
+        return None;
+    }
+    // the fixed point θ ← κD / cos θ, a contraction there
+    let mut theta = bend;
+    for _ in 0..200 {
+        let next = bend / theta.cos();
+        if (next - theta).abs() < 1e-12 {
+            break;
+        }
+        theta = next;
+    }
+    Some(theta)
 }
 
 impl BoundedField {
@@ -785,25 +809,32 @@ impl BoundedField {
     /// `κ = max|∇n| / min n` and the region within a box of diagonal `D`. `None` where the
     /// profiles give no closed-form bound (see [`Self::start_cone`]).
     pub fn turning_bound(&self, x: DVec3) -> Option<(f64, f64)> {
-        let (profiles, half, scale, offset) = match self.bounds.parts() {
+        let (slope, floor, _) = self.index_bounds(x)?;
+        let diameter = 2.0 * self.region_half(x)?.length();
+        (floor > 0.0).then_some((slope / floor, diameter))
+    }
+
+    /// `max|∇n|`, `min n` and `max n` over the bounding box of the region holding `x` (the
+    /// volume, or its part of several), where the profiles bound them in closed form.
+    pub fn index_bounds(&self, x: DVec3) -> Option<(f64, f64, f64)> {
+        let half = self.region_half(x)?;
+        match self.bounds.parts() {
             Some(parts) => {
                 let part = &parts[part_at(parts, x)];
-                (
-                    part.profiles.as_slice(),
-                    part.shape.half_extent()?,
-                    self.scale * part.scale,
-                    self.offset + self.scale * part.offset,
-                )
+                let scale = self.scale * part.scale;
+                let offset = self.offset + self.scale * part.offset;
+                slope_and_range(&part.profiles, half, scale, offset)
             }
-            None => (
-                self.profiles.as_slice(),
-                self.bounds.half_extent()?,
-                self.scale,
-                self.offset,
-            ),
-        };
-        let (slope, floor) = slope_and_floor(profiles, half, scale, offset)?;
-        (floor > 0.0).then(|| (slope / floor, 2.0 * half.length()))
+            None => slope_and_range(&self.profiles, half, self.scale, self.offset),
+        }
+    }
+
+    /// Half extents of the bounding box of the region holding `x` (in its own frame).
+    fn region_half(&self, x: DVec3) -> Option<DVec3> {
+        match self.bounds.parts() {
+            Some(parts) => parts[part_at(parts, x)].shape.half_extent(),
+            None => self.bounds.half_extent(),
+        }
     }
 
     /// The half-angle of a cone about the chord from `x` to any point of its region that holds
@@ -813,25 +844,11 @@ impl BoundedField {
     /// A ray of curvature at most `κ` has turned by at most `κ s` after a length `s`; while it
     /// has turned by less than `θ` it advances along its initial direction by at least
     /// `s cos θ`, which the region's diameter `D` bounds. So a ray inside the region never
-    /// turns by `θ₁`, the least root of `θ cos θ = κ D`, and the chord of any of its stretches,
-    /// the mean of its directions, lies within `θ₁` of where it started.
+    /// turns by `θ₁`, the least root of `θ cos θ = κ D` ([`turning_angle`]), and the chord of
+    /// any of its stretches, the mean of its directions, lies within `θ₁` of where it started.
     pub fn start_cone(&self, x: DVec3) -> Option<f64> {
         let (kappa, diameter) = self.turning_bound(x)?;
-        let bend = kappa * diameter;
-        // θ cos θ rises to 0.561 at θ = 0.86: a root well below that, by the fixed point
-        // θ ← κD / cos θ (a contraction there)
-        if !(bend.is_finite() && bend <= 0.5) {
-            return None;
-        }
-        let mut theta = bend;
-        for _ in 0..200 {
-            let next = bend / theta.cos();
-            if (next - theta).abs() < 1e-12 {
-                break;
-            }
-            theta = next;
-        }
-        Some(theta)
+        turning_angle(kappa * diameter)
     }
 }
 
@@ -1192,21 +1209,23 @@ mod tests {
     /// connection's starts rests on), the bounds hold at every point drawn in the box, and are
     /// within a factor of the largest slope and the lowest index found there.
     #[test]
-    fn slope_and_floor_bound_the_field_in_a_box() {
+    fn slope_and_range_bound_the_field_in_a_box() {
         let half = DVec3::new(1.0, 0.8, 1.2);
         let mut rng = crate::math::stream_rng(4, 0);
         let mut bounded = Vec::new();
         for p in analytic_profiles() {
-            let Some((slope, floor)) = slope_and_floor(std::slice::from_ref(&p), half, 1.0, 0.0)
+            let Some((slope, floor, ceil)) =
+                slope_and_range(std::slice::from_ref(&p), half, 1.0, 0.0)
             else {
                 continue;
             };
-            let (mut steepest, mut lowest) = (0.0f64, f64::INFINITY);
+            let (mut steepest, mut lowest, mut highest) = (0.0f64, f64::INFINITY, 0.0f64);
             for _ in 0..20_000 {
                 let u = DVec3::ZERO.map(|_| 2.0 * crate::math::uniform(&mut rng) - 1.0);
                 let (n, g, _) = p.eval(u * half);
                 steepest = steepest.max(g.length());
                 lowest = lowest.min(n);
+                highest = highest.max(n);
             }
             assert!(
                 steepest <= slope * (1.0 + 1e-12),
@@ -1214,6 +1233,7 @@ mod tests {
                 p.kind()
             );
             assert!(lowest >= floor - 1e-12, "{}: {lowest} < {floor}", p.kind());
+            assert!(highest <= ceil + 1e-12, "{}: {highest} > {ceil}", p.kind());
             assert!(
                 slope <= 5.0 * steepest + 1e-12,
                 "{}: {slope} loose",

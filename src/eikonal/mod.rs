@@ -12,5 +12,7 @@ pub mod sdf;
 pub mod trace;
 
 pub use adjoint::{ExitGradient, FieldParam, GridAdjoint, RayGradient};
-pub use field::{BoundedField, Bounds, IndexField, MAX_PARTS, Part, Profile, part_at};
+pub use field::{
+    BoundedField, Bounds, IndexField, MAX_PARTS, Part, Profile, part_at, turning_angle,
+};
 pub use trace::{Ray, RayEnd, Tracer};

@@ -25,7 +25,7 @@
 use super::flight::{fresnel, reflect};
 use super::scene::{PartLengths, Surface, Volume};
 use crate::eikonal::trace::{entry_parameter, jacobian_of, refract};
-use crate::eikonal::{BoundedField, Bounds, IndexField, Ray, Tracer, part_at};
+use crate::eikonal::{BoundedField, Bounds, IndexField, Ray, Tracer, part_at, turning_angle};
 use crate::math::{Rng, direction_about, orthonormal_basis, uniform, uniform_sphere};
 use glam::{DMat3, DVec3};
 use std::f64::consts::{FRAC_PI_2, TAU};
@@ -601,6 +601,74 @@ impl Approach {
     }
 }
 
+/// Cones of Newton starts for the paths that reflect inside a box of a gently graded field:
+/// every such path starts within `half_angle` of one of `centers` (the direction to a mirror
+/// image of the far end, or the flipped direction of the exit), so within it of the nearest
+/// one. One cone is drawn evenly, its starts drawn uniformly in it (twice as wide, for the
+/// stepped ray's error), and only paths whose start lies nearest its centre are taken from it:
+/// the cones share the paths out, each path to one, and the count of cones times Alg. 3's
+/// count in the cone drawn estimates a path's inverse probability without bias.
+#[derive(Clone, Copy, Debug)]
+struct Cones {
+    centers: [DVec3; MAX_CONES],
+    count: usize,
+    half_angle: f64,
+}
+
+/// The most cones of [`Cones`]: the eight sign flips of three exit directions.
+const MAX_CONES: usize = 24;
+
+impl Cones {
+    fn new(half_angle: f64) -> Self {
+        Cones {
+            centers: [DVec3::ZERO; MAX_CONES],
+            count: 0,
+            half_angle,
+        }
+    }
+
+    /// Add the unit direction `c` as a centre (once: flips of a direction with a zero component
+    /// coincide).
+    fn push(&mut self, c: DVec3) {
+        let known = self.centers[..self.count]
+            .iter()
+            .any(|d| (*d - c).length() < 1e-12);
+        if !known && self.count < MAX_CONES {
+            self.centers[self.count] = c;
+            self.count += 1;
+        }
+    }
+
+    /// A cone drawn evenly, and the inverse of its chance.
+    fn pick(&self, rng: &mut Rng) -> (usize, f64) {
+        let k = ((uniform(rng) * self.count as f64) as usize).min(self.count - 1);
+        (k, self.count as f64)
+    }
+
+    /// The centre nearest the unit direction `w`.
+    fn nearest(&self, w: DVec3) -> usize {
+        (0..self.count)
+            .max_by(|&a, &b| w.dot(self.centers[a]).total_cmp(&w.dot(self.centers[b])))
+            .unwrap_or(0)
+    }
+
+    /// A start uniform in cone `k`, twice as wide as proved.
+    fn start(&self, k: usize, rng: &mut Rng) -> DVec3 {
+        let cone = (2.0 * self.half_angle).min(FRAC_PI_2);
+        let mu = 1.0 - uniform(rng) * (1.0 - cone.cos());
+        direction_about(self.centers[k], mu, TAU * uniform(rng))
+    }
+}
+
+/// The diameter of the region a path reflected `bounces` times inside a box of half extents
+/// `half` sweeps once unfolded (each reflection mirrors the rest of it across the face): a chain
+/// of `bounces + 1` boxes, longest when all lie along the box's longest side.
+fn unfolded_diameter(half: DVec3, bounces: usize) -> f64 {
+    let long = 2.0 * half.max_element();
+    let stretched = long * (1 + bounces) as f64;
+    ((2.0 * half).length_squared() - long * long + stretched * stretched).sqrt()
+}
+
 /// The chance that a connection's Newton start is drawn near the straight line
 /// ([`Connector::initial_along`]), and that chance for a path through the surface that reflects
 /// nowhere in a field that turns rays little ([`Connector::near_chance`]).
@@ -1051,13 +1119,72 @@ impl<'v> Connector<'v> {
         if let Some(s) = self.box_exit(x, c, bounces.first, rng) {
             return s;
         }
-        let near = self.near_chance(x, bounces);
-        let start = |rng: &mut Rng| self.initial_along(c, near, rng);
         let solve = |w| {
             self.solve_exit(x, target, w, bounces)
                 .map(|e| (e, e.direction, e.iterations))
         };
+        if let Some(cones) = self.flipped_cones(x, c, bounces) {
+            let (k, inverse) = cones.pick(rng);
+            let start = |rng: &mut Rng| cones.start(k, rng);
+            let own = |w| solve(w).filter(|e: &(Exit, DVec3, usize)| cones.nearest(e.1) == k);
+            let mut s = self.draw_crossing(first_only, start, own, bounces, rng);
+            if let Some((_, inverse_p)) = &mut s.path {
+                *inverse_p *= inverse;
+            }
+            return s;
+        }
+        let near = self.near_chance(x, bounces);
+        let start = |rng: &mut Rng| self.initial_along(c, near, rng);
         self.draw_crossing(first_only, start, solve, bounces, rng)
+    }
+
+    /// In one box of a field that turns rays little, the cones holding the starts of the paths
+    /// from `x` that leave along unit `c` after reflecting inside as `bounces` drew (one or
+    /// more times): about the sign flips of the direction each face facing `c` refracts `c`
+    /// in along (all eight, one axis flipped for one reflection), as wide as a ray may turn along
+    /// the path unfolded, and as the index where it leaves (anywhere between its bounds over the
+    /// box) moves that direction. `None` elsewhere, and for a path without reflections.
+    fn flipped_cones(&self, x: DVec3, c: DVec3, bounces: &Bounces) -> Option<Cones> {
+        let field = &self.volume.field;
+        let Bounds::Box { half } = field.bounds else {
+            return None;
+        };
+        if bounces.first == 0 {
+            return None;
+        }
+        let (slope, floor, ceil) = field.index_bounds(x)?;
+        if floor <= 0.0 {
+            return None;
+        }
+        let turn = turning_angle(slope / floor * unfolded_diameter(half, bounces.first))?;
+        let mut inward = [(DVec3::ZERO, 0.0); 3];
+        let mut faces = 0;
+        for axis in 0..3 {
+            if c[axis] == 0.0 {
+                continue;
+            }
+            let mut normal = DVec3::ZERO;
+            normal[axis] = c[axis].signum();
+            // the light arriving along −c refracts in along −w, as the index there says
+            let along = |n: f64| refract(-c, normal, field.n_out / n).ok().map(|b| -b);
+            let (lo, mid, hi) = (along(floor)?, along(0.5 * (floor + ceil))?, along(ceil)?);
+            let spread = mid.dot(lo).min(mid.dot(hi)).clamp(-1.0, 1.0).acos();
+            inward[faces] = (mid, spread);
+            faces += 1;
+        }
+        let spread = inward[..faces].iter().map(|f| f.1).fold(0.0, f64::max);
+        let mut cones = Cones::new(turn + spread);
+        for &(w, _) in &inward[..faces] {
+            for flips in 0..8usize {
+                let flipped = (0..3).filter(|a| flips >> a & 1 == 1).count();
+                if bounces.first == 1 && flipped != 1 {
+                    continue;
+                }
+                let sign = |a: usize| if flips >> a & 1 == 1 { -1.0 } else { 1.0 };
+                cones.push(w * DVec3::new(sign(0), sign(1), sign(2)));
+            }
+        }
+        Some(cones)
     }
 
     /// From `x` in a box of constant index (the one volume), the paths leaving it along unit `c`
@@ -1454,11 +1581,11 @@ impl<'v> Connector<'v> {
             _ if self.matched => return Sampled::none(),
             _ => {}
         }
-        let start = |rng: &mut Rng| uniform_sphere(uniform(rng), uniform(rng));
         let solve = |w| {
             self.solve_bounced(x, y, w, bounces)
                 .map(|c| (c, c.direction, c.iterations))
         };
+        let start = |rng: &mut Rng| uniform_sphere(uniform(rng), uniform(rng));
         self.draw(first_only, start, solve, rng)
     }
 
@@ -4249,6 +4376,74 @@ mod tests {
                 "{kind}: {found} paths from 1200 uniform starts"
             );
         }
+    }
+
+    /// In a graded box, the paths from a point leaving along a direction after one reflection
+    /// inside (refracted out), and after two, are found from 3 000 uniform starts: each starts
+    /// within the cone of the nearest of the flipped exit directions, and the draws from the
+    /// cones (one drawn evenly, their count times Alg. 3's count in it) average to the sum over
+    /// those paths.
+    #[test]
+    fn paths_reflected_out_of_a_graded_box_are_drawn_from_cones_about_flipped_exits() {
+        let v = volume(
+            Profile::Linear {
+                n0: 1.4,
+                gradient: DVec3::new(0.05, 0.06, 0.0),
+            },
+            Bounds::Box {
+                half: DVec3::new(1.0, 0.8, 0.6),
+            },
+            1.0,
+        );
+        let c = Connector::new(&v, 1e-3, 100_000);
+        let mut rng = crate::math::stream_rng(8, 0);
+        let mut found = Vec::new();
+        for (x, out, reflections) in [
+            (DVec3::new(0.3, -0.2, 0.1), DVec3::new(0.3, -0.2, 1.0), 1),
+            (DVec3::new(-0.6, 0.5, -0.3), DVec3::new(0.0, 0.0, -1.0), 1),
+            (DVec3::new(0.2, 0.1, 0.4), DVec3::new(-0.5, 0.2, 0.6), 2),
+        ] {
+            let out = out.normalize();
+            let bounces = Bounces::first(reflections);
+            let cones = c.flipped_cones(x, out, &bounces).expect("a graded box");
+            let theta = cones.half_angle;
+            assert!(theta > 0.05 && theta < 0.7, "{theta}");
+            let mut exits: Vec<Exit> = Vec::new();
+            for _ in 0..3000 {
+                let w = uniform_sphere(uniform(&mut rng), uniform(&mut rng));
+                if let Some(e) = c.solve_exit(x, Aim::Along(out), w, &bounces)
+                    && !exits
+                        .iter()
+                        .any(|q| (q.direction - e.direction).length() < SAME_PATH)
+                {
+                    let k = cones.nearest(e.direction);
+                    let angle = e.direction.dot(cones.centers[k]).clamp(-1.0, 1.0).acos();
+                    assert!(
+                        angle <= theta,
+                        "a path {angle} from its cone's centre, {theta}"
+                    );
+                    exits.push(e);
+                }
+            }
+            let sum: f64 = exits.iter().map(|e| e.transmission / e.jacobian).sum();
+            let (mut total, mut total2, draws) = (0.0, 0.0, 3000);
+            for _ in 0..draws {
+                let s = c.sample_exit(x, Aim::Along(out), &bounces, false, &mut rng);
+                if let Some((e, inverse_p)) = s.path {
+                    let f = e.transmission / e.jacobian * inverse_p;
+                    (total, total2) = (total + f, total2 + f * f);
+                }
+            }
+            let mean = total / draws as f64;
+            let se = ((total2 / draws as f64 - mean * mean).max(0.0) / draws as f64).sqrt();
+            assert!(
+                (mean - sum).abs() <= 4.0 * se + 1e-9 * sum,
+                "{x} {out} after {reflections}: {mean} ± {se} vs {sum}"
+            );
+            found.push((exits.len(), cones.count));
+        }
+        eprintln!("paths and cones: {found:?}");
+        assert!(found.iter().map(|f| f.0).sum::<usize>() >= 3, "{found:?}");
     }
 
     /// Two points above the thin neck of a graded dumbbell (two balls joined by a rod): no path
