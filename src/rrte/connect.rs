@@ -2871,6 +2871,11 @@ mod tests {
     use crate::eikonal::{BoundedField, Bounds, Profile};
     use crate::medium::{PhaseFunction, Scattering};
 
+    /// A clear box of half extents `half` in air, its index `n0 + g·x`.
+    fn graded_box(n0: f64, gradient: DVec3, half: DVec3) -> Volume {
+        volume(Profile::Linear { n0, gradient }, Bounds::Box { half }, 1.0)
+    }
+
     fn volume(profile: Profile, bounds: Bounds, n_out: f64) -> Volume {
         Volume {
             field: BoundedField::single(profile, bounds, n_out),
@@ -4373,16 +4378,8 @@ mod tests {
     /// those paths.
     #[test]
     fn paths_reflected_out_of_a_graded_box_are_drawn_from_cones_about_flipped_exits() {
-        let v = volume(
-            Profile::Linear {
-                n0: 1.4,
-                gradient: DVec3::new(0.05, 0.06, 0.0),
-            },
-            Bounds::Box {
-                half: DVec3::new(1.0, 0.8, 0.6),
-            },
-            1.0,
-        );
+        let gradient = DVec3::new(0.05, 0.06, 0.0);
+        let v = graded_box(1.4, gradient, DVec3::new(1.0, 0.8, 0.6));
         let c = Connector::new(&v, 1e-3, 100_000);
         let mut rng = crate::math::stream_rng(8, 0);
         let mut found = Vec::new();
@@ -4481,16 +4478,7 @@ mod tests {
     /// path.
     #[test]
     fn a_start_straying_across_the_surface_is_steered_back_to_the_path() {
-        let v = volume(
-            Profile::Linear {
-                n0: 1.33,
-                gradient: DVec3::new(0.0, 0.02, 0.0),
-            },
-            Bounds::Box {
-                half: DVec3::splat(5.0),
-            },
-            1.0,
-        );
+        let v = graded_box(1.33, DVec3::new(0.0, 0.02, 0.0), DVec3::splat(5.0));
         let c = Connector::new(&v, 1e-2, 100_000);
         let (x, y) = (
             DVec3::new(0.0, 0.0, 0.878),
