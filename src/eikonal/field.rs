@@ -809,32 +809,34 @@ impl BoundedField {
     /// `κ = max|∇n| / min n` and the region within a box of diagonal `D`. `None` where the
     /// profiles give no closed-form bound (see [`Self::start_cone`]).
     pub fn turning_bound(&self, x: DVec3) -> Option<(f64, f64)> {
-        let (slope, floor, _) = self.index_bounds(x)?;
-        let diameter = 2.0 * self.region_half(x)?.length();
-        (floor > 0.0).then_some((slope / floor, diameter))
+        let (half, (slope, floor, _)) = self.region_bounds(x)?;
+        (floor > 0.0).then_some((slope / floor, 2.0 * half.length()))
     }
 
     /// `max|∇n|`, `min n` and `max n` over the bounding box of the region holding `x` (the
     /// volume, or its part of several), where the profiles bound them in closed form.
     pub fn index_bounds(&self, x: DVec3) -> Option<(f64, f64, f64)> {
-        let half = self.region_half(x)?;
-        match self.bounds.parts() {
+        self.region_bounds(x).map(|(_, bounds)| bounds)
+    }
+
+    /// The half extents of the bounding box of the region holding `x` (in its own frame) and
+    /// [`Self::index_bounds`] over it.
+    fn region_bounds(&self, x: DVec3) -> Option<(DVec3, (f64, f64, f64))> {
+        let (profiles, half, scale, offset) = match self.bounds.parts() {
             Some(parts) => {
                 let part = &parts[part_at(parts, x)];
                 let scale = self.scale * part.scale;
                 let offset = self.offset + self.scale * part.offset;
-                slope_and_range(&part.profiles, half, scale, offset)
+                (&part.profiles[..], part.shape.half_extent()?, scale, offset)
             }
-            None => slope_and_range(&self.profiles, half, self.scale, self.offset),
-        }
-    }
-
-    /// Half extents of the bounding box of the region holding `x` (in its own frame).
-    fn region_half(&self, x: DVec3) -> Option<DVec3> {
-        match self.bounds.parts() {
-            Some(parts) => parts[part_at(parts, x)].shape.half_extent(),
-            None => self.bounds.half_extent(),
-        }
+            None => (
+                &self.profiles[..],
+                self.bounds.half_extent()?,
+                self.scale,
+                self.offset,
+            ),
+        };
+        Some((half, slope_and_range(profiles, half, scale, offset)?))
     }
 
     /// The half-angle of a cone about the chord from `x` to any point of its region that holds

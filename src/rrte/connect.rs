@@ -652,12 +652,18 @@ impl Cones {
             .unwrap_or(0)
     }
 
-    /// A start uniform in cone `k`, twice as wide as proved.
+    /// A start in cone `k` ([`start_in_cone`]).
     fn start(&self, k: usize, rng: &mut Rng) -> DVec3 {
-        let cone = (2.0 * self.half_angle).min(FRAC_PI_2);
-        let mu = 1.0 - uniform(rng) * (1.0 - cone.cos());
-        direction_about(self.centers[k], mu, TAU * uniform(rng))
+        start_in_cone(self.centers[k], self.half_angle, rng)
     }
+}
+
+/// A start uniform in the cone about unit `center` twice as wide as `half_angle` (at most a
+/// hemisphere), a cone proved to hold every path's start: the margin for the stepped ray's error.
+fn start_in_cone(center: DVec3, half_angle: f64, rng: &mut Rng) -> DVec3 {
+    let cone = (2.0 * half_angle).min(FRAC_PI_2);
+    let mu = 1.0 - uniform(rng) * (1.0 - cone.cos());
+    direction_about(center, mu, TAU * uniform(rng))
 }
 
 /// The diameter of the region a path reflected `bounces` times inside a box of half extents
@@ -918,17 +924,16 @@ impl<'v> Connector<'v> {
         }
     }
 
-    /// [`Self::initial`] for a path that stays inside the region holding `x` and `y`. Where the
-    /// field bounds how far a ray turns there ([`BoundedField::start_cone`]), uniform in a cone
-    /// about the chord that holds every such path's start (twice as wide as proved, for the
-    /// stepped ray's error), so that each start may find a path.
-    fn initial_inside(&self, x: DVec3, y: DVec3, rng: &mut Rng) -> DVec3 {
-        let Some(theta) = self.volume.field.start_cone(x) else {
-            return self.initial(x, y, rng);
-        };
-        let cone = (2.0 * theta).min(FRAC_PI_2);
-        let mu = 1.0 - uniform(rng) * (1.0 - cone.cos());
-        direction_about((y - x).normalize(), mu, TAU * uniform(rng))
+    /// The starts for a path that stays inside the region holding `x` and `y`: where the field
+    /// bounds how far a ray turns there ([`BoundedField::start_cone`], worked out once for all
+    /// of Alg. 3's restarts), in the cone about the chord that holds every such path's start
+    /// ([`start_in_cone`]), so that each start may find a path; else [`Self::initial`].
+    fn starts_inside(&self, x: DVec3, y: DVec3) -> impl Fn(&mut Rng) -> DVec3 + '_ {
+        let cone = self.volume.field.start_cone(x);
+        move |rng: &mut Rng| match cone {
+            Some(theta) => start_in_cone((y - x).normalize(), theta, rng),
+            None => self.initial(x, y, rng),
+        }
     }
 
     /// The path Newton's method finds from one random start, counted once (the biased variant of
@@ -938,7 +943,7 @@ impl<'v> Connector<'v> {
             return self.sample(x, y, rng);
         }
         first(
-            |rng| self.initial_inside(x, y, rng),
+            self.starts_inside(x, y),
             |w| self.solve(x, y, w).map(|c| (c, c.direction, c.iterations)),
             rng,
         )
@@ -957,7 +962,7 @@ impl<'v> Connector<'v> {
         }
         restarts(
             self.max_restarts,
-            |rng| self.initial_inside(x, y, rng),
+            self.starts_inside(x, y),
             |w| self.solve(x, y, w).map(|c| (c, c.direction, c.iterations)),
             rng,
         )
@@ -1520,17 +1525,20 @@ impl<'v> Connector<'v> {
                 let s = Tangent::with(field, r.from, r.along, xv, vv);
                 self.approach(s, y).map(|a| (r, a))
             });
-            let Some((r, a)) = traced else {
+            let Some((
+                r,
+                Approach {
+                    end,
+                    xv,
+                    length,
+                    optical_path,
+                    beyond,
+                },
+            )) = traced
+            else {
                 w = step_back(last?, w)?;
                 continue;
             };
-            let Approach {
-                end,
-                xv,
-                length,
-                optical_path,
-                beyond,
-            } = a;
             last = Some(w);
             let miss = Miss::across(end.v.normalize(), end.x - y, r.dv0.map(|dv| xv * dv));
             if self.converged(miss.size(), self.tolerance, &mut polished) {
