@@ -8,12 +8,13 @@
 //! that land behind it carry much. So a flight from a camera event inside the volume draws its
 //! collision from a mixture: a free flight with chance [`FREE_SHARE`], else a point uniformly on
 //! the first stretch where its ray runs through the beam's tube (the forced collisions of
-//! Monte Carlo transport, aimed at the beam). The flight's weight divides by the mixture's
-//! density, so the estimate stays unbiased for any tube; the balance heuristic's densities of
-//! an event from the camera's side take the mixture too, along the curved ray between the
-//! events however the segment was made ([`BeamTube::factor_along`]).
+//! Monte Carlo transport, aimed at the beam), each leg after a reflection inside the surface
+//! again. The flight's weight divides by the mixture's density, so the estimate stays unbiased
+//! for any tube; the balance heuristic's densities of an event from the camera's side take the
+//! mixture too, along the curved (and reflected) path between the events however the segment
+//! was made ([`BeamTube::factor_along`]).
 
-use super::flight::{Flight, Flyer};
+use super::flight::{Flight, Flyer, reflect};
 use super::particle::{Stop, Tools, Travelled};
 use super::scene::Light;
 use crate::eikonal::trace::{entry_parameter, refract};
@@ -214,23 +215,56 @@ impl BeamTube {
         (Stop::Boundary(end), travelled, factor)
     }
 
-    /// The factor [`Self::flight`] gives a collision `length` along the ray from `x` inside the
-    /// volume along unit `d` (a segment between two events made some other way, as a camera
-    /// subpath would have drawn it), and the leapfrog steps that took.
-    pub(super) fn factor_along(&self, t: &Tools, x: DVec3, d: DVec3, length: f64) -> (f64, usize) {
+    /// The factor [`Self::flight`] gives a collision `length` along the path from `x` inside the
+    /// volume along unit `d` that reflects `bounces` times inside the surface on its way (a
+    /// segment between two events made some other way, as a camera subpath would have drawn it,
+    /// each leg from the last event or reflection its own flight), and the leapfrog steps that
+    /// took: the product of each leg's mixture over the free flight's, the legs before the last
+    /// passed through, the last ending in the collision.
+    pub(super) fn factor_along(
+        &self,
+        t: &Tools,
+        x: DVec3,
+        d: DVec3,
+        bounces: usize,
+        length: f64,
+    ) -> (f64, usize) {
         let sigma_t = t.flyer.volume.sigma_t_at(x);
         if sigma_t <= 0.0 {
             return (1.0, 0);
         }
-        let ray = Ray {
+        let bounds = &t.flyer.volume.field.bounds;
+        let mut ray = Ray {
             x,
             v: d * t.flyer.n(x),
         };
-        let (_, steps, stretch) = self.flown(t, ray);
-        (
-            Self::mixture_over_free(stretch, length, sigma_t, true),
-            steps,
-        )
+        let (mut factor, mut steps, mut left) = (1.0, 0, length);
+        for leg in 0..=bounces {
+            let (flight, k, stretch) = self.flown(t, ray);
+            steps += k;
+            let Flight::Boundary {
+                ray: end, length, ..
+            } = flight
+            else {
+                break;
+            };
+            if leg == bounces {
+                return (
+                    factor * Self::mixture_over_free(stretch, left, sigma_t, true),
+                    steps,
+                );
+            }
+            factor *= Self::mixture_over_free(stretch, length, sigma_t, false);
+            left -= length;
+            // reflected as the flight reflects (see `Leg::leave`)
+            let w = end.v.normalize();
+            let normal = bounds.normal(end.x).unwrap_or(w);
+            ray = Ray {
+                x: end.x,
+                v: reflect(w, normal) * t.flyer.n(end.x),
+            };
+        }
+        (factor, steps)
     }
 
     /// The flight's own mixture at its collision `s` along its ray (whose first stretch through
@@ -441,6 +475,140 @@ mod tests {
         assert!((last.z - 5.0).abs() < 1e-6 && last.y > 0.3, "{last}");
         let thick = tank(3.0);
         assert!(BeamTube::trace(&beam, &Flyer::new(&thick, 0.01, 1_000_000)).is_none());
+    }
+
+    /// A camera subpath's flight that reflects inside a graded box before it crosses the beam's
+    /// tube draws each leg from its own mixture: the weights `1 / Π factors` tally the free
+    /// flight's collision density `σ_t e^{−σ_t s}` along the whole reflected path (the legs'
+    /// forced draws included), and the factor [`BeamTube::factor_along`] gives a collision
+    /// after `k` reflections, re-flying the path, is the product the flight's legs gave.
+    #[test]
+    fn a_flight_reflected_inside_draws_each_leg_from_the_tube_and_its_factor_is_found_again() {
+        use super::super::particle::Tools;
+        use super::super::spectrum::Delay;
+        use crate::eikonal::{BoundedField, Profile};
+        use crate::medium::{PhaseFunction, Scattering};
+        let volume = super::super::scene::Volume {
+            field: BoundedField::single(
+                Profile::Linear {
+                    n0: 1.33,
+                    gradient: DVec3::new(0.0, 0.05, 0.0),
+                },
+                Bounds::Box {
+                    half: DVec3::splat(1.0),
+                },
+                1.0,
+            ),
+            sigma_s: 0.3,
+            sigma_a: 0.05,
+            scattering: Scattering::single(PhaseFunction::Isotropic),
+            density: None,
+            parts: Vec::new(),
+        };
+        let beam = Light::Beam {
+            center: DVec3::new(0.0, 0.0, -1.5),
+            direction: DVec3::Z,
+            radius: 0.05,
+        };
+        let t = Tools {
+            flyer: Flyer::new(&volume, 0.01, 1_000_000),
+            connector: super::super::connect::Connector::new(&volume, 0.01, 1_000_000),
+            colour: [1.0; 3],
+            delay: Delay::NONE,
+            instant: None,
+        };
+        let tube = BeamTube::trace(&beam, &t.flyer).expect("a tube");
+        let sigma_t = volume.sigma_t();
+        let x = DVec3::new(0.5, 0.3, -0.3);
+        let ray_along = |x: DVec3, d: DVec3| Ray {
+            x,
+            v: d * t.flyer.n(x),
+        };
+        let reflected = |end: Ray| {
+            let w = end.v.normalize();
+            let normal = volume.field.bounds.normal(end.x).unwrap_or(w);
+            ray_along(end.x, reflect(w, normal))
+        };
+        // a start whose first leg (to the wall x = 1) misses the tube and whose second crosses
+        // it: aimed at the beam's mirror image in that wall, then searched about it
+        let aim = (DVec3::new(2.0, 0.02, 0.0) - x).normalize();
+        let mut rng: Rng = stream_rng(5, 0);
+        let d = (0..20_000)
+            .map(|k| {
+                let spread = 0.002 * (1 + k / 200) as f64;
+                (aim + uniform_sphere(uniform(&mut rng), uniform(&mut rng)) * spread).normalize()
+            })
+            .find(|&d| {
+                let (first, _, stretch) = tube.flown(&t, ray_along(x, d));
+                let Flight::Boundary { ray: end, .. } = first else {
+                    return false;
+                };
+                stretch.is_none() && tube.flown(&t, reflected(end)).2.is_some()
+            })
+            .expect("a start that crosses the tube after reflecting");
+        let (n, bins, most) = (40_000, 16, 2);
+        // the path's length to the third wall: the histogram's range
+        let mut span = 0.0;
+        let mut ray = ray_along(x, d);
+        for _ in 0..=most {
+            let (
+                Flight::Boundary {
+                    ray: end, length, ..
+                },
+                _,
+                _,
+            ) = tube.flown(&t, ray)
+            else {
+                panic!("stuck");
+            };
+            span += length;
+            ray = reflected(end);
+        }
+        let mut tally = vec![(0.0, 0.0); bins];
+        let mut forced_draws = 0;
+        for _ in 0..n {
+            let (mut ray, mut along, mut product) = (ray_along(x, d), 0.0, 1.0);
+            for leg in 0..=most {
+                let (stop, travelled, factor) = tube.flight(&t, ray, &mut rng);
+                product *= factor;
+                match stop {
+                    Stop::Collision(_) => {
+                        let s = along + travelled.length;
+                        let (again, _) = tube.factor_along(&t, x, d, leg, s);
+                        assert!(
+                            (again - product).abs() < 1e-6 * product,
+                            "leg {leg}, {s}: {again} against the flight's {product}"
+                        );
+                        forced_draws += usize::from(factor > 1.0);
+                        let bin = ((s / span) * bins as f64) as usize;
+                        let w = 1.0 / product;
+                        tally[bin].0 += w;
+                        tally[bin].1 += w * w;
+                        break;
+                    }
+                    Stop::Boundary(end) => {
+                        along += travelled.length;
+                        ray = reflected(end);
+                    }
+                    Stop::Stuck => panic!("stuck"),
+                }
+            }
+        }
+        assert!(
+            forced_draws > n / 10,
+            "{forced_draws} collisions in the tube"
+        );
+        let width = span / bins as f64;
+        for (k, &(sum, squares)) in tally.iter().enumerate() {
+            let (s0, s1) = (k as f64 * width, (k + 1) as f64 * width);
+            let want = (-sigma_t * s0).exp() - (-sigma_t * s1).exp();
+            let mean = sum / n as f64;
+            let error = ((squares / n as f64 - mean * mean) / n as f64).sqrt();
+            assert!(
+                (mean - want).abs() < 4.0 * error,
+                "bin {k}: {mean} ± {error} vs {want}"
+            );
+        }
     }
 
     /// The flight's mixture: collisions drawn from it and weighted by `1 / mixture_over_free`

@@ -123,9 +123,10 @@ struct Segment {
     cos_end: f64,
     /// Whether a connection can make it.
     connectible: bool,
-    /// Where it is one flight between two events inside the volume meeting no surface, and the
-    /// camera subpaths draw such flights from a beam's tube ([`super::beam_tube`]): the factor the
-    /// tube's mixture gives the density of its end from the camera's side (1 elsewhere).
+    /// Where it runs between two events inside the volume meeting the surface only by reflecting
+    /// inside it, and the camera subpaths draw such flights' legs from a beam's tube
+    /// ([`super::beam_tube`]): the factor the tube's mixture gives the density of its end from
+    /// the camera's side (1 elsewhere).
     forced: f64,
 }
 
@@ -703,8 +704,8 @@ impl ParticleTracer<'_> {
                 let n_y = t.flyer.n(y.x);
                 // the camera's density of y where its flights from z draw from the tube
                 let forced = match (&self.tube, &path) {
-                    (Some(tube), InsidePath::Within(c, 0)) => {
-                        tube.factor_along(t, z.x, c.direction, c.length).0
+                    (Some(tube), InsidePath::Within(c, bounces)) => {
+                        tube.factor_along(t, z.x, c.direction, *bounces, c.length).0
                     }
                     _ => 1.0,
                 };
@@ -849,6 +850,9 @@ impl ParticleTracer<'_> {
         // surface, whether it began inside the volume, the cosine where it left a surface
         let (mut inside, mut outside) = (PartLengths::default(), 0.0);
         let mut met = Meetings::default();
+        // a camera subpath's segment from an event inside, reflecting inside only: the product
+        // of its legs' factors from the beam's tube (see `Segment::forced`)
+        let mut tube_factor = 1.0;
         // reflections inside since the last vertex (see `MAX_REFLECTIONS`)
         let mut reflections = Reflections::default();
         let most_bounces = self.most_bounces(t);
@@ -934,6 +938,7 @@ impl ParticleTracer<'_> {
                             });
                             (inside, outside, met) =
                                 (PartLengths::default(), 0.0, Meetings::default());
+                            tube_factor = 1.0;
                             reflections = Reflections::default();
                             (began_inside, began_in) = (false, None);
                             if !roulette(&mut beta, rng) || vertices.len() >= MAX_EVENTS {
@@ -962,19 +967,19 @@ impl ParticleTracer<'_> {
                 }
                 Leg::Inside(ray) => ray,
             };
-            // one flight on from an event inside: a camera subpath's is drawn from the tube
+            // one leg on from an event inside (or a reflection inside since): a camera
+            // subpath's is drawn from the tube
             let tube = self.tube.as_ref();
-            let direct = tube.filter(|_| !vertices.is_empty() && began_inside && met.all == 0);
-            let (stop, travelled, mut forced) = match direct {
+            let direct =
+                tube.filter(|_| !vertices.is_empty() && began_inside && met.all == met.bounces);
+            let (stop, travelled) = match direct {
                 Some(tube) if !start.photon => {
                     let (stop, travelled, factor) = tube.flight(t, ray, rng);
                     beta /= factor;
-                    (stop, travelled, factor)
+                    tube_factor *= factor;
+                    (stop, travelled)
                 }
-                _ => {
-                    let (stop, travelled) = t.next_event(ray, rng);
-                    (stop, travelled, 1.0)
-                }
+                _ => t.next_event(ray, rng),
             };
             steps += travelled.steps;
             opl += travelled.opl;
@@ -984,11 +989,17 @@ impl ParticleTracer<'_> {
                     beta *= volume.albedo_at(hit.x);
                     let first = vertices.is_empty();
                     let u = hit.v.normalize();
-                    if let (Some(tube), true) = (direct, start.photon) {
+                    let forced = match direct {
                         // as a camera subpath would have drawn the event before from this one
-                        let (factor, k) = tube.factor_along(t, hit.x, -u, inside.total());
-                        (forced, steps) = (factor, steps + k);
-                    }
+                        Some(tube) if start.photon => {
+                            let (factor, k) =
+                                tube.factor_along(t, hit.x, -u, met.bounces, inside.total());
+                            steps += k;
+                            factor
+                        }
+                        Some(_) => tube_factor,
+                        None => 1.0,
+                    };
                     let ends_in = Some(t.connector.part_of(hit.x));
                     // out of one part into another, or in a part that is not convex
                     let between = match (began_in, ends_in) {
@@ -1017,6 +1028,7 @@ impl ParticleTracer<'_> {
                         facing: None,
                     });
                     (inside, outside, met) = (PartLengths::default(), 0.0, Meetings::default());
+                    tube_factor = 1.0;
                     reflections = Reflections::default();
                     (began_inside, began_in, cos_start) = (true, ends_in, 1.0);
                     if start.photon {
