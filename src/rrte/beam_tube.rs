@@ -383,6 +383,43 @@ mod tests {
     use super::*;
     use crate::math::{Rng, stream_rng, uniform, uniform_sphere};
 
+    /// A box of half side `half` graded upwards, `n = 1.33 + gradient · y`, scattering evenly.
+    fn graded_box(
+        half: f64,
+        gradient: f64,
+        sigma_s: f64,
+        sigma_a: f64,
+    ) -> super::super::scene::Volume {
+        use crate::eikonal::{BoundedField, Profile};
+        use crate::medium::{PhaseFunction, Scattering};
+        super::super::scene::Volume {
+            field: BoundedField::single(
+                Profile::Linear {
+                    n0: 1.33,
+                    gradient: DVec3::new(0.0, gradient, 0.0),
+                },
+                Bounds::Box {
+                    half: DVec3::splat(half),
+                },
+                1.0,
+            ),
+            sigma_s,
+            sigma_a,
+            scattering: Scattering::single(PhaseFunction::Isotropic),
+            density: None,
+            parts: Vec::new(),
+        }
+    }
+
+    /// A beam of radius 0.05 along `z` from `(0, 0, z)`.
+    fn beam_along_z(z: f64) -> Light {
+        Light::Beam {
+            center: DVec3::new(0.0, 0.0, z),
+            direction: DVec3::Z,
+            radius: 0.05,
+        }
+    }
+
     /// The first stretch through a tube of two pieces agrees with points sampled along the
     /// line: inside the tube exactly between its ends, outside just before and after.
     #[test]
@@ -435,30 +472,8 @@ mod tests {
     /// the radius; a beam thick for the medium has none.
     #[test]
     fn a_thin_beams_tube_follows_its_bent_ray_and_a_thick_beam_has_none() {
-        use crate::eikonal::{BoundedField, Profile};
-        use crate::medium::{PhaseFunction, Scattering};
-        let tank = |sigma_s: f64| super::super::scene::Volume {
-            field: BoundedField::single(
-                Profile::Linear {
-                    n0: 1.33,
-                    gradient: DVec3::new(0.0, 0.02, 0.0),
-                },
-                Bounds::Box {
-                    half: DVec3::splat(5.0),
-                },
-                1.0,
-            ),
-            sigma_s,
-            sigma_a: 0.0,
-            scattering: Scattering::single(PhaseFunction::Isotropic),
-            density: None,
-            parts: Vec::new(),
-        };
-        let beam = Light::Beam {
-            center: DVec3::new(0.0, 0.0, -6.0),
-            direction: DVec3::Z,
-            radius: 0.05,
-        };
+        let tank = |sigma_s: f64| graded_box(5.0, 0.02, sigma_s, 0.0);
+        let beam = beam_along_z(-6.0);
         let thin = tank(0.02);
         let tube = BeamTube::trace(&beam, &Flyer::new(&thin, 0.01, 1_000_000)).expect("a tube");
         assert!(
@@ -486,30 +501,8 @@ mod tests {
     fn a_flight_reflected_inside_draws_each_leg_from_the_tube_and_its_factor_is_found_again() {
         use super::super::particle::Tools;
         use super::super::spectrum::Delay;
-        use crate::eikonal::{BoundedField, Profile};
-        use crate::medium::{PhaseFunction, Scattering};
-        let volume = super::super::scene::Volume {
-            field: BoundedField::single(
-                Profile::Linear {
-                    n0: 1.33,
-                    gradient: DVec3::new(0.0, 0.05, 0.0),
-                },
-                Bounds::Box {
-                    half: DVec3::splat(1.0),
-                },
-                1.0,
-            ),
-            sigma_s: 0.3,
-            sigma_a: 0.05,
-            scattering: Scattering::single(PhaseFunction::Isotropic),
-            density: None,
-            parts: Vec::new(),
-        };
-        let beam = Light::Beam {
-            center: DVec3::new(0.0, 0.0, -1.5),
-            direction: DVec3::Z,
-            radius: 0.05,
-        };
+        let volume = graded_box(1.0, 0.05, 0.3, 0.05);
+        let beam = beam_along_z(-1.5);
         let t = Tools {
             flyer: Flyer::new(&volume, 0.01, 1_000_000),
             connector: super::super::connect::Connector::new(&volume, 0.01, 1_000_000),
