@@ -679,9 +679,10 @@ fn unfolded_diameter(half: DVec3, bounces: usize) -> f64 {
 /// ([`Connector::initial_along`]).
 const NEAR: f64 = 0.5;
 
-/// The same for a path through the surface from a point where the field turns rays little
-/// ([`BoundedField::start_cone`] proves a cone inside): the path starts near the straight line
-/// nearly always, and the uniform starts that seldom find it are drawn seldom.
+/// The same for a path through the surface, unreflected inside the part it starts in, from a
+/// point where the field turns rays little ([`BoundedField::start_cone`] proves a cone inside):
+/// the path starts near the straight line nearly always, and the uniform starts that seldom
+/// find it are drawn seldom (a path reflected first starts far from that line).
 const NEAR_GENTLE: f64 = 0.9;
 
 /// Largest change of direction of one Newton step (radians): keeps the solver in the basin it
@@ -2451,8 +2452,8 @@ impl<'v> Connector<'v> {
         // Newton starts near the straight line the target asks for
         let ahead = target.toward(x);
         let near = match self.volume.field.start_cone(x) {
-            Some(_) => NEAR_GENTLE,
-            None => NEAR,
+            Some(_) if bounces.first == 0 => NEAR_GENTLE,
+            _ => NEAR,
         };
         let start = |rng: &mut Rng| self.initial_along(ahead, near, rng);
         let solve = |w| {
