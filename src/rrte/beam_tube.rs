@@ -14,7 +14,7 @@
 //! mixture too, along the curved (and reflected) path between the events however the segment
 //! was made ([`BeamTube::factor_along`]).
 
-use super::flight::{Flight, Flyer, reflect};
+use super::flight::{Flight, Flyer};
 use super::particle::{Stop, Tools, Travelled};
 use super::scene::Light;
 use crate::eikonal::trace::{entry_parameter, refract};
@@ -233,7 +233,6 @@ impl BeamTube {
         if sigma_t <= 0.0 {
             return (1.0, 0);
         }
-        let bounds = &t.flyer.volume.field.bounds;
         let mut ray = Ray {
             x,
             v: d * t.flyer.n(x),
@@ -256,13 +255,7 @@ impl BeamTube {
             }
             factor *= Self::mixture_over_free(stretch, length, sigma_t, false);
             left -= length;
-            // reflected as the flight reflects (see `Leg::leave`)
-            let w = end.v.normalize();
-            let normal = bounds.normal(end.x).unwrap_or(w);
-            ray = Ray {
-                x: end.x,
-                v: reflect(w, normal) * t.flyer.n(end.x),
-            };
+            ray = t.flyer.reflected_inside(end);
         }
         (factor, steps)
     }
@@ -517,11 +510,6 @@ mod tests {
             x,
             v: d * t.flyer.n(x),
         };
-        let reflected = |end: Ray| {
-            let w = end.v.normalize();
-            let normal = volume.field.bounds.normal(end.x).unwrap_or(w);
-            ray_along(end.x, reflect(w, normal))
-        };
         // a start whose first leg (to the wall x = 1) misses the tube and whose second crosses
         // it: aimed at the beam's mirror image in that wall, then searched about it
         let aim = (DVec3::new(2.0, 0.02, 0.0) - x).normalize();
@@ -536,7 +524,7 @@ mod tests {
                 let Flight::Boundary { ray: end, .. } = first else {
                     return false;
                 };
-                stretch.is_none() && tube.flown(&t, reflected(end)).2.is_some()
+                stretch.is_none() && tube.flown(&t, t.flyer.reflected_inside(end)).2.is_some()
             })
             .expect("a start that crosses the tube after reflecting");
         let (n, bins, most) = (40_000, 16, 2);
@@ -555,7 +543,7 @@ mod tests {
                 panic!("stuck");
             };
             span += length;
-            ray = reflected(end);
+            ray = t.flyer.reflected_inside(end);
         }
         let mut tally = vec![(0.0, 0.0); bins];
         let mut forced_draws = 0;
@@ -581,7 +569,7 @@ mod tests {
                     }
                     Stop::Boundary(end) => {
                         along += travelled.length;
-                        ray = reflected(end);
+                        ray = t.flyer.reflected_inside(end);
                     }
                     Stop::Stuck => panic!("stuck"),
                 }

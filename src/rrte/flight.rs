@@ -67,6 +67,17 @@ impl<'v> Flyer<'v> {
         self.volume.field.n(x)
     }
 
+    /// The ray that reached the surface at `end` mirrored back inside it (the law of
+    /// reflection), as a reflection inside follows it on.
+    pub fn reflected_inside(&self, end: Ray) -> Ray {
+        let d = end.v.normalize();
+        let normal = self.volume.field.bounds.normal(end.x).unwrap_or(d);
+        Ray {
+            x: end.x,
+            v: reflect(d, normal) * self.n(end.x),
+        }
+    }
+
     /// Fly from `r` (inside, `|v| = n`) for geometric length `distance` (may be infinite), and the
     /// leapfrog steps it took.
     pub fn fly(&self, r: Ray, distance: f64) -> (Flight, usize) {
