@@ -13,6 +13,13 @@
 //! for any tube; the balance heuristic's densities of an event from the camera's side take the
 //! mixture too, along the curved (and reflected) path between the events however the segment
 //! was made ([`BeamTube::factor_along`]).
+//!
+//! Where the whole volume is optically thin ([`THIN_VOLUME_DEPTH`]) most camera rays cross it
+//! without an event, and the paths that scatter twice near the beam need one on the camera's
+//! line of sight in front of it. So a camera subpath's first leg into the volume draws its
+//! collision from the same kind of mixture, the forced draw uniform along the whole leg to the
+//! surface ([`Forced::Leg`]); the density of an event on that leg made by a connection to the
+//! camera takes it too ([`BeamTube::first_leg_factor`]).
 
 use super::flight::{Flight, Flyer};
 use super::particle::{Stop, Tools, Travelled};
@@ -24,7 +31,7 @@ use glam::DVec3;
 
 /// The chance that a camera subpath's flight through the beam's tube is a plain free flight;
 /// otherwise its collision is drawn uniformly on the tube's first stretch.
-const FREE_SHARE: f64 = 0.5;
+pub(super) const FREE_SHARE: f64 = 0.5;
 
 /// The optical depth across a beam (its diameter times `σ_t` where it enters) below which the
 /// camera paths' flights draw from its tube: a free flight that crosses a thicker beam collides
@@ -32,8 +39,22 @@ const FREE_SHARE: f64 = 0.5;
 /// Luneburg lens they took a fifth more time for no less noise).
 const THIN_BEAM_DEPTH: f64 = 0.25;
 
+/// The optical depth across the volume (`σ_t` times its bounding box's diagonal) up to which
+/// camera subpaths draw their first leg's collision from a mixture uniform along the leg: about
+/// where a free flight across the volume collides less often than a draw along it.
+const THIN_VOLUME_DEPTH: f64 = 2.0;
+
 /// The most pieces of the tube's polyline.
 const MAX_PIECES: usize = 64;
+
+/// Where a flight's forced draw is uniform: on the first stretch of its ray through the tube
+/// (a flight from an event inside), or along its whole leg to the surface (a camera subpath's
+/// first leg into a thin volume).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Forced {
+    Tube,
+    Leg,
+}
 
 /// The beam's central ray inside the volume, as a polyline of few corners (within a tenth of
 /// the radius of the ray), widened by the beam's radius: the region the beam's unscattered light
@@ -45,6 +66,9 @@ pub(super) struct BeamTube {
     /// The tube's bounding box, for a quick miss.
     lo: DVec3,
     hi: DVec3,
+    /// Whether camera subpaths draw their first leg's collision along it: one convex volume,
+    /// optically thin across ([`THIN_VOLUME_DEPTH`]).
+    first_legs: bool,
 }
 
 impl BeamTube {
@@ -95,12 +119,23 @@ impl BeamTube {
             lo = lo.min(c);
             hi = hi.max(c);
         }
+        let first_legs = flyer.volume.parts.is_empty()
+            && field.bounds.is_convex()
+            && field.bounds.half_extent().is_some_and(|half| {
+                2.0 * half.length() * flyer.volume.sigma_t() <= THIN_VOLUME_DEPTH
+            });
         Some(BeamTube {
             corners,
             radius,
             lo: lo - DVec3::splat(radius),
             hi: hi + DVec3::splat(radius),
+            first_legs,
         })
+    }
+
+    /// Whether camera subpaths draw their first leg's collision along it ([`Forced::Leg`]).
+    pub(super) fn draws_first_legs(&self) -> bool {
+        self.first_legs
     }
 
     /// The first stretch `[a, b]` of the segment `p + t d`, `0 ≤ t ≤ length` (unit `d`), that
@@ -136,10 +171,11 @@ impl BeamTube {
         first
     }
 
-    /// The ray flown to the surface (its steps), and the first stretch `[a, b]` of it, in
-    /// geometric length from its start, that runs through the tube.
-    fn flown(&self, t: &Tools, ray: Ray) -> (Flight, usize, Option<(f64, f64)>) {
-        let (mut along, mut stretch, mut open) = (0.0, None::<(f64, f64)>, true);
+    /// The ray flown to the surface (its steps), and the stretch `[a, b]` of it, in geometric
+    /// length from its start, its forced draw is uniform on: the first that runs through the
+    /// tube, or the whole leg.
+    fn flown(&self, t: &Tools, ray: Ray, forced: Forced) -> (Flight, usize, Option<(f64, f64)>) {
+        let (mut along, mut stretch, mut open) = (0.0, None::<(f64, f64)>, forced == Forced::Tube);
         let (flight, steps) = t.flyer.fly_visiting(ray, f64::INFINITY, |from, to| {
             let v = to - from;
             let length = v.length();
@@ -158,6 +194,9 @@ impl BeamTube {
             along += length;
         });
         let stretch = match flight {
+            Flight::Boundary { length: exit, .. } if forced == Forced::Leg => {
+                Some((0.0, exit)).filter(|_| exit > 0.0)
+            }
             Flight::Boundary { length: exit, .. } => stretch
                 .map(|(a, b)| (a, b.min(exit)))
                 .filter(|(a, b)| a < b),
@@ -166,18 +205,25 @@ impl BeamTube {
         (flight, steps, stretch)
     }
 
-    /// A camera subpath's flight from its event inside a homogeneous volume along `ray`: the ray
-    /// flown to the surface and its first stretch through the tube found, then the collision
-    /// drawn from the mixture (a free flight with chance [`FREE_SHARE`], else uniformly on the
-    /// stretch; a free flight alone where the ray misses the tube) and the ray flown to it again.
-    /// Where it stopped, how far, and the factor the subpath's weight is divided by (the
-    /// mixture's density over the free flight's, [`Self::mixture_over_free`]), which the
-    /// balance heuristic's density of the collision from the camera's side takes too.
-    pub(super) fn flight(&self, t: &Tools, ray: Ray, rng: &mut Rng) -> (Stop, Travelled, f64) {
+    /// A camera subpath's flight along `ray` in a homogeneous volume, from its event inside or
+    /// its first leg in: the ray flown to the surface and the stretch of its forced draw found
+    /// (`forced`), then the collision drawn from the mixture (a free flight with chance
+    /// [`FREE_SHARE`], else uniformly on the stretch; a free flight alone where the ray misses
+    /// the tube) and the ray flown to it again. Where it stopped, how far, and the factor the
+    /// subpath's weight is divided by (the mixture's density over the free flight's,
+    /// [`Self::mixture_over_free`]), which the balance heuristic's density of the collision from
+    /// the camera's side takes too.
+    pub(super) fn flight(
+        &self,
+        t: &Tools,
+        ray: Ray,
+        forced: Forced,
+        rng: &mut Rng,
+    ) -> (Stop, Travelled, f64) {
         let volume = t.flyer.volume;
         let part = volume.part_index(ray.x).unwrap_or(0);
         let sigma_t = volume.sigma_t_at(ray.x);
-        let (flight, steps, stretch) = self.flown(t, ray);
+        let (flight, steps, stretch) = self.flown(t, ray, forced);
         let stretch = stretch.filter(|_| sigma_t > 0.0);
         let mut travelled = Travelled {
             steps,
@@ -239,7 +285,7 @@ impl BeamTube {
         };
         let (mut factor, mut steps, mut left) = (1.0, 0, length);
         for leg in 0..=bounces {
-            let (flight, k, stretch) = self.flown(t, ray);
+            let (flight, k, stretch) = self.flown(t, ray, Forced::Tube);
             steps += k;
             let Flight::Boundary {
                 ray: end, length, ..
@@ -258,6 +304,34 @@ impl BeamTube {
             ray = t.flyer.reflected_inside(end);
         }
         (factor, steps)
+    }
+
+    /// The factor [`Self::flight`] gives a collision on a camera subpath's first leg into the
+    /// volume ([`Forced::Leg`]) at `x`, `length` along the leg, the camera's ray arriving along
+    /// unit `d` (an event connected to the camera, as the camera would have drawn it), and the
+    /// leapfrog steps that took: the ray flown on from `x` to the surface gives the leg's whole
+    /// length.
+    pub(super) fn first_leg_factor(
+        &self,
+        t: &Tools,
+        x: DVec3,
+        d: DVec3,
+        length: f64,
+    ) -> (f64, usize) {
+        let sigma_t = t.flyer.volume.sigma_t_at(x);
+        if sigma_t <= 0.0 {
+            return (1.0, 0);
+        }
+        let ray = Ray {
+            x,
+            v: d * t.flyer.n(x),
+        };
+        let (flight, steps) = t.flyer.fly(ray, f64::INFINITY);
+        let Flight::Boundary { length: rest, .. } = flight else {
+            return (1.0, steps);
+        };
+        let leg = Some((0.0, length + rest));
+        (Self::mixture_over_free(leg, length, sigma_t, true), steps)
     }
 
     /// The flight's own mixture at its collision `s` along its ray (whose first stretch through
@@ -404,6 +478,17 @@ mod tests {
         }
     }
 
+    /// The flyer and connector of `volume`, step 0.01.
+    fn tools(volume: &super::super::scene::Volume) -> Tools<'_> {
+        Tools {
+            flyer: Flyer::new(volume, 0.01, 1_000_000),
+            connector: super::super::connect::Connector::new(volume, 0.01, 1_000_000),
+            colour: [1.0; 3],
+            delay: super::super::spectrum::Delay::NONE,
+            instant: None,
+        }
+    }
+
     /// A beam of radius 0.05 along `z` from `(0, 0, z)`.
     fn beam_along_z(z: f64) -> Light {
         Light::Beam {
@@ -426,6 +511,7 @@ mod tests {
             radius: 0.3,
             lo: DVec3::splat(-3.0),
             hi: DVec3::splat(3.0),
+            first_legs: false,
         };
         let inside = |x: DVec3| {
             tube.corners
@@ -492,17 +578,9 @@ mod tests {
     /// after `k` reflections, re-flying the path, is the product the flight's legs gave.
     #[test]
     fn a_flight_reflected_inside_draws_each_leg_from_the_tube_and_its_factor_is_found_again() {
-        use super::super::particle::Tools;
-        use super::super::spectrum::Delay;
         let volume = graded_box(1.0, 0.05, 0.3, 0.05);
         let beam = beam_along_z(-1.5);
-        let t = Tools {
-            flyer: Flyer::new(&volume, 0.01, 1_000_000),
-            connector: super::super::connect::Connector::new(&volume, 0.01, 1_000_000),
-            colour: [1.0; 3],
-            delay: Delay::NONE,
-            instant: None,
-        };
+        let t = tools(&volume);
         let tube = BeamTube::trace(&beam, &t.flyer).expect("a tube");
         let sigma_t = volume.sigma_t();
         let x = DVec3::new(0.5, 0.3, -0.3);
@@ -520,11 +598,15 @@ mod tests {
                 (aim + uniform_sphere(uniform(&mut rng), uniform(&mut rng)) * spread).normalize()
             })
             .find(|&d| {
-                let (first, _, stretch) = tube.flown(&t, ray_along(x, d));
+                let (first, _, stretch) = tube.flown(&t, ray_along(x, d), Forced::Tube);
                 let Flight::Boundary { ray: end, .. } = first else {
                     return false;
                 };
-                stretch.is_none() && tube.flown(&t, t.flyer.reflected_inside(end)).2.is_some()
+                stretch.is_none()
+                    && tube
+                        .flown(&t, t.flyer.reflected_inside(end), Forced::Tube)
+                        .2
+                        .is_some()
             })
             .expect("a start that crosses the tube after reflecting");
         let (n, bins, most) = (40_000, 16, 2);
@@ -538,7 +620,7 @@ mod tests {
                 },
                 _,
                 _,
-            ) = tube.flown(&t, ray)
+            ) = tube.flown(&t, ray, Forced::Tube)
             else {
                 panic!("stuck");
             };
@@ -550,7 +632,7 @@ mod tests {
         for _ in 0..n {
             let (mut ray, mut along, mut product) = (ray_along(x, d), 0.0, 1.0);
             for leg in 0..=most {
-                let (stop, travelled, factor) = tube.flight(&t, ray, &mut rng);
+                let (stop, travelled, factor) = tube.flight(&t, ray, Forced::Tube, &mut rng);
                 product *= factor;
                 match stop {
                     Stop::Collision(_) => {
@@ -590,6 +672,74 @@ mod tests {
                 "bin {k}: {mean} ± {error} vs {want}"
             );
         }
+    }
+
+    /// A camera subpath's first leg into a thin graded box draws its collision uniformly along
+    /// the whole leg half the time: the weights `1 / factor` tally the free flight's collision
+    /// density along the leg in 16 bins and its chance of reaching the surface (4σ), and the
+    /// factor [`BeamTube::first_leg_factor`] gives each collision, flying on from it to the
+    /// surface, is the one the flight gave. A box thick across draws no first legs.
+    #[test]
+    fn a_first_leg_draws_along_itself_and_its_factor_is_found_again() {
+        let volume = graded_box(1.0, 0.05, 0.3, 0.05);
+        let beam = beam_along_z(-1.5);
+        let t = tools(&volume);
+        let tube = BeamTube::trace(&beam, &t.flyer).expect("a tube");
+        assert!(tube.draws_first_legs());
+        let sigma_t = volume.sigma_t();
+        // a slanted camera ray just inside the face x = 1, bending down the gradient
+        let x = DVec3::new(1.0 - 1e-9, 0.2, 0.1);
+        let d = DVec3::new(-1.0, -0.3, 0.2).normalize();
+        let ray = Ray {
+            x,
+            v: d * t.flyer.n(x),
+        };
+        let (Flight::Boundary { length: span, .. }, _, stretch) = tube.flown(&t, ray, Forced::Leg)
+        else {
+            panic!("stuck");
+        };
+        assert_eq!(stretch, Some((0.0, span)));
+        let (n, bins) = (100_000, 16);
+        // per bin (the last: the surface), the weights' sum and sum of squares
+        let mut tally = vec![(0.0, 0.0); bins + 1];
+        let mut rng: Rng = stream_rng(9, 0);
+        for _ in 0..n {
+            let (stop, travelled, factor) = tube.flight(&t, ray, Forced::Leg, &mut rng);
+            let bin = match stop {
+                Stop::Collision(hit) => {
+                    let s = travelled.length;
+                    let (again, _) = tube.first_leg_factor(&t, hit.x, hit.v.normalize(), s);
+                    assert!(
+                        (again - factor).abs() < 1e-6 * factor,
+                        "{s}: {again} against the flight's {factor}"
+                    );
+                    ((s / span) * bins as f64) as usize
+                }
+                Stop::Boundary(_) => bins,
+                Stop::Stuck => panic!("stuck"),
+            };
+            let w = 1.0 / factor;
+            tally[bin].0 += w;
+            tally[bin].1 += w * w;
+        }
+        let width = span / bins as f64;
+        for (k, &(sum, squares)) in tally.iter().enumerate() {
+            let (s0, s1) = (k as f64 * width, (k + 1) as f64 * width);
+            let want = if k < bins {
+                (-sigma_t * s0).exp() - (-sigma_t * s1).exp()
+            } else {
+                (-sigma_t * span).exp()
+            };
+            let mean = sum / n as f64;
+            let error = ((squares / n as f64 - mean * mean) / n as f64).sqrt();
+            assert!(
+                (mean - want).abs() < 4.0 * error,
+                "bin {k}: {mean} ± {error} vs {want}"
+            );
+        }
+        let thick = graded_box(1.0, 0.05, 1.5, 0.05);
+        let tube = BeamTube::trace(&beam, &Flyer::new(&thick, 0.01, 1_000_000)).expect("a tube");
+        assert!(!tube.draws_first_legs());
     }
 
     /// The flight's mixture: collisions drawn from it and weighted by `1 / mixture_over_free`

@@ -50,6 +50,7 @@
 //! What no strategy makes: paths on which every segment reflects at the surface, or refracts
 //! there, more often than a connection does (with an index-matched surface there are none).
 
+use super::beam_tube::{FREE_SHARE, Forced};
 use super::connect::{Aim, InsidePath, MAX_AGAIN};
 use super::particle::{Leg, MAX_EVENTS, ParticleTracer, Reflections, Stop, Tools, Way, roulette};
 use super::scene::{Connections, Light, PartLengths, Rays, Volume};
@@ -585,13 +586,27 @@ impl ParticleTracer<'_> {
             let rho_light = y.rho_towards(volume, link.direction);
             let rays = self.camera_rays(camera);
             let cos_y = y.facing.map_or(1.0, |n| n.dot(link.direction));
+            // the camera's density of y where its first leg into the volume draws along it: an
+            // event on that leg, or reached after it passed to the surface
+            let forced = match &self.tube {
+                Some(tube) if tube.draws_first_legs() && y.facing.is_none() => {
+                    if link.bounces == 0 {
+                        let length = link.inside.total();
+                        tube.first_leg_factor(t, y.x, -link.direction, length).0
+                    } else {
+                        FREE_SHARE
+                    }
+                }
+                _ => 1.0,
+            };
             let joined = Joined {
                 light: ys,
                 camera: &[],
                 light_pdf,
                 camera_pdf: link.pdf,
                 link: Segment::new(volume, &link.inside, link.outside, rays, true)
-                    .with_cos(cos_y, 1.0),
+                    .with_cos(cos_y, 1.0)
+                    .with_forced(forced),
                 rho_light,
                 rho_camera: f64::NAN,
             };
@@ -972,9 +987,22 @@ impl ParticleTracer<'_> {
             let tube = self.tube.as_ref();
             let direct =
                 tube.filter(|_| !vertices.is_empty() && began_inside && met.all == met.bounces);
-            let (stop, travelled) = match direct {
-                Some(tube) if !start.photon => {
-                    let (stop, travelled, factor) = tube.flight(t, ray, rng);
+            // a camera subpath's first leg, just entered (see `BeamTube::draws_first_legs`)
+            let first_leg = tube.filter(|tube| {
+                tube.draws_first_legs()
+                    && vertices.is_empty()
+                    && !began_inside
+                    && met.all == 1
+                    && met.glances == 0
+            });
+            let forced = match (direct, first_leg) {
+                (Some(tube), _) => Some((tube, Forced::Tube)),
+                (None, Some(tube)) => Some((tube, Forced::Leg)),
+                (None, None) => None,
+            };
+            let (stop, travelled) = match forced {
+                Some((tube, forced)) if !start.photon => {
+                    let (stop, travelled, factor) = tube.flight(t, ray, forced, rng);
                     beta /= factor;
                     tube_factor *= factor;
                     (stop, travelled)
@@ -997,8 +1025,8 @@ impl ParticleTracer<'_> {
                             steps += k;
                             factor
                         }
-                        Some(_) => tube_factor,
-                        None => 1.0,
+                        // a camera subpath's own draws (1 where it drew none)
+                        _ => tube_factor,
                     };
                     let ends_in = Some(t.connector.part_of(hit.x));
                     // out of one part into another, or in a part that is not convex

@@ -278,6 +278,9 @@ pub(super) struct CameraLink {
     /// The density of the camera's own sampling of this path's start: per unit area of an
     /// orthographic camera's rectangle, per solid angle at a pinhole.
     pub(super) pdf: f64,
+    /// From an event inside, its reflections inside the surface before it leaves (0 from a
+    /// surface).
+    pub(super) bounces: usize,
 }
 
 /// Where an image lies among the outputs: after its total (`first − 1`), frame after frame (with
@@ -846,9 +849,13 @@ impl<'s> ParticleTracer<'s> {
         out: &mut [C64],
     ) -> Option<CameraLink> {
         let (e, inverse_p, bounces) = self.camera_exit(t, x, i, way, rng, out)?;
-        self.link_to_camera(t, i, &e, || {
+        let link = self.link_to_camera(t, i, &e, || {
             let transmittance = self.exit_transmittance(t, &e, bounces.first, rng);
             transmittance * e.transmission / e.jacobian * inverse_p
+        })?;
+        Some(CameraLink {
+            bounces: bounces.first,
+            ..link
         })
     }
 
@@ -936,6 +943,7 @@ impl<'s> ParticleTracer<'s> {
                 inside: e.lengths(t.flyer.volume),
                 outside: e.outside() + to_plane,
                 pdf: 1.0 / cam.area(),
+                bounces: 0,
             });
         }
         let cam = &self.scene.pinholes[i - self.scene.cameras.len()];
@@ -961,6 +969,7 @@ impl<'s> ParticleTracer<'s> {
             inside: e.lengths(t.flyer.volume),
             outside: e.outside() + to_pinhole,
             pdf: 1.0 / cam.image_area(cos),
+            bounces: 0,
         })
     }
 
@@ -1524,6 +1533,7 @@ impl<'s> ParticleTracer<'s> {
                 inside,
                 outside: to_plane - inside.total(),
                 pdf: 1.0 / cam.area(),
+                bounces: 0,
             });
         }
         let cam = &self.scene.pinholes[i - orthographic];
@@ -1550,6 +1560,7 @@ impl<'s> ParticleTracer<'s> {
             inside,
             outside: distance - inside.total(),
             pdf: 1.0 / cam.image_area(cos),
+            bounces: 0,
         })
     }
 
