@@ -40,9 +40,12 @@ pub(super) const FREE_SHARE: f64 = 0.5;
 const THIN_BEAM_DEPTH: f64 = 0.25;
 
 /// The optical depth across the volume (`σ_t` times its bounding box's diagonal) up to which
-/// camera subpaths draw their first leg's collision from a mixture uniform along the leg: about
-/// where a free flight across the volume collides less often than a draw along it.
-const THIN_VOLUME_DEPTH: f64 = 2.0;
+/// camera subpaths draw their first leg's collision from a mixture uniform along the leg: there
+/// a free flight across collides less than every other time. (In a thicker volume the draws
+/// take camera paths from the light that passes the first leg, reflected inside or out to a
+/// surface: on a small graded tank of depth 1.2 they cost 11 % to 17 % more time, and the
+/// noise moved either way.)
+const THIN_VOLUME_DEPTH: f64 = 1.0;
 
 /// The most pieces of the tube's polyline.
 const MAX_PIECES: usize = 64;
@@ -681,7 +684,7 @@ mod tests {
     /// surface, is the one the flight gave. A box thick across draws no first legs.
     #[test]
     fn a_first_leg_draws_along_itself_and_its_factor_is_found_again() {
-        let volume = graded_box(1.0, 0.05, 0.3, 0.05);
+        let volume = graded_box(1.0, 0.05, 0.2, 0.05);
         let beam = beam_along_z(-1.5);
         let t = tools(&volume);
         let tube = BeamTube::trace(&beam, &t.flyer).expect("a tube");
