@@ -481,6 +481,40 @@ mod tests {
         }
     }
 
+    /// Weighted tallies `(sum, sum of squares)` of `n` flights' collisions in equal bins over
+    /// `[0, span]`, and with `surface` (the last entry) of their reaching the surface at `span`,
+    /// against the free flight's chances there, `e^{−σ_t s_0} − e^{−σ_t s_1}` and `e^{−σ_t span}`
+    /// (4σ): each bin's chance and the tally's standard error.
+    fn assert_free_flight_tallies(
+        tally: &[(f64, f64)],
+        n: usize,
+        (sigma_t, span): (f64, f64),
+        surface: bool,
+    ) -> Vec<(f64, f64)> {
+        let bins = tally.len() - usize::from(surface);
+        let width = span / bins as f64;
+        let chance = |k: usize| {
+            let (s0, s1) = (k as f64 * width, (k + 1) as f64 * width);
+            if k < bins {
+                (-sigma_t * s0).exp() - (-sigma_t * s1).exp()
+            } else {
+                (-sigma_t * span).exp()
+            }
+        };
+        let mut checked = Vec::with_capacity(tally.len());
+        for (k, &(sum, squares)) in tally.iter().enumerate() {
+            let want = chance(k);
+            let mean = sum / n as f64;
+            let error = ((squares / n as f64 - mean * mean) / n as f64).sqrt();
+            assert!(
+                (mean - want).abs() < 4.0 * error,
+                "bin {k}: {mean} ± {error} vs {want}"
+            );
+            checked.push((want, error));
+        }
+        checked
+    }
+
     /// The flyer and connector of `volume`, step 0.01.
     fn tools(volume: &super::super::scene::Volume) -> Tools<'_> {
         Tools {
@@ -664,17 +698,7 @@ mod tests {
             forced_draws > n / 10,
             "{forced_draws} collisions in the tube"
         );
-        let width = span / bins as f64;
-        for (k, &(sum, squares)) in tally.iter().enumerate() {
-            let (s0, s1) = (k as f64 * width, (k + 1) as f64 * width);
-            let want = (-sigma_t * s0).exp() - (-sigma_t * s1).exp();
-            let mean = sum / n as f64;
-            let error = ((squares / n as f64 - mean * mean) / n as f64).sqrt();
-            assert!(
-                (mean - want).abs() < 4.0 * error,
-                "bin {k}: {mean} ± {error} vs {want}"
-            );
-        }
+        assert_free_flight_tallies(&tally, n, (sigma_t, span), false);
     }
 
     /// A camera subpath's first leg into a thin graded box draws its collision uniformly along
@@ -725,21 +749,7 @@ mod tests {
             tally[bin].0 += w;
             tally[bin].1 += w * w;
         }
-        let width = span / bins as f64;
-        for (k, &(sum, squares)) in tally.iter().enumerate() {
-            let (s0, s1) = (k as f64 * width, (k + 1) as f64 * width);
-            let want = if k < bins {
-                (-sigma_t * s0).exp() - (-sigma_t * s1).exp()
-            } else {
-                (-sigma_t * span).exp()
-            };
-            let mean = sum / n as f64;
-            let error = ((squares / n as f64 - mean * mean) / n as f64).sqrt();
-            assert!(
-                (mean - want).abs() < 4.0 * error,
-                "bin {k}: {mean} ± {error} vs {want}"
-            );
-        }
+        assert_free_flight_tallies(&tally, n, (sigma_t, span), true);
         let thick = graded_box(1.0, 0.05, 1.5, 0.05);
         let tube = BeamTube::trace(&beam, &Flyer::new(&thick, 0.01, 1_000_000)).expect("a tube");
         assert!(!tube.draws_first_legs());
@@ -772,21 +782,11 @@ mod tests {
             tally[bin].0 += w;
             tally[bin].1 += w * w;
         }
-        let width = exit / bins as f64;
-        for (k, &(sum, squares)) in tally.iter().enumerate() {
-            let (s0, s1) = (k as f64 * width, (k + 1) as f64 * width);
-            let want = if k < bins {
-                (-sigma_t * s0).exp() - (-sigma_t * s1).exp()
-            } else {
-                (-sigma_t * exit).exp()
-            };
-            let mean = sum / n as f64;
-            let error = ((squares / n as f64 - mean * mean) / n as f64).sqrt();
+        for (k, (want, error)) in assert_free_flight_tallies(&tally, n, (sigma_t, exit), true)
+            .into_iter()
+            .enumerate()
+        {
             assert!(error < 0.03 * want, "bin {k}: error {error} of {want}");
-            assert!(
-                (mean - want).abs() < 4.0 * error,
-                "bin {k}: {mean} ± {error} vs {want}"
-            );
         }
     }
 }
