@@ -6,7 +6,8 @@
 //! and, per camera, one from the camera (throughput in basic radiance), both with the free flights,
 //! Fresnel splits, phase-function sampling and diffuse surfaces of the other two tracers (under a
 //! thin collimated beam, a camera subpath's flights from its events draw half their collisions in
-//! the beam's tube: see `beam_tube`). A path of `k` scattering events `v_1 … v_k` (inside the
+//! the beam's tube, and in an optically thin volume its first leg in half along the leg: see
+//! `beam_tube`). A path of `k` scattering events `v_1 … v_k` (inside the
 //! volume or on a surface) can then be made `k + 1` ways: `s` events from the light and `t = k − s`
 //! from the camera, joined by a connection: the light to a camera event (`s = 0`, path tracing's
 //! next event), a light event to the camera (`t = 0`, particle tracing's), or a light event to a
