@@ -756,8 +756,10 @@ fn a_thin_beam_in_a_graded_box_agrees_and_its_tube_draws_lower_the_noise() {
 
 /// The same box thinner (`σ_t` times its diagonal 0.52: most camera rays cross it without an
 /// event), where bidirectional tracing's camera subpaths also draw half their first legs'
-/// collisions uniformly along the leg: its image agrees pixel by pixel with particle tracing's,
-/// and its subpaths meet half as many events again as the same samples without the tube's draws.
+/// collisions uniformly along the leg and aim half their scattering directions at the beam:
+/// its image agrees pixel by pixel with particle tracing's, its subpaths meet half as many
+/// events again as the same samples without the tube's draws, and aiming gives the two-event
+/// paths drawn wholly from the camera more of the light of those with camera events.
 #[test]
 fn a_thin_beam_in_a_thin_graded_box_agrees_with_its_first_legs_drawn() {
     let mut s = thin_beam_in_a_graded_box(0.12, 0.03);
@@ -783,6 +785,27 @@ fn a_thin_beam_in_a_thin_graded_box_agrees_with_its_first_legs_drawn() {
         "{} against {}",
         events(&c),
         events(&f)
+    );
+    // aiming at the beam: the two-event paths with camera events are drawn more often wholly
+    // from the camera (its event in front of the beam, its direction aimed into it), so the
+    // balance heuristic gives that strategy more of their light than without aiming
+    let unaimed = lightpath::rrte::ParticleTracer::new(&s).without_aiming();
+    let u = common::estimate(&unaimed, &lightpath::mc::Plan::new(2, 40_000, 40_000 / 64));
+    let camera_share = |e: &Estimate| {
+        let (drawn, joined) = (est.strategy_total(0, 2, 0), est.strategy_total(0, 2, 1));
+        let (a, b) = (e.mean[drawn].re, e.mean[joined].re);
+        let relative = (e.stderr[drawn] / a).hypot(e.stderr[joined] / b);
+        let share = a / (a + b);
+        (share, share * (1.0 - share) * relative)
+    };
+    let ((aimed, aimed_error), (plain, plain_error)) = (camera_share(&c), camera_share(&u));
+    eprintln!(
+        "two events wholly from the camera: {aimed:.3} ± {aimed_error:.3} of those with camera \
+         events aiming, {plain:.3} ± {plain_error:.3} without"
+    );
+    assert!(
+        aimed - plain > 3.0 * aimed_error.hypot(plain_error),
+        "{aimed} ± {aimed_error} against {plain} ± {plain_error}"
     );
 }
 

@@ -20,6 +20,16 @@
 //! collision from the same kind of mixture, the forced draw uniform along the whole leg to the
 //! surface ([`Forced::Leg`]); the density of an event on that leg made by a connection to the
 //! camera takes it too ([`BeamTube::first_leg_factor`]).
+//!
+//! There the camera's events in front of the beam still reach it only where the phase
+//! function's draw runs into the thin tube. So a camera subpath scatters from its events inside
+//! by a mixture too: the phase function with chance [`PHASE_SHARE`], else a direction aimed at
+//! a point of the tube drawn by the phase function towards each slice of it times the solid
+//! angle the slice subtends (a product of the two, slice by slice), the slices moved against
+//! the bend of the rays in a graded index so that the curved ray reaches them
+//! ([`BeamTube::aim`]). The weight divides by the mixture's density over the phase function's,
+//! and the balance heuristic's densities of a direction from the camera's side take it, at a
+//! light event as at a camera event ([`BeamTube::aim_density`]).
 
 use super::flight::{Flight, Flyer};
 use super::particle::{Stop, Tools, Travelled};
@@ -27,7 +37,9 @@ use super::scene::Light;
 use crate::eikonal::trace::{entry_parameter, refract};
 use crate::eikonal::{Bounds, Ray};
 use crate::math::{Rng, uniform};
+use crate::medium::Scattering;
 use glam::DVec3;
+use std::f64::consts::PI;
 
 /// The chance that a camera subpath's flight through the beam's tube is a plain free flight;
 /// otherwise its collision is drawn uniformly on the tube's first stretch.
@@ -50,6 +62,26 @@ const THIN_VOLUME_DEPTH: f64 = 1.0;
 /// The most pieces of the tube's polyline.
 const MAX_PIECES: usize = 64;
 
+/// The share of a camera event's scattering directions drawn from its phase function where
+/// the camera subpaths aim at the tube; the rest are aimed at it ([`BeamTube::aim`]).
+pub(super) const PHASE_SHARE: f64 = 0.5;
+
+/// How many slices of about equal length the tube is cut into for aiming at it (a piece of the
+/// polyline shorter than that is one slice).
+const SLICES: usize = 64;
+
+/// The most slices: [`SLICES`] and one more for each piece.
+const MAX_SLICES: usize = SLICES + MAX_PIECES;
+
+/// A straight stretch of the tube: the cylinder of the beam's radius about `start + s axis`,
+/// `0 ≤ s ≤ length`.
+#[derive(Clone, Copy, Debug)]
+struct Slice {
+    start: DVec3,
+    axis: DVec3,
+    length: f64,
+}
+
 /// Where a flight's forced draw is uniform: on the first stretch of its ray through the tube
 /// (a flight from an event inside), or along its whole leg to the surface (a camera subpath's
 /// first leg into a thin volume).
@@ -69,9 +101,12 @@ pub(super) struct BeamTube {
     /// The tube's bounding box, for a quick miss.
     lo: DVec3,
     hi: DVec3,
-    /// Whether camera subpaths draw their first leg's collision along it: one convex volume,
-    /// optically thin across ([`THIN_VOLUME_DEPTH`]).
+    /// Whether camera subpaths draw their first leg's collision along it, and aim half their
+    /// scattering directions at it: one convex volume, optically thin across
+    /// ([`THIN_VOLUME_DEPTH`]).
     first_legs: bool,
+    /// The polyline cut into slices, for aiming at it.
+    slices: Vec<Slice>,
 }
 
 impl BeamTube {
@@ -127,13 +162,144 @@ impl BeamTube {
             && field.bounds.half_extent().is_some_and(|half| {
                 2.0 * half.length() * flyer.volume.sigma_t() <= THIN_VOLUME_DEPTH
             });
+        let slices = slice(&corners);
         Some(BeamTube {
             corners,
             radius,
             lo: lo - DVec3::splat(radius),
             hi: hi + DVec3::splat(radius),
             first_legs,
+            slices,
         })
+    }
+
+    /// Whether camera subpaths aim half the scattering directions of their events inside the
+    /// volume at it ([`Self::aim`]): where they draw their first legs along themselves.
+    pub(super) fn aims(&self) -> bool {
+        self.first_legs && !self.slices.is_empty()
+    }
+
+    /// The same tube, not aimed at.
+    pub(super) fn without_aiming(self) -> Self {
+        BeamTube {
+            slices: Vec::new(),
+            ..self
+        }
+    }
+
+    /// Slice `i` as aimed at from `x`, where rays bend by `bend` (`∇n / n`, the curvature of a
+    /// ray across the gradient): moved by `−bend r² / 2`, `r` the distance to its middle, so
+    /// that a ray aimed straight at the moved slice reaches the slice itself (to first order
+    /// in the bend).
+    fn aimed_slice(&self, i: usize, x: DVec3, bend: DVec3) -> Slice {
+        let slice = self.slices[i];
+        let middle = slice.start + slice.axis * (0.5 * slice.length);
+        Slice {
+            start: slice.start - bend * (0.5 * (middle - x).length_squared()),
+            ..slice
+        }
+    }
+
+    /// Each slice's weight for aiming from `x` (rays bending by `bend`), where the camera
+    /// subpath arrived along unit `arrive`: the phase function towards the aimed slice's middle
+    /// times the solid angle it subtends there (its side and end seen from `x`, at most 2π;
+    /// the phase function kept above zero, so that every slice can be drawn); their sum.
+    fn slice_weights(
+        &self,
+        scattering: &Scattering,
+        (x, bend): (DVec3, DVec3),
+        arrive: DVec3,
+        weights: &mut [f64; MAX_SLICES],
+    ) -> f64 {
+        let rho = self.radius;
+        let mut total = 0.0;
+        for (i, w) in weights.iter_mut().enumerate().take(self.slices.len()) {
+            let slice = self.aimed_slice(i, x, bend);
+            let v = slice.start + slice.axis * (0.5 * slice.length) - x;
+            let r2 = v.length_squared();
+            let u = v / r2.sqrt().max(f64::MIN_POSITIVE);
+            let (sin, cos) = (u.cross(slice.axis).length(), u.dot(slice.axis).abs());
+            let solid = if r2 <= rho * rho {
+                2.0 * PI
+            } else {
+                ((2.0 * rho * slice.length * sin + PI * rho * rho * cos) / r2).min(2.0 * PI)
+            };
+            *w = scattering.eval(arrive.dot(u)).max(f64::MIN_POSITIVE) * solid;
+            total += *w;
+        }
+        total
+    }
+
+    /// A direction from `x` aimed at the tube, where rays bend by `bend` (`∇n / n` there) and
+    /// the camera subpath arrived along unit `arrive`: a slice drawn by its weight (the phase
+    /// function times its solid angle, a discrete product of the two), a point drawn evenly in
+    /// its cylinder as aimed at ([`Self::aimed_slice`]), the unit direction to it. Its density
+    /// per solid angle is [`Self::aim_density`].
+    pub(super) fn aim(
+        &self,
+        scattering: &Scattering,
+        (x, bend): (DVec3, DVec3),
+        arrive: DVec3,
+        rng: &mut Rng,
+    ) -> DVec3 {
+        let mut weights = [0.0; MAX_SLICES];
+        let total = self.slice_weights(scattering, (x, bend), arrive, &mut weights);
+        let mut pick = uniform(rng) * total;
+        let mut i = 0;
+        while i + 1 < self.slices.len() && pick >= weights[i] {
+            pick -= weights[i];
+            i += 1;
+        }
+        let slice = self.aimed_slice(i, x, bend);
+        let (e1, e2) = crate::math::orthonormal_basis(slice.axis);
+        let (r, phi) = (self.radius * uniform(rng).sqrt(), 2.0 * PI * uniform(rng));
+        let z = slice.start
+            + slice.axis * (slice.length * uniform(rng))
+            + (e1 * phi.cos() + e2 * phi.sin()) * r;
+        (z - x).try_normalize().unwrap_or(arrive)
+    }
+
+    /// The density per solid angle of [`Self::aim`] drawing unit `d` from `x` (rays bending by
+    /// `bend`, arrived along `arrive`): the points it aims at have the density `P_i / V_i` in
+    /// aimed slice `i` (its chance over its volume), so the direction's is `Σ_i P_i / V_i ∫ t²
+    /// dt` over the stretch of the ray `x + t d`, `t ≥ 0`, inside that slice's cylinder.
+    pub(super) fn aim_density(
+        &self,
+        scattering: &Scattering,
+        (x, bend): (DVec3, DVec3),
+        arrive: DVec3,
+        d: DVec3,
+    ) -> f64 {
+        // the tube's box widened by the most any slice is moved
+        let reach = (x - self.lo)
+            .abs()
+            .max((x - self.hi).abs())
+            .length_squared();
+        let pad = DVec3::splat(0.5 * reach * bend.length());
+        if !box_meets(self.lo - pad, self.hi + pad, x, d, f64::INFINITY) {
+            return 0.0;
+        }
+        let mut moments = [0.0; MAX_SLICES];
+        let mut met = false;
+        let area = PI * self.radius * self.radius;
+        for (i, m) in moments.iter_mut().enumerate().take(self.slices.len()) {
+            let slice = self.aimed_slice(i, x, bend);
+            let end = slice.start + slice.axis * slice.length;
+            if let Some((t0, t1)) = cylinder(slice.start, end, self.radius, x, d) {
+                let t0 = t0.max(0.0);
+                if t0 < t1 {
+                    *m = (t1.powi(3) - t0.powi(3)) / (3.0 * slice.length * area);
+                    met = true;
+                }
+            }
+        }
+        if !met {
+            return 0.0;
+        }
+        let mut weights = [0.0; MAX_SLICES];
+        let total = self.slice_weights(scattering, (x, bend), arrive, &mut weights);
+        let sum: f64 = weights.iter().zip(&moments).map(|(w, m)| w * m).sum();
+        sum / total
     }
 
     /// Whether camera subpaths draw their first leg's collision along it ([`Forced::Leg`]).
@@ -359,6 +525,31 @@ impl BeamTube {
     }
 }
 
+/// The polyline through `corners` cut into slices of about equal length, about [`SLICES`] in
+/// all (at least one per piece).
+fn slice(corners: &[DVec3]) -> Vec<Slice> {
+    let total: f64 = corners.windows(2).map(|p| (p[1] - p[0]).length()).sum();
+    let mut slices = Vec::new();
+    for pair in corners.windows(2) {
+        let v = pair[1] - pair[0];
+        let length = v.length();
+        if length <= 0.0 {
+            continue;
+        }
+        let count = ((SLICES as f64 * length / total).round() as usize).max(1);
+        let axis = v / length;
+        for k in 0..count {
+            slices.push(Slice {
+                start: pair[0] + v * (k as f64 / count as f64),
+                axis,
+                length: length / count as f64,
+            });
+        }
+    }
+    slices.truncate(MAX_SLICES);
+    slices
+}
+
 /// Ramer–Douglas–Peucker: the corners of `points` that keep the polyline within `tolerance`.
 fn simplify(points: &[DVec3], tolerance: f64) -> Vec<DVec3> {
     let mut keep = vec![false; points.len()];
@@ -403,44 +594,51 @@ fn box_meets(lo: DVec3, hi: DVec3, p: DVec3, d: DVec3, length: f64) -> bool {
 /// The interval of the line `p + t d` (unit `d`) within `radius` of the segment `a b`: the
 /// capsule is convex, so the interval is the hull of those of its cylinder and its two balls.
 fn capsule(a: DVec3, b: DVec3, radius: f64, p: DVec3, d: DVec3) -> Option<(f64, f64)> {
-    let mut hull: Option<(f64, f64)> = None;
-    let mut add = |i: Option<(f64, f64)>| {
-        if let Some((x, y)) = i {
-            hull = Some(hull.map_or((x, y), |(u, v)| (u.min(x), v.max(y))));
-        }
-    };
-    add(ball(a, radius, p, d));
-    add(ball(b, radius, p, d));
-    // the cylinder between the two end planes
+    [
+        ball(a, radius, p, d),
+        ball(b, radius, p, d),
+        cylinder(a, b, radius, p, d),
+    ]
+    .into_iter()
+    .flatten()
+    .reduce(|(u, v), (x, y)| (u.min(x), v.max(y)))
+}
+
+/// The interval of the line `p + t d` (unit `d`) inside the cylinder of `radius` about the
+/// segment `a b`, between its two end planes.
+fn cylinder(a: DVec3, b: DVec3, radius: f64, p: DVec3, d: DVec3) -> Option<(f64, f64)> {
     let axis = b - a;
     let length = axis.length();
-    if length > 0.0 {
-        let u = axis / length;
-        let (q, e) = (p - a, d - u * d.dot(u));
-        let m = q - u * q.dot(u);
-        let (qa, qb, qc) = (e.dot(e), 2.0 * e.dot(m), m.dot(m) - radius * radius);
-        if qa > 1e-300 {
-            let disc = qb * qb - 4.0 * qa * qc;
-            if disc >= 0.0 {
-                let root = disc.sqrt();
-                let (t0, t1) = ((-qb - root) / (2.0 * qa), (-qb + root) / (2.0 * qa));
-                // clipped to the slab 0 ≤ (x − a)·u ≤ length
-                let (s0, sd) = (q.dot(u), d.dot(u));
-                let (mut lo, mut hi) = (t0, t1);
-                if sd.abs() > 1e-300 {
-                    let (c0, c1) = (-s0 / sd, (length - s0) / sd);
-                    lo = lo.max(c0.min(c1));
-                    hi = hi.min(c0.max(c1));
-                } else if s0 < 0.0 || s0 > length {
-                    lo = hi;
-                }
-                if lo < hi {
-                    add(Some((lo, hi)));
-                }
-            }
-        }
+    if length <= 0.0 {
+        return None;
     }
-    hull
+    let u = axis / length;
+    let (q, e) = (p - a, d - u * d.dot(u));
+    let m = q - u * q.dot(u);
+    let (qa, qb, qc) = (e.dot(e), 2.0 * e.dot(m), m.dot(m) - radius * radius);
+    // the infinite cylinder: all of the line where it runs along the axis inside
+    let (mut lo, mut hi) = if qa > 1e-300 {
+        let disc = qb * qb - 4.0 * qa * qc;
+        if disc < 0.0 {
+            return None;
+        }
+        let root = disc.sqrt();
+        ((-qb - root) / (2.0 * qa), (-qb + root) / (2.0 * qa))
+    } else if qc <= 0.0 {
+        (f64::NEG_INFINITY, f64::INFINITY)
+    } else {
+        return None;
+    };
+    // clipped to the slab 0 ≤ (x − a)·u ≤ length
+    let (s0, sd) = (q.dot(u), d.dot(u));
+    if sd.abs() > 1e-300 {
+        let (c0, c1) = (-s0 / sd, (length - s0) / sd);
+        lo = lo.max(c0.min(c1));
+        hi = hi.min(c0.max(c1));
+    } else if s0 < 0.0 || s0 > length {
+        return None;
+    }
+    (lo < hi).then_some((lo, hi))
 }
 
 /// The interval of the line `p + t d` (unit `d`) inside the ball about `c`.
@@ -535,6 +733,89 @@ mod tests {
         }
     }
 
+    /// Directions aimed at a bent tube have the density `aim_density` says: it integrates to
+    /// one over the sphere, and its integral over each octant (both by uniform directions)
+    /// is the share of aimed directions that fall there (4σ), from points beside the tube, far
+    /// from it and inside it.
+    #[test]
+    fn directions_aimed_at_the_tube_have_the_density_it_gives() {
+        use crate::medium::{PhaseFunction, Scattering};
+        let corners = vec![
+            DVec3::new(0.0, 0.0, -2.0),
+            DVec3::new(0.0, 0.0, 0.0),
+            DVec3::new(0.0, 0.5, 2.0),
+        ];
+        let tube = BeamTube {
+            slices: slice(&corners),
+            corners,
+            radius: 0.2,
+            lo: DVec3::new(-0.2, -0.2, -2.2),
+            hi: DVec3::new(0.2, 0.7, 2.2),
+            first_legs: true,
+        };
+        assert!(tube.slices.len() >= SLICES && tube.slices.len() <= MAX_SLICES);
+        let hg = Scattering::single(PhaseFunction::HenyeyGreenstein { g: 0.8 });
+        let octant = |d: DVec3| {
+            usize::from(d.x > 0.0) + 2 * usize::from(d.y > 0.0) + 4 * usize::from(d.z > 0.0)
+        };
+        let mut rng: Rng = stream_rng(5, 0);
+        // rays bending in a graded index: the aimed slices move away from the tube
+        let bend = DVec3::new(0.0, 0.05, 0.02);
+        let points = [
+            (
+                DVec3::new(0.6, 0.2, -1.0),
+                DVec3::new(-1.0, 0.0, 0.2).normalize(),
+            ),
+            (DVec3::new(3.0, -1.0, 1.5), DVec3::new(0.0, 1.0, 0.0)),
+            (
+                DVec3::new(0.05, 0.0, -0.5),
+                DVec3::new(1.0, 1.0, 1.0).normalize(),
+            ),
+        ];
+        for (x, arrive) in points {
+            // uniform directions: 4π q and its octants' integrals
+            let n = 400_000;
+            let (mut sum, mut squares) = (0.0, 0.0);
+            let mut octants = [(0.0, 0.0); 8];
+            for _ in 0..n {
+                let d = uniform_sphere(uniform(&mut rng), uniform(&mut rng));
+                let q = 4.0 * PI * tube.aim_density(&hg, (x, bend), arrive, d);
+                sum += q;
+                squares += q * q;
+                let o = &mut octants[octant(d)];
+                o.0 += q;
+                o.1 += q * q;
+            }
+            let error = |(sum, squares): (f64, f64), n: usize| {
+                let mean = sum / n as f64;
+                (mean, ((squares / n as f64 - mean * mean) / n as f64).sqrt())
+            };
+            let (mean, sigma) = error((sum, squares), n);
+            assert!(
+                (mean - 1.0).abs() < 4.0 * sigma,
+                "{x}: ∫ q = {mean} ± {sigma}"
+            );
+            // aimed directions: their octants
+            let m = 100_000;
+            let mut counts = [0usize; 8];
+            for _ in 0..m {
+                let d = tube.aim(&hg, (x, bend), arrive, &mut rng);
+                let q = tube.aim_density(&hg, (x, bend), arrive, d);
+                assert!(q > 0.0, "{x}: {d} aimed, density 0");
+                counts[octant(d)] += 1;
+            }
+            for (k, (&count, &o)) in counts.iter().zip(&octants).enumerate() {
+                let (want, sigma_want) = error(o, n);
+                let share = count as f64 / m as f64;
+                let sigma = (sigma_want.powi(2) + share * (1.0 - share) / m as f64).sqrt();
+                assert!(
+                    (share - want).abs() < 4.0 * sigma + 1e-12,
+                    "{x}, octant {k}: {share} aimed vs {want} ± {sigma_want}"
+                );
+            }
+        }
+    }
+
     /// The first stretch through a tube of two pieces agrees with points sampled along the
     /// line: inside the tube exactly between its ends, outside just before and after.
     #[test]
@@ -549,6 +830,7 @@ mod tests {
             lo: DVec3::splat(-3.0),
             hi: DVec3::splat(3.0),
             first_legs: false,
+            slices: Vec::new(),
         };
         let inside = |x: DVec3| {
             tube.corners

@@ -6,8 +6,8 @@
 //! and, per camera, one from the camera (throughput in basic radiance), both with the free flights,
 //! Fresnel splits, phase-function sampling and diffuse surfaces of the other two tracers (under a
 //! thin collimated beam, a camera subpath's flights from its events draw half their collisions in
-//! the beam's tube, and in an optically thin volume its first leg in half along the leg: see
-//! `beam_tube`). A path of `k` scattering events `v_1 … v_k` (inside the
+//! the beam's tube, and in an optically thin volume its first leg in half along the leg and half
+//! its scattering directions aimed at the tube: see `beam_tube`). A path of `k` scattering events `v_1 … v_k` (inside the
 //! volume or on a surface) can then be made `k + 1` ways: `s` events from the light and `t = k − s`
 //! from the camera, joined by a connection: the light to a camera event (`s = 0`, path tracing's
 //! next event), a light event to the camera (`t = 0`, particle tracing's), or a light event to a
@@ -51,7 +51,7 @@
 //! What no strategy makes: paths on which every segment reflects at the surface, or refracts
 //! there, more often than a connection does (with an index-matched surface there are none).
 
-use super::beam_tube::{FREE_SHARE, Forced};
+use super::beam_tube::{FREE_SHARE, Forced, PHASE_SHARE};
 use super::connect::{Aim, InsidePath, MAX_AGAIN};
 use super::particle::{Leg, MAX_EVENTS, ParticleTracer, Reflections, Stop, Tools, Way, roulette};
 use super::scene::{Connections, Light, PartLengths, Rays, Volume};
@@ -65,9 +65,15 @@ pub(super) struct Vertex {
     x: DVec3,
     /// Unit direction of travel arriving at `x` (the subpath's own).
     arrive: DVec3,
-    /// The density of the direction the subpath left along, per solid angle: the phase function
-    /// between `arrive` and it, or on a surface `cos θ / π` (unset at its last event).
+    /// Unit direction the subpath left along (unset at its last event).
+    leave: DVec3,
+    /// The subpath's density of leaving along `leave`, per solid angle: the phase function
+    /// between `arrive` and it (for a camera subpath aiming at a beam's tube, the mixture with
+    /// the aimed draws), or on a surface `cos θ / π` (unset at its last event).
     rho: f64,
+    /// The phase function between `arrive` and `leave` (on a surface `cos θ / π`): the density
+    /// of a light subpath, the same both ways.
+    phase: f64,
     /// The weight after the albedo at `x`: a photon's power, or a camera path's throughput.
     beta: f64,
     /// Optical path (group delay) from the subpath's start.
@@ -79,15 +85,6 @@ pub(super) struct Vertex {
 }
 
 impl Vertex {
-    /// The density of leaving back along the arriving direction (towards the vertex before, in
-    /// the subpath's own order), per solid angle.
-    fn rho_back(&self, phase: f64) -> f64 {
-        match self.facing {
-            Some(n) => lambert(n, -self.arrive),
-            None => phase,
-        }
-    }
-
     /// The density of leaving `x` along unit `d` given the arrival, per solid angle: the phase
     /// function, or a surface's `cos θ / π`.
     fn rho_towards(&self, volume: &Volume, d: DVec3) -> f64 {
@@ -96,12 +93,36 @@ impl Vertex {
             None => volume.scattering_at(self.x).eval(self.arrive.dot(d)),
         }
     }
+
+    /// A camera subpath's density of leaving this event of its own along unit `d`, whose
+    /// [`Self::rho_towards`] is `phase`: with the draws aimed at a beam's tube (`aimed`) where
+    /// there are any.
+    fn camera_rho(&self, phase: f64, d: DVec3, aimed: Option<AimDensity>) -> f64 {
+        match self.facing {
+            Some(_) => phase,
+            None => camera_density(phase, aimed.map(|q| q(self.x, self.arrive, d))),
+        }
+    }
 }
 
 /// A Lambertian surface's density of leaving along unit `d` (its unit normal `n` on the lit
 /// side): `cos θ / π`, zero below it.
 fn lambert(n: DVec3, d: DVec3) -> f64 {
     n.dot(d).max(0.0) / std::f64::consts::PI
+}
+
+/// The density of a camera subpath aiming at a beam's tube of drawing a unit direction aimed at
+/// it from an event inside, `(x, arrive, d)` ([`super::beam_tube::BeamTube::aim_density`]).
+type AimDensity<'a> = &'a dyn Fn(DVec3, DVec3, DVec3) -> f64;
+
+/// A camera subpath's density of leaving an event inside along a direction whose phase
+/// function is `phase`: that, or where it aims at a beam's tube (`aimed`, the aimed draw's
+/// density of it), the mixture.
+fn camera_density(phase: f64, aimed: Option<f64>) -> f64 {
+    match aimed {
+        Some(q) => PHASE_SHARE * phase + (1.0 - PHASE_SHARE) * q,
+        None => phase,
+    }
 }
 
 /// Whether a connection reflected off the volume's outside (`way`) then runs `inside` through
@@ -342,9 +363,16 @@ struct Joined<'a> {
     camera_pdf: f64,
     /// The connecting segment, from `y_s` (or the light) to `z_t` (or the camera).
     link: Segment,
-    /// The densities of leaving along the link at its ends, `y_s` and `z_t`.
+    /// The densities of leaving along the link at its ends, `y_s` and `z_t`, each its own
+    /// subpath's.
     rho_light: f64,
     rho_camera: f64,
+    /// The unit direction leaving `y_s` along the link, and the phase function at `z_t` between
+    /// its arrival and the link (on a surface `cos θ / π`): the light's density there.
+    leave_light: DVec3,
+    phase_camera: f64,
+    /// Where the camera subpaths aim at a beam's tube, the aimed draws' density.
+    aimed: Option<AimDensity<'a>>,
 }
 
 impl Joined<'_> {
@@ -369,19 +397,37 @@ impl Joined<'_> {
         }
     }
 
-    /// The density at `v_i` of leaving towards `v_{i+1}` (`ahead`) or towards `v_{i−1}`, per
-    /// solid angle (the phase function is the same both ways: reversing both directions keeps
-    /// their angle; a surface's `cos θ / π` is not).
+    /// The density at `v_i` of leaving towards `v_{i+1}` (`ahead`, as the light subpath
+    /// would) or towards `v_{i−1}` (as the camera subpath would), per solid angle (the phase
+    /// function is the same both ways: reversing both directions keeps their angle; a surface's
+    /// `cos θ / π` is not, nor are a camera subpath's draws aimed at a beam's tube).
     fn rho(&self, i: usize, ahead: bool) -> f64 {
         let s = self.s();
         if i <= s {
             let y = &self.light[i - 1];
-            let traced = if i == s { self.rho_light } else { y.rho };
-            if ahead { traced } else { y.rho_back(traced) }
+            let (traced, leave) = if i == s {
+                (self.rho_light, self.leave_light)
+            } else {
+                (y.rho, y.leave)
+            };
+            match (ahead, y.facing) {
+                (true, _) => traced,
+                (false, Some(n)) => lambert(n, -y.arrive),
+                // the camera arrives along −leave and leaves along −arrive
+                (false, None) => {
+                    camera_density(traced, self.aimed.map(|q| q(y.x, -leave, -y.arrive)))
+                }
+            }
         } else {
             let z = &self.camera[self.k() - i];
-            let traced = if i == s + 1 { self.rho_camera } else { z.rho };
-            if ahead { z.rho_back(traced) } else { traced }
+            let link = i == s + 1;
+            match (ahead, z.facing) {
+                (false, _) if link => self.rho_camera,
+                (false, _) => z.rho,
+                (true, Some(n)) => lambert(n, -z.arrive),
+                (true, None) if link => self.phase_camera,
+                (true, None) => z.phase,
+            }
         }
     }
 
@@ -451,6 +497,17 @@ struct Start {
 }
 
 impl ParticleTracer<'_> {
+    /// The density of the camera subpaths' draws aimed at the beam's tube
+    /// ([`super::beam_tube::BeamTube::aims`]), where they aim at it.
+    fn aimed<'a>(&'a self, t: &'a Tools) -> Option<impl Fn(DVec3, DVec3, DVec3) -> f64 + 'a> {
+        let volume = t.flyer.volume;
+        let tube = self.tube.as_ref().filter(|tube| tube.aims())?;
+        Some(move |x, arrive, d| {
+            let bend = volume.bend(x);
+            tube.aim_density(volume.scattering_at(x), (x, bend), arrive, d)
+        })
+    }
+
     /// How the rays of camera `camera` spread (the orthographic cameras first, then the
     /// pinholes): parallel from an orthographic camera, from the point of a pinhole.
     fn camera_rays(&self, camera: usize) -> Rays {
@@ -530,6 +587,8 @@ impl ParticleTracer<'_> {
         if beam && !self.scene.light.near_beam(z.x) {
             return;
         }
+        let aim = self.aimed(t);
+        let aimed = aim.as_ref().map(|q| q as AimDensity);
         for way in self.ways(t, z.facing.is_some()) {
             let link = match z.facing {
                 // between two of several volumes, as it fits from either end (see
@@ -541,7 +600,7 @@ impl ParticleTracer<'_> {
                 continue;
             };
             let volume = t.flyer.volume;
-            let rho_camera = z.rho_towards(volume, link.direction);
+            let phase_camera = z.rho_towards(volume, link.direction);
             let cos_z = z.facing.map_or(1.0, |n| n.dot(link.direction));
             let joined = Joined {
                 light: &[],
@@ -551,12 +610,15 @@ impl ParticleTracer<'_> {
                 link: Segment::new(volume, &link.inside, link.outside, link.rays, true)
                     .with_cos(1.0, cos_z),
                 rho_light: f64::NAN,
-                rho_camera,
+                rho_camera: z.camera_rho(phase_camera, link.direction, aimed),
+                leave_light: DVec3::NAN,
+                phase_camera,
+                aimed,
             };
             let scatters = if z.facing.is_some() {
                 std::f64::consts::FRAC_1_PI
             } else {
-                rho_camera
+                phase_camera
             };
             let radiance = joined.weight() * z.beta * scatters * link.radiance;
             let added = self.record_sample(t, pixel, radiance, z.opl + link.delay, out);
@@ -575,6 +637,8 @@ impl ParticleTracer<'_> {
         out: &mut [C64],
     ) {
         let y = ys[ys.len() - 1];
+        let aim = self.aimed(t);
+        let aimed = aim.as_ref().map(|q| q as AimDensity);
         for way in self.ways(t, y.facing.is_some()) {
             let link = match y.facing {
                 None => self.camera_link(t, y.x, camera, way, rng, out),
@@ -610,6 +674,9 @@ impl ParticleTracer<'_> {
                     .with_forced(forced),
                 rho_light,
                 rho_camera: f64::NAN,
+                leave_light: link.direction,
+                phase_camera: f64::NAN,
+                aimed,
             };
             let scale = joined.weight() * y.beta * rho_light;
             if let Some(added) = self.record_link(t, &link, scale, y.opl, out) {
@@ -630,13 +697,15 @@ impl ParticleTracer<'_> {
         out: &mut [C64],
     ) {
         let (y, z) = (ys[ys.len() - 1], zs[zs.len() - 1]);
+        let aim = self.aimed(t);
+        let aimed = aim.as_ref().map(|q| q as AimDensity);
         for way in self.ways(t, y.facing.is_some() || z.facing.is_some()) {
             let Some(j) = self.joint(t, &y, &z, way, rng, out) else {
                 continue;
             };
             let volume = t.flyer.volume;
             let rho_light = y.rho_towards(volume, j.leave_y);
-            let rho_camera = z.rho_towards(volume, j.leave_z);
+            let phase_camera = z.rho_towards(volume, j.leave_z);
             let joined = Joined {
                 light: ys,
                 camera: zs,
@@ -644,12 +713,15 @@ impl ParticleTracer<'_> {
                 camera_pdf: pixel.pdf,
                 link: j.segment,
                 rho_light,
-                rho_camera,
+                rho_camera: z.camera_rho(phase_camera, j.leave_z, aimed),
+                leave_light: j.leave_y,
+                phase_camera,
+                aimed,
             };
             let scatters = if z.facing.is_some() {
                 std::f64::consts::FRAC_1_PI
             } else {
-                rho_camera
+                phase_camera
             };
             let radiance = joined.weight() * z.beta * scatters * y.beta * rho_light * j.carried;
             let added = self.record_sample(t, pixel, radiance, y.opl + j.delay + z.opl, out);
@@ -946,7 +1018,9 @@ impl ParticleTracer<'_> {
                             vertices.push(Vertex {
                                 x: at,
                                 arrive: d,
+                                leave: DVec3::NAN,
                                 rho: f64::NAN,
+                                phase: f64::NAN,
                                 beta,
                                 opl,
                                 segment: segment.with_cos(cos_start, -facing.dot(d)),
@@ -969,7 +1043,9 @@ impl ParticleTracer<'_> {
                             );
                             cos_start = mu;
                             if let Some(last) = vertices.last_mut() {
+                                last.leave = next;
                                 last.rho = lambert(facing, next);
+                                last.phase = last.rho;
                                 leg = Leg::Outside {
                                     x: last.x,
                                     d: next,
@@ -1050,7 +1126,9 @@ impl ParticleTracer<'_> {
                     vertices.push(Vertex {
                         x: hit.x,
                         arrive: u,
+                        leave: DVec3::NAN,
                         rho: f64::NAN,
+                        phase: f64::NAN,
                         beta,
                         opl,
                         segment: segment.with_cos(cos_start, 1.0),
@@ -1067,10 +1145,29 @@ impl ParticleTracer<'_> {
                     if !roulette(&mut beta, rng) || vertices.len() >= MAX_EVENTS {
                         break;
                     }
-                    let next = t.scatter(hit.x, u, rng);
-                    let rho = volume.scattering_at(hit.x).eval(u.dot(next.v.normalize()));
+                    // a camera subpath aiming at the beam's tube draws half its directions
+                    // aimed at it, its weight divided by the mixture's density over the phase
+                    // function's
+                    let scattering = volume.scattering_at(hit.x);
+                    let aim = (self.tube.as_ref())
+                        .filter(|tube| tube.aims() && !start.photon)
+                        .map(|tube| (tube, (hit.x, volume.bend(hit.x))));
+                    let next = match aim {
+                        Some((tube, at)) if uniform(rng) >= PHASE_SHARE => Ray {
+                            x: hit.x,
+                            v: tube.aim(scattering, at, u, rng) * t.flyer.n(hit.x),
+                        },
+                        _ => t.scatter(hit.x, u, rng),
+                    };
+                    let leave = next.v.normalize();
+                    let phase = scattering.eval(u.dot(leave));
+                    let rho = camera_density(
+                        phase,
+                        aim.map(|(tube, at)| tube.aim_density(scattering, at, u, leave)),
+                    );
+                    beta *= if rho > 0.0 { phase / rho } else { 0.0 };
                     if let Some(last) = vertices.last_mut() {
-                        last.rho = rho;
+                        (last.leave, last.rho, last.phase) = (leave, rho, phase);
                     }
                     leg = Leg::Inside(next);
                 }
@@ -1167,7 +1264,9 @@ mod tests {
         let vertex = |segment: Segment, rho: f64| Vertex {
             x: DVec3::ZERO,
             arrive: DVec3::Z,
+            leave: DVec3::Z,
             rho,
+            phase: rho,
             beta: 1.0,
             opl: 0.0,
             segment,
@@ -1227,6 +1326,9 @@ mod tests {
                     link,
                     rho_light,
                     rho_camera,
+                    leave_light: DVec3::Z,
+                    phase_camera: rho_camera,
+                    aimed: None,
                 };
                 assert!(joined.available(s));
                 let w = joined.weight();
@@ -1250,7 +1352,9 @@ mod tests {
     /// neighbours), whose densities of leaving differ by direction (`cos θ / π`) and which take
     /// `|cos θ|` per unit area: every split of the path must see the same densities, the
     /// camera's subpath reversed; and some flights between events inside drawn, from the
-    /// camera's side, from a beam's tube (a factor on the density from that side).
+    /// camera's side, from a beam's tube (a factor on the density from that side), and on half
+    /// the paths the camera's directions from events inside partly aimed (a density of its
+    /// own, different each way).
     #[test]
     fn weights_sum_to_one_with_surface_events() {
         let mut rng = stream_rng(11, 0);
@@ -1300,6 +1404,16 @@ mod tests {
                 Some(n) => lambert(n, dir(i, j)),
                 None => hg(dir(h, i).dot(dir(i, j))),
             };
+            // the aimed draws' density: any that differs by place and direction
+            let aim = |x: DVec3, arrive: DVec3, d: DVec3| {
+                0.05 + (x.x + 2.5) * (1.0 + 0.9 * d.z) * (1.2 + arrive.dot(d))
+            };
+            let aimed = (case % 2 == 1).then_some(&aim as AimDensity);
+            // the camera's density of leaving v_i towards v_j having arrived from v_h
+            let camera_pdf = |h: usize, i: usize, j: usize| match facing[i] {
+                Some(_) => pdf(h, i, j),
+                None => camera_density(pdf(h, i, j), aimed.map(|q| q(v[i], dir(h, i), dir(i, j)))),
+            };
             // the segment traced from v_i to v_j, path segment `c`
             let segment = |i: usize, j: usize, c: usize| {
                 let l = (v[j] - v[i]).length();
@@ -1315,7 +1429,13 @@ mod tests {
             let vertex = |i: usize, from: usize, to: usize, last: bool, c: usize| Vertex {
                 x: v[i],
                 arrive: dir(from, i),
-                rho: if last { f64::NAN } else { pdf(from, i, to) },
+                leave: if last { DVec3::NAN } else { dir(i, to) },
+                rho: match (last, to < i) {
+                    (true, _) => f64::NAN,
+                    (false, true) => camera_pdf(from, i, to),
+                    (false, false) => pdf(from, i, to),
+                },
+                phase: if last { f64::NAN } else { pdf(from, i, to) },
                 beta: 1.0,
                 opl: 0.0,
                 segment: segment(from, i, c),
@@ -1346,10 +1466,17 @@ mod tests {
                         f64::NAN
                     },
                     rho_camera: if s < k {
+                        camera_pdf(s + 2, s + 1, s)
+                    } else {
+                        f64::NAN
+                    },
+                    leave_light: dir(s, s + 1),
+                    phase_camera: if s < k {
                         pdf(s + 2, s + 1, s)
                     } else {
                         f64::NAN
                     },
+                    aimed,
                 };
                 let w = joined.weight();
                 assert!(

@@ -1271,6 +1271,13 @@ impl<'s> ParticleTracer<'s> {
         self
     }
 
+    /// The same tracer with bidirectional tracing's camera subpaths scattering by their phase
+    /// function alone, never aiming at a beam's tube (to measure what aiming saves).
+    pub fn without_aiming(mut self) -> Self {
+        self.tube = self.tube.map(BeamTube::without_aiming);
+        self
+    }
+
     /// Trace one photon, adding its contributions to `out`.
     fn photon(&self, t: &Tools, rng: &mut Rng, out: &mut [C64]) {
         let (x, d) =

@@ -149,6 +149,13 @@ impl Volume {
         part.map_or(&self.scattering, |k| &self.parts[k].scattering)
     }
 
+    /// How rays bend at `x` (inside): `∇n / n`, the curvature of a ray running across the
+    /// gradient (zero in a constant index).
+    pub fn bend(&self, x: DVec3) -> DVec3 {
+        let (n, grad) = self.field.value_grad(x);
+        grad / n
+    }
+
     /// Extinction at density 1 at `x` (inside).
     #[inline]
     pub fn sigma_t_at(&self, x: DVec3) -> f64 {
