@@ -7,23 +7,22 @@
 //! Fresnel splits, phase-function sampling and diffuse surfaces of the other two tracers (under a
 //! thin collimated beam, a camera subpath's flights from its events draw half their collisions in
 //! the beam's tube, and in an optically thin volume its first leg in half along the leg and half
-//! its scattering directions aimed at the tube: see `beam_tube`). A path of `k` scattering events `v_1 … v_k` (inside the
-//! volume or on a surface) can then be made `k + 1` ways: `s` events from the light and `t = k − s`
-//! from the camera, joined by a connection: the light to a camera event (`s = 0`, path tracing's
-//! next event), a light event to the camera (`t = 0`, particle tracing's), or a light event to a
-//! camera event (the light event seen as a point source of intensity `w ρ`, or `w cos θ / π` on a
-//! surface, the camera event as a point sensor). Between two events inside the volume the
-//! connection runs along curved rays (see [`super::connect`]), reflected inside the surface up to
-//! `render.reflections` times (between two events in one of several volumes, also out of it and
-//! back in, having reflected inside another or, in a shape that is not convex, unreflected and
-//! across other stretches of it); between an event inside and one on a surface it
-//! leaves the volume through its surface, refracted once; between two surfaces it is straight,
-//! past the volume only where it is index-matched, runs across the volume, refracted in and
-//! out, or reflects off its outside. Leaving or across, it also crosses every part of a shape
-//! that is not convex it meets again on the way (refracted in and out of each). Unscattered
-//! light from a light inside the volume is connected to the cameras directly (the one way to
-//! make it). Flux sensors, screens,
-//! fluence probes and the light reaching each surface are estimated by the light subpaths
+//! its scattering directions aimed at the tube: see `beam_tube`). A path of `k` scattering events
+//! `v_1 … v_k` (inside the volume or on a surface) can then be made `k + 1` ways: `s` events from
+//! the light and `t = k − s` from the camera, joined by a connection: the light to a camera event
+//! (`s = 0`, path tracing's next event), a light event to the camera (`t = 0`, particle tracing's),
+//! or a light event to a camera event (the light event seen as a point source of intensity `w ρ`,
+//! or `w cos θ / π` on a surface, the camera event as a point sensor). Between two events inside
+//! the volume the connection runs along curved rays (see [`super::connect`]), reflected inside the
+//! surface up to `render.reflections` times (between two events in one of several volumes, also out
+//! of it and back in, having reflected inside another or, in a shape that is not convex,
+//! unreflected and across other stretches of it); between an event inside and one on a surface it
+//! leaves the volume through its surface, refracted once; between two surfaces it is straight, past
+//! the volume only where it is index-matched, runs across the volume, refracted in and out, or
+//! reflects off its outside. Leaving or across, it also crosses every part of a shape that is not
+//! convex it meets again on the way (refracted in and out of each). Unscattered light from a light
+//! inside the volume is connected to the cameras directly (the one way to make it). Flux sensors,
+//! screens, fluence probes and the light reaching each surface are estimated by the light subpaths
 //! alone, as in particle tracing: the sensor planes they cross, their events connected to the
 //! probes, the surfaces they meet.
 //!
