@@ -27,7 +27,7 @@
 //! a point of the tube drawn by the phase function towards each slice of it times the solid
 //! angle the slice subtends (a product of the two, slice by slice), the slices moved against
 //! the bend of the rays in a graded index so that the curved ray reaches them
-//! ([`BeamTube::aim`]). The weight divides by the mixture's density over the phase function's,
+//! ([`BeamTube::aiming`]). The weight divides by the mixture's density over the phase function's,
 //! and the balance heuristic's densities of a direction from the camera's side take it, at a
 //! light event as at a camera event ([`BeamTube::aim_density`]).
 
@@ -63,7 +63,7 @@ const THIN_VOLUME_DEPTH: f64 = 1.0;
 const MAX_PIECES: usize = 64;
 
 /// The share of a camera event's scattering directions drawn from its phase function where
-/// the camera subpaths aim at the tube; the rest are aimed at it ([`BeamTube::aim`]).
+/// the camera subpaths aim at the tube; the rest are aimed at it ([`BeamTube::aiming`]).
 pub(super) const PHASE_SHARE: f64 = 0.5;
 
 /// How many slices of about equal length the tube is cut into for aiming at it (a piece of the
@@ -80,6 +80,57 @@ struct Slice {
     start: DVec3,
     axis: DVec3,
     length: f64,
+}
+
+/// The tube's slices as aimed at from one camera event, with their weights
+/// ([`BeamTube::aiming`]): the aimed draw ([`Self::draw`]) and its density ([`Self::density`]).
+pub(super) struct Aiming {
+    x: DVec3,
+    radius: f64,
+    slices: [Slice; MAX_SLICES],
+    weights: [f64; MAX_SLICES],
+    count: usize,
+    total: f64,
+}
+
+impl Aiming {
+    /// A direction aimed at the tube: a slice drawn by its weight (the phase function times its
+    /// solid angle, a discrete product of the two), a point drawn evenly in its cylinder, the
+    /// unit direction to it (`fallback` should that be the event itself).
+    pub(super) fn draw(&self, fallback: DVec3, rng: &mut Rng) -> DVec3 {
+        let mut pick = uniform(rng) * self.total;
+        let mut i = 0;
+        while i + 1 < self.count && pick >= self.weights[i] {
+            pick -= self.weights[i];
+            i += 1;
+        }
+        let slice = self.slices[i];
+        let (e1, e2) = crate::math::orthonormal_basis(slice.axis);
+        let (r, phi) = (self.radius * uniform(rng).sqrt(), 2.0 * PI * uniform(rng));
+        let z = slice.start
+            + slice.axis * (slice.length * uniform(rng))
+            + (e1 * phi.cos() + e2 * phi.sin()) * r;
+        (z - self.x).try_normalize().unwrap_or(fallback)
+    }
+
+    /// The density per solid angle of [`Self::draw`] drawing unit `d`: the points it aims at
+    /// have the density `P_i / V_i` in slice `i` (its chance over its volume), so the
+    /// direction's is `Σ_i P_i / V_i ∫ t² dt` over the stretch of the ray `x + t d`, `t ≥ 0`,
+    /// inside that slice's cylinder.
+    pub(super) fn density(&self, d: DVec3) -> f64 {
+        let area = PI * self.radius * self.radius;
+        let mut sum = 0.0;
+        for (slice, w) in self.slices.iter().zip(&self.weights).take(self.count) {
+            let end = slice.start + slice.axis * slice.length;
+            if let Some((t0, t1)) = cylinder(slice.start, end, self.radius, self.x, d) {
+                let t0 = t0.max(0.0);
+                if t0 < t1 {
+                    sum += w * (t1.powi(3) - t0.powi(3)) / (3.0 * slice.length * area);
+                }
+            }
+        }
+        sum / self.total
+    }
 }
 
 /// Where a flight's forced draw is uniform: on the first stretch of its ray through the tube
@@ -187,35 +238,36 @@ impl BeamTube {
         }
     }
 
-    /// Slice `i` as aimed at from `x`, where rays bend by `bend` (`∇n / n`, the curvature of a
-    /// ray across the gradient): moved by `−bend r² / 2`, `r` the distance to its middle, so
-    /// that a ray aimed straight at the moved slice reaches the slice itself (to first order
-    /// in the bend).
-    fn aimed_slice(&self, i: usize, x: DVec3, bend: DVec3) -> Slice {
-        let slice = self.slices[i];
-        let middle = slice.start + slice.axis * (0.5 * slice.length);
-        Slice {
-            start: slice.start - bend * (0.5 * (middle - x).length_squared()),
-            ..slice
-        }
-    }
-
-    /// Each slice's weight for aiming from `x` (rays bending by `bend`), where the camera
-    /// subpath arrived along unit `arrive`: the phase function towards the aimed slice's middle
-    /// times the solid angle it subtends there (its side and end seen from `x`, at most 2π;
-    /// the phase function kept above zero, so that every slice can be drawn); their sum.
-    fn slice_weights(
+    /// The slices as aimed at from `x`, where rays bend by `bend` (`∇n / n`, the curvature of a
+    /// ray across the gradient) and the camera subpath arrived along unit `arrive`. Each slice
+    /// is moved by `−bend r² / 2`, `r` the distance to its middle, so that a ray aimed straight
+    /// at the moved slice reaches the slice itself (to first order in the bend); its weight is
+    /// the phase function towards the moved slice's middle times the solid angle it subtends
+    /// there (its side and end seen from `x`, at most 2π; the phase function kept above zero,
+    /// so that every slice can be drawn).
+    pub(super) fn aiming(
         &self,
         scattering: &Scattering,
         (x, bend): (DVec3, DVec3),
         arrive: DVec3,
-        weights: &mut [f64; MAX_SLICES],
-    ) -> f64 {
+    ) -> Aiming {
         let rho = self.radius;
-        let mut total = 0.0;
-        for (i, w) in weights.iter_mut().enumerate().take(self.slices.len()) {
-            let slice = self.aimed_slice(i, x, bend);
-            let v = slice.start + slice.axis * (0.5 * slice.length) - x;
+        let mut aiming = Aiming {
+            x,
+            radius: rho,
+            slices: [Slice {
+                start: DVec3::ZERO,
+                axis: DVec3::Z,
+                length: 0.0,
+            }; MAX_SLICES],
+            weights: [0.0; MAX_SLICES],
+            count: self.slices.len(),
+            total: 0.0,
+        };
+        for (i, slice) in self.slices.iter().enumerate() {
+            let middle = slice.start + slice.axis * (0.5 * slice.length);
+            let shift = bend * (0.5 * (middle - x).length_squared());
+            let v = middle - shift - x;
             let r2 = v.length_squared();
             let u = v / r2.sqrt().max(f64::MIN_POSITIVE);
             let (sin, cos) = (u.cross(slice.axis).length(), u.dot(slice.axis).abs());
@@ -224,45 +276,18 @@ impl BeamTube {
             } else {
                 ((2.0 * rho * slice.length * sin + PI * rho * rho * cos) / r2).min(2.0 * PI)
             };
-            *w = scattering.eval(arrive.dot(u)).max(f64::MIN_POSITIVE) * solid;
-            total += *w;
+            aiming.slices[i] = Slice {
+                start: slice.start - shift,
+                ..*slice
+            };
+            aiming.weights[i] = scattering.eval(arrive.dot(u)).max(f64::MIN_POSITIVE) * solid;
+            aiming.total += aiming.weights[i];
         }
-        total
+        aiming
     }
 
-    /// A direction from `x` aimed at the tube, where rays bend by `bend` (`∇n / n` there) and
-    /// the camera subpath arrived along unit `arrive`: a slice drawn by its weight (the phase
-    /// function times its solid angle, a discrete product of the two), a point drawn evenly in
-    /// its cylinder as aimed at ([`Self::aimed_slice`]), the unit direction to it. Its density
-    /// per solid angle is [`Self::aim_density`].
-    pub(super) fn aim(
-        &self,
-        scattering: &Scattering,
-        (x, bend): (DVec3, DVec3),
-        arrive: DVec3,
-        rng: &mut Rng,
-    ) -> DVec3 {
-        let mut weights = [0.0; MAX_SLICES];
-        let total = self.slice_weights(scattering, (x, bend), arrive, &mut weights);
-        let mut pick = uniform(rng) * total;
-        let mut i = 0;
-        while i + 1 < self.slices.len() && pick >= weights[i] {
-            pick -= weights[i];
-            i += 1;
-        }
-        let slice = self.aimed_slice(i, x, bend);
-        let (e1, e2) = crate::math::orthonormal_basis(slice.axis);
-        let (r, phi) = (self.radius * uniform(rng).sqrt(), 2.0 * PI * uniform(rng));
-        let z = slice.start
-            + slice.axis * (slice.length * uniform(rng))
-            + (e1 * phi.cos() + e2 * phi.sin()) * r;
-        (z - x).try_normalize().unwrap_or(arrive)
-    }
-
-    /// The density per solid angle of [`Self::aim`] drawing unit `d` from `x` (rays bending by
-    /// `bend`, arrived along `arrive`): the points it aims at have the density `P_i / V_i` in
-    /// aimed slice `i` (its chance over its volume), so the direction's is `Σ_i P_i / V_i ∫ t²
-    /// dt` over the stretch of the ray `x + t d`, `t ≥ 0`, inside that slice's cylinder.
+    /// [`Aiming::density`] of unit `d` from `x` ([`Self::aiming`]'s arguments), zero at once
+    /// where `d` misses the tube's box widened by the most any slice is moved.
     pub(super) fn aim_density(
         &self,
         scattering: &Scattering,
@@ -270,7 +295,6 @@ impl BeamTube {
         arrive: DVec3,
         d: DVec3,
     ) -> f64 {
-        // the tube's box widened by the most any slice is moved
         let reach = (x - self.lo)
             .abs()
             .max((x - self.hi).abs())
@@ -279,27 +303,7 @@ impl BeamTube {
         if !box_meets(self.lo - pad, self.hi + pad, x, d, f64::INFINITY) {
             return 0.0;
         }
-        let mut moments = [0.0; MAX_SLICES];
-        let mut met = false;
-        let area = PI * self.radius * self.radius;
-        for (i, m) in moments.iter_mut().enumerate().take(self.slices.len()) {
-            let slice = self.aimed_slice(i, x, bend);
-            let end = slice.start + slice.axis * slice.length;
-            if let Some((t0, t1)) = cylinder(slice.start, end, self.radius, x, d) {
-                let t0 = t0.max(0.0);
-                if t0 < t1 {
-                    *m = (t1.powi(3) - t0.powi(3)) / (3.0 * slice.length * area);
-                    met = true;
-                }
-            }
-        }
-        if !met {
-            return 0.0;
-        }
-        let mut weights = [0.0; MAX_SLICES];
-        let total = self.slice_weights(scattering, (x, bend), arrive, &mut weights);
-        let sum: f64 = weights.iter().zip(&moments).map(|(w, m)| w * m).sum();
-        sum / total
+        self.aiming(scattering, (x, bend), arrive).density(d)
     }
 
     /// Whether camera subpaths draw their first leg's collision along it ([`Forced::Leg`]).
@@ -799,7 +803,7 @@ mod tests {
             let m = 100_000;
             let mut counts = [0usize; 8];
             for _ in 0..m {
-                let d = tube.aim(&hg, (x, bend), arrive, &mut rng);
+                let d = tube.aiming(&hg, (x, bend), arrive).draw(arrive, &mut rng);
                 let q = tube.aim_density(&hg, (x, bend), arrive, d);
                 assert!(q > 0.0, "{x}: {d} aimed, density 0");
                 counts[octant(d)] += 1;

@@ -1148,22 +1148,19 @@ impl ParticleTracer<'_> {
                     // aimed at it, its weight divided by the mixture's density over the phase
                     // function's
                     let scattering = volume.scattering_at(hit.x);
-                    let aim = (self.tube.as_ref())
+                    let aiming = (self.tube.as_ref())
                         .filter(|tube| tube.aims() && !start.photon)
-                        .map(|tube| (tube, (hit.x, volume.bend(hit.x))));
-                    let next = match aim {
-                        Some((tube, at)) if uniform(rng) >= PHASE_SHARE => Ray {
+                        .map(|tube| tube.aiming(scattering, (hit.x, volume.bend(hit.x)), u));
+                    let next = match &aiming {
+                        Some(aiming) if uniform(rng) >= PHASE_SHARE => Ray {
                             x: hit.x,
-                            v: tube.aim(scattering, at, u, rng) * t.flyer.n(hit.x),
+                            v: aiming.draw(u, rng) * t.flyer.n(hit.x),
                         },
                         _ => t.scatter(hit.x, u, rng),
                     };
                     let leave = next.v.normalize();
                     let phase = scattering.eval(u.dot(leave));
-                    let rho = camera_density(
-                        phase,
-                        aim.map(|(tube, at)| tube.aim_density(scattering, at, u, leave)),
-                    );
+                    let rho = camera_density(phase, aiming.map(|a| a.density(leave)));
                     beta *= if rho > 0.0 { phase / rho } else { 0.0 };
                     if let Some(last) = vertices.last_mut() {
                         (last.leave, last.rho, last.phase) = (leave, rho, phase);
